@@ -1,0 +1,38 @@
+# Two entry points for a fresh machine that has only python3:
+#   make run   - create .venv, install imucald, run the main job
+#   make test  - create .venv, install imucald with its test extras, run the suite
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+TSTAMP := $(VENV)/.installed-test
+
+.PHONY: run test bench clean
+
+$(BIN)/python:
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 9))' || \
+	  { echo "imucald needs Python >= 3.9 (found $$($(PYTHON) --version 2>&1))"; exit 1; }
+	@$(PYTHON) -m venv $(VENV) || \
+	  { echo "could not create a venv: on Debian/Raspberry Pi OS run 'sudo apt install python3-venv' and retry"; rm -rf $(VENV); exit 1; }
+	@$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(STAMP): $(BIN)/python pyproject.toml
+	$(BIN)/python -m pip install --quiet -e .
+	@touch $@
+
+$(TSTAMP): $(BIN)/python pyproject.toml
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	@touch $@ $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/imucald demo
+
+# pytest exits 5 when it collected no test: that is a failure too (make stops on any non-zero exit).
+test: $(TSTAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(TSTAMP)
+	$(BIN)/python bench/speed.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,251 @@
+"""Static-pose extraction from sample streams, and the pose-average file format.
+
+The detector is a pure function over arrays (the daemon wraps the same
+statistics in a streaming shell):
+
+1. moving variance of each accelerometer axis (and gyro axis when present) over
+   a centred window (``window_s``, 1 s by default), summed over axes;
+2. the noise floor is learnt from the quietest windows: the ``floor_pct``-th
+   percentile of the windowed variance.  No dedicated initial still period is
+   needed; a recording that is still at least ``floor_pct`` % of the time is enough;
+3. still = variance below ``k`` x floor (accelerometer and gyro);
+4. runs of still samples at least ``min_still_s`` long, trimmed by ``trim_s``
+   at each edge, become poses.
+
+Each pose carries its mean, sample covariance, covariance of the mean, count,
+mean temperature and start/end time.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Union
+
+import numpy as np
+
+from ..errors import UserError
+from ..recording import Recording
+
+__all__ = ["PoseSet", "moving_variance", "detect_static", "poses_from_recording",
+           "read_poses", "write_poses", "POSES_MAGIC"]
+
+POSES_MAGIC = "# imucald poses v1"
+
+
+@dataclass
+class PoseSet:
+    """Averages of static intervals.  All arrays have N rows."""
+
+    acc: np.ndarray                              #: mean specific force, g (N, 3)
+    acc_cov: np.ndarray                          #: covariance of that mean, g^2 (N, 3, 3)
+    n: np.ndarray                                #: samples per pose (N,)
+    t0: np.ndarray                               #: start, s (N,)
+    t1: np.ndarray                               #: end, s (N,)
+    acc_sample_cov: Optional[np.ndarray] = None  #: within-pose sample covariance, g^2
+    gyro: Optional[np.ndarray] = None            #: mean rate, deg/s (N, 3)
+    gyro_cov: Optional[np.ndarray] = None        #: covariance of the mean, (deg/s)^2
+    mag: Optional[np.ndarray] = None             #: mean field, gauss (N, 3)
+    mag_cov: Optional[np.ndarray] = None
+    temp: Optional[np.ndarray] = None            #: mean temperature, degC (N,)
+    meta: Dict[str, str] = field(default_factory=dict)
+
+    def __len__(self):
+        return len(self.acc)
+
+    def subset(self, idx) -> "PoseSet":
+        f = lambda a: None if a is None else a[idx]
+        return PoseSet(self.acc[idx], self.acc_cov[idx], self.n[idx], self.t0[idx], self.t1[idx],
+                       f(self.acc_sample_cov), f(self.gyro), f(self.gyro_cov), f(self.mag),
+                       f(self.mag_cov), f(self.temp), dict(self.meta))
+
+
+def moving_variance(x: np.ndarray, w: int) -> np.ndarray:
+    """Centred moving variance over w samples of each column, via cumulative sums.
+
+    x (n, d) -> (n, d).  Edges use the window clipped to the data.
+    """
+    x = np.asarray(x, float)
+    n = len(x)
+    w = max(2, min(int(w), n))
+    x0 = x - x.mean(0)                       # improves the cumulative-sum conditioning
+    c1 = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x0, 0)])
+    c2 = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x0 * x0, 0)])
+    i = np.arange(n)
+    lo = np.clip(i - w // 2, 0, n)
+    hi = np.clip(lo + w, 0, n)
+    lo = np.clip(hi - w, 0, n)
+    cnt = (hi - lo)[:, None]
+    s1 = c1[hi] - c1[lo]
+    s2 = c2[hi] - c2[lo]
+    return np.maximum(s2 / cnt - (s1 / cnt) ** 2, 0.0) * cnt / np.maximum(cnt - 1, 1)
+
+
+def detect_static(t: np.ndarray, acc: np.ndarray, gyro: Optional[np.ndarray] = None,
+                  window_s: float = 1.0, k: float = 6.0, floor_pct: float = 5.0,
+                  min_still_s: float = 2.0, trim_s: float = 0.25,
+                  rate_hz: Optional[float] = None) -> List[slice]:
+    """Index slices of the still intervals (see module doc)."""
+    t = np.asarray(t, float)
+    n = len(t)
+    if n < 4:
+        return []
+    rate = rate_hz or 1.0 / max(np.median(np.diff(t)), 1e-9)
+    w = max(3, int(round(window_s * rate)))
+    va = moving_variance(acc, w).sum(1)
+    still = va <= k * _floor(va, floor_pct)
+    if gyro is not None:
+        vg = moving_variance(gyro, w).sum(1)
+        still &= vg <= k * _floor(vg, floor_pct)
+    # runs of True
+    d = np.diff(np.concatenate([[0], still.astype(np.int8), [0]]))
+    starts = np.flatnonzero(d == 1)
+    ends = np.flatnonzero(d == -1)
+    out = []
+    for s, e in zip(starts, ends):
+        ts, te = t[s] + trim_s, t[e - 1] - trim_s
+        if te - ts < min_still_s:
+            continue
+        i0 = int(np.searchsorted(t, ts, "left"))
+        i1 = int(np.searchsorted(t, te, "right"))
+        if i1 - i0 >= 3:
+            out.append(slice(i0, i1))
+    return out
+
+
+def _floor(v: np.ndarray, pct: float) -> float:
+    f = float(np.percentile(v, pct))
+    if f <= 0:  # quantised, noiseless data: fall back to the smallest positive variance
+        pos = v[v > 0]
+        f = float(pos.min()) if pos.size else 1e-30
+    return f
+
+
+def _mean_cov(x: np.ndarray):
+    m = x.mean(0)
+    d = x - m
+    c = d.T @ d / max(len(x) - 1, 1)
+    return m, c
+
+
+def poses_from_recording(rec: Recording, **kw) -> PoseSet:
+    """Detect still intervals in a recording and average each one."""
+    if rec.acc is None:
+        raise UserError("the recording has no accelerometer columns (ax, ay, az): "
+                        "poses are detected from the accelerometer")
+    sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz, **kw)
+    return poses_from_slices(rec, sl)
+
+
+def poses_from_slices(rec: Recording, slices: List[slice]) -> PoseSet:
+    N = len(slices)
+    acc = np.zeros((N, 3))
+    acov = np.zeros((N, 3, 3))
+    scov = np.zeros((N, 3, 3))
+    n = np.zeros(N, int)
+    t0 = np.zeros(N)
+    t1 = np.zeros(N)
+    gy = np.zeros((N, 3)) if rec.gyro is not None else None
+    gcov = np.zeros((N, 3, 3)) if rec.gyro is not None else None
+    mg = np.zeros((N, 3)) if rec.mag is not None else None
+    mcov = np.zeros((N, 3, 3)) if rec.mag is not None else None
+    tp = np.zeros(N) if rec.temp is not None else None
+    for i, s in enumerate(slices):
+        a = rec.acc[s]
+        n[i] = len(a)
+        acc[i], scov[i] = _mean_cov(a)
+        acov[i] = scov[i] / n[i]
+        t0[i], t1[i] = rec.t[s][0], rec.t[s][-1]
+        if gy is not None:
+            gy[i], c = _mean_cov(rec.gyro[s])
+            gcov[i] = c / n[i]
+        if mg is not None:
+            mg[i], c = _mean_cov(rec.mag[s])
+            mcov[i] = c / n[i]
+        if tp is not None:
+            tp[i] = rec.temp[s].mean()
+    return PoseSet(acc, acov, n, t0, t1, scov, gy, gcov, mg, mcov, tp, dict(rec.meta))
+
+
+# --- pose-average file ----------------------------------------------------------------
+
+_POSE_COLS = ["t0", "t1", "n", "ax", "ay", "az", "sax", "say", "saz"]
+
+
+def write_poses(ps: PoseSet, path: str) -> None:
+    """CSV: magic line, '# key: value' header, columns t0,t1,n,ax,ay,az,sax,say,saz
+    [,gx,gy,gz][,mx,my,mz][,temp]; s* are within-pose sample standard deviations (g)."""
+    from ..atomic import atomic_write_text
+    cols = list(_POSE_COLS)
+    sd = np.sqrt(np.einsum("nii->ni", ps.acc_sample_cov)) if ps.acc_sample_cov is not None \
+        else np.sqrt(np.einsum("nii->ni", ps.acc_cov) * ps.n[:, None])
+    parts = [ps.t0[:, None], ps.t1[:, None], ps.n[:, None], ps.acc, sd]
+    if ps.gyro is not None:
+        cols += ["gx", "gy", "gz"]
+        parts.append(ps.gyro)
+    if ps.mag is not None:
+        cols += ["mx", "my", "mz"]
+        parts.append(ps.mag)
+    if ps.temp is not None:
+        cols.append("temp")
+        parts.append(ps.temp[:, None])
+    data = np.hstack(parts)
+    lines = [POSES_MAGIC] + [f"# {k}: {v}" for k, v in ps.meta.items()] + [",".join(cols)]
+    lines += [",".join(f"{v:.9g}" for v in row) for row in data]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def read_poses(path: str) -> PoseSet:
+    """Read a pose file written by :func:`write_poses`.  Errors name file and line."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            lines = fh.read().splitlines()
+    except OSError as e:
+        raise UserError(f"{path}: cannot open: {e.strerror}") from None
+    if not lines or lines[0].strip() != POSES_MAGIC:
+        raise UserError(f"{path}:1: not an imucald pose file (expected {POSES_MAGIC!r})")
+    meta = {}
+    i = 1
+    while i < len(lines) and lines[i].startswith("#"):
+        body = lines[i][1:]
+        if ":" in body:
+            k, v = body.split(":", 1)
+            meta[k.strip()] = v.strip()
+        i += 1
+    if i >= len(lines):
+        raise UserError(f"{path}:{i + 1}: no column header")
+    cols = [c.strip() for c in lines[i].split(",")]
+    need = ["ax", "ay", "az"]
+    if not all(c in cols for c in need):
+        raise UserError(f"{path}:{i + 1}: the column header must include ax, ay, az")
+    rows = []
+    for j in range(i + 1, len(lines)):
+        s = lines[j].strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = s.split(",")
+        if len(parts) != len(cols):
+            raise UserError(f"{path}:{j + 1}: expected {len(cols)} values, found {len(parts)}")
+        try:
+            rows.append([float(p) for p in parts])
+        except ValueError:
+            raise UserError(f"{path}:{j + 1}: a value is not a number") from None
+    if not rows:
+        raise UserError(f"{path}: no poses")
+    d = np.array(rows)
+    c = {k: d[:, cols.index(k)] for k in cols}
+    N = len(d)
+    acc = np.column_stack([c["ax"], c["ay"], c["az"]])
+    n = c["n"].astype(int) if "n" in c else np.ones(N, int)
+    if all(k in c for k in ("sax", "say", "saz")):
+        scov = np.zeros((N, 3, 3))
+        for a, k in enumerate(("sax", "say", "saz")):
+            scov[:, a, a] = c[k] ** 2
+        acov = scov / np.maximum(n, 1)[:, None, None]
+    else:
+        scov = None
+        acov = np.full((N, 3, 3), np.nan)
+    g3 = lambda ks: np.column_stack([c[k] for k in ks]) if all(k in c for k in ks) else None
+    return PoseSet(acc, acov, n, c.get("t0", np.arange(N, dtype=float)),
+                   c.get("t1", np.arange(N, dtype=float)), scov,
+                   g3(["gx", "gy", "gz"]), None, g3(["mx", "my", "mz"]), None,
+                   c.get("temp"), meta)

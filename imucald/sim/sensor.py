@@ -1,0 +1,257 @@
+"""The sensor simulator: true error parameters, pose averages and raw sample streams.
+
+Error model (what the calibration must undo), body frame:
+
+* accelerometer: raw = (T K)^-1 f + b  (the inverse of paper 000's triangular9
+  correction), f the specific force in g;
+* gyro: raw = M w + b_g, M = diag(1 + scale error) + cross-axis terms, w in deg/s;
+* magnetometer: raw = W^-1 h + v, W symmetric (soft iron), v hard iron, h the
+  field in the body frame, gauss;
+
+followed by optional extra effects (a hook for the gap diagnosis), white noise
+at the chip's noise density over the bandwidth, ADC quantisation and range
+clipping.  Every function takes a seed or a numpy Generator.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from ..calib.models import Triangular9
+from ..recording import Recording
+from .poses import axis_angle, up_vectors
+from .specs import ACCEL, BOARDS, GYRO, MAG
+
+__all__ = ["Truth", "draw_truth", "pose_sigma", "simulate_pose_means", "Session",
+           "simulate_session", "temperature_profile"]
+
+RngLike = Union[int, None, np.random.Generator]
+_T9 = Triangular9()
+
+
+def _rng(rng: RngLike) -> np.random.Generator:
+    return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+
+
+def _clipped_normal(rng, tol, size=None):
+    tol = np.asarray(tol, float)
+    return np.clip(rng.normal(scale=tol / 2, size=size if size is not None else tol.shape), -tol, tol)
+
+
+@dataclass
+class Truth:
+    """The true errors of one simulated board."""
+
+    board: str
+    accel: np.ndarray                       #: triangular9 correction parameters (9,)
+    gyro_bias_dps: np.ndarray               #: (3,)
+    gyro_matrix: np.ndarray                 #: raw = M w + b_g  (3, 3)
+    mag_hard_iron_gauss: Optional[np.ndarray] = None   #: v (3,)
+    mag_soft_iron: Optional[np.ndarray] = None         #: W (3, 3), h = W (m - v)
+    field_gauss: float = 0.5                #: local field magnitude
+    dip_deg: float = 60.0                   #: inclination (field points down in the north)
+
+
+def draw_truth(board: str = "mpu6050", rng: RngLike = None) -> Truth:
+    """True errors drawn within the board's datasheet tolerances (N(0, tol/2), clipped)."""
+    if board not in BOARDS:
+        raise ValueError(f"unknown board {board!r}: allowed {', '.join(BOARDS)}")
+    rng = _rng(rng)
+    an, gn, mn = BOARDS[board]
+    a = ACCEL[an]
+    bias = _clipped_normal(rng, np.array(a.bias_tol_g))
+    scale_err = _clipped_normal(rng, np.full(3, a.scale_tol))
+    alpha = _clipped_normal(rng, np.full(3, a.cross_axis_tol))
+    theta = np.concatenate([alpha, 1.0 / (1.0 + scale_err), bias])
+    g = GYRO[gn]
+    gb = _clipped_normal(rng, np.full(3, g.bias_tol_dps))
+    M = np.diag(1.0 + _clipped_normal(rng, np.full(3, g.scale_tol)))
+    M += (1 - np.eye(3)) * _clipped_normal(rng, np.full((3, 3), g.cross_axis_tol))
+    truth = Truth(board, theta, gb, M)
+    if mn is not None:
+        m = MAG[mn]
+        truth.mag_hard_iron_gauss = rng.normal(scale=0.15, size=3)
+        Wp = np.diag(_clipped_normal(rng, np.full(3, m.scale_tol)))
+        off = _clipped_normal(rng, np.full(3, m.cross_axis_tol))
+        Wp[0, 1] = Wp[1, 0] = off[0]
+        Wp[0, 2] = Wp[2, 0] = off[1]
+        Wp[1, 2] = Wp[2, 1] = off[2]
+        truth.mag_soft_iron = np.eye(3) + Wp
+        truth.field_gauss = float(rng.uniform(0.25, 0.65))
+        truth.dip_deg = float(rng.uniform(-70, 70))
+    return truth
+
+
+def pose_sigma(noise_density: float, rate_hz: float, pose_s: float,
+               bandwidth_hz: Optional[float] = None) -> Tuple[float, float]:
+    """(per-sample sigma, pose-mean sigma) for white noise, in the density's unit.
+
+    sigma_sample = ND * sqrt(bandwidth) (bandwidth defaults to rate/2, i.e. samples
+    are independent), sigma_pose = sigma_sample / sqrt(rate * pose_s).
+    """
+    bw = rate_hz / 2.0 if bandwidth_hz is None else bandwidth_hz
+    s = noise_density * np.sqrt(bw)
+    return float(s), float(s / np.sqrt(rate_hz * pose_s))
+
+
+def simulate_pose_means(theta: np.ndarray, ups: np.ndarray, sigma_pose: float,
+                        rng: RngLike = None, model=_T9) -> Tuple[np.ndarray, np.ndarray]:
+    """Pose averages: raw means (N, 3) = model.inverse(theta, ups) + N(0, sigma_pose^2 I).
+
+    Returns (means, pose_cov) with pose_cov (N, 3, 3) the covariance of each mean.
+    """
+    rng = _rng(rng)
+    ups = np.asarray(ups, float)
+    raw = model.inverse(theta, ups) + rng.normal(scale=sigma_pose, size=ups.shape)
+    cov = np.broadcast_to(np.eye(3) * sigma_pose ** 2, (len(ups), 3, 3)).copy()
+    return raw, cov
+
+
+def temperature_profile(t: np.ndarray, kind: str = "warmup", t0_c: float = 22.0,
+                        dt_c: float = 6.0) -> np.ndarray:
+    """Die temperature, degC: 'warmup' (exponential, tau = span/3), 'ramp' (linear),
+    'heatcool' (up then down), or 'constant'."""
+    span = max(float(t[-1] - t[0]), 1e-9)
+    x = (t - t[0]) / span
+    if kind == "warmup":
+        return t0_c + dt_c * (1 - np.exp(-3 * x)) / (1 - np.exp(-3))
+    if kind == "ramp":
+        return t0_c + dt_c * x
+    if kind == "heatcool":
+        return t0_c + dt_c * (1 - np.abs(2 * x - 1))
+    if kind == "constant":
+        return np.full_like(t, t0_c, dtype=float)
+    raise ValueError(f"unknown temperature profile {kind!r}: allowed warmup, ramp, heatcool, constant")
+
+
+def _log_so3(R: np.ndarray) -> np.ndarray:
+    c = np.clip((np.trace(R) - 1) / 2, -1, 1)
+    ang = np.arccos(c)
+    if ang < 1e-12:
+        return np.zeros(3)
+    if np.pi - ang < 1e-6:
+        w, V = np.linalg.eigh((R + R.T) / 2)
+        ax = V[:, np.argmax(w)]
+        return ax * ang
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (2 * np.sin(ang))
+    return v * ang
+
+
+@dataclass
+class Session:
+    """A simulated session: the recording plus what produced it."""
+
+    recording: Recording
+    truth: Truth
+    hold: List[Tuple[float, float]]          #: (start, end) of each still interval, s
+    rotations: np.ndarray                    #: (N, 3, 3) pose orientations
+    specific_force_g: np.ndarray = field(repr=False, default=None)  #: true f, (n, 3)
+    rate_dps: np.ndarray = field(repr=False, default=None)          #: true w, (n, 3)
+
+
+#: An effect modifies raw sensor arrays in place before noise: f(sensor, raw, ctx).
+Effect = Callable[[str, np.ndarray, Dict[str, np.ndarray]], None]
+
+
+def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
+                     rate_hz: float = 100.0, hold_s: Union[float, Tuple[float, float]] = 10.0,
+                     move_s: Union[float, Tuple[float, float]] = 3.0, lead_s: float = 2.0,
+                     truth: Optional[Truth] = None, temp_kind: str = "warmup",
+                     temp0_c: float = 22.0, temp_rise_c: float = 6.0,
+                     effects: Sequence[Effect] = (), move_accel_g: float = 0.2,
+                     quantise: bool = True) -> Session:
+    """Raw sample stream for a board moved through ``rotations``.
+
+    The board rests ``lead_s`` in the first pose, then for each pose holds still
+    for ``hold_s`` (a number or a (lo, hi) range drawn uniformly) and moves to the
+    next in ``move_s``: a smooth (smoothstep) rotation about a fixed body axis,
+    with a hand-like linear acceleration bump of up to ``move_accel_g``.
+    """
+    rng = _rng(rng)
+    truth = truth or draw_truth(board, rng)
+    an, gn, mn = BOARDS[board]
+    aspec, gspec = ACCEL[an], GYRO[gn]
+    mspec = MAG[mn] if mn else None
+    dt = 1.0 / rate_hz
+    draw = lambda v: float(rng.uniform(*v)) if isinstance(v, tuple) else float(v)
+
+    Rs, ws, accs, holds = [], [], [], []
+    t_cursor = 0.0
+    N = len(rotations)
+    for i in range(N):
+        h = draw(hold_s) + (lead_s if i == 0 else 0.0)
+        n = max(1, int(round(h * rate_hz)))
+        Rs.append(np.broadcast_to(rotations[i], (n, 3, 3)))
+        ws.append(np.zeros((n, 3)))
+        accs.append(np.zeros((n, 3)))
+        holds.append((t_cursor, t_cursor + (n - 1) * dt))
+        t_cursor += n * dt
+        if i + 1 < N:
+            mt = draw(move_s)
+            m = max(2, int(round(mt * rate_hz)))
+            tau = (np.arange(m) + 0.5) / m
+            s = 3 * tau ** 2 - 2 * tau ** 3
+            sdot = 6 * tau * (1 - tau) / mt
+            rel = rotations[i].T @ rotations[i + 1]
+            rv = _log_so3(rel)
+            ang = np.linalg.norm(rv)
+            ax = rv / ang if ang > 0 else np.array([1.0, 0, 0])
+            Rm = np.array([rotations[i] @ axis_angle(ax, ang * sk) for sk in s])
+            Rs.append(Rm)
+            ws.append(np.degrees(rv)[None, :] * sdot[:, None])
+            d = rng.normal(size=3)
+            d /= np.linalg.norm(d)
+            amp = rng.uniform(0.3, 1.0) * move_accel_g
+            accs.append(amp * np.sin(2 * np.pi * tau)[:, None] * d[None, :])
+            t_cursor += m * dt
+    R = np.concatenate(Rs)
+    w_dps = np.concatenate(ws)
+    a_world = np.concatenate(accs)
+    n = len(R)
+    t = np.arange(n) * dt
+    f = np.einsum("nji,nj->ni", R, a_world + np.array([0.0, 0.0, 1.0]))  # R^T (a + up)
+    temp = temperature_profile(t, temp_kind, temp0_c, temp_rise_c)
+    ctx = {"t": t, "temp": temp, "f": f, "w": w_dps, "R": R}
+
+    acc = _T9.inverse(truth.accel, f)
+    gyro = w_dps @ truth.gyro_matrix.T + truth.gyro_bias_dps
+    mag = None
+    if mspec is not None:
+        dip = np.radians(truth.dip_deg)
+        B = truth.field_gauss * np.array([np.cos(dip), 0.0, -np.sin(dip)])
+        h = np.einsum("nji,j->ni", R, B)
+        mag = h @ np.linalg.inv(truth.mag_soft_iron).T + truth.mag_hard_iron_gauss
+        ctx["h"] = h
+    for eff in effects:
+        eff("accel", acc, ctx)
+        eff("gyro", gyro, ctx)
+        if mag is not None:
+            eff("mag", mag, ctx)
+
+    sa, _ = pose_sigma(aspec.noise_density_g_rthz, rate_hz, 1.0)
+    sg, _ = pose_sigma(gspec.noise_density_dps_rthz, rate_hz, 1.0)
+    acc = acc + rng.normal(scale=sa, size=acc.shape)
+    gyro = gyro + rng.normal(scale=sg, size=gyro.shape)
+    if mag is not None:
+        mag = mag + rng.normal(scale=mspec.noise_gauss, size=mag.shape)
+
+    def q(x, lsb, rng_):
+        if quantise:
+            x = np.round(x / lsb) * lsb
+        return np.clip(x, -rng_, rng_ - lsb)
+
+    acc = q(acc, aspec.lsb_g, aspec.range_g)
+    gyro = q(gyro, gspec.lsb_dps, gspec.range_dps)
+    if mag is not None:
+        mag = q(mag, mspec.lsb_gauss, mspec.range_gauss)
+    tl = aspec.temp_lsb_c or gspec.temp_lsb_c
+    if tl and quantise:
+        temp = np.round(temp / tl) * tl
+    meta = {"board": board, "rate_hz": f"{rate_hz:g}", "accel_range_g": f"{aspec.range_g:g}",
+            "gyro_range_dps": f"{gspec.range_dps:g}", "source": "imucald simulate"}
+    if mspec is not None:
+        meta["mag_range_gauss"] = f"{mspec.range_gauss:g}"
+    rec = Recording(t=t, acc=acc, gyro=gyro, mag=mag, temp=temp, meta=meta)
+    return Session(rec, truth, holds, np.asarray(rotations), f, w_dps)

@@ -250,7 +250,8 @@ def _ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.r
              pop: int = 200, nsub: int = 2, elite: int = 2, xfrac: float = 0.8,
              mig_frac: float = 0.2, mig_interval: int = 20, max_gen: int = 150,
              stall_gen: int = 50, tol: float = 1e-10, mut_scale: float = 1.0,
-             mut_shrink: float = 1.0) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+             mut_shrink: float = 1.0, progress: Optional[Callable[[int, np.ndarray], None]] = None
+             ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run ``runs`` independent GAs at once.  Returns best z (R, kf), best f (R,), generations (R,)."""
     kf = lo.size
     Ps = pop // nsub
@@ -286,6 +287,8 @@ def _ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.r
         best_f = np.where(upd, fb, best_f)
         best_z = np.where(upd[:, None], zb, best_z)
         hist[gen] = best_f
+        if progress is not None:
+            progress(gen, best_f)
         if gen >= stall_gen:
             old = hist[gen - stall_gen]
             rel = (old - best_f) / np.maximum(np.abs(best_f), 1e-300) / stall_gen
@@ -337,7 +340,8 @@ def _ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.r
 
 
 def ga_paper(prob: Problem, rng: RngLike = None, runs: int = 20, iterations: int = 3,
-             narrow=(5.0, 15.0), **ga_kw) -> OptimResult:
+             narrow=(5.0, 15.0), progress: Optional[Callable[[str], None]] = None,
+             **ga_kw) -> OptimResult:
     """Paper 000's full protocol: 20 averaged runs, 3 iterations with narrowed bounds."""
     rng = _rng(rng)
     prob.nfev = 0
@@ -352,6 +356,9 @@ def ga_paper(prob: Problem, rng: RngLike = None, runs: int = 20, iterations: int
         sd = z.std(0, ddof=1) if runs > 1 else np.zeros_like(mean)
         per_iter.append({"theta": prob.expand(mean), "run_std": sd.copy(),
                          "fitness": float(prob.fitness(mean)), "generations": g.tolist()})
+        if progress is not None:
+            progress(f"ga-paper iteration {it + 1}/{iterations}: {runs} runs, "
+                     f"fitness of the mean {per_iter[-1]['fitness']:.4g}")
         if it + 1 < iterations:
             k = narrow[min(it, len(narrow) - 1)]
             half = np.maximum(k * sd, 1e-12 * np.maximum(1.0, np.abs(mean)))
@@ -363,12 +370,13 @@ def ga_paper(prob: Problem, rng: RngLike = None, runs: int = 20, iterations: int
 
 
 def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
-       stall_gen: int = 20) -> OptimResult:
+       stall_gen: int = 20, progress: Optional[Callable[[int, np.ndarray], None]] = None
+       ) -> OptimResult:
     """The daemon's light GA (paper 000 operators, one run) polished by LM."""
     rng = _rng(rng)
     prob.nfev = 0
     z, f, g = _ga_core(prob, prob.lo, prob.hi, 1, rng, pop=pop, max_gen=max_gen,
-                       stall_gen=stall_gen, mig_interval=10)
+                       stall_gen=stall_gen, mig_interval=10, progress=progress)
     zp, fp, it = _lm_converge(prob, z[0])
     nfev = prob.nfev
     return OptimResult(prob.expand(zp), fp, int(g[0]) + it, "ga", nfev,

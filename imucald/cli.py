@@ -1,0 +1,272 @@
+"""imucald command line.
+
+User errors (bad files, bad options) print one line, ``imucald: error: ...``,
+and exit 2 with no traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import List, Optional
+
+import numpy as np
+
+from . import __version__
+from .errors import UserError
+
+SENSORS = ("accel", "gyro", "mag")
+METHODS = ("ga", "ga-paper", "hga", "lm")
+DEFAULT_MODEL = {"accel": "triangular9", "mag": "mag_sym", "gyro": "mean"}
+
+
+def _eprint(*a):
+    print(*a, file=sys.stderr, flush=True)
+
+
+# --- simulate ----------------------------------------------------------------------------
+
+def cmd_simulate(args) -> int:
+    from .recording import write_recording
+    from .sim.poses import euler_pose_set, random_pose_set
+    from .sim.sensor import simulate_session
+    rng = np.random.default_rng(args.seed)
+    if args.euler:
+        try:
+            nx, ny, nz = (int(v) for v in args.euler.split(","))
+        except ValueError:
+            raise UserError(f"--euler {args.euler!r}: expected three integers NX,NY,NZ") from None
+        R = euler_pose_set(nx, ny, nz, rng)
+    else:
+        if args.poses < 1:
+            raise UserError(f"--poses {args.poses}: at least 1")
+        R = random_pose_set(args.poses, rng)
+    s = simulate_session(args.board, R, rng, rate_hz=args.rate, hold_s=(args.hold * 0.8, args.hold * 1.2),
+                         move_s=(args.move * 0.7, args.move * 1.3), temp_kind=args.temp_profile,
+                         temp_rise_c=args.temp_rise)
+    s.recording.meta["seed"] = str(args.seed)
+    write_recording(s.recording, args.output)
+    if args.truth:
+        from .atomic import atomic_write_text
+        tr = s.truth
+        d = {"board": tr.board, "accel_triangular9": tr.accel.tolist(),
+             "gyro_bias_dps": tr.gyro_bias_dps.tolist(), "gyro_matrix": tr.gyro_matrix.tolist(),
+             "hold_s": [list(h) for h in s.hold]}
+        if tr.mag_soft_iron is not None:
+            d.update(mag_hard_iron_gauss=tr.mag_hard_iron_gauss.tolist(),
+                     mag_soft_iron=tr.mag_soft_iron.tolist(), field_gauss=tr.field_gauss,
+                     dip_deg=tr.dip_deg)
+        atomic_write_text(args.truth, json.dumps(d, indent=1) + "\n")
+    _eprint(f"imucald: wrote {args.output}: {args.board}, {len(R)} poses, "
+            f"{len(s.recording)} samples at {args.rate:g} Hz ({s.recording.t[-1]:.0f} s)")
+    return 0
+
+
+# --- calibrate ---------------------------------------------------------------------------
+
+def _fmt_vec(v, unit_scale=1.0, fmt="{:+.6f}"):
+    return "[" + ", ".join("   n/a   " if x is None else fmt.format(x * unit_scale) for x in v) + "]"
+
+
+def cmd_calibrate(args) -> int:
+    from .calib.fit import fit_gyro_bias, fit_norm, thin_directions
+    from .calib.inputs import load_input
+    from .calib.models import MODEL_NAMES
+    from .calib.poses import poses_from_recording
+    columns = args.columns.split(",") if args.columns else None
+    kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
+    sensor = args.sensor
+    model = args.model or DEFAULT_MODEL[sensor]
+    if sensor == "accel" and not (model in MODEL_NAMES and not model.startswith("mag_")):
+        raise UserError(f"--model {model!r} does not fit --sensor accel: allowed "
+                        + ", ".join(m for m in MODEL_NAMES if not m.startswith("mag_")))
+    if sensor == "mag" and not model.startswith("mag_"):
+        raise UserError(f"--model {model!r} does not fit --sensor mag: allowed mag_sym, mag_diag, mag_sphere")
+    if sensor == "gyro" and model not in ("mean", "eq6"):
+        raise UserError(f"--model {model!r} does not fit --sensor gyro: allowed mean, eq6")
+    rec = obj if kind == "recording" else None
+    poses = poses_from_recording(rec, window_s=args.window_s, k=args.threshold_k,
+                                 min_still_s=args.min_still_s) if rec is not None else obj
+    progress = None if args.json else _eprint
+    if sensor == "accel":
+        if len(poses) < 10:
+            raise UserError(f"{args.input}: only {len(poses)} still poses found; the 9-parameter "
+                            f"model needs at least 10 (about 25 recommended), well spread over the sphere")
+        if progress:
+            progress(f"imucald: {len(poses)} still poses; fitting {model} with {args.method}")
+        kw = {"progress": progress} if args.method == "ga-paper" and progress else {}
+        cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed, **kw)
+    elif sensor == "mag":
+        if rec is not None and rec.mag is not None:
+            idx = thin_directions(rec.mag, rng=args.seed)
+            pts = rec.mag[idx]
+            cov = None
+            if poses.mag_cov is not None and len(poses):
+                # per-sample noise from the still poses (covariance of the mean times n)
+                cov = np.median(poses.mag_cov * poses.n[:, None, None], axis=0)
+                cov = np.broadcast_to(cov, (len(pts), 3, 3))
+        elif poses.mag is not None:
+            pts, cov = poses.mag, poses.mag_cov
+        else:
+            raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
+        if progress:
+            progress(f"imucald: {len(pts)} magnetometer points (thinned over the sphere); "
+                     f"fitting {model} with {args.method}")
+        cal = fit_norm(pts, model, args.method, pose_cov=cov, rng=args.seed)
+    else:
+        if poses.gyro is None:
+            raise UserError(f"{args.input}: no gyro columns (gx, gy, gz)")
+        samples = None
+        if model == "eq6":
+            if rec is None:
+                raise UserError("--model eq6 needs the still samples: give a recording")
+            from .calib.poses import detect_static
+            sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+            samples = np.concatenate([rec.gyro[s] for s in sl])
+        cal = fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
+    out = cal.to_json()
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    unit = {"accel": ("mg", 1e3), "mag": ("mG", 1e3), "gyro": ("deg/s", 1.0)}[sensor]
+    print(f"{sensor} {cal.model} by {cal.method}: {cal.poses} poses, fitness {cal.fitness:.6g}")
+    for g, v in cal.params.items():
+        se = cal.stderr.get(g)
+        vv = v if isinstance(v, list) else [v]
+        ss = se if isinstance(se, list) else [se]
+        print(f"  {g:<18} {_fmt_vec(vv)}  +- {_fmt_vec(ss, fmt='{:.2e}')}")
+    if sensor != "gyro":
+        print(f"  residual |x|-target RMS: in-sample {cal.rms * unit[1]:.4f} {unit[0]}, "
+              f"held-out {cal.heldout_rms * unit[1]:.4f} {unit[0]}")
+        print(f"  noise per pose {cal.noise * unit[1]:.4f} {unit[0]} (from {cal.noise_source}); "
+              f"rank {cal.uncertainty.rank}/{int(get_free(cal))}, condition {cal.uncertainty.condition:.3g}")
+        if cal.uncertainty.unobservable:
+            print(f"  not determined by these poses: {', '.join(cal.uncertainty.unobservable)}")
+        elif len(cal.uncertainty.null_directions):
+            print(f"  {len(cal.uncertainty.null_directions)} parameter direction(s) not observable "
+                  f"by a norm fit (a rotation of the frame); errors are given in the minimum-norm gauge")
+    else:
+        print(f"  between-pose scatter RMS {cal.rms:.4f} deg/s")
+    return 0
+
+
+def get_free(cal) -> int:
+    from .calib.models import get_model
+    return int(get_model(cal.model).free_mask.sum())
+
+
+# --- demo (make run) ---------------------------------------------------------------------
+
+def cmd_demo(args) -> int:
+    """Simulate a handled MPU6050, find its poses, and show the GA converging."""
+    from .calib.fit import fit_norm
+    from .calib.models import Triangular9
+    from .calib.optim import Problem, ga
+    from .calib.poses import poses_from_recording
+    from .sim.poses import random_pose_set
+    from .sim.sensor import simulate_session
+    rng = np.random.default_rng(args.seed)
+    print(f"imucald {__version__} demo: no daemon yet, so this is a calibration on a simulated "
+          f"MPU6050 (seed {args.seed})")
+    R = random_pose_set(args.poses, rng)
+    s = simulate_session("mpu6050", R, rng, rate_hz=100, hold_s=(6, 10), move_s=(2, 4))
+    rec = s.recording
+    print(f"simulated {rec.t[-1]:.0f} s at 100 Hz: the board is placed in {args.poses} orientations "
+          f"with hand motion between them")
+    ps = poses_from_recording(rec)
+    print(f"still-pose detector found {len(ps)} poses (true: {args.poses})")
+    raw = ps.acc
+    print("genetic algorithm (population 100, paper 000's operators): best fitness by generation")
+    prob = Problem(Triangular9(), raw)
+
+    def show(gen, best):
+        if gen % 5 == 0:
+            f = float(best[0])
+            bar = "#" * max(1, min(60, int(round(-np.log10(max(f, 1e-30)) * 4))))
+            print(f"  gen {gen:3d}  fitness {f:10.3e}  {bar}", flush=True)
+    res = ga(prob, rng=rng, progress=show)
+    print(f"  LM polish -> fitness {res.fitness:.4e} "
+          f"({res.info['ga_generations']} GA generations, {res.info['lm_iterations']} LM iterations)")
+    cal = fit_norm(raw, "triangular9", "lm", pose_cov=ps.acc_cov)
+    tr = s.truth.accel
+    names = Triangular9().param_names
+    print(f"\n{'parameter':<10} {'true':>12} {'estimate':>12} {'error':>10} {'CRLB sd':>10} {'err/sd':>7}")
+    for i, n in enumerate(names):
+        e = cal.theta[i] - tr[i]
+        print(f"{n:<10} {tr[i]:12.6f} {cal.theta[i]:12.6f} {e:10.2e} {cal.crlb_std[i]:10.2e} "
+              f"{e / cal.crlb_std[i]:7.2f}")
+    un = np.linalg.norm(raw, axis=1) - 1
+    print(f"\n| |a| - 1 g | RMS over poses: raw {np.sqrt(np.mean(un ** 2)) * 1e3:.2f} mg -> calibrated "
+          f"{cal.rms * 1e3:.3f} mg in-sample, {cal.heldout_rms * 1e3:.3f} mg held-out "
+          f"(pose noise {cal.noise * 1e3:.3f} mg)")
+    return 0
+
+
+# --- main ------------------------------------------------------------------------------
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="imucald", description="Field calibration of MEMS IMUs.")
+    p.add_argument("--version", action="version", version=f"imucald {__version__}")
+    sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
+
+    s = sub.add_parser("simulate", help="write a simulated recording")
+    s.add_argument("-o", "--output", required=True, help="recording file to write")
+    s.add_argument("--board", default="mpu6050", choices=["mpu6050", "9dof", "mpu9250"])
+    s.add_argument("--poses", type=int, default=30, help="number of well-spread orientations")
+    s.add_argument("--euler", help="paper 000 pose set NX,NY,NZ instead of --poses")
+    s.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
+    s.add_argument("--hold", type=float, default=10.0, help="mean still time per pose, s")
+    s.add_argument("--move", type=float, default=3.0, help="mean move time between poses, s")
+    s.add_argument("--temp-profile", default="warmup", choices=["warmup", "ramp", "heatcool", "constant"])
+    s.add_argument("--temp-rise", type=float, default=6.0, help="temperature change, degC")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--truth", help="also write the true parameters as JSON here")
+    s.set_defaults(func=cmd_simulate)
+
+    c = sub.add_parser("calibrate", help="calibrate from a recording or pose file")
+    c.add_argument("input", help="recording, pose file, or raw table (with --columns)")
+    c.add_argument("--sensor", default="accel", choices=SENSORS)
+    c.add_argument("--method", default="ga", choices=METHODS)
+    c.add_argument("--model", help="accel: triangular9 (default), full12, cosine[-o|-s|-os|-om|-sm]; "
+                                   "mag: mag_sym (default), mag_diag, mag_sphere; gyro: mean, eq6")
+    c.add_argument("--json", action="store_true", help="print one JSON object")
+    c.add_argument("--seed", type=int, default=0, help="seed for the GA")
+    c.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az (- skips one)")
+    c.add_argument("--nominal-scale", type=float, default=1.0,
+                   help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384")
+    c.add_argument("--nominal-offset", type=float, default=0.0,
+                   help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit")
+    c.add_argument("--rate-hz", type=float, help="raw table without a t column: sample rate")
+    c.add_argument("--window-s", type=float, default=1.0, help="still detector window, s")
+    c.add_argument("--threshold-k", type=float, default=6.0,
+                   help="still when moving variance < k x noise floor")
+    c.add_argument("--min-still-s", type=float, default=2.0, help="shortest still interval, s")
+    c.set_defaults(func=cmd_calibrate)
+
+    d = sub.add_parser("demo", help="the calibration demo that `make run` shows")
+    d.add_argument("--seed", type=int, default=1)
+    d.add_argument("--poses", type=int, default=25)
+    d.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except UserError as e:
+        _eprint(f"imucald: error: {e}")
+        return e.exit_code
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

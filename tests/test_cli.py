@@ -1,0 +1,83 @@
+"""Command line: simulate -> calibrate, JSON schema, one-line user errors."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from imucald.cli import main
+
+
+def run(*args):
+    p = subprocess.run([sys.executable, "-m", "imucald.cli", *args], capture_output=True, text=True)
+    return p.returncode, p.stdout, p.stderr
+
+
+@pytest.fixture(scope="module")
+def sim9(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sim")
+    rec, truth = d / "r.csv", d / "truth.json"
+    assert main(["simulate", "-o", str(rec), "--board", "9dof", "--poses", "26", "--hold", "6",
+                 "--seed", "5", "--truth", str(truth)]) == 0
+    return rec, json.loads(truth.read_text())
+
+
+def test_calibrate_json_schema_and_values(sim9, capsys):
+    rec, truth = sim9
+    assert main(["calibrate", str(rec), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["sensor"] == "accel" and out["model"] == "triangular9" and out["method"] == "ga"
+    assert out["poses"] == 26
+    assert set(out["params"]) == {"bias_g", "scale", "alpha"}
+    assert set(out["stderr"]) == set(out["params"])
+    for k in ("bias_g", "scale", "alpha"):
+        assert len(out["params"][k]) == 3 and len(out["stderr"][k]) == 3
+    assert isinstance(out["fitness"], float) and isinstance(out["heldout_rms_g"], float)
+    # against the truth, in units of the reported standard errors
+    th = np.array(truth["accel_triangular9"])
+    est = np.array(out["params"]["alpha"] + out["params"]["scale"] + out["params"]["bias_g"])
+    se = np.array(out["stderr"]["alpha"] + out["stderr"]["scale"] + out["stderr"]["bias_g"])
+    assert np.all(np.abs(est - th) < 4 * se)
+
+
+def test_calibrate_mag_and_gyro(sim9, capsys):
+    rec, truth = sim9
+    assert main(["calibrate", str(rec), "--sensor", "mag", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["model"] == "mag_sym"
+    v = np.array(out["params"]["hard_iron_gauss"])
+    se = np.array(out["stderr"]["hard_iron_gauss"])
+    assert np.all(np.abs(v - truth["mag_hard_iron_gauss"]) < 4 * se + 1e-4)
+    W = np.array(truth["mag_soft_iron"])
+    F_true = truth["field_gauss"] / np.linalg.det(W) ** (1 / 3)   # field in the det(W) = 1 gauge
+    assert out["params"]["field_gauss"] == pytest.approx(F_true, abs=4 * out["stderr"]["field_gauss"] + 1e-4)
+    assert main(["calibrate", str(rec), "--sensor", "gyro", "--json"]) == 0
+    g = json.loads(capsys.readouterr().out)
+    assert np.all(np.abs(np.array(g["params"]["bias_dps"]) - truth["gyro_bias_dps"])
+                  < 4 * np.array(g["stderr"]["bias_dps"]) + 0.01)
+
+
+def test_text_output_mentions_residuals(sim9):
+    rc, out, err = run("calibrate", str(sim9[0]), "--method", "lm")
+    assert rc == 0
+    assert "held-out" in out and "bias_g" in out
+    assert "still poses" in err
+
+
+@pytest.mark.parametrize("args,msg", [
+    (["calibrate", "/nonexistent/file.csv"], "cannot open"),
+    (["calibrate", "{rec}", "--model", "mag_sym"], "does not fit --sensor accel"),
+    (["calibrate", "{table}"], "--columns"),
+    (["calibrate", "{table}", "--columns", "t,ax,ay,qq"], "unknown column 'qq'"),
+    (["calibrate", "{table}", "--columns", "t,ax,ay,az"], "only 0 still poses"),
+    (["simulate", "-o", "{out}", "--euler", "1,2"], "three integers"),
+])
+def test_user_errors_are_one_line_exit_2(sim9, tmp_path, args, msg):
+    table = tmp_path / "t.txt"
+    table.write_text("0 1 2 3\n0.01 1 2 3\n")
+    args = [a.format(rec=sim9[0], table=table, out=tmp_path / "o.csv") for a in args]
+    rc, out, err = run(*args)
+    assert rc == 2
+    assert msg in err
+    assert err.count("\n") == 1 and "Traceback" not in err

@@ -161,6 +161,14 @@ class NormModel:
         """
         return np.zeros((0, self.k))
 
+    def canonical(self, theta: np.ndarray) -> np.ndarray:
+        """The representative of theta's equivalence class under unobservable moves.
+
+        Identity for identifiable models.  Averaging solutions (paper 000's 20 runs)
+        is only meaningful after mapping them to one gauge.
+        """
+        return np.asarray(theta, float)
+
     def from_ellipsoid(self, center: np.ndarray, Q: np.ndarray) -> np.ndarray:
         """An initial guess from an algebraic ellipsoid fit (x-c)^T Q (x-c) = 1.
 
@@ -325,6 +333,21 @@ class Full12(NormModel):
                 d[k] = (dM[i, j] - T[i, j] * dS[j]) / S[j]
             out.append(d / np.linalg.norm(d))
         return np.array(out)
+
+    def canonical(self, theta):
+        """Gauge-fix to the triangular representative: the rotation R with R M upper
+        triangular (QR of M), so that m_yx = m_zx = m_zy = 0.  Same M^T M, same b."""
+        theta = np.asarray(theta, float)
+        flat = theta.reshape(-1, 12)
+        out = flat.copy()
+        for i, th in enumerate(flat):
+            M = self.matrix(th)
+            _, Rm = np.linalg.qr(M)
+            Rm = Rm * np.sign(np.diag(Rm))[:, None]     # positive diagonal
+            S = np.diag(Rm).copy()
+            out[i, 0:6] = [Rm[0, 1] / S[1], Rm[0, 2] / S[2], 0.0, Rm[1, 2] / S[2], 0.0, 0.0]
+            out[i, 6:9] = S
+        return out.reshape(theta.shape)
 
     def from_ellipsoid(self, center, Q):
         t9 = Triangular9().from_ellipsoid(center, Q)

@@ -352,6 +352,9 @@ def ga_paper(prob: Problem, rng: RngLike = None, runs: int = 20, iterations: int
     for it in range(iterations):
         z, f, g = _ga_core(prob, lo, hi, runs, rng, **ga_kw)
         gens += int(g.sum())
+        if type(prob.model).canonical is not NormModel.canonical:
+            # average in one gauge (full12's rotation freedom), inside the bounds
+            z = prob.clip(prob.reduce(prob.model.canonical(prob.expand(z))))
         mean = z.mean(0)
         sd = z.std(0, ddof=1) if runs > 1 else np.zeros_like(mean)
         per_iter.append({"theta": prob.expand(mean), "run_std": sd.copy(),
@@ -378,9 +381,16 @@ def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
     z, f, g = _ga_core(prob, prob.lo, prob.hi, 1, rng, pop=pop, max_gen=max_gen,
                        stall_gen=stall_gen, mig_interval=10, progress=progress)
     zp, fp, it = _lm_converge(prob, z[0])
-    nfev = prob.nfev
-    return OptimResult(prob.expand(zp), fp, int(g[0]) + it, "ga", nfev,
-                       {"ga_fitness": float(f[0]), "ga_generations": int(g[0]), "lm_iterations": it})
+    # the closed-form starts are polished too, so the GA can only add to what lm finds
+    ga_won = True
+    for s in _starts(prob):
+        zs, fs, its = _lm_converge(prob, s)
+        it += its
+        if fs < fp:
+            zp, fp, ga_won = zs, fs, False
+    return OptimResult(prob.expand(zp), fp, int(g[0]) + it, "ga", prob.nfev,
+                       {"ga_fitness": float(f[0]), "ga_generations": int(g[0]), "lm_iterations": it,
+                        "ga_start_won": ga_won})
 
 
 def hga(prob: Problem, rng: RngLike = None, pop: int = 300, max_gen: int = 200,

@@ -1,0 +1,49 @@
+"""Wall time of each optimiser on 25 poses (median of repeats), and fitness evaluations/s.
+
+Targets (issue 2, one core of this machine): ga-paper full protocol < 1 s, ga < 0.2 s,
+lm < 10 ms.  Usage: python bench/speed.py [--repeats N]
+"""
+import argparse
+import time
+
+from _common import SIGMA_POSE_G, median_time, np
+
+from imucald.calib.models import Triangular9
+from imucald.calib.optim import Problem, ga, ga_paper, hga, lm
+from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.sim.sensor import draw_truth, simulate_pose_means
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeats", type=int, default=7)
+    args = ap.parse_args()
+    rng = np.random.default_rng(2024)
+    m = Triangular9()
+    cases = []
+    for _ in range(args.repeats):
+        tr = draw_truth("mpu6050", rng).accel
+        ups = up_vectors(random_pose_set(25, rng))
+        cases.append(simulate_pose_means(tr, ups, SIGMA_POSE_G, rng)[0])
+    print(f"25 poses, triangular9, medians over {args.repeats} repeats (different data sets)")
+    print(f"{'method':<10} {'median s':>10} {'min s':>9} {'max s':>9} {'fitness evals':>14} {'evals/s':>12}")
+    for name, fn in (("ga-paper", ga_paper), ("hga", hga), ("ga", ga), ("lm", lm)):
+        ts, ev = [], []
+        for i, raw in enumerate(cases):
+            p = Problem(m, raw)
+            t = time.perf_counter()
+            fn(p, rng=i)
+            ts.append(time.perf_counter() - t)
+            ev.append(p.nfev)
+        ts = np.array(ts)
+        print(f"{name:<10} {np.median(ts):10.4f} {ts.min():9.4f} {ts.max():9.4f} "
+              f"{int(np.median(ev)):14d} {np.median(np.array(ev) / ts):12.3g}")
+    # raw population fitness throughput
+    pop = m.nominal + rng.normal(scale=0.01, size=(4000, 9))
+    dt, _ = median_time(lambda: m.fitness(pop, cases[0]), 50)
+    print(f"population fitness: 4000 individuals x 25 poses in {dt * 1e3:.3f} ms "
+          f"-> {4000 / dt:.3g} evaluations/s")
+
+
+if __name__ == "__main__":
+    main()

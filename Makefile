@@ -16,12 +16,15 @@ $(BIN)/python:
 	  { echo "could not create a venv: on Debian/Raspberry Pi OS run 'sudo apt install python3-venv' and retry"; rm -rf $(VENV); exit 1; }
 	@$(BIN)/python -m pip install --quiet --upgrade pip
 
-$(STAMP): $(BIN)/python pyproject.toml
-	$(BIN)/python -m pip install --quiet -e .
+SOURCES := pyproject.toml $(shell find imucald -name '*.py' 2>/dev/null)
+
+# A regular (not editable) install, redone whenever a source file changes.
+$(STAMP): $(BIN)/python $(SOURCES)
+	$(BIN)/python -m pip install --quiet .
 	@touch $@
 
-$(TSTAMP): $(BIN)/python pyproject.toml
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+$(TSTAMP): $(BIN)/python $(SOURCES)
+	$(BIN)/python -m pip install --quiet '.[test]'
 	@touch $@ $(STAMP)
 
 run: $(STAMP)

@@ -12,7 +12,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .metrics import rms
+from .metrics import path_error, rms
 from .models import MagModel, NormModel, get_model, gyro_bias_eq6_fitness, mag_report
 from .optim import OptimResult, Problem, _lm_converge, run_method, sphere_fit
 from .uncertainty import Uncertainty, crlb, residual_variance
@@ -62,6 +62,8 @@ class Calibration:
                 d["null_directions"] = np.round(self.uncertainty.null_directions, 6).tolist()
         d[f"noise_{unit}"] = float(self.noise)
         d["noise_source"] = self.noise_source
+        if "path_error_20s_std_m" in self.info:
+            d["path_error_20s_std_m"] = self.info["path_error_20s_std_m"]
         d["iterations"] = int(self.iterations)
         d["wall_s"] = round(float(self.wall_s), 4)
         return d
@@ -119,14 +121,29 @@ def _sandwich_std(model: NormModel, theta: np.ndarray, raw: np.ndarray, var: np.
     return sd
 
 
+def accel_bounds(model: NormModel, chip: Optional[str]) -> Tuple[np.ndarray, np.ndarray]:
+    """Initial search box from the chip's datasheet tolerances, made wide enough for
+    real parts: bias +-max(3 tol, 0.1 g), scale +-max(3 tol, 5 %), non-orthogonality
+    +-max(3 cross-axis, 0.05).  Unknown chips get the generic wide box
+    (+-0.25 g, +-15 %, +-0.08)."""
+    from ..sim.specs import ACCEL
+    spec = ACCEL.get(chip or "")
+    if spec is None:
+        return model.default_bounds()
+    return model.default_bounds(spec_bias=max(3 * max(spec.bias_tol_g), 0.1),
+                                spec_scale=max(3 * spec.scale_tol, 0.05),
+                                spec_alpha=max(3 * spec.cross_axis_tol, 0.05))
+
+
 def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
              pose_cov: Optional[np.ndarray] = None, target: float = 1.0, rng=None,
              bounds: Optional[Tuple[np.ndarray, np.ndarray]] = None, heldout: bool = True,
-             **method_kw) -> Calibration:
+             chip: Optional[str] = None, **method_kw) -> Calibration:
     """Fit a norm model to pose means raw (N, 3) and report it.
 
     pose_cov: covariance of each pose mean (N, 3, 3) from within-pose scatter, used
     for the CRLB; without it (or with NaNs) the residual variance is used.
+    chip: accelerometer chip name (mpu6050, mpu9250, adxl345) for the search bounds.
     """
     t_start = time.perf_counter()
     model = get_model(model) if isinstance(model, str) else model
@@ -142,6 +159,8 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
         lo, hi = bounds
     elif isinstance(model, MagModel):
         lo, hi = _mag_bounds(model, raw, target)
+    else:
+        lo, hi = (b[model.free_mask] for b in accel_bounds(model, chip))
     prob = Problem(model, raw, target, lo=lo, hi=hi)
     res: OptimResult = run_method(method, prob, rng=rng, **method_kw)
     theta = res.theta
@@ -159,6 +178,7 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
     stderr_flat = _sandwich_std(model, theta, raw, var, free, unc)
     ho = heldout_residuals(model, theta, raw, target, lo=prob.lo, hi=prob.hi) if heldout \
         else np.full(N, np.nan)
+    extra: Dict[str, object] = {}
     if isinstance(model, MagModel):
         params, stderr = mag_report(model, theta, unc.cov)
         scale = params["field_gauss"]           # residuals are on the unit sphere
@@ -168,10 +188,14 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
         stderr = {g: [None if not np.isfinite(stderr_flat[i]) else float(stderr_flat[i])
                       for i in idx] for g, idx in model.groups.items()}
         rr, hr, noise = rms(r), rms(ho), float(np.sqrt(np.median(var)))
+        # paper 000's equivalent-path error after 20 s, STD over poses (pose means held)
+        _, _, sd_raw = path_error([x[None] for x in raw], 10.0, 20.0)
+        _, _, sd_cal = path_error([x[None] for x in model.forward(theta, raw)], 10.0, 20.0)
+        extra["path_error_20s_std_m"] = {"raw": float(sd_raw[-1]), "calibrated": float(sd_cal[-1])}
     return Calibration(model.sensor, model.name, res.method, N, theta, params, stderr,
                        res.fitness, rr, hr, unc.std, unc, noise, source, res.iterations,
                        res.nfev, time.perf_counter() - t_start,
-                       {"optim": {k: v for k, v in res.info.items() if k != "iterations"}})
+                       {"optim": {k: v for k, v in res.info.items() if k != "iterations"}, **extra})
 
 
 def _mag_bounds(model: MagModel, raw: np.ndarray, target: float):

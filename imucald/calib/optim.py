@@ -107,7 +107,9 @@ class Problem:
 
 @dataclass
 class OptimResult:
-    """What every optimiser returns (free parameters expanded to the full vector)."""
+    """What every optimiser returns (free parameters expanded to the full vector).
+
+    """
 
     theta: np.ndarray
     fitness: float
@@ -115,6 +117,31 @@ class OptimResult:
     method: str
     nfev: int = 0
     info: Dict[str, object] = field(default_factory=dict)
+    #: per-parameter standard error from the fit's own residuals,
+    #: sqrt(diag(s^2 (J'J)^+)) with s^2 = fitness / (N - k_free); 0 for fixed
+    #: parameters, inf for parameters the poses carry no information on
+    stderr: Optional[np.ndarray] = None
+
+    def __post_init__(self):
+        self.theta = np.asarray(self.theta, float)
+
+
+def _result(prob: "Problem", z: np.ndarray, fitness: float, iterations: int, method: str,
+            info: Dict[str, object]) -> "OptimResult":
+    return OptimResult(prob.expand(z), float(fitness), int(iterations), method, prob.nfev, info,
+                       _stderr(prob, z, fitness))
+
+
+def _stderr(prob: "Problem", z: np.ndarray, fitness: float) -> np.ndarray:
+    _, J = prob.rj(z)
+    N, kf = J.shape
+    s2 = fitness / max(N - kf, 1)
+    JtJ = J.T @ J
+    sd = np.zeros(prob.model.k)
+    sd[prob.free] = np.sqrt(np.clip(np.diag(np.linalg.pinv(JtJ, rcond=1e-12, hermitian=True)), 0, None) * s2)
+    dead = np.linalg.norm(J, axis=0) <= 1e-12 * max(np.linalg.norm(J, axis=0).max(), 1e-300)
+    sd[np.flatnonzero(prob.free)[dead]] = np.inf
+    return sd
 
 
 # --- closed-form starting points --------------------------------------------------------
@@ -240,8 +267,7 @@ def lm(prob: Problem, z0: Optional[np.ndarray] = None, max_iter: int = 200,
         iters += it
         if best is None or f < best[1]:
             best = (z, f)
-    return OptimResult(prob.expand(best[0]), best[1], iters, "lm", prob.nfev,
-                       {"starts": len(starts)})
+    return _result(prob, best[0], best[1], iters, "lm", {"starts": len(starts)})
 
 
 # --- MATLAB-style GA (paper 000), vectorised over independent runs ----------------------
@@ -368,8 +394,7 @@ def ga_paper(prob: Problem, rng: RngLike = None, runs: int = 20, iterations: int
             lo = np.maximum(prob.lo, mean - half)
             hi = np.minimum(prob.hi, mean + half)
     fit = float(prob.fitness(mean))
-    return OptimResult(prob.expand(mean), fit, gens, "ga-paper", prob.nfev,
-                       {"iterations": per_iter, "runs": runs})
+    return _result(prob, mean, fit, gens, "ga-paper", {"iterations": per_iter, "runs": runs})
 
 
 def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
@@ -388,7 +413,7 @@ def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
         it += its
         if fs < fp:
             zp, fp, ga_won = zs, fs, False
-    return OptimResult(prob.expand(zp), fp, int(g[0]) + it, "ga", prob.nfev,
+    return _result(prob, zp, fp, int(g[0]) + it, "ga",
                        {"ga_fitness": float(f[0]), "ga_generations": int(g[0]), "lm_iterations": it,
                         "ga_start_won": ga_won})
 
@@ -441,8 +466,7 @@ def hga(prob: Problem, rng: RngLike = None, pop: int = 300, max_gen: int = 200,
             if (old - F[0]) / max(abs(F[0]), 1e-300) < tol:
                 break
     zp, fp, it = _lm_converge(prob, X[0])
-    return OptimResult(prob.expand(zp), fp, gen + 1 + it, "hga", prob.nfev,
-                       {"generations": gen + 1, "lm_iterations": it})
+    return _result(prob, zp, fp, gen + 1 + it, "hga", {"generations": gen + 1, "lm_iterations": it})
 
 
 METHODS: Dict[str, Callable[..., OptimResult]] = {

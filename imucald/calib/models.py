@@ -117,11 +117,18 @@ class NormModel:
         A, c = self.affine(theta)
         lead = A.shape[:-2]
         raw = np.asarray(raw, float)
-        # [A | c] (P*3, 4) @ [x, 1]^T (4, N): one BLAS call for the whole population
-        Ac = np.concatenate([A, c[..., None]], axis=-1).reshape(-1, 4)
+        # [A | c] rows grouped by output axis, (3*P, 4) @ [x, 1]^T (4, N): one BLAS call
+        # for the whole population, giving h as three contiguous (P, N) blocks
+        P = int(np.prod(lead)) if lead else 1
+        Ac = np.concatenate([A.reshape(P, 3, 3), c.reshape(P, 3, 1)], axis=-1)
+        Ac = Ac.transpose(1, 0, 2).reshape(3 * P, 4)
         xh = np.concatenate([raw, np.ones((len(raw), 1))], axis=1)
-        h = (Ac @ xh.T).reshape(-1, 3, len(raw))
-        n = np.sqrt(h[:, 0] ** 2 + h[:, 1] ** 2 + h[:, 2] ** 2)
+        h = (Ac @ xh.T).reshape(3, P, len(raw))
+        np.multiply(h, h, out=h)
+        n = h[0]
+        n += h[1]
+        n += h[2]
+        np.sqrt(n, out=n)
         return n.reshape(lead + (len(raw),))
 
     def residual(self, theta: np.ndarray, raw: np.ndarray, target: float = 1.0) -> np.ndarray:

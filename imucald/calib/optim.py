@@ -330,7 +330,7 @@ def _ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.r
         pidx = np.take_along_axis(order, rk, axis=1) + base
         par = Xf[pidx]                                      # (rows, n_par, kf)
         p1, p2, pm = par[:, :n_x], par[:, n_x:2 * n_x], par[:, 2 * n_x:]
-        xo = np.where(rng.random(p1.shape) < 0.5, p1, p2)  # scattered crossover
+        xo = np.where(rng.integers(0, 2, p1.shape, dtype=bool), p1, p2)  # scattered crossover
         sig = mut_scale * max(0.0, 1.0 - mut_shrink * gen / max_gen) * span
         mu = pm + rng.standard_normal(pm.shape) * sig
         bad = (mu < lo) | (mu > hi)

@@ -172,3 +172,14 @@ def test_full12_canonical_gauge_keeps_the_norms():
     assert np.allclose(m.norms(sols, x), m.norms(th, x), atol=1e-12)
     assert np.allclose(m.norms(m.canonical(sols).mean(0), x), m.norms(th, x), atol=1e-12)
     assert np.abs(m.norms(sols.mean(0), x) - m.norms(th, x)).max() > 1e-5
+
+
+@pytest.mark.parametrize("name", MODEL_NAMES)
+def test_affine_rows_fast_path_matches_affine(name):
+    rng = np.random.default_rng(10)
+    m = get_model(name)
+    P = np.array([_theta(m, rng) for _ in range(5)])
+    A, c = m.affine(P)
+    rows = m.affine_rows(P)
+    assert rows.shape == (3, 5, 4)
+    assert np.allclose(rows[..., :3].transpose(1, 0, 2), A) and np.allclose(rows[..., 3].T, c)

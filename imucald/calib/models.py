@@ -114,14 +114,12 @@ class NormModel:
         makes the GA's fitness cheap.
         """
         theta = np.asarray(theta, float)
-        A, c = self.affine(theta)
-        lead = A.shape[:-2]
+        lead = theta.shape[:-1]
         raw = np.asarray(raw, float)
         # [A | c] rows grouped by output axis, (3*P, 4) @ [x, 1]^T (4, N): one BLAS call
         # for the whole population, giving h as three contiguous (P, N) blocks
         P = int(np.prod(lead)) if lead else 1
-        Ac = np.concatenate([A.reshape(P, 3, 3), c.reshape(P, 3, 1)], axis=-1)
-        Ac = Ac.transpose(1, 0, 2).reshape(3 * P, 4)
+        Ac = self.affine_rows(theta.reshape(P, -1)).reshape(3 * P, 4)
         xh = np.concatenate([raw, np.ones((len(raw), 1))], axis=1)
         h = (Ac @ xh.T).reshape(3, P, len(raw))
         np.multiply(h, h, out=h)
@@ -130,6 +128,11 @@ class NormModel:
         n += h[2]
         np.sqrt(n, out=n)
         return n.reshape(lead + (len(raw),))
+
+    def affine_rows(self, theta: np.ndarray) -> np.ndarray:
+        """[A | c] for a population theta (P, k), laid out by output row: (3, P, 4)."""
+        A, c = self.affine(theta)
+        return np.concatenate([A, c[..., None]], axis=-1).transpose(1, 0, 2)
 
     def residual(self, theta: np.ndarray, raw: np.ndarray, target: float = 1.0) -> np.ndarray:
         """r = target - |h|, shape (..., N)."""
@@ -244,6 +247,24 @@ class Triangular9(NormModel):
         M = self.matrix(theta)
         b = theta[..., 6:9]
         return M, -np.einsum("...ij,...j->...i", M, b)
+
+    def affine_rows(self, theta):
+        # the GA's hot path: [T K | -T K b] built row by row, no (P, 3, 3) temporaries
+        a_yz, a_zy, a_zx, s0, s1, s2, b0, b1, b2 = theta.T
+        out = np.empty((3, theta.shape[0], 4))
+        m01, m02, m12 = a_yz * s1, a_zy * s2, a_zx * s2
+        out[0, :, 0] = s0
+        out[0, :, 1] = m01
+        out[0, :, 2] = m02
+        out[0, :, 3] = -(s0 * b0 + m01 * b1 + m02 * b2)
+        out[1, :, 0] = 0.0
+        out[1, :, 1] = s1
+        out[1, :, 2] = m12
+        out[1, :, 3] = -(s1 * b1 + m12 * b2)
+        out[2, :, 0:2] = 0.0
+        out[2, :, 2] = s2
+        out[2, :, 3] = -s2 * b2
+        return out
 
     def affine_jac(self, theta):
         theta = np.asarray(theta, float)

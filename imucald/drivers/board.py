@@ -1,0 +1,230 @@
+"""Board abstraction: whatever the chips, timestamped batches in physical units.
+
+A :class:`SampleBatch` holds n samples with a sequence number each; the daemon
+never sees a register.  Timestamps come from the sample index and the chip's
+configured period (not from Python wall time), anchored at start-up; when
+samples are lost (FIFO overflow, a device reset, a bus fault) the sequence
+number jumps by the estimated number lost and the gap is reported in the batch,
+never silently.
+
+Boards recover by themselves from transient bus faults and from a chip that
+reset under them (they re-initialise it); identification and configuration
+errors at start-up are raised as one-line :class:`~imucald.errors.UserError`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from .adxl345 import ADXL345
+from .ak8963 import AK8963
+from .bus import Bus, BusError, Clock, RealClock
+from .hmc5883l import HMC5883L
+from .itg3200 import ITG3200
+from .mpu6050 import MPU6xxx
+
+__all__ = ["SampleBatch", "Board", "MPUBoard", "NineDofBoard", "make_board", "BOARD_NAMES"]
+
+BOARD_NAMES = ("mpu6050", "mpu6500", "mpu9250", "9dof")
+
+
+@dataclass
+class SampleBatch:
+    t: np.ndarray                      #: s since the board started, (n,)
+    seq: np.ndarray                    #: sample sequence numbers, (n,) int64
+    acc: np.ndarray                    #: g, body frame (n, 3)
+    gyro: np.ndarray                   #: deg/s (n, 3)
+    temp: np.ndarray                   #: degC (n,)
+    mag: Optional[np.ndarray] = None   #: gauss (n, 3), the latest reading held
+    mag_fresh: Optional[np.ndarray] = None   #: True where mag is a new reading
+    gaps: List[Tuple[int, int]] = field(default_factory=list)  #: (first missing seq, count)
+
+    def __len__(self):
+        return len(self.t)
+
+
+@dataclass
+class BoardStats:
+    samples: int = 0
+    gaps: int = 0
+    missing: int = 0
+    reinits: int = 0
+    bus_faults: int = 0
+    fifo_resets: int = 0
+
+    def as_dict(self):
+        return dict(self.__dict__)
+
+
+class Board:
+    name = "board"
+    has_mag = False
+
+    def __init__(self, bus: Bus, clock: Optional[Clock] = None, rate_hz: float = 100.0):
+        self.bus = bus
+        self.clock = clock or bus.clock or RealClock()
+        self.rate_hz = rate_hz
+        self.stats = BoardStats()
+        self.seq = 0
+        self.t0: Optional[float] = None
+        self._last_ok = None
+        self._last_check = None
+        self.mag_last: Optional[np.ndarray] = None
+
+    # subclasses: _init_chips(), _read() -> (acc, gyro, temp, mag or None, lost_estimate), _configured()
+    def start(self) -> None:
+        self._init_chips()
+        self.t0 = self.clock.now()
+        self._last_ok = self._last_check = self.t0
+
+    def _emit(self, acc, gyro, temp, mag, fresh_last: bool, lost: int) -> SampleBatch:
+        gaps = []
+        if lost > 0:
+            gaps.append((self.seq, lost))
+            self.seq += lost
+            self.stats.gaps += 1
+            self.stats.missing += lost
+        n = len(acc)
+        seq = np.arange(self.seq, self.seq + n, dtype=np.int64)
+        self.seq += n
+        self.stats.samples += n
+        t = seq / self.rate_hz
+        mg = fr = None
+        if self.has_mag:
+            if mag is not None:
+                self.mag_last = mag
+            held = self.mag_last if self.mag_last is not None else np.full(3, np.nan)
+            mg = np.broadcast_to(held, (n, 3)).copy()
+            fr = np.zeros(n, bool)
+            if fresh_last and n:
+                fr[-1] = True
+        return SampleBatch(t, seq, acc, gyro, temp, mg, fr, gaps)
+
+    def read_batch(self, wait: bool = True, batch_s: float = 0.02) -> SampleBatch:
+        """Samples since the last call.  With ``wait``, sleeps one batch period first
+        (the only sleep in the sampling path: waiting for data)."""
+        if wait:
+            self.clock.sleep(batch_s)
+        now = self.clock.now()
+        try:
+            if now - self._last_check > 1.0:           # cheap check for a silent reset
+                self._last_check = now
+                if not self._configured():
+                    return self._recover(now, "the chip lost its configuration (reset or brown-out)")
+            out = self._read(now)
+            self._last_ok = now
+            return out
+        except BusError as e:
+            self.stats.bus_faults += 1
+            return self._recover(now, str(e))
+
+    def _recover(self, now: float, why: str) -> SampleBatch:
+        """Re-initialise and account for the samples lost since the last good read."""
+        self.last_fault = why
+        try:
+            self._init_chips()
+            self.stats.reinits += 1
+        except BusError:
+            self.stats.bus_faults += 1
+            return self._emit(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), None, False, 0)
+        after = self.clock.now()
+        lost = max(0, int(round((after - self._last_ok) * self.rate_hz)))
+        self._last_ok = after
+        self._last_check = after
+        return self._emit(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), None, False, lost)
+
+
+class MPUBoard(Board):
+    """MPU-6050 / MPU-6500 / MPU-9250 (+ AK8963 through the bypass), read through the FIFO."""
+
+    def __init__(self, bus: Bus, chip: str = "mpu6050", addr: int = 0x68, accel_range_g: int = 2,
+                 gyro_range_dps: int = 250, rate_hz: float = 100.0, clock: Optional[Clock] = None):
+        super().__init__(bus, clock, rate_hz)
+        self.name = chip
+        self.has_mag = chip == "mpu9250"
+        self.mpu = MPU6xxx(bus, addr, chip, self.clock)
+        self.ak = AK8963(bus, clock=self.clock) if self.has_mag else None
+        self.cfg = dict(accel_range_g=accel_range_g, gyro_range_dps=gyro_range_dps, rate_hz=rate_hz)
+        self._mag_next = 0.0
+
+    def _init_chips(self):
+        self.mpu.chip = None
+        self.mpu.identify()
+        self.mpu.setup(bypass=self.has_mag, **self.cfg)
+        self.rate_hz = self.mpu.rate_hz
+        if self.ak is not None:
+            self.ak.setup()
+
+    def _configured(self):
+        return self.mpu.still_configured()
+
+    def _read(self, now):
+        fr = self.mpu.read_fifo()
+        lost = 0
+        if fr.reset:
+            self.stats.fifo_resets += 1
+            lost = max(1, int(round((now - self._last_ok) * self.rate_hz)))
+        mag, fresh = None, False
+        if self.ak is not None and now >= self._mag_next:
+            mag, _ = self.ak.read()
+            fresh = mag is not None
+            self._mag_next = now + 1.0 / 100.0
+        return self._emit(fr.acc_g, fr.gyro_dps, fr.temp_c, mag, fresh, lost)
+
+
+class NineDofBoard(Board):
+    """ADXL345 + ITG3200 + HMC5883L.  The ADXL345 FIFO sets the sample clock; the gyro
+    (no FIFO) and the magnetometer are read once per poll and held."""
+
+    name = "9dof"
+    has_mag = True
+
+    def __init__(self, bus: Bus, accel_addr: int = 0x53, gyro_addr: int = 0x68,
+                 mag_addr: int = 0x1E, accel_range_g: int = 16, rate_hz: float = 100.0,
+                 mag_rate_hz: float = 75.0, clock: Optional[Clock] = None):
+        super().__init__(bus, clock, rate_hz)
+        self.acc = ADXL345(bus, accel_addr, self.clock)
+        self.gyr = ITG3200(bus, gyro_addr, self.clock)
+        self.mag = HMC5883L(bus, mag_addr, self.clock)
+        self.accel_range_g, self.mag_rate_hz = accel_range_g, mag_rate_hz
+        self._mag_next = 0.0
+
+    def _init_chips(self):
+        self.acc.setup(self.accel_range_g, self.rate_hz)
+        self.gyr.setup(self.rate_hz)
+        self.mag.setup(rate_hz=self.mag_rate_hz)
+        self.rate_hz = self.acc.rate_hz
+
+    def _configured(self):
+        return self.acc.still_configured() and self.gyr.still_configured() and \
+            self.mag.still_configured()
+
+    def _read(self, now):
+        acc, overrun = self.acc.read_fifo()
+        lost = 0
+        if overrun:
+            self.stats.fifo_resets += 1
+            lost = max(0, int(round((now - self._last_ok) * self.rate_hz)) - len(acc))
+        n = len(acc)
+        g, temp = self.gyr.read() if n else (np.zeros(3), np.nan)
+        mag, fresh = None, False
+        if now >= self._mag_next:
+            mag, _ = self.mag.read()
+            fresh = mag is not None
+            self._mag_next = now + 1.0 / self.mag_rate_hz
+        return self._emit(acc, np.broadcast_to(g, (n, 3)).copy(), np.full(n, temp), mag, fresh, lost)
+
+    def read_batch(self, wait: bool = True, batch_s: Optional[float] = None) -> SampleBatch:
+        # the gyro has no FIFO: poll once per sample period so each accel sample gets its own
+        return super().read_batch(wait, 1.0 / self.rate_hz if batch_s is None else batch_s)
+
+
+def make_board(name: str, bus: Bus, clock: Optional[Clock] = None, rate_hz: float = 100.0,
+               **kw) -> Board:
+    if name in ("mpu6050", "mpu6500", "mpu9250"):
+        return MPUBoard(bus, name, rate_hz=rate_hz, clock=clock, **kw)
+    if name == "9dof":
+        return NineDofBoard(bus, rate_hz=rate_hz, clock=clock, **kw)
+    raise ValueError(f"unknown board {name!r}: allowed {', '.join(BOARD_NAMES)}")

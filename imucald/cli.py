@@ -223,6 +223,128 @@ def cmd_demo(args) -> int:
     return 0
 
 
+# --- probe -------------------------------------------------------------------------------
+
+def cmd_probe(args) -> int:
+    from .drivers.bus import Bus, VirtualClock, open_bus, real_bus_numbers
+    from .drivers.probe import detect_board, probe
+    if args.emulate:
+        from .drivers.emulator import emulated_board
+        from .sim.motion import PoseTour
+        from .sim.poses import random_pose_set
+        clock = VirtualClock()
+        eb = emulated_board(args.emulate, PoseTour(random_pose_set(4, 0), rng=0), rng=0, clock=clock)
+        bus, num = Bus(eb, name=f"emulated {args.emulate}", clock=clock), None
+        print(f"bus: emulated {args.emulate} board (no hardware)")
+    else:
+        nums = real_bus_numbers()
+        num = args.bus if args.bus is not None else (1 if 1 in nums else (nums[0] if nums else None))
+        if num is None:
+            raise UserError("no I2C bus on this machine (/dev/i2c-* absent): enable I2C "
+                            "(raspi-config, or dtparam=i2c_arm=on), or try --emulate 9dof")
+        bus = open_bus(num)
+        print(f"bus: /dev/i2c-{num}")
+    found = probe(bus, num)
+    if not found:
+        print("nothing answered at 0x0C, 0x0D, 0x1D, 0x1E, 0x53, 0x68, 0x69: check wiring, power "
+              "and pull-ups ('i2cdetect -y N' lists every address)")
+        return 1
+    for f in found:
+        print("  " + f.line())
+    b = detect_board(found)
+    print(f"board: {b}" if b else "board: none of the supported boards (mpu6050, mpu6500, mpu9250, 9dof)")
+    return 0
+
+
+# --- record ------------------------------------------------------------------------------
+
+def parse_fault(spec: str, faults) -> None:
+    """--fault forms: nack=P, stuck=T+D, busy=ADDR, wrong-id=ADDR:ID, reset=ADDR@T,
+    disconnect=ADDR@T+D (times and durations in s, addresses in hex)."""
+    try:
+        kind, val = spec.split("=", 1)
+        if kind == "nack":
+            faults.nack_prob = float(val)
+        elif kind == "stuck":
+            t, d = val.split("+")
+            faults.stuck.append((float(t), float(t) + float(d)))
+        elif kind == "busy":
+            faults.busy.add(int(val, 16))
+        elif kind == "wrong-id":
+            a, i = val.split(":")
+            faults.wrong_id[int(a, 16)] = int(i, 16)
+        elif kind == "reset":
+            a, t = val.split("@")
+            faults.resets.setdefault(int(a, 16), []).append(float(t))
+        elif kind == "disconnect":
+            a, w = val.split("@")
+            t, d = w.split("+")
+            faults.disconnected[int(a, 16)] = (float(t), float(t) + float(d))
+        else:
+            raise ValueError
+    except ValueError:
+        raise UserError(f"--fault {spec!r}: allowed nack=P, stuck=T+D, busy=0xAA, wrong-id=0xAA:0xII, "
+                        f"reset=0xAA@T, disconnect=0xAA@T+D") from None
+
+
+def open_board(args, motion_seed: int = 0):
+    """(board, bus, description): real I2C when a bus exists and --emulate is not given."""
+    from .drivers.board import make_board
+    from .drivers.bus import Bus, RealClock, VirtualClock, open_bus, real_bus_numbers
+    nums = real_bus_numbers()
+    if args.emulate or (args.bus is None and not nums):
+        from .drivers.emulator import Faults, emulated_board
+        from .sim.motion import PoseTour
+        from .sim.poses import random_pose_set
+        faults = Faults()
+        for f in args.fault or []:
+            parse_fault(f, faults)
+        clock = RealClock() if getattr(args, "realtime", False) else VirtualClock()
+        rng = np.random.default_rng(args.seed)
+        tour = PoseTour(random_pose_set(args.poses, rng), rng=rng, loop=True)
+        eb = emulated_board(args.board, tour, rng=rng, clock=clock, faults=faults)
+        bus = Bus(eb, name=f"emulated {args.board}", clock=clock)
+        desc = f"emulated {args.board} (no I2C bus here), moved through {args.poses} orientations"
+    else:
+        if args.fault:
+            raise UserError("--fault applies only to the emulated board (--emulate)")
+        num = args.bus if args.bus is not None else (1 if 1 in nums else nums[0])
+        bus = open_bus(num)
+        desc = f"{args.board} on /dev/i2c-{num}"
+    return make_board(args.board, bus, rate_hz=args.rate), bus, desc
+
+
+def cmd_record(args) -> int:
+    from .recording import Recording, write_recording
+    board, bus, desc = open_board(args)
+    board.start()
+    _eprint(f"imucald: recording {args.seconds:g} s from {desc} at {board.rate_hz:g} Hz")
+    parts = []
+    while not parts or parts[-1].t.size == 0 or parts[-1].t[-1] < args.seconds - 1e-9 \
+            or board.stats.samples == 0:
+        b = board.read_batch()
+        if len(b):
+            parts.append(b)
+        elif board.clock.now() - board.t0 > args.seconds + 5:
+            raise UserError(f"no samples from {desc} for {args.seconds + 5:.0f} s "
+                            f"(last fault: {getattr(board, 'last_fault', 'none')})")
+    cat = lambda k: np.concatenate([getattr(p, k) for p in parts])
+    keep = cat("t") < args.seconds
+    meta = {"board": board.name, "rate_hz": f"{board.rate_hz:g}", "source": f"imucald record: {desc}"}
+    mag = cat("mag")[keep] if board.has_mag else None
+    if mag is not None and np.isnan(mag).any():      # before the first magnetometer reading
+        first = int(np.argmax(~np.isnan(mag[:, 0])))
+        mag[:first] = mag[first]
+    rec = Recording(t=cat("t")[keep], acc=cat("acc")[keep], gyro=cat("gyro")[keep], mag=mag,
+                    temp=cat("temp")[keep], meta=meta)
+    write_recording(rec, args.output)
+    st = board.stats
+    _eprint(f"imucald: wrote {args.output}: {len(rec)} samples; gaps {st.gaps} ({st.missing} samples "
+            f"lost), re-initialisations {st.reinits}, bus faults {st.bus_faults}, retries "
+            f"{bus.stats.retries}")
+    return 0
+
+
 # --- main ------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
@@ -263,6 +385,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="still when moving variance < k x noise floor")
     c.add_argument("--min-still-s", type=float, default=2.0, help="shortest still interval, s")
     c.set_defaults(func=cmd_calibrate)
+
+    pr = sub.add_parser("probe", help="list what answers on the I2C bus and what each device is")
+    pr.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1, or the first present)")
+    pr.add_argument("--emulate", choices=["mpu6050", "mpu6500", "mpu9250", "9dof", "9dof-qmc"],
+                    help="probe an emulated board instead of hardware")
+    pr.set_defaults(func=cmd_probe)
+
+    r = sub.add_parser("record", help="record samples to a recording file")
+    r.add_argument("-o", "--output", required=True)
+    r.add_argument("--board", default="mpu6050", choices=["mpu6050", "mpu6500", "mpu9250", "9dof"])
+    r.add_argument("--seconds", type=float, default=10.0)
+    r.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
+    r.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1)")
+    r.add_argument("--emulate", action="store_true", help="use the emulated board even if a bus exists")
+    r.add_argument("--realtime", action="store_true", help="emulator runs in wall-clock time")
+    r.add_argument("--poses", type=int, default=30, help="emulator: orientations to move through")
+    r.add_argument("--seed", type=int, default=0, help="emulator: seed")
+    r.add_argument("--fault", action="append", help="emulator fault, e.g. nack=0.01, reset=0x68@3 "
+                                                    "(repeatable; see the README)")
+    r.set_defaults(func=cmd_record)
 
     d = sub.add_parser("demo", help="the calibration demo that `make run` shows")
     d.add_argument("--seed", type=int, default=1)

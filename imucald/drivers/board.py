@@ -74,10 +74,25 @@ class Board:
         self.mag_last: Optional[np.ndarray] = None
 
     # subclasses: _init_chips(), _read() -> (acc, gyro, temp, mag or None, lost_estimate), _configured()
+    #: after (re-)initialisation, data for this long is discarded (sensor start-up,
+    #: DLPF settling; the ITG3200 reads zeros until its first conversion)
+    settle_s = 0.1
+    #: transient bus faults are only counted at first; if reads keep failing this long,
+    #: the chips are re-initialised
+    reinit_after_s = 0.5
+
     def start(self) -> None:
+        self._last_ok = self._last_check = self.clock.now()
         self._init_chips()
+        self._settle()
         self.t0 = self.clock.now()
         self._last_ok = self._last_check = self.t0
+        self._fault_since = None
+
+    def _settle(self) -> None:
+        """Wait, then drop what arrived (the caller accounts for it as a reported gap)."""
+        self.clock.sleep(self.settle_s)
+        self._flush()
 
     def _emit(self, acc, gyro, temp, mag, fresh_last: bool, lost: int) -> SampleBatch:
         gaps = []
@@ -115,20 +130,33 @@ class Board:
                     return self._recover(now, "the chip lost its configuration (reset or brown-out)")
             out = self._read(now)
             self._last_ok = now
+            self._fault_since = None
             return out
         except BusError as e:
+            # a glitch (retries exhausted): the chip's FIFO keeps sampling meanwhile, so
+            # only re-initialise when the faults persist
             self.stats.bus_faults += 1
-            return self._recover(now, str(e))
+            self.last_fault = str(e)
+            if self._fault_since is None:
+                self._fault_since = now
+            if now - self._fault_since >= self.reinit_after_s:
+                return self._recover(now, str(e))
+            return self._empty()
+
+    def _empty(self) -> SampleBatch:
+        return self._emit(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), None, False, 0)
 
     def _recover(self, now: float, why: str) -> SampleBatch:
         """Re-initialise and account for the samples lost since the last good read."""
         self.last_fault = why
         try:
             self._init_chips()
+            self._settle()
             self.stats.reinits += 1
         except BusError:
             self.stats.bus_faults += 1
-            return self._emit(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), None, False, 0)
+            return self._empty()
+        self._fault_since = None
         after = self.clock.now()
         lost = max(0, int(round((after - self._last_ok) * self.rate_hz)))
         self._last_ok = after
@@ -159,6 +187,9 @@ class MPUBoard(Board):
 
     def _configured(self):
         return self.mpu.still_configured()
+
+    def _flush(self):
+        self.mpu.fifo_reset()
 
     def _read(self, now):
         fr = self.mpu.read_fifo()
@@ -200,6 +231,9 @@ class NineDofBoard(Board):
     def _configured(self):
         return self.acc.still_configured() and self.gyr.still_configured() and \
             self.mag.still_configured()
+
+    def _flush(self):
+        self.acc.read_fifo()
 
     def _read(self, now):
         acc, overrun = self.acc.read_fifo()

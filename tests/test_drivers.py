@@ -1,0 +1,229 @@
+"""Drivers against their register-accurate emulators: identification, configuration,
+scaling, byte order, temperature, FIFO parsing and overflow, burst reads."""
+import numpy as np
+import pytest
+
+from imucald.calib.models import Triangular9
+from imucald.drivers import adxl345, ak8963, hmc5883l, itg3200, mpu6050
+from imucald.drivers.board import make_board
+from imucald.drivers.bus import Bus, ChipMismatch, VirtualClock
+from imucald.drivers.emulator import Faults, emulated_board
+from imucald.sim.motion import PoseTour
+from imucald.sim.poses import rotation_from_up
+from imucald.sim.specs import ACCEL, GYRO
+
+T9 = Triangular9()
+
+
+def still(up=(0, 0, 1), hold=1e6, temp0=25.0, rise=0.0):
+    """A board resting in one orientation for ever."""
+    R = rotation_from_up(np.asarray(up, float))[None]
+    return PoseTour(R, rng=0, hold_s=hold, lead_s=0, temp0_c=temp0, temp_rise_c=rise)
+
+
+def rig(board, motion=None, faults=None, seed=1):
+    clk = VirtualClock()
+    eb = emulated_board(board, motion or still(), rng=seed, clock=clk, faults=faults)
+    return eb, Bus(eb, "emu", clock=clk), clk
+
+
+# --- identification ---------------------------------------------------------------------
+
+def test_mpu_identification_and_mismatch_messages():
+    eb, bus, _ = rig("mpu6500")
+    with pytest.raises(ChipMismatch) as e:
+        mpu6050.MPU6xxx(bus, 0x68, "mpu9250").identify()
+    assert "0x68 answered WHO_AM_I=0x70: an MPU6500, not the configured MPU9250" in str(e.value)
+    assert "no magnetometer" in str(e.value)
+    assert mpu6050.MPU6xxx(bus, 0x68, "mpu6500").identify() == "mpu6500"
+    eb, bus, _ = rig("mpu6050", faults=Faults(wrong_id={0x68: 0x42}))
+    with pytest.raises(ChipMismatch, match="WHO_AM_I=0x42: not an InvenSense MPU"):
+        mpu6050.MPU6xxx(bus).identify()
+
+
+@pytest.mark.parametrize("cls,addr,msg", [
+    (adxl345.ADXL345, 0x53, "not an ADXL345"), (itg3200.ITG3200, 0x68, "not an ITG3200"),
+    (hmc5883l.HMC5883L, 0x1E, "not an HMC5883L")])
+def test_nine_dof_wrong_ids(cls, addr, msg):
+    _, bus, _ = rig("9dof", faults=Faults(wrong_id={addr: 0x00}))
+    with pytest.raises(ChipMismatch, match=msg):
+        cls(bus, addr).identify()
+
+
+# --- configuration written ---------------------------------------------------------------
+
+@pytest.mark.parametrize("arange,grange,rate", [(2, 250, 100), (4, 500, 200), (8, 1000, 1000),
+                                                (16, 2000, 50)])
+def test_mpu_configuration_registers(arange, grange, rate):
+    eb, bus, _ = rig("mpu6050")
+    m = mpu6050.MPU6xxx(bus)
+    m.setup(arange, grange, rate)
+    regs = eb.devices[0x68].regs
+    R = mpu6050.REGMAP
+    assert R.decode("PWR_MGMT_1", regs[R.PWR_MGMT_1.addr], "SLEEP") == 0
+    assert R.decode("PWR_MGMT_1", regs[R.PWR_MGMT_1.addr], "CLKSEL") == 1
+    assert R.decode("ACCEL_CONFIG", regs[R.ACCEL_CONFIG.addr], "AFS_SEL") == [2, 4, 8, 16].index(arange)
+    assert R.decode("GYRO_CONFIG", regs[R.GYRO_CONFIG.addr], "FS_SEL") == [250, 500, 1000, 2000].index(grange)
+    dl = R.decode("CONFIG", regs[R.CONFIG.addr], "DLPF_CFG")
+    # the widest DLPF that still filters (184 Hz) when rate/2 exceeds it
+    assert 1 <= dl <= 6 and mpu6050.DLPF_HZ[dl][0] >= min(rate / 2, 184)
+    assert R.decode("CONFIG", regs[R.CONFIG.addr], "EXT_SYNC_SET") == 0    # Adafruit #45's bug
+    assert 1000.0 / (1 + regs[R.SMPLRT_DIV.addr]) == rate
+    assert regs[R.FIFO_EN.addr] == 0xF8
+    assert R.decode("USER_CTRL", regs[R.USER_CTRL.addr], "FIFO_EN") == 1
+
+
+def test_nine_dof_configuration_registers():
+    eb, bus, _ = rig("9dof")
+    adxl345.ADXL345(bus).setup(16, 200)
+    itg3200.ITG3200(bus).setup(100)
+    hmc5883l.HMC5883L(bus).setup(gain=1, rate_hz=75)
+    a = eb.devices[0x53].regs
+    assert a[0x31] == 0x08 | 0x03 and a[0x2C] == 0x0B and a[0x2D] == 0x08 and a[0x38] >> 6 == 2
+    g = eb.devices[0x68].regs
+    assert (g[0x16] >> 3) & 3 == 3                      # FS_SEL must be 3
+    assert g[0x3E] & 0x07 == 1 and 1000 / (1 + g[0x15]) == 100
+    h = eb.devices[0x1E].regs
+    assert h[0x02] & 3 == 0 and (h[0x00] >> 2) & 7 == 6 and h[0x01] >> 5 == 1
+
+
+# --- asleep at power-on -----------------------------------------------------------------------
+
+def test_chips_read_zero_until_woken():
+    eb, bus, clk = rig("mpu6050")
+    clk.advance(1.0)
+    assert bus.read_block(0x68, 0x3B, 14) == bytes(14)      # SLEEP set at power-on
+    eb, bus, clk = rig("9dof")
+    clk.advance(1.0)
+    assert bus.read_block(0x53, 0x32, 6) == bytes(6)        # ADXL345 in standby
+
+
+# --- scaling, byte order and sign, temperature -------------------------------------------------
+
+@pytest.mark.parametrize("arange", [2, 4, 8, 16])
+@pytest.mark.parametrize("up", [(0, 0, 1), (0, 0, -1), (1, 0, 0), (0, -1, 0)])
+def test_mpu_scaling_sign_and_temperature(arange, up):
+    eb, bus, clk = rig("mpu6050", still(up, temp0=31.0))
+    m = mpu6050.MPU6xxx(bus)
+    m.setup(arange, 250, 100)
+    clk.advance(0.5)
+    fr = m.read_fifo()
+    truth = eb.truth
+    expect = T9.inverse(truth.accel, np.array([up], float))[0]
+    n = len(fr.acc_g)
+    assert n >= 40
+    # noise per sample: density over the DLPF band; quantisation of the range's LSB
+    sig = np.hypot(ACCEL["mpu6050"].noise_density_g_rthz * np.sqrt(50), (arange / 32768) / np.sqrt(12))
+    assert np.all(np.abs(fr.acc_g.mean(0) - expect) < 5 * sig / np.sqrt(n))
+    gexp = truth.gyro_bias_dps
+    gsig = np.hypot(GYRO["mpu6050"].noise_density_dps_rthz * np.sqrt(50), 1 / 131 / np.sqrt(12))
+    assert np.all(np.abs(fr.gyro_dps.mean(0) - gexp) < 5 * gsig / np.sqrt(n))
+    assert np.all(np.abs(fr.temp_c - 31.0) <= 0.5 / 340 + 1e-9)      # raw/340 + 36.53
+
+
+def test_adxl_itg_hmc_scaling_order_and_temperature():
+    eb, bus, clk = rig("9dof", still((0, 1, 0), temp0=20.0))
+    a = adxl345.ADXL345(bus); a.setup(16, 100)
+    g = itg3200.ITG3200(bus); g.setup(100)
+    h = hmc5883l.HMC5883L(bus); h.setup(gain=7, rate_hz=75)     # +-8.1 G: no overflow
+    clk.advance(0.3)
+    acc, over = a.read_fifo()
+    tr = eb.truth
+    assert not over and 29 <= len(acc) <= 31
+    expect = T9.inverse(tr.accel, np.array([[0.0, 1.0, 0.0]]))[0]
+    sig = np.hypot(ACCEL["adxl345"].noise_density_g_rthz * np.sqrt(50), 0.0039 / np.sqrt(12))
+    assert np.all(np.abs(acc.mean(0) - expect) < 5 * sig / np.sqrt(len(acc)))
+    w, temp = g.read()
+    assert abs(temp - 20.0) <= 0.5 / 280 + 1e-9                  # 35 + (raw + 13200)/280
+    assert np.all(np.abs(w - tr.gyro_bias_dps) < 5 * 0.03 * np.sqrt(50) + 0.5 / 14.375)
+    mag, over = h.read()                                          # first sample after gain change:
+    assert mag is None and not over                               # discarded (old gain)
+    clk.advance(0.05)
+    mag, over = h.read()
+    R = rotation_from_up(np.array([0, 1.0, 0]))
+    hb = R.T @ still().B_world
+    m_true = np.linalg.inv(tr.mag_soft_iron) @ hb + tr.mag_hard_iron_gauss
+    assert np.all(np.abs(mag - m_true) < 5 * 0.002 + 1 / 230)    # X, Y, Z from X, Z, Y order
+
+
+def test_hmc_overflow_reads_minus_4096():
+    eb, bus, clk = rig("9dof")
+    eb.truth.mag_hard_iron_gauss[:] = [2.0, 0, 0]                 # beyond +-0.88 G
+    h = hmc5883l.HMC5883L(bus)
+    h.setup(gain=0, rate_hz=75)
+    clk.advance(0.1)
+    h.read()
+    clk.advance(0.05)
+    raw = bus.read_block(0x1E, 0x03, 6)
+    assert int.from_bytes(raw[0:2], "big", signed=True) == -4096
+    assert h.read() == (None, True)
+
+
+def test_ak8963_asa_frame_and_data_lock():
+    eb, bus, clk = rig("mpu9250", still((0, 0, 1)))
+    m = mpu6050.MPU6xxx(bus, 0x68, "mpu9250")
+    m.setup(2, 250, 100, bypass=True)
+    ak = ak8963.AK8963(bus)
+    ak.setup()
+    dev = eb.devices[0x0C]
+    assert np.allclose(ak.asa, (dev.asa_raw - 128) * 0.5 / 128 + 1)
+    clk.advance(0.05)
+    mag, over = ak.read()
+    tr = eb.truth
+    m_true = np.linalg.inv(tr.mag_soft_iron) @ still().B_world + tr.mag_hard_iron_gauss
+    assert np.all(np.abs(mag - m_true) < 5 * 0.004 + 0.0015 * 1.3)    # AK frame -> MPU frame
+    assert ak.read() == (None, False)           # reading ST2 released the lock: no new data yet
+    # without the bypass the AK8963 does not answer
+    bus.write_byte(0x68, 0x37, 0)
+    from imucald.drivers.bus import NoAcknowledge
+    with pytest.raises(NoAcknowledge):
+        ak.read()
+
+
+# --- FIFO parsing ---------------------------------------------------------------------------
+
+def test_fifo_partial_frame_is_ignored():
+    m = mpu6050.MPU6xxx(Bus(None), 0x68)
+    m.accel_range_g, m.gyro_range_dps = 2, 250
+    vals = np.array([[16384, -16384, 8192, -521 + 0, 131, -262, 0]] * 3, ">i2").tobytes()
+    fr = m.parse_frames(vals + vals[:5])
+    assert len(fr.acc_g) == 3
+    assert np.allclose(fr.acc_g[0], [1, -1, 0.5]) and np.allclose(fr.gyro_dps[0], [1, -2, 0])
+    assert np.isclose(fr.temp_c[0], -521 / 340 + 36.53)
+
+
+def test_fifo_overflow_is_detected_reset_and_reported_as_a_gap():
+    eb, bus, clk = rig("mpu6050")
+    b = make_board("mpu6050", bus, clk, rate_hz=1000)
+    b.start()
+    seqs = [b.read_batch().seq for _ in range(10)]
+    clk.advance(0.2)                      # 200 samples = 2800 bytes > 1024: the FIFO overflows
+    bt = b.read_batch()
+    assert bt.gaps and bt.gaps[0][1] >= 150
+    assert b.stats.fifo_resets == 1
+    seqs.append(bt.seq)
+    seqs += [b.read_batch().seq for _ in range(10)]
+    s = np.concatenate(seqs)
+    assert np.all(np.diff(s) >= 1)                                  # never duplicated
+    jumps = np.flatnonzero(np.diff(s) > 1)
+    assert len(jumps) == 1                                          # and the gap is reported once
+    # frames stay aligned after the reset: all readings are the still pose
+    last = b.read_batch()
+    assert np.all(np.abs(np.linalg.norm(last.acc, axis=1) - 1) < 0.1)
+
+
+# --- efficiency: burst reads --------------------------------------------------------------
+
+def test_mpu_burst_reads_two_transactions_per_batch_and_sustains_1khz():
+    eb, bus, clk = rig("mpu6050")
+    b = make_board("mpu6050", bus, clk, rate_hz=1000)
+    b.start()
+    b.read_batch()
+    t0, n0 = bus.stats.transactions, b.stats.samples
+    for _ in range(250):                                             # 5 s at 20 ms batches
+        b.read_batch()
+    batches = 250
+    # count + one burst per batch, plus the 2-read configuration check once a second
+    assert bus.stats.transactions - t0 <= 2 * batches + 2 * 6
+    got = b.stats.samples - n0
+    assert abs(got - 5000) <= 20 and b.stats.missing == 0

@@ -121,7 +121,14 @@ class Board:
         """Samples since the last call.  With ``wait``, sleeps one batch period first
         (the only sleep in the sampling path: waiting for data)."""
         if wait:
-            self.clock.sleep(batch_s)
+            # sleep to the next poll deadline (not a fixed period), so processing time
+            # does not stretch the poll interval
+            now = self.clock.now()
+            nxt = getattr(self, "_next_poll", now) + batch_s
+            if nxt < now - batch_s:
+                nxt = now
+            self.clock.sleep(nxt - now)
+            self._next_poll = nxt
         now = self.clock.now()
         try:
             if now - self._last_check > 1.0:           # cheap check for a silent reset

@@ -110,11 +110,13 @@ class BusStats:
     wire_bytes: int = 0           #: everything on the wire: addresses, pointers, data
     retries: int = 0
     errors: Dict[str, int] = field(default_factory=dict)
+    per_addr: Dict[int, int] = field(default_factory=dict)   #: transactions per address
 
     def as_dict(self) -> Dict[str, object]:
         return {"transactions": self.transactions, "bytes_read": self.bytes_read,
                 "bytes_written": self.bytes_written, "wire_bytes": self.wire_bytes,
-                "retries": self.retries, "errors": dict(self.errors)}
+                "retries": self.retries, "errors": dict(self.errors),
+                "per_addr": {f"0x{a:02X}": n for a, n in self.per_addr.items()}}
 
 
 def _classify(e: OSError, addr: int, bus_name: str) -> BusError:
@@ -201,6 +203,7 @@ class Bus:
                 st.wire_bytes += wire
                 st.bytes_read += nread
                 st.bytes_written += nwrite
+                st.per_addr[addr] = st.per_addr.get(addr, 0) + 1
                 return out
             except OSError as e:
                 err = _classify(e, addr, self.name)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from typing import List, Optional
@@ -345,6 +346,149 @@ def cmd_record(args) -> int:
     return 0
 
 
+# --- daemon: run, replay, status, recalibrate, watch ----------------------------------
+
+DEFAULT_CONFIG = "/etc/imucald/imucald.yaml"
+
+
+def _setup_logging(level: str) -> None:
+    import logging
+    logging.basicConfig(level=getattr(logging, level.upper()), stream=sys.stderr,
+                        format="imucald: %(message)s")
+
+
+def _daemon_config(args):
+    from .daemon.config import load_config, set_override
+    path = args.config
+    if path is None and os.path.exists(DEFAULT_CONFIG):
+        path = DEFAULT_CONFIG
+    cfg = load_config(path)
+    for attr, key, flag in (("board", "sensor.board", "--board"), ("rate", "sensor.rate_hz", "--rate"),
+                            ("bus", "sensor.bus", "--bus"), ("state_dir", "state.directory", "--state-dir"),
+                            ("runtime_dir", "runtime.directory", "--runtime-dir"),
+                            ("format", "output.format", "--format"), ("fifo", "output.fifo", "--fifo"),
+                            ("method", "calibration.method", "--method"),
+                            ("min_poses", "calibration.min_poses", "--min-poses"),
+                            ("log_level", "log.level", "--log-level")):
+        v = getattr(args, attr, None)
+        if v is not None:
+            set_override(cfg, key, v, flag)
+    return cfg, path
+
+
+def cmd_run(args) -> int:
+    from .daemon.run import Daemon
+    from .drivers.emulator import Faults
+    cfg, path = _daemon_config(args)
+    _setup_logging(cfg["log"]["level"])
+    faults = None
+    if args.fault:
+        faults = Faults()
+        for f in args.fault:
+            parse_fault(f, faults)
+    emulate = True if args.emulate else (False if args.no_emulate else None)
+    d = Daemon(cfg, emulate=emulate, speed=args.speed, seed=args.seed, faults=faults,
+               duration_s=args.duration, echo=args.echo, config_path=path)
+    return d.run()
+
+
+def cmd_replay(args) -> int:
+    import logging
+    from .daemon.pipeline import Pipeline
+    from .daemon.state import save_calibration
+    from .drivers.board import SampleBatch
+    from .recording import read_recording
+    cfg, _ = _daemon_config(args)
+    _setup_logging(cfg["log"]["level"])
+    rec = read_recording(args.recording)
+    if rec.acc is None:
+        raise UserError(f"{args.recording}: no accelerometer columns (ax, ay, az)")
+    n = len(rec)
+    gyro = rec.gyro if rec.gyro is not None else np.zeros((n, 3))
+    temp = rec.temp if rec.temp is not None else np.full(n, np.nan)
+    fresh = None
+    if rec.mag is not None:
+        fresh = np.ones(n, bool)
+        fresh[1:] = np.any(np.diff(rec.mag, axis=0) != 0, axis=1)
+    pipe = Pipeline(cfg, rec.meta.get("board", "unknown"), rec.rate_hz, rec.mag is not None,
+                    chips={"board": rec.meta.get("board", "unknown"), "source": args.recording})
+    out = sys.stdout.buffer
+    from .daemon.outputs import banner
+    out.write(banner(cfg["output"]["format"], pipe.board))
+    step = max(1, int(round(cfg["sensor"]["batch_s"] * rec.rate_hz)))
+    seq = np.arange(n, dtype=np.int64)
+    for i in range(0, n, step):
+        sl = slice(i, min(n, i + step))
+        b = SampleBatch(rec.t[sl], seq[sl], rec.acc[sl], gyro[sl], temp[sl],
+                        None if rec.mag is None else rec.mag[sl], None if fresh is None else fresh[sl])
+        out.write(pipe.process(b))
+    out.flush()
+    if args.state_dir and pipe.cal_doc is not None:
+        os.makedirs(args.state_dir, exist_ok=True)
+        p = save_calibration(args.state_dir, pipe.cal_doc, history=0)
+        logging.getLogger("imucald").info("calibration #%d saved to %s", pipe.applied.id, p)
+    elif args.state_dir:
+        logging.getLogger("imucald").info("no calibration was reached (%d poses; %s)",
+                                          len(pipe.acc), pipe.ready_to_calibrate())
+    return 0
+
+
+def _control_path(args) -> str:
+    cfg, _ = _daemon_config(args)
+    p = cfg["control"]["socket"]
+    return p if os.path.isabs(p) else os.path.join(cfg["runtime"]["directory"], p)
+
+
+def cmd_status(args) -> int:
+    from .daemon.control import request
+    r = request(_control_path(args), "status")
+    if args.json:
+        print(json.dumps(r))
+        return 0
+    if r.get("class") == "ERROR":
+        raise UserError(r.get("message", "error"))
+    cal = f"#{r['calibration_id']} ({r.get('calibration_created')})" if r.get("calibration_id") else "none yet"
+    print(f"board {r['board']} at {r['rate_hz']:g} Hz on {r['bus']}")
+    print(f"poses {r['poses']}/{r['poses_needed']}, coverage {r['coverage']:.0%}"
+          + (f", next: {r['next_orientation']}" if r.get("next_orientation") else ""))
+    print(f"calibration {cal}{', calibrating now' if r.get('calibrating') else ''}")
+    bs = r["board_stats"]
+    print(f"samples {bs['samples']}, gaps {bs['gaps']} ({bs['missing']} lost), bus faults {bs['bus_faults']}, "
+          f"clients {r['clients']} (dropped {r['clients_dropped']})")
+    if r.get("last_event"):
+        print(f"last: {r['last_event']}")
+    return 0
+
+
+def cmd_recalibrate(args) -> int:
+    from .daemon.control import request
+    r = request(_control_path(args), "recalibrate")
+    if r.get("class") == "ERROR":
+        raise UserError(r["message"])
+    print("recalibration started" if r.get("started") else "a calibration is already running")
+    return 0
+
+
+def cmd_watch(args) -> int:
+    import socket as _socket
+    cfg, _ = _daemon_config(args)
+    p = cfg["output"]["socket"]
+    p = p if os.path.isabs(p) else os.path.join(cfg["runtime"]["directory"], p)
+    s = _socket.socket(_socket.AF_UNIX, _socket.SOCK_STREAM)
+    try:
+        s.connect(p)
+    except OSError as e:
+        raise UserError(f"{p}: cannot connect: {e.strerror}: is imucald running?") from None
+    f = s.makefile("rb")
+    count = 0
+    for line in f:
+        sys.stdout.write(line.decode(errors="replace"))
+        count += 1
+        if args.count and count >= args.count:
+            break
+    return 0
+
+
 # --- main ------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
@@ -405,6 +549,54 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--fault", action="append", help="emulator fault, e.g. nack=0.01, reset=0x68@3 "
                                                     "(repeatable; see the README)")
     r.set_defaults(func=cmd_record)
+
+    def daemon_opts(q, state=True):
+        q.add_argument("--config", help=f"configuration file (default {DEFAULT_CONFIG} if present)")
+        q.add_argument("--runtime-dir", help="directory of the sockets (overrides runtime.directory)")
+        if state:
+            q.add_argument("--state-dir", help="overrides state.directory")
+        q.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+
+    rn = sub.add_parser("run", help="run the daemon (real I2C when a bus exists, else emulated)")
+    daemon_opts(rn)
+    rn.add_argument("--board", choices=["mpu6050", "mpu6500", "mpu9250", "9dof"])
+    rn.add_argument("--rate", type=float, help="sample rate, Hz")
+    rn.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N")
+    rn.add_argument("--format", choices=["ndjson", "csv", "binary"])
+    rn.add_argument("--fifo", help="also stream to this FIFO")
+    rn.add_argument("--method", choices=["ga", "hga", "lm", "ga-paper"])
+    rn.add_argument("--min-poses", type=int)
+    g = rn.add_mutually_exclusive_group()
+    g.add_argument("--emulate", action="store_true", help="use the emulated board")
+    g.add_argument("--no-emulate", action="store_true", help="never fall back to the emulator")
+    rn.add_argument("--speed", type=float, default=1.0, help="emulator: time runs this much faster")
+    rn.add_argument("--seed", type=int, default=0, help="emulator: seed")
+    rn.add_argument("--fault", action="append", help="emulator fault (as for record)")
+    rn.add_argument("--duration", type=float, help="stop after this many (sensor-clock) seconds")
+    rn.add_argument("--echo", action="store_true", help="print one stream line per second")
+    rn.set_defaults(func=cmd_run)
+
+    rp = sub.add_parser("replay", help="feed a recording through the pipeline; NDJSON to stdout")
+    rp.add_argument("recording")
+    rp.add_argument("--state-dir", help="save the calibration reached as DIR/calibration.yaml")
+    rp.add_argument("--config")
+    rp.add_argument("--format", choices=["ndjson", "csv", "binary"])
+    rp.add_argument("--method", choices=["ga", "hga", "lm", "ga-paper"])
+    rp.add_argument("--min-poses", type=int)
+    rp.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    rp.set_defaults(func=cmd_replay)
+
+    for name, fn, hlp in (("status", cmd_status, "the running daemon's state"),
+                          ("recalibrate", cmd_recalibrate, "ask the daemon to calibrate now")):
+        q = sub.add_parser(name, help=hlp)
+        daemon_opts(q, state=False)
+        if name == "status":
+            q.add_argument("--json", action="store_true")
+        q.set_defaults(func=fn)
+    w = sub.add_parser("watch", help="print the daemon's stream")
+    daemon_opts(w, state=False)
+    w.add_argument("-n", "--count", type=int, help="stop after N lines")
+    w.set_defaults(func=cmd_watch)
 
     d = sub.add_parser("demo", help="the calibration demo that `make run` shows")
     d.add_argument("--seed", type=int, default=1)

@@ -23,7 +23,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 from ..errors import UserError
 
 __all__ = ["BusError", "NoAcknowledge", "BusIOError", "BusTimeout", "AddressBusy",
-           "ChipMismatch", "BusUnavailable", "Bus", "Clock", "RealClock", "VirtualClock",
+           "ChipMismatch", "BusUnavailable", "Bus", "Clock", "RealClock", "VirtualClock", "ScaledClock",
            "open_bus", "kernel_driver_for", "BLOCK_MAX"]
 
 #: smbus2's I2C_SMBUS_BLOCK_MAX: read_i2c_block_data takes at most 32 bytes
@@ -100,6 +100,21 @@ class VirtualClock(Clock):
 
     def advance(self, s: float) -> None:
         self.t += s
+
+
+class ScaledClock(Clock):
+    """Wall-clock time running ``speed`` times faster (emulated demos and tests)."""
+
+    def __init__(self, speed: float = 1.0):
+        self.speed = float(speed)
+        self._m0 = time.monotonic()
+
+    def now(self) -> float:
+        return (time.monotonic() - self._m0) * self.speed
+
+    def sleep(self, s: float) -> None:
+        if s > 0:
+            time.sleep(s / self.speed)
 
 
 @dataclass

@@ -1,0 +1,156 @@
+"""Pose accumulator: keeps the still poses well spread on the sphere.
+
+A new pose closer than ``merge_angle_deg`` to an existing one replaces it (the
+newer pose reflects the current temperature and mounting) unless it is within
+the pose noise of it, in which case the two are averaged (refined).  Coverage
+is measured against the 26 directions of a cube's faces, edges and corners; the
+accumulator says which ones still lack a pose, and what CRLB the current pose
+set predicts for the calibration.
+"""
+from __future__ import annotations
+
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from ..calib.models import Triangular9
+from ..calib.poses import PoseSet
+from ..calib.uncertainty import crlb, residual_variance
+from .stillness import StaticInterval
+
+__all__ = ["PoseAccumulator", "TARGETS", "target_name"]
+
+_T9 = Triangular9()
+
+
+def _targets():
+    out = []
+    for x in (-1, 0, 1):
+        for y in (-1, 0, 1):
+            for z in (-1, 0, 1):
+                if (x, y, z) != (0, 0, 0):
+                    v = np.array([x, y, z], float)
+                    out.append(v / np.linalg.norm(v))
+    return np.array(out)
+
+
+#: the 26 cube directions (faces, edges, corners), as up vectors in the sensor frame
+TARGETS = _targets()
+
+
+def target_name(v: np.ndarray) -> str:
+    """'+Z up', '+X+Y up' ... for a cube direction."""
+    parts = [f"{'+' if c > 0 else '-'}{ax}" for c, ax in zip(v, "XYZ") if abs(c) > 1e-9]
+    return "".join(parts) + " up"
+
+
+class PoseAccumulator:
+    def __init__(self, merge_angle_deg: float = 12.0, max_poses: int = 60,
+                 cover_angle_deg: float = 25.0):
+        self.merge_cos = np.cos(np.radians(merge_angle_deg))
+        self.cover_cos = np.cos(np.radians(cover_angle_deg))
+        self.max_poses = max_poses
+        self.poses: List[StaticInterval] = []
+        self.added = 0            #: poses accepted since start (incl. replacements)
+        self.rejected = 0
+
+    def __len__(self):
+        return len(self.poses)
+
+    def add(self, iv: StaticInterval) -> str:
+        """Add an interval; returns 'new', 'refined', 'replaced' or 'rejected'."""
+        norm = float(np.linalg.norm(iv.acc))
+        if not 0.5 < norm < 1.5:            # not a still pose under 1 g (raw, uncalibrated)
+            self.rejected += 1
+            return "rejected"
+        u = iv.acc / norm
+        if self.poses:
+            U = self.directions()
+            c = U @ u
+            j = int(np.argmax(c))
+            if c[j] >= self.merge_cos:
+                old = self.poses[j]
+                sep = np.linalg.norm(iv.acc - old.acc)
+                noise = np.sqrt(np.trace(iv.acc_cov) + np.trace(old.acc_cov))
+                if sep < 4 * noise:         # same pose within its noise: refine
+                    self.poses[j] = _merge(old, iv)
+                    self.added += 1
+                    return "refined"
+                self.poses[j] = iv
+                self.added += 1
+                return "replaced"
+        if len(self.poses) >= self.max_poses:
+            # full: replace the oldest pose in the most crowded region
+            U = self.directions()
+            crowd = (U @ U.T > self.cover_cos).sum(1)
+            j = int(np.argmax(crowd))
+            self.poses[j] = iv
+            self.added += 1
+            return "replaced"
+        self.poses.append(iv)
+        self.added += 1
+        return "new"
+
+    def directions(self) -> np.ndarray:
+        a = np.array([p.acc for p in self.poses]) if self.poses else np.zeros((0, 3))
+        return a / np.linalg.norm(a, axis=1, keepdims=True) if len(a) else a
+
+    def coverage(self) -> Dict[str, object]:
+        """Fraction of the 26 cube directions within 25 deg of a pose, and the missing ones."""
+        U = self.directions()
+        if len(U):
+            covered = (TARGETS @ U.T).max(1) >= self.cover_cos
+        else:
+            covered = np.zeros(len(TARGETS), bool)
+        missing = [target_name(TARGETS[i]) for i in np.flatnonzero(~covered)]
+        # suggest faces first (easiest to place), then edges, corners
+        missing.sort(key=lambda s: s.count("+") + s.count("-"))
+        return {"fraction": float(covered.mean()), "covered": int(covered.sum()),
+                "targets": len(TARGETS), "missing": missing}
+
+    def pose_set(self) -> PoseSet:
+        P = self.poses
+        N = len(P)
+        g = lambda f: np.array([getattr(p, f) for p in P]) if N and all(
+            getattr(p, f) is not None for p in P) else None
+        return PoseSet(acc=np.array([p.acc for p in P]).reshape(N, 3),
+                       acc_cov=np.array([p.acc_cov for p in P]).reshape(N, 3, 3),
+                       n=np.array([p.n for p in P], int), t0=np.array([p.t0 for p in P]),
+                       t1=np.array([p.t1 for p in P]),
+                       acc_sample_cov=np.array([p.acc_sample_cov for p in P]).reshape(N, 3, 3),
+                       gyro=g("gyro"), gyro_cov=g("gyro_cov"), mag=g("mag"),
+                       temp=np.array([p.temp for p in P]))
+
+    def load(self, ps: PoseSet) -> None:
+        self.poses = []
+        for i in range(len(ps)):
+            sc = ps.acc_sample_cov[i] if ps.acc_sample_cov is not None else ps.acc_cov[i] * ps.n[i]
+            self.poses.append(StaticInterval(
+                ps.acc[i], ps.acc_cov[i], sc, int(ps.n[i]), float(ps.t0[i]), float(ps.t1[i]),
+                float(ps.temp[i]) if ps.temp is not None else float("nan"),
+                None if ps.gyro is None else ps.gyro[i], None,
+                None if ps.mag is None else ps.mag[i]))
+
+    def predicted_std(self, theta: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
+        """CRLB standard deviations of the triangular9 parameters this pose set predicts."""
+        if len(self.poses) < 10:
+            return None
+        ps = self.pose_set()
+        th = _T9.nominal if theta is None else theta
+        v = np.median(np.einsum("nii->n", ps.acc_cov) / 3)
+        var = residual_variance(_T9, th, ps.acc, np.full(len(ps), v))
+        return crlb(_T9, th, ps.acc, var).std
+
+
+def _merge(a: StaticInterval, b: StaticInterval) -> StaticInterval:
+    n = a.n + b.n
+    wa, wb = a.n / n, b.n / n
+    m = wa * a.acc + wb * b.acc
+    sc = wa * a.acc_sample_cov + wb * b.acc_sample_cov
+    mix = lambda x, y: None if x is None or y is None else wa * x + wb * y
+    return StaticInterval(m, sc / n, sc, n, min(a.t0, b.t0), max(a.t1, b.t1),
+                          float(np.nansum([wa * a.temp, wb * b.temp])),
+                          mix(a.gyro, b.gyro),
+                          None if a.gyro_cov is None or b.gyro_cov is None else
+                          (a.gyro_cov * a.n ** 2 + b.gyro_cov * b.n ** 2) / n ** 2,
+                          mix(a.mag, b.mag) if a.mag is not None and b.mag is not None else (b.mag if b.mag is not None else a.mag))

@@ -1,0 +1,183 @@
+"""The daemon's configuration: defaults, YAML loading, validation, overrides.
+
+Every key has a type and an allowed range; an error names the file and line,
+the key, the bad value and what is allowed, on one line.
+"""
+from __future__ import annotations
+
+import copy
+import os
+from typing import Any, Dict, List, Optional, Tuple
+
+import yaml
+
+from ..errors import UserError
+
+__all__ = ["ConfigError", "DEFAULTS", "load_config", "validate", "set_override"]
+
+
+class ConfigError(UserError):
+    exit_code = 78          # EX_CONFIG: systemd's RestartPreventExitStatus=78 stops the retry loop
+
+
+#: key -> (default, kind, allowed); kind: int, float, bool, str, choice, addr, list
+SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
+    "sensor.board": ("mpu6050", "choice", ("mpu6050", "mpu6500", "mpu9250", "9dof")),
+    "sensor.bus": (None, "int?", (0, 99)),
+    "sensor.emulate": ("auto", "choice", ("auto", "yes", "no")),
+    "sensor.address": (None, "addr?", (0x03, 0x77)),
+    "sensor.rate_hz": (100.0, "float", (4.0, 1000.0)),
+    "sensor.accel_range_g": (2, "choice", (2, 4, 8, 16)),
+    "sensor.gyro_range_dps": (250, "choice", (250, 500, 1000, 2000)),
+    "sensor.batch_s": (0.02, "float", (0.001, 0.5)),
+    "stillness.window_s": (1.0, "float", (0.1, 10.0)),
+    "stillness.k": (6.0, "float", (1.5, 100.0)),
+    "stillness.min_still_s": (1.5, "float", (0.2, 60.0)),
+    "stillness.max_pose_s": (20.0, "float", (1.0, 600.0)),
+    "stillness.trim_s": (0.25, "float", (0.0, 5.0)),
+    "poses.merge_angle_deg": (12.0, "float", (0.5, 45.0)),
+    "poses.max_poses": (60, "int", (10, 500)),
+    "calibration.min_poses": (25, "int", (10, 500)),
+    "calibration.method": ("ga", "choice", ("ga", "hga", "lm", "ga-paper")),
+    "calibration.target_bias_g": (0.002, "float", (1e-6, 1.0)),
+    "calibration.target_scale": (0.002, "float", (1e-6, 1.0)),
+    "calibration.holdout_fraction": (0.2, "float", (0.05, 0.5)),
+    "calibration.recalibrate_every_poses": (5, "int", (1, 1000)),
+    "calibration.mag_min_coverage": (0.5, "float", (0.05, 1.0)),
+    "calibration.history": (10, "int", (0, 1000)),
+    "output.format": ("ndjson", "choice", ("ndjson", "csv", "binary")),
+    "output.socket": ("imucald.sock", "str", None),
+    "output.socket_mode": ("0660", "mode", None),
+    "output.socket_group": (None, "str?", None),
+    "output.fifo": (None, "str?", None),
+    "output.client_buffer_bytes": (1048576, "int", (4096, 1 << 28)),
+    "output.decimate": (1, "int", (1, 1000)),
+    "control.socket": ("control.sock", "str", None),
+    "control.socket_mode": ("0660", "mode", None),
+    "control.socket_group": (None, "str?", None),
+    "state.directory": ("/var/lib/imucald", "str", None),
+    "runtime.directory": ("/run/imucald", "str", None),
+    "log.level": ("info", "choice", ("debug", "info", "warning", "error")),
+}
+
+DEFAULTS: Dict[str, Dict[str, Any]] = {}
+for _k, (_d, _, _) in SCHEMA.items():
+    _s, _n = _k.split(".")
+    DEFAULTS.setdefault(_s, {})[_n] = _d
+
+
+def _lines(text: str) -> Dict[str, int]:
+    """key path -> 1-based line number, from the YAML node marks."""
+    out: Dict[str, int] = {}
+    try:
+        node = yaml.compose(text)
+    except yaml.YAMLError:
+        return out
+
+    def walk(n, prefix):
+        if isinstance(n, yaml.MappingNode):
+            for k, v in n.value:
+                key = f"{prefix}{k.value}"
+                out[key] = k.start_mark.line + 1
+                walk(v, key + ".")
+    walk(node, "")
+    return out
+
+
+def _check(key: str, value: Any, where: str) -> Any:
+    if key not in SCHEMA:
+        sec = key.split(".")[0]
+        known = sorted(k for k in SCHEMA if k.startswith(sec + "."))
+        allowed = ", ".join(known) if known else ", ".join(sorted({k.split(".")[0] for k in SCHEMA}))
+        raise ConfigError(f"{where}unknown key '{key}'; allowed: {allowed}")
+    default, kind, allowed = SCHEMA[key]
+    bad = lambda what: ConfigError(f"{where}{key}: {value!r} {what}")
+    opt = kind.endswith("?")
+    k = kind.rstrip("?")
+    if value is None:
+        if opt:
+            return None
+        raise bad("is empty")
+    if k == "choice":
+        for a in allowed:
+            if value == a or (isinstance(a, str) and str(value) == a):
+                return a
+        raise bad(f"is not allowed; allowed: {', '.join(map(str, allowed))}")
+    if k in ("int", "float"):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                (k == "int" and isinstance(value, float) and not value.is_integer()):
+            raise bad(f"is not {'an integer' if k == 'int' else 'a number'} "
+                      f"(allowed {allowed[0]}..{allowed[1]})")
+        v = int(value) if k == "int" else float(value)
+        if not allowed[0] <= v <= allowed[1]:
+            raise bad(f"is out of range; allowed {allowed[0]}..{allowed[1]}")
+        return v
+    if k == "addr":
+        try:
+            v = int(value, 0) if isinstance(value, str) else int(value)
+        except ValueError:
+            raise bad("is not an I2C address (e.g. 0x68)") from None
+        if not allowed[0] <= v <= allowed[1]:
+            raise bad("is not a 7-bit I2C address (0x03..0x77)")
+        return v
+    if k == "mode":
+        try:
+            v = int(str(value), 8)
+        except ValueError:
+            raise bad("is not an octal file mode (e.g. '0660')") from None
+        if not 0 <= v <= 0o777:
+            raise bad("is not a file mode 0000..0777")
+        return f"{v:04o}"
+    if k == "str":
+        if not isinstance(value, str) or not value:
+            raise bad("is not a non-empty string")
+        return value
+    raise AssertionError(kind)
+
+
+def validate(cfg: Dict[str, Any], path: str = "", lines: Optional[Dict[str, int]] = None
+             ) -> Dict[str, Dict[str, Any]]:
+    """Merge ``cfg`` over the defaults, checking every key."""
+    lines = lines or {}
+    out = copy.deepcopy(DEFAULTS)
+    if cfg is None:
+        return out
+    if not isinstance(cfg, dict):
+        raise ConfigError(f"{path}: the configuration must be a mapping of sections")
+    for sec, body in cfg.items():
+        where = f"{path}:{lines.get(str(sec), '?')}: " if path else ""
+        if sec not in DEFAULTS:
+            raise ConfigError(f"{where}unknown section '{sec}'; allowed: {', '.join(DEFAULTS)}")
+        if body is None:
+            continue
+        if not isinstance(body, dict):
+            raise ConfigError(f"{where}section '{sec}' must be a mapping of keys")
+        for k, v in body.items():
+            key = f"{sec}.{k}"
+            w = f"{path}:{lines.get(key, '?')}: " if path else ""
+            out[sec][k] = _check(key, v, w)
+    return out
+
+
+def load_config(path: Optional[str]) -> Dict[str, Dict[str, Any]]:
+    if path is None:
+        return validate({})
+    try:
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read the configuration: {e.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark is not None else ""
+        prob = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise ConfigError(f"{path}{line}: not valid YAML: {prob}") from None
+    return validate(data, path, _lines(text))
+
+
+def set_override(cfg: Dict[str, Dict[str, Any]], key: str, value: Any, flag: str) -> None:
+    """Apply a command-line override (already parsed) with the same validation."""
+    sec, k = key.split(".")
+    cfg[sec][k] = _check(key, value, f"{flag}: ")

@@ -1,0 +1,271 @@
+"""The corrected stream: encoders (NDJSON, CSV, binary) and sinks (Unix socket, FIFO).
+
+NDJSON follows gpsd's habits: one object per line with a ``class`` field, a
+``VERSION`` banner when a client connects, fields omitted rather than null.
+
+``class: "IMU"`` (one per sample):
+  seq (int), t (s since start), acc_g [x, y, z], gyro_dps [x, y, z],
+  mag_gauss [x, y, z] (boards with a magnetometer), temp_c, still (bool),
+  cal (calibration id; 0 = uncalibrated, nominally scaled data).
+``class: "GAP"``: seq (first missing), missing (count).
+``class: "CAL"``: id, accel/gyro/mag held-out residuals before and after.
+
+Binary record, little-endian, 64 bytes (struct ``<QdIB3x3f3f3ff3f``... see
+:data:`BINARY_FORMAT`): seq u64, t f64, cal u32, flags u8 (bit 0 still,
+bit 1 magnetometer present), 3 pad bytes, acc_g 3 x f32, gyro_dps 3 x f32,
+temp_c f32, mag_gauss 3 x f32 (NaN when absent).
+
+Sinks never block the sampler: sockets and the FIFO are non-blocking, every
+client has a bounded buffer, and a client that falls behind it is dropped and
+counted.
+"""
+from __future__ import annotations
+
+import errno
+import grp
+import json
+import os
+import socket
+import stat
+import struct
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from .. import __version__
+
+__all__ = ["encode_samples", "banner", "event", "SocketSink", "FifoSink", "BINARY_FORMAT",
+           "PROTO_MAJOR", "PROTO_MINOR", "CSV_HEADER"]
+
+PROTO_MAJOR, PROTO_MINOR = 1, 0
+BINARY_FORMAT = struct.Struct("<QdIB3x3f3ff3f")
+CSV_HEADER = "seq,t,ax,ay,az,gx,gy,gz,mx,my,mz,temp,still,cal\n"
+
+
+def banner(fmt: str, board: str) -> bytes:
+    d = {"class": "VERSION", "release": __version__, "proto_major": PROTO_MAJOR,
+         "proto_minor": PROTO_MINOR, "format": fmt, "board": board}
+    line = json.dumps(d, separators=(",", ":")) + "\n"
+    if fmt == "csv":
+        return ("# " + line + CSV_HEADER).encode()
+    if fmt == "binary":
+        # the banner is a JSON line, then fixed-size records
+        return line.encode()
+    return line.encode()
+
+
+def event(cls: str, fmt: str, **fields) -> bytes:
+    """A non-sample object (GAP, CAL): a JSON line in ndjson; a '# ' comment in CSV;
+    nothing in binary (records carry seq, so gaps are visible there)."""
+    if fmt == "binary":
+        return b""
+    d = {"class": cls}
+    d.update({k: v for k, v in fields.items() if v is not None})
+    line = json.dumps(d, separators=(",", ":")) + "\n"
+    return (("# " + line) if fmt == "csv" else line).encode()
+
+
+def _f(v: float) -> str:
+    return f"{v:.6g}"
+
+
+def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int) -> bytes:
+    """Encode a batch of corrected samples (arrays with n rows)."""
+    n = len(seq)
+    if n == 0:
+        return b""
+    if fmt == "binary":
+        m = mag if mag is not None else np.full((n, 3), np.nan)
+        flags = still.astype(np.uint8) | (np.uint8(2) if mag is not None else np.uint8(0))
+        rec = np.zeros(n, dtype=np.dtype([("seq", "<u8"), ("t", "<f8"), ("cal", "<u4"), ("flags", "u1"),
+                                          ("pad", "u1", 3), ("acc", "<f4", 3), ("gyro", "<f4", 3),
+                                          ("temp", "<f4"), ("mag", "<f4", 3)]))
+        rec["seq"], rec["t"], rec["cal"], rec["flags"] = seq, t, cal_id, flags
+        rec["acc"], rec["gyro"], rec["temp"], rec["mag"] = acc, gyro, temp, m
+        return rec.tobytes()
+    A = np.round(acc, 6).tolist()
+    G = np.round(gyro, 5).tolist()
+    T = np.round(temp, 3).tolist()
+    M = np.round(mag, 6).tolist() if mag is not None else None
+    S = still.tolist()
+    Q = seq.tolist()
+    TT = np.round(t, 6).tolist()
+    out = []
+    if fmt == "csv":
+        for i in range(n):
+            m = M[i] if M is not None else ("", "", "")
+            out.append(f"{Q[i]},{TT[i]},{A[i][0]},{A[i][1]},{A[i][2]},{G[i][0]},{G[i][1]},{G[i][2]},"
+                       f"{m[0]},{m[1]},{m[2]},{T[i]},{int(S[i])},{cal_id}\n")
+    else:
+        for i in range(n):
+            a, g = A[i], G[i]
+            mm = f',"mag_gauss":[{M[i][0]},{M[i][1]},{M[i][2]}]' if M is not None and M[i][0] == M[i][0] else ""
+            out.append(f'{{"class":"IMU","seq":{Q[i]},"t":{TT[i]},"acc_g":[{a[0]},{a[1]},{a[2]}],'
+                       f'"gyro_dps":[{g[0]},{g[1]},{g[2]}]{mm},"temp_c":{T[i]},'
+                       f'"still":{"true" if S[i] else "false"},"cal":{cal_id}}}\n')
+    return "".join(out).encode()
+
+
+def _chown_chmod(path: str, mode: str, group: Optional[str]) -> None:
+    os.chmod(path, int(mode, 8))
+    if group:
+        try:
+            gid = grp.getgrnam(group).gr_gid
+        except KeyError:
+            from ..errors import UserError
+            raise UserError(f"output socket_group: group {group!r} does not exist") from None
+        os.chown(path, -1, gid)
+
+
+class _Client:
+    __slots__ = ("sock", "buf", "peer")
+
+    def __init__(self, sock, peer):
+        self.sock, self.buf, self.peer = sock, bytearray(), peer
+
+
+class SocketSink:
+    """A listening Unix stream socket; any number of clients, each with a bounded buffer."""
+
+    def __init__(self, path: str, fmt: str, board: str, mode: str = "0660",
+                 group: Optional[str] = None, max_buffer: int = 1 << 20):
+        self.path, self.fmt, self.board, self.max_buffer = path, fmt, board, max_buffer
+        if os.path.exists(path) and stat.S_ISSOCK(os.stat(path).st_mode):
+            os.unlink(path)
+        self.lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.lsock.bind(path)
+        _chown_chmod(path, mode, group)
+        self.lsock.listen(16)
+        self.lsock.setblocking(False)
+        self.clients: List[_Client] = []
+        self.dropped = 0          #: clients dropped for falling behind
+        self.disconnected = 0     #: clients that went away
+        self.accepted = 0
+
+    def accept(self) -> None:
+        while True:
+            try:
+                s, _ = self.lsock.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            s.setblocking(False)
+            c = _Client(s, self.accepted)
+            c.buf += banner(self.fmt, self.board)
+            self.clients.append(c)
+            self.accepted += 1
+
+    def write(self, data: bytes) -> None:
+        self.accept()
+        if not self.clients:
+            return
+        keep = []
+        for c in self.clients:
+            if data:
+                c.buf += data
+            ok = self._flush(c)
+            if ok and len(c.buf) > self.max_buffer:
+                c.sock.close()
+                self.dropped += 1
+                continue
+            if ok:
+                keep.append(c)
+        self.clients = keep
+
+    def _flush(self, c: _Client) -> bool:
+        while c.buf:
+            try:
+                n = c.sock.send(c.buf)
+            except (BlockingIOError, InterruptedError):
+                return True
+            except OSError:
+                c.sock.close()
+                self.disconnected += 1
+                return False
+            del c.buf[:n]
+        return True
+
+    def close(self) -> None:
+        for c in self.clients:
+            c.sock.close()
+        self.lsock.close()
+        try:
+            os.unlink(self.path)
+        except OSError:
+            pass
+
+
+class FifoSink:
+    """A named pipe opened non-blocking.  No reader: nothing is written and nothing
+    stalls; a reader that comes back gets the stream again from a record boundary."""
+
+    def __init__(self, path: str, fmt: str, board: str, mode: str = "0660",
+                 group: Optional[str] = None, max_buffer: int = 1 << 20):
+        self.path, self.fmt, self.board, self.max_buffer = path, fmt, board, max_buffer
+        if not os.path.exists(path):
+            os.mkfifo(path)
+            _chown_chmod(path, mode, group)
+        elif not stat.S_ISFIFO(os.stat(path).st_mode):
+            from ..errors import UserError
+            raise UserError(f"output fifo: {path} exists and is not a FIFO")
+        self.fd: Optional[int] = None
+        self.buf = bytearray()
+        self.dropped_bytes = 0
+        self.connects = 0
+
+    def _open(self) -> bool:
+        try:
+            self.fd = os.open(self.path, os.O_WRONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError as e:
+            if e.errno in (errno.ENXIO, errno.ENOENT):
+                return False          # no reader yet
+            raise
+        self.connects += 1
+        self.buf = bytearray(banner(self.fmt, self.board))
+        self._banner_left = len(self.buf)
+        self._written = 0           # record bytes delivered since the banner
+        self._last = b"\n"
+        return True
+
+    def write(self, data: bytes) -> None:
+        if self.fd is None and not self._open():
+            return
+        self.buf += data
+        while self.buf:
+            try:
+                n = os.write(self.fd, self.buf)
+            except BlockingIOError:
+                break
+            except BrokenPipeError:
+                os.close(self.fd)
+                self.fd = None
+                self.buf = bytearray()
+                return
+            self._account(bytes(self.buf[:n]))
+            del self.buf[:n]
+        if len(self.buf) > self.max_buffer:        # slow reader: drop the backlog, but
+            keep = self._partial()                 # finish the record it is inside
+            self.dropped_bytes += len(self.buf) - keep
+            self.buf = self.buf[:keep]
+
+    def _account(self, chunk: bytes) -> None:
+        b = min(self._banner_left, len(chunk))
+        self._banner_left -= b
+        self._written += len(chunk) - b
+        if chunk:
+            self._last = chunk[-1:]
+
+    def _partial(self) -> int:
+        """Bytes of the buffer needed to complete the record being written."""
+        if self._banner_left:
+            return self._banner_left
+        if self.fmt == "binary":
+            return (BINARY_FORMAT.size - self._written % BINARY_FORMAT.size) % BINARY_FORMAT.size
+        if self._last == b"\n":
+            return 0
+        i = self.buf.find(b"\n")
+        return i + 1 if i >= 0 else len(self.buf)
+
+    def close(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None

@@ -1,0 +1,281 @@
+"""The daemon: board -> pipeline -> sinks, with control, persistence, signals, systemd.
+
+Single-threaded sampling loop.  Calibration runs in a worker process (so the
+sampler never waits on it); state files are written by one background thread
+(an fsync on an SD card can take tens of milliseconds).
+"""
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import signal
+import time
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from typing import Any, Dict, Optional
+
+import numpy as np
+
+from ..errors import UserError
+from .notify import notify, watchdog_period_s
+from .pipeline import Pipeline, applied_from_doc
+from .state import load_calibration, load_poses, save_calibration, save_poses
+
+__all__ = ["Daemon", "make_board_from_config"]
+
+log = logging.getLogger("imucald")
+
+
+def _worker_init():
+    try:
+        os.nice(10)          # on a one-core Pi the sampler keeps priority over the fit
+    except OSError:
+        pass
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def make_board_from_config(cfg, emulate: Optional[bool], speed: float = 1.0, seed: int = 0,
+                           faults=None, poses: int = 30):
+    """(board, bus, description).  The real bus is the default whenever one exists."""
+    from ..drivers.board import make_board
+    from ..drivers.bus import Bus, RealClock, ScaledClock, open_bus, real_bus_numbers
+    s = cfg["sensor"]
+    nums = real_bus_numbers()
+    mode = s["emulate"] if emulate is None else ("yes" if emulate else "no")
+    use_emu = mode == "yes" or (mode == "auto" and s["bus"] is None and not nums)
+    kw = {}
+    if s["address"] is not None:
+        kw = {"addr": s["address"]} if s["board"] != "9dof" else {"gyro_addr": s["address"]}
+    if s["board"] != "9dof":
+        kw.update(accel_range_g=s["accel_range_g"], gyro_range_dps=s["gyro_range_dps"])
+    if use_emu:
+        from ..drivers.emulator import emulated_board
+        from ..sim.motion import PoseTour
+        from ..sim.poses import random_pose_set
+        clock = RealClock() if speed == 1.0 else ScaledClock(speed)
+        rng = np.random.default_rng(seed)
+        tour = PoseTour(random_pose_set(poses, rng), rng=rng, hold_s=(3.0, 4.0), move_s=(1.2, 1.8),
+                        lead_s=1.0, loop=True)
+        eb = emulated_board(s["board"], tour, rng=rng, clock=clock, faults=faults)
+        bus = Bus(eb, name=f"emulated {s['board']}", clock=clock)
+        desc = (f"emulated {s['board']} (no I2C bus found), moved through {poses} orientations"
+                + (f" at {speed:g}x speed" if speed != 1.0 else ""))
+    else:
+        if mode == "no" and not nums and s["bus"] is None:
+            raise UserError("sensor.emulate is 'no' but there is no I2C bus (/dev/i2c-* absent): "
+                            "enable I2C or set sensor.emulate: auto")
+        num = s["bus"] if s["bus"] is not None else (1 if 1 in nums else nums[0])
+        bus = open_bus(num)
+        desc = f"{s['board']} on /dev/i2c-{num}"
+    board = make_board(s["board"], bus, rate_hz=s["rate_hz"], **kw)
+    return board, bus, desc
+
+
+class Daemon:
+    def __init__(self, cfg: Dict[str, Dict[str, Any]], emulate: Optional[bool] = None,
+                 speed: float = 1.0, seed: int = 0, faults=None, duration_s: Optional[float] = None,
+                 echo: bool = False, config_path: Optional[str] = None):
+        self.cfg, self.duration_s, self.echo, self.config_path = cfg, duration_s, echo, config_path
+        self.emulate, self.speed, self.seed, self.faults = emulate, speed, seed, faults
+        self.stop = False
+        self.reload = False
+
+    # -- setup --------------------------------------------------------------------------
+    def _dirs(self):
+        sd, rd = self.cfg["state"]["directory"], self.cfg["runtime"]["directory"]
+        for d, key in ((sd, "state.directory"), (rd, "runtime.directory")):
+            try:
+                os.makedirs(d, exist_ok=True)
+            except OSError as e:
+                raise UserError(f"{key}: cannot create {d}: {e.strerror} (run as the service, or "
+                                f"give --state-dir/--runtime-dir you can write)") from None
+            if not os.access(d, os.W_OK):
+                raise UserError(f"{key}: {d} is not writable by this user")
+        return sd, rd
+
+    def _path(self, rd: str, p: str) -> str:
+        return p if os.path.isabs(p) else os.path.join(rd, p)
+
+    def run(self) -> int:
+        from .control import ControlServer
+        from .outputs import FifoSink, SocketSink
+        cfg = self.cfg
+        sd, rd = self._dirs()
+        self.board, self.bus, desc = make_board_from_config(cfg, self.emulate, self.speed, self.seed,
+                                                            self.faults)
+        log.info("imucald starting: %s", desc)
+        self.board.start()                                       # identifies the chips first
+        chips = {"board": self.board.name, "bus": self.bus.name}
+        self.writer = ThreadPoolExecutor(1, thread_name_prefix="imucald-state")
+        self.worker = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                          initializer=_worker_init)
+        self.pipe = Pipeline(cfg, self.board.name, self.board.rate_hz, self.board.has_mag,
+                             executor=self.worker, persist=self._persist, chips=chips)
+        doc = load_calibration(sd)
+        if doc is not None:
+            self.pipe.applied = applied_from_doc(doc)
+            self.pipe.cal_doc = doc
+            log.info("loaded calibration #%d (%s)", self.pipe.applied.id, doc.get("created"))
+        ps = load_poses(sd)
+        if ps is not None and len(ps):
+            self.pipe.acc.load(ps)
+            self.pipe.next_cal_added = 0
+            log.info("resumed %d poses from %s", len(ps), os.path.join(sd, "poses.csv"))
+        o, c = cfg["output"], cfg["control"]
+        self.sinks = [SocketSink(self._path(rd, o["socket"]), o["format"], self.board.name,
+                                 o["socket_mode"], o["socket_group"], o["client_buffer_bytes"])]
+        if o["fifo"]:
+            self.sinks.append(FifoSink(self._path(rd, o["fifo"]), o["format"], self.board.name,
+                                       o["socket_mode"], o["socket_group"], o["client_buffer_bytes"]))
+        self.control = ControlServer(self._path(rd, c["socket"]), self._command, c["socket_mode"],
+                                     c["socket_group"])
+        signal.signal(signal.SIGTERM, self._on_stop)
+        signal.signal(signal.SIGINT, self._on_stop)
+        signal.signal(signal.SIGHUP, self._on_hup)
+        log.info("streaming %s on %s%s; control on %s", o["format"], self.sinks[0].path,
+                 f" and {self.sinks[1].path}" if len(self.sinks) > 1 else "", self.control.path)
+        try:
+            return self._loop()
+        finally:
+            self._shutdown()
+
+    # -- the loop -------------------------------------------------------------------------
+    def _loop(self) -> int:
+        b, pipe = self.board, self.pipe
+        batch_s = self.cfg["sensor"]["batch_s"]
+        wd = watchdog_period_s()
+        ready = False
+        last_status = last_wd = -1e9
+        last_fresh = time.monotonic()
+        t_start = b.clock.now()
+        self.lateness = []
+        while not self.stop:
+            batch = b.read_batch(batch_s=batch_s) if b.name != "9dof" else b.read_batch()
+            data = pipe.process(batch)
+            for s in self.sinks:
+                s.write(data)
+            self.control.poll()
+            now = time.monotonic()
+            if len(batch):
+                last_fresh = now
+                if not ready:
+                    notify("READY=1", f"STATUS={self._status_line()}")
+                    log.info("first valid sample: ready")
+                    ready = True
+                if self.echo and now - getattr(self, "_last_echo", 0) >= 1.0:
+                    self._last_echo = now
+                    print(data.split(b"\n")[-2].decode() if data.count(b"\n") else "", flush=True)
+            if wd and now - last_wd >= wd and now - last_fresh < 2 * wd:
+                notify("WATCHDOG=1")                        # only while fresh samples arrive
+                last_wd = now
+            if now - last_status >= 1.0:
+                notify(f"STATUS={self._status_line()}")
+                last_status = now
+            if self.reload:
+                self.reload = False
+                self._reload()
+            if self.duration_s is not None and b.clock.now() - t_start >= self.duration_s:
+                break
+        notify("STOPPING=1")
+        return 0
+
+    def _status_line(self) -> str:
+        p = self.pipe
+        ap = p.applied
+        age = ""
+        if ap.id and "created_t_s" in ap.info:
+            age = f", age {p.t_last - ap.info['created_t_s']:.0f} s"
+        cal = f"cal #{ap.id}{age}" if ap.id else "uncalibrated"
+        return (f"{self.board.name} {self.board.rate_hz:g} Hz, poses {len(p.acc)}/"
+                f"{self.cfg['calibration']['min_poses']}, {cal}, bus faults {self.board.stats.bus_faults}")
+
+    # -- control ---------------------------------------------------------------------------
+    def _command(self, cmd: str) -> Dict[str, Any]:
+        p = self.pipe
+        if cmd == "status":
+            d = {"class": "STATUS", "board": self.board.name, "rate_hz": self.board.rate_hz,
+                 "bus": self.bus.name, **p.status(), "board_stats": self.board.stats.as_dict(),
+                 "bus_stats": self.bus.stats.as_dict(),
+                 "clients": len(self.sinks[0].clients), "clients_dropped": self.sinks[0].dropped}
+            return d
+        if cmd == "poses":
+            ps = p.acc.pose_set()
+            return {"class": "POSES", "count": len(ps),
+                    "poses": [{"acc_g": ps.acc[i].round(6).tolist(), "n": int(ps.n[i]),
+                               "temp_c": None if ps.temp is None else round(float(ps.temp[i]), 2),
+                               "t0": round(float(ps.t0[i]), 3), "t1": round(float(ps.t1[i]), 3)}
+                              for i in range(len(ps))]}
+        if cmd == "coverage":
+            return {"class": "COVERAGE", **p.acc.coverage(),
+                    **({"mag_coverage": p.reservoir.coverage()} if p.reservoir is not None else {})}
+        if cmd == "recalibrate":
+            if len(p.acc) < 10:
+                return {"class": "ERROR", "message": f"only {len(p.acc)} poses: need at least 10"}
+            p.force = True
+            p.next_cal_added = 0
+            saved = p.cfg["calibration"]["min_poses"]
+            p.cfg = {**p.cfg, "calibration": {**p.cfg["calibration"], "min_poses": min(saved, len(p.acc)),
+                                              "target_bias_g": 1.0, "target_scale": 1.0}}
+            p.maybe_calibrate()
+            p.cfg = self.cfg
+            return {"class": "RECALIBRATE", "started": p.pending is not None}
+        if cmd == "reset":
+            p.acc.poses = []
+            p.acc.added = 0
+            p.next_cal_added = 0
+            self._persist("poses", p.acc.pose_set())
+            return {"class": "RESET", "poses": 0}
+        if cmd == "reload":
+            self.reload = True
+            return {"class": "RELOAD", "scheduled": True}
+        raise AssertionError(cmd)
+
+    def _reload(self) -> None:
+        """SIGHUP / reload: re-read the config; calibration and pose settings take effect
+        at once (sensor and output settings need a restart)."""
+        from .config import load_config
+        try:
+            new = load_config(self.config_path)
+        except UserError as e:
+            log.warning("reload failed, keeping the running configuration: %s", e)
+            return
+        for sec in ("calibration", "poses", "stillness", "log"):
+            self.cfg[sec] = new[sec]
+        self.pipe.cfg = self.cfg
+        log.info("configuration reloaded from %s", self.config_path or "defaults")
+
+    # -- persistence -------------------------------------------------------------------------
+    def _persist(self, kind: str, obj) -> None:
+        sd = self.cfg["state"]["directory"]
+        hist = self.cfg["calibration"]["history"]
+        fn = (lambda: save_poses(sd, obj)) if kind == "poses" else (lambda: save_calibration(sd, obj, hist))
+        self.writer.submit(_logged, fn)
+
+    def _on_stop(self, *_):
+        self.stop = True
+
+    def _on_hup(self, *_):
+        self.reload = True
+
+    def _shutdown(self) -> None:
+        sd = self.cfg["state"]["directory"]
+        if hasattr(self, "writer"):
+            self.writer.shutdown(wait=True)
+        if hasattr(self, "pipe"):
+            save_poses(sd, self.pipe.acc.pose_set())          # synchronous: nothing is lost
+            if self.pipe.cal_doc is not None:
+                save_calibration(sd, self.pipe.cal_doc, self.cfg["calibration"]["history"])
+        if hasattr(self, "worker"):
+            self.worker.shutdown(wait=False, cancel_futures=True)
+        for s in getattr(self, "sinks", []):
+            s.close()
+        if hasattr(self, "control"):
+            self.control.close()
+        log.info("stopped; state saved in %s", sd)
+
+
+def _logged(fn):
+    try:
+        fn()
+    except Exception as e:          # a full disk must not stop sampling; say so
+        log.error("could not save state: %s", e)

@@ -27,8 +27,10 @@ $(TSTAMP): $(BIN)/python $(SOURCES)
 	$(BIN)/python -m pip install --quiet '.[test]'
 	@touch $@ $(STAMP)
 
+# The daemon for 200 s: on the I2C bus when one exists, else on the emulated board,
+# which a virtual hand moves through 30 orientations.  State and sockets stay in ./.imucald/.
 run: $(STAMP)
-	$(BIN)/imucald demo
+	$(BIN)/imucald run --state-dir .imucald/state --runtime-dir .imucald/run --echo --duration 200
 
 # pytest exits 5 when it collected no test: that is a failure too (make stops on any non-zero exit).
 test: $(TSTAMP)

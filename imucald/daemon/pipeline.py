@@ -138,6 +138,11 @@ class Pipeline:
     def maybe_calibrate(self) -> None:
         if self.pending is not None:
             return
+        # the readiness check (a CRLB) only changes when the pose set does
+        key = (self.acc.added, len(self.acc), self.applied.id)
+        if not self.force and key == getattr(self, "_checked", None):
+            return
+        self._checked = key
         r = self.ready_to_calibrate()
         if not (r["poses"] and r["uncertainty"] and (self.force or self.acc.added >= self.next_cal_added)):
             return

@@ -150,7 +150,7 @@ class Daemon:
         t_start = b.clock.now()
         self.lateness = []
         while not self.stop:
-            batch = b.read_batch(batch_s=batch_s) if b.name != "9dof" else b.read_batch()
+            batch = b.read_batch(batch_s=batch_s)
             data = pipe.process(batch)
             for s in self.sinks:
                 s.write(data)

@@ -63,10 +63,10 @@ class StillnessDetector:
             if x.shape[1] > na:
                 self._hist["g"].extend(v[:, na:].sum(1))
         self._blk = buf[m * self.w:]
-        if self._hist["a"]:
+        if m:                                   # new windows: update the floor (once a window)
             self.floor_a = _floor(self._hist["a"], self.floor_pct)
-        if self._hist["g"]:
-            self.floor_g = _floor(self._hist["g"], self.floor_pct)
+            if self._hist["g"]:
+                self.floor_g = _floor(self._hist["g"], self.floor_pct)
 
     def still_mask(self, acc: np.ndarray, gyro: Optional[np.ndarray]) -> np.ndarray:
         """Still flag per sample of this batch (False until a floor is known)."""

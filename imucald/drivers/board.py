@@ -258,8 +258,32 @@ class NineDofBoard(Board):
         return self._emit(acc, np.broadcast_to(g, (n, 3)).copy(), np.full(n, temp), mag, fresh, lost)
 
     def read_batch(self, wait: bool = True, batch_s: Optional[float] = None) -> SampleBatch:
-        # the gyro has no FIFO: poll once per sample period so each accel sample gets its own
-        return super().read_batch(wait, 1.0 / self.rate_hz if batch_s is None else batch_s)
+        """The gyro has no FIFO: poll once per sample period, so that each accelerometer
+        sample gets its own gyro reading, and return the polls of ``batch_s`` together."""
+        period = 1.0 / self.rate_hz
+        if batch_s is None or batch_s <= period:
+            return super().read_batch(wait, period)
+        parts = []
+        t_end = self.clock.now() + batch_s
+        while True:
+            parts.append(super().read_batch(wait, period))
+            if self.clock.now() >= t_end - 0.5 * period:
+                break
+        return merge_batches(parts)
+
+
+def merge_batches(parts: List[SampleBatch]) -> SampleBatch:
+    """One batch from consecutive ones (the 9DOF board polls per sample; the pipeline
+    is cheaper per sample on larger batches)."""
+    parts = [p for p in parts if len(p) or p.gaps]
+    if len(parts) == 1:
+        return parts[0]
+    if not parts:
+        return SampleBatch(np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)),
+                           np.zeros(0))
+    cat = lambda k: None if getattr(parts[0], k) is None else np.concatenate([getattr(p, k) for p in parts])
+    return SampleBatch(cat("t"), cat("seq"), cat("acc"), cat("gyro"), cat("temp"), cat("mag"),
+                       cat("mag_fresh"), [g for p in parts for g in p.gaps])
 
 
 def make_board(name: str, bus: Bus, clock: Optional[Clock] = None, rate_hz: float = 100.0,

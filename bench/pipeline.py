@@ -1,0 +1,194 @@
+"""The daemon's pipeline: CPU cost per sample, highest sustained rate, lateness while a
+calibration runs in the background, and resident memory.
+
+Targets (issue 4): <= 50 us per sample on one core here (20x the MPU6050's 1 kHz),
+calibration never delaying a sample by more than one batch, resident memory < 60 MB.
+Usage: python bench/pipeline.py [--seconds S]
+"""
+import argparse
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+from _common import np
+
+from imucald.daemon.calibrator import Applied
+from imucald.daemon.config import DEFAULTS
+from imucald.daemon.outputs import SocketSink
+from imucald.daemon.pipeline import Pipeline
+from imucald.drivers.board import make_board
+from imucald.drivers.bus import Bus, RealClock, VirtualClock
+from imucald.drivers.emulator import emulated_board
+from imucald.sim.motion import PoseTour
+from imucald.sim.poses import random_pose_set
+import copy
+
+
+def batches(board, rate, seconds):
+    clk = VirtualClock()
+    eb = emulated_board(board, PoseTour(random_pose_set(30, 1), rng=1, hold_s=(3, 4), move_s=(1.2, 1.8),
+                                        loop=True), rng=1, clock=clk)
+    b = make_board(board, Bus(eb, board, clock=clk), clk, rate_hz=rate)
+    b.start()
+    out = []
+    while clk.now() < seconds:
+        bt = b.read_batch(batch_s=0.02)
+        if len(bt):
+            out.append(bt)
+    return out
+
+
+def drain(path, stop):
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.connect(path)
+    s.settimeout(0.2)
+    n = 0
+    while not stop.is_set():
+        try:
+            d = s.recv(1 << 20)
+            if not d:
+                break
+            n += len(d)
+        except socket.timeout:
+            pass
+    s.close()
+
+
+def cost(board, rate, seconds, fmt, tmp):
+    cfg = copy.deepcopy(DEFAULTS)
+    cfg["output"]["format"] = fmt
+    bs = batches(board, rate, seconds)
+    pipe = Pipeline(cfg, board, rate, board in ("9dof", "mpu9250"))
+    pipe.applied = Applied(1, accel_theta=np.array([0.01, 0, 0, 1.01, 0.99, 1, 0.02, -0.01, 0.03]),
+                           gyro_bias_dps=np.array([1.0, -2, 0.5]))
+    path = os.path.join(tmp, f"b-{board}-{fmt}.sock")
+    sink = SocketSink(path, fmt, board, max_buffer=1 << 30)
+    stop = threading.Event()
+    th = threading.Thread(target=drain, args=(path, stop), daemon=True)
+    th.start()
+    time.sleep(0.1)
+    sink.accept()
+    n = sum(len(b) for b in bs)
+    c0 = time.process_time()
+    for b in bs:
+        sink.write(pipe.process(b))
+    c = time.process_time() - c0
+    stop.set()
+    sink.close()
+    return c / n * 1e6, n
+
+
+def lateness(seconds):
+    """Real-time 1 kHz MPU6050 emulation; a ga-paper calibration (about 1 s of CPU) is
+    started in a worker process; the delay of each batch behind its schedule is recorded."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    cfg = copy.deepcopy(DEFAULTS)
+    cfg["calibration"]["method"] = "ga-paper"
+    cfg["calibration"]["min_poses"] = 10
+    clk = RealClock()
+    eb = emulated_board("mpu6050", PoseTour(random_pose_set(30, 2), rng=2, hold_s=(3, 4), move_s=(1, 1.5),
+                                            loop=True), rng=2, clock=clk)
+    b = make_board("mpu6050", Bus(eb, "emu", clock=clk), clk, rate_hz=1000)
+    b.start()
+    ex = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    ex.submit(int, 0).result()                       # worker started before timing
+    pipe = Pipeline(cfg, "mpu6050", 1000.0, False, executor=ex)
+    from imucald.daemon.accumulator import PoseAccumulator
+    # preload poses so a calibration can start at once, and keep forcing new ones
+    from imucald.sim.sensor import draw_truth, simulate_pose_means
+    from imucald.sim.poses import up_vectors
+    from imucald.daemon.stillness import StaticInterval
+    rng = np.random.default_rng(3)
+    raw, cov = simulate_pose_means(draw_truth("mpu6050", rng).accel, up_vectors(random_pose_set(30, rng)), 1e-4, rng)
+    for i, r in enumerate(raw):
+        pipe.acc.add(StaticInterval(r, cov[i], cov[i] * 500, 500, i, i + 1, 25.0))
+    late_idle, late_cal = [], []
+    t_start = clk.now()
+    cal_runs = 0
+    idle_since = clk.now()
+    while clk.now() - t_start < seconds:
+        bt = b.read_batch(batch_s=0.02)
+        busy = pipe.pending is not None
+        if not busy and clk.now() - idle_since > 2.0:      # alternate 2 s idle / one calibration
+            pipe.force = True
+            pipe.next_cal_added = 0
+        pipe.process(bt)
+        if busy and pipe.pending is None:
+            idle_since = clk.now()
+        if pipe.pending is not None and not busy:
+            cal_runs += 1
+        if len(bt):
+            # the newest sample was produced at about (its seq) / rate after the board's t0;
+            # how long after that has it been processed?
+            due = b.t0 + (bt.seq[-1] + 1) / b.rate_hz
+            lag = clk.now() - due
+            (late_cal if busy else late_idle).append(lag)
+    ex.shutdown()
+    li, lc = np.array(late_idle), np.array(late_cal)
+    base = np.median(li)
+    return (np.percentile(li - base, 99) * 1e3, (lc - base).max() * 1e3 if len(lc) else float("nan"),
+            np.percentile(lc - base, 99) * 1e3 if len(lc) else float("nan"), cal_runs)
+
+
+def rss(seconds):
+    with tempfile.TemporaryDirectory() as d:
+        p = subprocess.Popen([sys.executable, "-m", "imucald.cli", "run", "--emulate", "--speed", "20",
+                              "--min-poses", "10", "--state-dir", d, "--runtime-dir", d,
+                              "--duration", str(20 * seconds)], stderr=subprocess.DEVNULL)
+        peak, peak_w = 0, 0
+        while p.poll() is None:
+            try:
+                peak = max(peak, _rss_kb(p.pid))
+                for c in _children(p.pid):
+                    peak_w = max(peak_w, _rss_kb(c))
+            except OSError:
+                pass
+            time.sleep(0.2)
+    return peak / 1024, peak_w / 1024
+
+
+def _rss_kb(pid):
+    with open(f"/proc/{pid}/status") as f:
+        for l in f:
+            if l.startswith("VmRSS:"):
+                return int(l.split()[1])
+    return 0
+
+
+def _children(pid):
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            return [int(x) for x in f.read().split()]
+    except OSError:
+        return []
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        print("pipeline CPU per sample (stillness + poses + correction + encoding + socket write),"
+              f" median of {args.repeats} runs of {args.seconds:g} s of data")
+        for board, rate in (("mpu6050", 1000), ("mpu9250", 1000), ("9dof", 100)):
+            for fmt in ("ndjson", "binary"):
+                cs = [cost(board, rate, args.seconds if rate == 1000 else args.seconds * 4, fmt, tmp)
+                      for _ in range(args.repeats)]
+                us = float(np.median([c for c, _ in cs]))
+                print(f"  {board:<8} {rate:5d} Hz {fmt:<7} {us:6.1f} us/sample -> highest sustained "
+                      f"rate {1e6 / us:8.0f} Hz ({cs[0][1]} samples)")
+    idle99, cal_max, cal99, runs = lateness(20.0)
+    print(f"lateness behind schedule at 1 kHz, 20 ms batches (one batch = 20 ms): idle p99 {idle99:.1f} ms; "
+          f"while {runs} ga-paper calibrations ran in the worker: p99 {cal99:.1f} ms, max {cal_max:.1f} ms")
+    main_mb, worker_mb = rss(8.0)
+    print(f"resident memory: daemon {main_mb:.1f} MB (calibration worker process {worker_mb:.1f} MB)")
+
+
+if __name__ == "__main__":
+    main()

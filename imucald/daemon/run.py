@@ -52,7 +52,7 @@ def make_board_from_config(cfg, emulate: Optional[bool], speed: float = 1.0, see
         from ..drivers.emulator import emulated_board
         from ..sim.motion import PoseTour
         from ..sim.poses import random_pose_set
-        clock = RealClock() if speed == 1.0 else ScaledClock(speed)
+        clock = ScaledClock(speed)          # starts at 0: the tour and its warm-up begin now
         rng = np.random.default_rng(seed)
         tour = PoseTour(random_pose_set(poses, rng), rng=rng, hold_s=(3.0, 4.0), move_s=(1.2, 1.8),
                         lead_s=1.0, loop=True)

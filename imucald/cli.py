@@ -43,9 +43,28 @@ def cmd_simulate(args) -> int:
         if args.poses < 1:
             raise UserError(f"--poses {args.poses}: at least 1")
         R = random_pose_set(args.poses, rng)
-    s = simulate_session(args.board, R, rng, rate_hz=args.rate, hold_s=(args.hold * 0.8, args.hold * 1.2),
-                         move_s=(args.move * 0.7, args.move * 1.3), temp_kind=args.temp_profile,
-                         temp_rise_c=args.temp_rise)
+    hold, move = (args.hold * 0.8, args.hold * 1.2), (args.move * 0.7, args.move * 1.3)
+    effects = []
+    if args.effect:
+        from .sim.effects import effect_session
+        named = [e for e in args.effect if e != "none"]
+        if args.magnitude is not None and len(named) != 1:
+            raise UserError("--magnitude applies to exactly one --effect (use NAME=X for several)")
+        spec = []
+        for e in named:
+            name, _, m = e.partition("=")
+            try:
+                spec.append((name, float(m) if m else args.magnitude))
+            except ValueError:
+                raise UserError(f"--effect {e!r}: the magnitude after '=' is not a number") from None
+        try:
+            s, effects = effect_session(args.board, R, rng, spec, args.rate, hold, move,
+                                        args.temp_profile, args.temp_rise)
+        except ValueError as ex:
+            raise UserError(f"--effect: {ex}") from None
+    else:
+        s = simulate_session(args.board, R, rng, rate_hz=args.rate, hold_s=hold, move_s=move,
+                             temp_kind=args.temp_profile, temp_rise_c=args.temp_rise)
     s.recording.meta["seed"] = str(args.seed)
     write_recording(s.recording, args.output)
     if args.truth:
@@ -53,7 +72,8 @@ def cmd_simulate(args) -> int:
         tr = s.truth
         d = {"board": tr.board, "accel_triangular9": tr.accel.tolist(),
              "gyro_bias_dps": tr.gyro_bias_dps.tolist(), "gyro_matrix": tr.gyro_matrix.tolist(),
-             "hold_s": [list(h) for h in s.hold]}
+             "hold_s": [list(h) for h in s.hold],
+             "effects": effects}
         if tr.mag_soft_iron is not None:
             d.update(mag_hard_iron_gauss=tr.mag_hard_iron_gauss.tolist(),
                      mag_soft_iron=tr.mag_soft_iron.tolist(), field_gauss=tr.field_gauss,
@@ -489,6 +509,62 @@ def cmd_watch(args) -> int:
     return 0
 
 
+# --- gap -------------------------------------------------------------------------------
+
+def _gap_summary(res) -> str:
+    lines = [f"{res['poses_found']} still poses"
+             + (f"; left out as disturbed: {res['poses_left_out']}" if res.get("poses_left_out") else "")]
+    for s, r in res["sensors"].items():
+        u = r.get("unit", "")
+        k = 1e3 if u == "g" else 1.0
+        uu = "mg" if u == "g" else u
+        lines.append(f"{s}: verdict {r['verdict']!s}"
+                     + (" (partially explained)" if r.get("partially_explained") else "")
+                     + f"; held-out residual {r['heldout_rms'] * k:.4g} {uu} vs the twin's "
+                     f"{r['twin_heldout_rms'] * k:.4g} {uu}: ratio {r['ratio_before']:.2f} -> "
+                     f"{r['ratio_after']:.2f}; chi-square p = {r['p_value']:.3g}"
+                     + (f" (log10 p = {r['log10_p_value']})" if r['p_value'] == 0 else ""))
+        for ef in r["effects"]:
+            if ef.get("significant"):
+                (pk, pv), = ef["params"].items()
+                se = list(ef["stderr"].values())[0]
+                vals = ", ".join(f"{a:.3g}+-{b:.2g}" for a, b in zip(pv, se))
+                lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {pk} = [{vals}]")
+        for c in r.get("confusable", []):
+            lines.append(f"  cannot tell {' from '.join(c['effects'])} apart here "
+                         f"(correlation {c['canonical_correlation']}); to separate them: {c['to_separate']}")
+        w = r.get("where", {})
+        if w.get("region_share"):
+            top = sorted(w["region_share"].items(), key=lambda kv: -kv[1])[:3]
+            lines.append("  excess by orientation: " + ", ".join(f"{a} {b:.0%}" for a, b in top))
+        if r.get("note"):
+            lines.append(f"  note: {r['note']}")
+    for n in res.get("notes", []):
+        lines.append(f"note: {n}")
+    return "\n".join(lines)
+
+
+def cmd_gap(args) -> int:
+    from .gap.diagnose import diagnose
+    from .recording import read_recording
+    from .calib.inputs import load_input
+    columns = args.columns.split(",") if args.columns else None
+    kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
+    if kind != "recording":
+        raise UserError(f"{args.recording}: gap needs samples (a recording), not pose averages")
+    res = diagnose(rec, args.sensor, sims=args.sims, seed=args.seed, name=args.recording)
+    if args.report:
+        from .gap.report import write_report
+        write_report(res, args.report)
+    for r in res["sensors"].values():
+        r.pop("_plot", None)
+    if args.json:
+        print(json.dumps(res, default=float))
+    else:
+        print(_gap_summary(res))
+    return 0
+
+
 # --- main ------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
@@ -508,6 +584,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--temp-rise", type=float, default=6.0, help="temperature change, degC")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--truth", help="also write the true parameters as JSON here")
+    s.add_argument("--effect", action="append", help="inject an unmodelled effect: NAME or NAME=MAGNITUDE, "
+                   "e.g. thermal_bias, accel.nonlinearity=0.002, gyro.g_sensitivity, mag.soft_iron; "
+                   "'none' for a baseline-only recording (repeatable)")
+    s.add_argument("--magnitude", type=float, help="magnitude of the single --effect (default: datasheet)")
     s.set_defaults(func=cmd_simulate)
 
     c = sub.add_parser("calibrate", help="calibrate from a recording or pose file")
@@ -597,6 +677,20 @@ def build_parser() -> argparse.ArgumentParser:
     daemon_opts(w, state=False)
     w.add_argument("-n", "--count", type=int, help="stop after N lines")
     w.set_defaults(func=cmd_watch)
+
+    gp = sub.add_parser("gap", help="diagnose the sim-to-real gap of a recording")
+    gp.add_argument("recording")
+    gp.add_argument("--sensor", action="append", choices=["accel", "gyro", "mag"],
+                    help="sensor(s) to diagnose (default: all present)")
+    gp.add_argument("--json", action="store_true", help="print one JSON object")
+    gp.add_argument("--report", help="write plots to this directory (needs the plots extra)")
+    gp.add_argument("--sims", type=int, default=200, help="twin re-simulations")
+    gp.add_argument("--seed", type=int, default=0)
+    gp.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,temp")
+    gp.add_argument("--nominal-scale", type=float, default=1.0)
+    gp.add_argument("--nominal-offset", type=float, default=0.0)
+    gp.add_argument("--rate-hz", type=float)
+    gp.set_defaults(func=cmd_gap)
 
     d = sub.add_parser("demo", help="the calibration demo that `make run` shows")
     d.add_argument("--seed", type=int, default=1)

@@ -1,0 +1,108 @@
+"""Unmodelled effects the simulator can inject (``imucald simulate --effect``).
+
+Each effect is a parametric perturbation of the raw measurement, applied before
+noise and quantisation, with a default magnitude taken from datasheets
+(../shared/reference/error-models.md section 2):
+
+accel.thermal_bias   g/degC    MPU-6050 zero-g change: +-35 mg over 0..70 C ~ 0.5 mg/degC
+accel.thermal_scale  1/degC    sensitivity change +-0.02 %/degC
+accel.nonlinearity   g/g^2     0.5 % of full scale (+-2 g): 10 mg at 2 g ~ 2.5 mg/g^2
+accel.bias_drift     g/s       1 mg over 15 minutes (bias instability class)
+gyro.thermal_bias    dps/degC  0.03 dps/degC (ITG-class ZRO tempco)
+gyro.g_sensitivity   dps/g     0.1 dps/g (MPU-6050 linear-acceleration sensitivity)
+gyro.bias_drift      dps/s     0.02 dps over 10 minutes
+mag.soft_iron        -         symmetric 5 % deformation of the field sphere
+mag.thermal_bias     gauss/degC 0.5 mG/degC of hard-iron change
+
+Signs and axis weights are drawn per effect from the generator, so the same
+name gives a different (but equally large) effect on each seed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Dict, List, Optional, Union
+
+import numpy as np
+
+__all__ = ["EFFECTS", "DEFAULT_MAGNITUDE", "make_effect", "parse_effect_name"]
+
+DEFAULT_MAGNITUDE = {
+    "accel.thermal_bias": 0.5e-3, "accel.thermal_scale": 2e-4, "accel.nonlinearity": 2.5e-3,
+    "accel.bias_drift": 1e-3 / 900, "gyro.thermal_bias": 0.03, "gyro.g_sensitivity": 0.1,
+    "gyro.bias_drift": 0.02 / 600, "mag.soft_iron": 0.05, "mag.thermal_bias": 0.5e-3,
+}
+EFFECTS = tuple(DEFAULT_MAGNITUDE)
+_SENSOR_OF = {"g_sensitivity": "gyro", "soft_iron": "mag"}
+
+
+def parse_effect_name(name: str) -> str:
+    """'thermal_bias' -> 'accel.thermal_bias'; 'gyro.bias_drift' stays."""
+    if "." not in name:
+        name = f"{_SENSOR_OF.get(name, 'accel')}.{name}"
+    if name not in DEFAULT_MAGNITUDE:
+        raise ValueError(f"unknown effect {name!r}: allowed {', '.join(EFFECTS)}")
+    return name
+
+
+def _signs(rng, scale=1.0):
+    """A random direction with every axis carrying a good share of the magnitude."""
+    return scale * rng.choice([-1.0, 1.0], 3) * rng.uniform(0.6, 1.0, 3)
+
+
+def make_effect(name: str, magnitude: Optional[float], rng) -> Dict[str, object]:
+    """Returns {"name", "magnitude", "params", "apply"(sensor, raw, ctx)}."""
+    name = parse_effect_name(name)
+    mag = DEFAULT_MAGNITUDE[name] if magnitude is None else float(magnitude)
+    sensor, kind = name.split(".")
+    p: Dict[str, object] = {}
+    if kind in ("thermal_bias", "bias_drift", "thermal_scale", "nonlinearity"):
+        p["coef"] = _signs(rng, mag)
+    elif kind == "g_sensitivity":
+        G = rng.normal(scale=mag / np.sqrt(3), size=(3, 3))
+        p["G"] = G * (mag / max(np.abs(G).max(), 1e-12))
+    elif kind == "soft_iron":
+        E = rng.normal(size=(3, 3))
+        E = (E + E.T) / 2
+        E -= np.eye(3) * np.trace(E) / 3
+        p["E"] = E * (mag / np.abs(np.linalg.eigvalsh(E)).max())
+
+    def apply(s: str, raw: np.ndarray, ctx: Dict[str, np.ndarray]) -> None:
+        if s != sensor:
+            return
+        dT = (ctx["temp"] - ctx["temp"][0])[:, None]
+        dt = (ctx["t"] - ctx["t"][0])[:, None]
+        if kind == "thermal_bias":
+            raw += p["coef"] * dT
+        elif kind == "bias_drift":
+            raw += p["coef"] * dt
+        elif kind == "thermal_scale":
+            raw += p["coef"] * ctx["f"] * dT          # scale (1 + d dT) on the true input
+        elif kind == "nonlinearity":
+            raw += p["coef"] * ctx["f"] ** 2
+        elif kind == "g_sensitivity":
+            raw += ctx["f"] @ p["G"].T
+        elif kind == "soft_iron":
+            raw += ctx["h"] @ p["E"].T
+
+    return {"name": name, "magnitude": mag, "params": {k: np.asarray(v).tolist() for k, v in p.items()},
+            "apply": apply}
+
+
+def effect_session(board: str, rotations, rng, effects, rate_hz: float = 100.0,
+                   hold_s=(8.0, 12.0), move_s=(2.1, 3.9), temp_kind: str = "warmup",
+                   temp_rise_c: float = 6.0):
+    """A simulated session with the gap diagnosis's baseline truth (magnetometer: hard
+    iron only) plus the given effects [(name, magnitude or None), ...].
+
+    Returns (session, [effect dicts without the apply function])."""
+    from .sensor import draw_truth, simulate_session
+    truth = draw_truth(board, rng)
+    if truth.mag_soft_iron is not None:
+        truth.mag_soft_iron = np.eye(3)
+    made = [make_effect(n, m, rng) for n, m in effects]
+    s = simulate_session(board, rotations, rng, rate_hz=rate_hz, hold_s=hold_s, move_s=move_s,
+                         truth=truth, temp_kind=temp_kind, temp_rise_c=temp_rise_c,
+                         effects=[e["apply"] for e in made])
+    if made:
+        s.recording.meta["effects"] = ",".join(e["name"] for e in made)
+    return s, [{k: v for k, v in e.items() if k != "apply"} for e in made]

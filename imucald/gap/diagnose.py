@@ -311,7 +311,9 @@ def _norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, 
         "chi2": chi2, "dof": N - p0, "heldout_rms": float(np.sqrt(np.mean(e * e))) * scale,
         "twin_heldout_rms": twin * scale, "twin_ratio_q99": ratio_q99, "unit": unit,
     }
-    significant = p_gap < ALPHA
+    # a gap: the chi-square test rejects the noise model, and the held-out ratio lies
+    # above what the twin produces in 99 % of its re-simulations
+    significant = p_gap < ALPHA and ratio > ratio_q99
     # --- which effect: score tests from the baseline fit
     sw = np.sqrt(w)
     rw = r * sw
@@ -382,23 +384,29 @@ def _norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, 
             chosen = [best["name"]]
             ratio_after = best["ratio_after"]
             chi2_best = fits[best["name"]][0]
-            p_rest = chi2_sf(chi2_best, N - p0 - next(c.q for c in cands if c.name == best["name"]))
-            if ratio_after > RATIO_OK and p_rest < ALPHA and len(sig) > 1:
-                # one effect is not enough: try it jointly with each other candidate
+            q_best = next(c.q for c in cands if c.name == best["name"])
+            p_rest = chi2_sf(chi2_best, N - p0 - q_best)
+            if p_rest < ALPHA:
+                # greedy forward selection: with the first effect modelled, does a second
+                # one still explain a significant part (nested test) and improve held-out?
                 best_pair = None
-                for other in sig:
-                    if other["name"] == best["name"]:
+                e_best = fits[best["name"]][1]
+                for d in tested:
+                    other = d["cand"]
+                    if other.name == best["name"] or d["q"] == 0:
                         continue
-                    cs = [next(c for c in cands if c.name == n) for n in (best["name"], other["name"])]
+                    cs = [next(c for c in cands if c.name == best["name"]), other]
                     z, chi2a, ea, twa, sd = refit(cs)
                     rr = float(np.sqrt(np.mean(ea * ea)) / twa)
-                    pn, _ = _p_and_log10(max(chi2_best - chi2a, 0.0), cs[1].q)
-                    if pn < bonf and (best_pair is None or rr < best_pair[1]):
-                        best_pair = (other["name"], rr, z, sd, cs)
-                if best_pair is not None and best_pair[1] < ratio_after:
+                    pn, _ = _p_and_log10(max(chi2_best - chi2a, 0.0), other.q)
+                    if pn < bonf and np.mean(ea * ea) < np.mean(e_best * e_best) and \
+                            (best_pair is None or rr < best_pair[1]):
+                        best_pair = (other.name, rr, z, sd, pn)
+                if best_pair is not None:
                     chosen = [best["name"], best_pair[0]]
                     ratio_after = best_pair[1]
                     out["joint"] = {"effects": chosen, "ratio_after": ratio_after,
+                                    "nested_p_value": best_pair[4],
                                     "params": best_pair[2][p0:].tolist(),
                                     "stderr": best_pair[3][p0:].tolist()}
             shrink = (ratio - ratio_after) / max(ratio - 1.0, 1e-9)
@@ -486,12 +494,15 @@ def _gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> D
     p_gap, lp = _p_and_log10(chi2, 3 * N - 3)
     J0 = -X0
     e0 = _heldout(r0, J0, w)
-    twin = float(np.median(_twin(J0, var, w, sims, rng)))
+    tw = _twin(J0, var, w, sims, rng)
+    twin = float(np.median(tw))
     ratio = float(np.sqrt(np.mean(e0 ** 2)) / twin)
+    ratio_q99 = float(np.quantile(tw / twin, 0.99))
     out = {"poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp, 2),
            "chi2": chi2, "dof": 3 * N - 3, "unit": "dps", "bias_dps": b0.tolist(),
-           "heldout_rms": float(np.sqrt(np.mean(e0 ** 2))), "twin_heldout_rms": twin}
-    significant = p_gap < ALPHA
+           "heldout_rms": float(np.sqrt(np.mean(e0 ** 2))), "twin_heldout_rms": twin,
+           "twin_ratio_q99": ratio_q99}
+    significant = p_gap < ALPHA and ratio > ratio_q99
     effects, fits = [], {}
     bonf = ALPHA / max(len(GYRO_CANDIDATES), 1)
     tested = []

@@ -7,7 +7,7 @@ noise and quantisation, with a default magnitude taken from datasheets
 accel.thermal_bias   g/degC    MPU-6050 zero-g change: +-35 mg over 0..70 C ~ 0.5 mg/degC
 accel.thermal_scale  1/degC    sensitivity change +-0.02 %/degC
 accel.nonlinearity   g/g^2     0.5 % of full scale (+-2 g): 10 mg at 2 g ~ 2.5 mg/g^2
-accel.bias_drift     g/s       1 mg over 15 minutes (bias instability class)
+accel.bias_drift     g/s       1 mg over 10 minutes (the upper end of the MPU-6050 class's wander)
 gyro.thermal_bias    dps/degC  0.03 dps/degC (ITG-class ZRO tempco)
 gyro.g_sensitivity   dps/g     0.1 dps/g (MPU-6050 linear-acceleration sensitivity)
 gyro.bias_drift      dps/s     0.02 dps over 10 minutes
@@ -28,7 +28,7 @@ __all__ = ["EFFECTS", "DEFAULT_MAGNITUDE", "make_effect", "parse_effect_name"]
 
 DEFAULT_MAGNITUDE = {
     "accel.thermal_bias": 0.5e-3, "accel.thermal_scale": 2e-4, "accel.nonlinearity": 2.5e-3,
-    "accel.bias_drift": 1e-3 / 900, "gyro.thermal_bias": 0.03, "gyro.g_sensitivity": 0.1,
+    "accel.bias_drift": 1e-3 / 600, "gyro.thermal_bias": 0.03, "gyro.g_sensitivity": 0.1,
     "gyro.bias_drift": 0.02 / 600, "mag.soft_iron": 0.05, "mag.thermal_bias": 0.5e-3,
 }
 EFFECTS = tuple(DEFAULT_MAGNITUDE)

@@ -470,7 +470,9 @@ def _norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, 
         trends[f"{ax}_squared"] = _corr_p(ud[:, j] ** 2, z_n)
     where["trends"] = {k: v for k, v in trends.items() if v is not None}
     out["where"] = where
-    out["_plot"] = {"r": r, "e": e, "t": ctx["t"], "temp": ctx.get("temp"), "u": ud, "var": var}
+    out["_plot"] = {"r": r, "e": e, "t": ctx["t"], "temp": ctx.get("temp"), "u": ud, "var": var,
+                    "e_after": fits[chosen[0]][1] if chosen and chosen[0] in fits else None,
+                    "after_label": chosen[0] if chosen else None}
     return out
 
 

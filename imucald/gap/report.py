@@ -26,25 +26,31 @@ def write_report(res: Dict[str, object], outdir: str) -> list:
         p = r.get("_plot")
         if p is None:
             continue
-        z = np.asarray(p["r"]) / np.sqrt(np.asarray(p["var"]))
+        sd = np.sqrt(np.asarray(p["var"]))
+        series = [("baseline", np.asarray(p["e"]) / sd, "o", "0.6")]
+        if p.get("e_after") is not None:
+            series.append((f"with {p['after_label']}", np.asarray(p["e_after"]) / sd, "o", "C0"))
         fig, ax = plt.subplots(1, 3, figsize=(13, 4))
+        u = np.asarray(p["u"])
+        j = np.argmax(np.abs(u), axis=1)
+        region = j * 2 + (np.take_along_axis(u, j[:, None], 1)[:, 0] < 0)
+        for label, z, m, c in series:
+            if p.get("temp") is not None:
+                ax[0].plot(p["temp"], z, m, color=c, label=label)
+            ax[1].plot(p["t"], z, m, color=c, label=label)
+            ax[2].plot(region, z, m, color=c, label=label)
         if p.get("temp") is not None:
-            ax[0].plot(p["temp"], z, "o")
             ax[0].set_xlabel("temperature, degC")
         else:
             ax[0].text(0.5, 0.5, "no temperature column", ha="center", transform=ax[0].transAxes)
-        ax[1].plot(p["t"], z, "o")
         ax[1].set_xlabel("time, s")
-        u = np.asarray(p["u"])
-        region = np.argmax(np.abs(u), axis=1) * 2 + (np.take_along_axis(u, np.argmax(np.abs(u), axis=1)[:, None], 1)[:, 0] < 0)
-        ax[2].plot(region, z, "o")
+        ax[1].legend(fontsize=8)
         ax[2].set_xticks(range(6), ["+X", "-X", "+Y", "-Y", "+Z", "-Z"])
         ax[2].set_xlabel("axis up")
         for a in ax:
             a.axhline(0, color="k", lw=0.5)
-            a.set_ylabel("residual / predicted sd")
-        fig.suptitle(f"{sensor}: verdict {r['verdict']}, ratio {r['ratio_before']:.2f} -> {r['ratio_after']:.2f} "
-                     "(baseline model residuals)")
+            a.set_ylabel("held-out residual / noise sd")
+        fig.suptitle(f"{sensor}: verdict {r['verdict']}, ratio {r['ratio_before']:.2f} -> {r['ratio_after']:.2f}")
         fig.tight_layout()
         f = os.path.join(outdir, f"{sensor}_residuals.png")
         fig.savefig(f, dpi=90)

@@ -12,7 +12,6 @@ Usage: python bench/bus.py [--seconds S]
 import argparse
 import time
 
-from _common import np
 
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, RealClock, VirtualClock

@@ -98,7 +98,6 @@ def lateness(seconds):
     ex = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
     ex.submit(int, 0).result()                       # worker started before timing
     pipe = Pipeline(cfg, "mpu6050", 1000.0, False, executor=ex)
-    from imucald.daemon.accumulator import PoseAccumulator
     # preload poses so a calibration can start at once, and keep forcing new ones
     from imucald.sim.sensor import draw_truth, simulate_pose_means
     from imucald.sim.poses import up_vectors

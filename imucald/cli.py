@@ -9,7 +9,6 @@ import argparse
 import json
 import os
 import sys
-import time
 from typing import List, Optional
 
 import numpy as np
@@ -546,7 +545,6 @@ def _gap_summary(res) -> str:
 
 def cmd_gap(args) -> int:
     from .gap.diagnose import diagnose
-    from .recording import read_recording
     from .calib.inputs import load_input
     columns = args.columns.split(",") if args.columns else None
     kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)

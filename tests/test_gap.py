@@ -89,7 +89,7 @@ def test_gap_report_writes_plots(nl_recording, tmp_path):
 
 
 def test_gap_on_real_xsens_data_runs_and_says_what_it_cannot_test():
-    path = real_path("imutk_xsens_mti")
+    real_path("imutk_xsens_mti")
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(__file__)), "bench"))
     from real_gap import xsens
     from imucald.gap.diagnose import diagnose

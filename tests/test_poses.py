@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from imucald.calib.poses import detect_static, moving_variance, poses_from_recording, read_poses, write_poses
+from imucald.calib.poses import moving_variance, poses_from_recording, read_poses, write_poses
 from imucald.errors import UserError
-from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.sim.poses import random_pose_set
 from imucald.sim.sensor import simulate_session
 
 

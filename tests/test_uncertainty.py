@@ -6,7 +6,7 @@ from imucald.calib.models import Triangular9
 from imucald.calib.optim import Problem, _lm_converge
 from imucald.calib.uncertainty import crlb, residual_variance
 from imucald.sim.poses import euler_pose_set, random_pose_set, up_vectors
-from imucald.sim.sensor import draw_truth, simulate_pose_means
+from imucald.sim.sensor import draw_truth
 
 T9 = Triangular9()
 SIGMA = 63e-6

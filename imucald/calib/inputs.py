@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..recording import COLUMNS, MAGIC, Recording, read_recording
-from .poses import POSES_MAGIC, PoseSet, poses_from_recording, read_poses
+from .poses import POSES_MAGIC, read_poses
 
 __all__ = ["load_input", "read_table"]
 

@@ -15,7 +15,7 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
-from ..calib.fit import fit_norm, thin_directions
+from ..calib.fit import fit_norm
 from ..calib.models import MagModel, Triangular9, mag_report
 from ..calib.optim import sphere_fit
 from ..calib.uncertainty import residual_variance

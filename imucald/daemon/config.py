@@ -6,8 +6,7 @@ the key, the bad value and what is allowed, on one line.
 from __future__ import annotations
 
 import copy
-import os
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Dict, Optional, Tuple
 
 import yaml
 

@@ -9,10 +9,9 @@ from __future__ import annotations
 import json
 import os
 import socket
-import stat
 from typing import Callable, Dict, List, Optional
 
-from .outputs import _chown_chmod
+from .outputs import listen_unix
 
 __all__ = ["ControlServer", "request", "COMMANDS"]
 
@@ -23,13 +22,7 @@ class ControlServer:
     def __init__(self, path: str, handler: Callable[[str], Dict], mode: str = "0660",
                  group: Optional[str] = None):
         self.path, self.handler = path, handler
-        if os.path.exists(path) and stat.S_ISSOCK(os.stat(path).st_mode):
-            os.unlink(path)
-        self.lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self.lsock.bind(path)
-        _chown_chmod(path, mode, group)
-        self.lsock.listen(8)
-        self.lsock.setblocking(False)
+        self.lsock = listen_unix(path, mode, group, 8)
         self.conns: List[list] = []          # [sock, inbuf, outbuf]
 
     def poll(self) -> None:

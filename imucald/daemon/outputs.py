@@ -28,7 +28,7 @@ import os
 import socket
 import stat
 import struct
-from typing import Dict, List, Optional
+from typing import List, Optional
 
 import numpy as np
 
@@ -117,6 +117,18 @@ def _chown_chmod(path: str, mode: str, group: Optional[str]) -> None:
         os.chown(path, -1, gid)
 
 
+def listen_unix(path: str, mode: str, group: Optional[str], backlog: int) -> socket.socket:
+    """A non-blocking listening Unix stream socket at ``path`` (a stale one is replaced)."""
+    if os.path.exists(path) and stat.S_ISSOCK(os.stat(path).st_mode):
+        os.unlink(path)
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.bind(path)
+    _chown_chmod(path, mode, group)
+    s.listen(backlog)
+    s.setblocking(False)
+    return s
+
+
 class _Client:
     __slots__ = ("sock", "buf", "peer")
 
@@ -130,13 +142,7 @@ class SocketSink:
     def __init__(self, path: str, fmt: str, board: str, mode: str = "0660",
                  group: Optional[str] = None, max_buffer: int = 1 << 20):
         self.path, self.fmt, self.board, self.max_buffer = path, fmt, board, max_buffer
-        if os.path.exists(path) and stat.S_ISSOCK(os.stat(path).st_mode):
-            os.unlink(path)
-        self.lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self.lsock.bind(path)
-        _chown_chmod(path, mode, group)
-        self.lsock.listen(16)
-        self.lsock.setblocking(False)
+        self.lsock = listen_unix(path, mode, group, 16)
         self.clients: List[_Client] = []
         self.dropped = 0          #: clients dropped for falling behind
         self.disconnected = 0     #: clients that went away

@@ -9,7 +9,6 @@ polled without waiting.
 from __future__ import annotations
 
 import logging
-import time
 from concurrent.futures import Executor, Future
 from datetime import datetime, timezone
 from typing import Any, Callable, Dict, List, Optional

@@ -38,7 +38,7 @@ def make_board_from_config(cfg, emulate: Optional[bool], speed: float = 1.0, see
                            faults=None, poses: int = 30):
     """(board, bus, description).  The real bus is the default whenever one exists."""
     from ..drivers.board import make_board
-    from ..drivers.bus import Bus, RealClock, ScaledClock, open_bus, real_bus_numbers
+    from ..drivers.bus import Bus, ScaledClock, open_bus, real_bus_numbers
     s = cfg["sensor"]
     nums = real_bus_numbers()
     mode = s["emulate"] if emulate is None else ("yes" if emulate else "no")

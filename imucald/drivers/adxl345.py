@@ -80,13 +80,7 @@ class ADXL345:
                R.DATA_FORMAT.addr: R.encode("DATA_FORMAT", 0, FULL_RES=1, RANGE=RANGES_G.index(range_g)),
                R.FIFO_CTL.addr: R.encode("FIFO_CTL", 0, FIFO_MODE=FIFO_STREAM, SAMPLES=16),
                R.POWER_CTL.addr: R.encode("POWER_CTL", 0, MEASURE=1)}
-        for reg, val in cfg.items():
-            b.write_byte(a, reg, val)
-        for reg, val in cfg.items():
-            got = b.read_byte(a, reg)
-            if got != val:
-                raise ChipMismatch(f"0x{a:02X}: ADXL345 register 0x{reg:02X} reads 0x{got:02X}, "
-                                   f"wrote 0x{val:02X}")
+        b.write_verified(a, cfg, "ADXL345")
         self._cfg = cfg
         self.range_g, self.rate_hz = range_g, 0.09765625 * 2 ** rate_code(rate_hz)
 

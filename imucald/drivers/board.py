@@ -14,7 +14,7 @@ errors at start-up are raised as one-line :class:`~imucald.errors.UserError`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 

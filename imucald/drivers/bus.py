@@ -18,7 +18,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional
 
 from ..errors import UserError
 
@@ -238,6 +238,17 @@ class Bus:
     def write_byte(self, addr: int, reg: int, value: int) -> None:
         """Wire: addr+W, reg, value = 3 bytes."""
         self._do(addr, lambda: self.smbus.write_byte_data(addr, reg, value & 0xFF), 3, 0, 2)
+
+    def write_verified(self, addr: int, cfg: Dict[int, int], chip: str) -> None:
+        """Write each register of ``cfg`` (address -> value), then read every one back:
+        a chip that did not take its configuration is a ChipMismatch, not silent zeros."""
+        for reg, val in cfg.items():
+            self.write_byte(addr, reg, val)
+        for reg, val in cfg.items():
+            got = self.read_byte(addr, reg)
+            if got != val:
+                raise ChipMismatch(f"0x{addr:02X}: {chip} register 0x{reg:02X} reads back 0x{got:02X} "
+                                   f"after writing 0x{val:02X}: the chip did not take its configuration")
 
     def read_block(self, addr: int, reg: int, n: int, fifo: bool = False) -> bytes:
         """n bytes starting at register ``reg``, in one transaction when possible

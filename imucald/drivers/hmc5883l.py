@@ -64,13 +64,7 @@ class HMC5883L:
         cfg = {R.CONFIG_A.addr: R.encode("CONFIG_A", 0, MA=ma, DO=codes[0], MS=0),
                R.CONFIG_B.addr: R.encode("CONFIG_B", 0, GN=gain),
                R.MODE.addr: R.encode("MODE", 0, MD=MODE_CONTINUOUS)}
-        for reg, val in cfg.items():
-            b.write_byte(a, reg, val)
-        for reg, val in cfg.items():
-            got = b.read_byte(a, reg)
-            if got != val:
-                raise ChipMismatch(f"0x{a:02X}: HMC5883L register 0x{reg:02X} reads 0x{got:02X}, "
-                                   f"wrote 0x{val:02X}")
+        b.write_verified(a, cfg, "HMC5883L")
         self._cfg = cfg
         self.gain, self.rate_hz = gain, RATES_HZ[codes[0]]
         # "the very first measurement after a gain change maintains the same gain as the

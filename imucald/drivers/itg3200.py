@@ -72,13 +72,7 @@ class ITG3200:
                R.SMPLRT_DIV.addr: div,
                R.DLPF_FS.addr: R.encode("DLPF_FS", 0, FS_SEL=FS_SEL_2000, DLPF_CFG=dlpf_cfg),
                R.INT_CFG.addr: R.encode("INT_CFG", 0, RAW_RDY_EN=1)}
-        for reg, val in cfg.items():
-            b.write_byte(a, reg, val)
-        for reg, val in cfg.items():
-            got = b.read_byte(a, reg)
-            if got != val:
-                raise ChipMismatch(f"0x{a:02X}: ITG3200 register 0x{reg:02X} reads 0x{got:02X}, "
-                                   f"wrote 0x{val:02X}")
+        b.write_verified(a, cfg, "ITG3200")
         self._cfg = cfg
         self.rate_hz = base / (div + 1)
 

@@ -161,13 +161,7 @@ class MPU6xxx:
         }
         if self.chip != "mpu6050":
             cfg[R.ACCEL_CONFIG2.addr] = R.encode("ACCEL_CONFIG2", 0, A_DLPF_CFG=min(dl, 6))
-        for reg, val in cfg.items():
-            b.write_byte(a, reg, val)
-        for reg, val in cfg.items():                                   # read back and verify
-            got = b.read_byte(a, reg)
-            if got != val:
-                raise ChipMismatch(f"0x{a:02X}: register 0x{reg:02X} reads back 0x{got:02X} after "
-                                   f"writing 0x{val:02X}: the chip did not take its configuration")
+        b.write_verified(a, cfg, "MPU")
         self._cfg = cfg
         self.accel_range_g, self.gyro_range_dps = accel_range_g, gyro_range_dps
         self.rate_hz = base / (div + 1)

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..calib.models import MagModel, NormModel, Triangular9
 from ..calib.optim import Problem, lm
-from ..calib.poses import PoseSet, detect_static, poses_from_slices
+from ..calib.poses import detect_static, poses_from_slices
 from ..calib.uncertainty import residual_variance
 from ..errors import UserError
 from ..recording import Recording

@@ -19,8 +19,7 @@ name gives a different (but equally large) effect on each seed.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable, Dict, List, Optional, Union
+from typing import Dict, Optional
 
 import numpy as np
 

@@ -12,11 +12,10 @@ magnetic field in gauss (body frame), temperature in degC, time in s.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, Optional, Union
+from typing import Dict, Union
 
 import numpy as np
 
-from .poses import axis_angle
 
 __all__ = ["PoseTour", "log_so3"]
 

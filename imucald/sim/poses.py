@@ -6,7 +6,7 @@ i.e. +1 g along whichever body axis points up.
 """
 from __future__ import annotations
 
-from typing import Optional, Tuple, Union
+from typing import Union
 
 import numpy as np
 

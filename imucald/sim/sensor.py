@@ -21,7 +21,8 @@ import numpy as np
 
 from ..calib.models import Triangular9
 from ..recording import Recording
-from .poses import axis_angle, up_vectors
+from .motion import log_so3
+from .poses import axis_angle
 from .specs import ACCEL, BOARDS, GYRO, MAG
 
 __all__ = ["Truth", "draw_truth", "pose_sigma", "simulate_pose_means", "Session",
@@ -126,19 +127,6 @@ def temperature_profile(t: np.ndarray, kind: str = "warmup", t0_c: float = 22.0,
     raise ValueError(f"unknown temperature profile {kind!r}: allowed warmup, ramp, heatcool, constant")
 
 
-def _log_so3(R: np.ndarray) -> np.ndarray:
-    c = np.clip((np.trace(R) - 1) / 2, -1, 1)
-    ang = np.arccos(c)
-    if ang < 1e-12:
-        return np.zeros(3)
-    if np.pi - ang < 1e-6:
-        w, V = np.linalg.eigh((R + R.T) / 2)
-        ax = V[:, np.argmax(w)]
-        return ax * ang
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (2 * np.sin(ang))
-    return v * ang
-
-
 @dataclass
 class Session:
     """A simulated session: the recording plus what produced it."""
@@ -195,7 +183,7 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
             s = 3 * tau ** 2 - 2 * tau ** 3
             sdot = 6 * tau * (1 - tau) / mt
             rel = rotations[i].T @ rotations[i + 1]
-            rv = _log_so3(rel)
+            rv = log_so3(rel)
             ang = np.linalg.norm(rv)
             ax = rv / ang if ang > 0 else np.array([1.0, 0, 0])
             Rm = np.array([rotations[i] @ axis_angle(ax, ang * sk) for sk in s])

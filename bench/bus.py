@@ -12,7 +12,7 @@ Usage: python bench/bus.py [--seconds S]
 import argparse
 import time
 
-
+import _common  # noqa: F401  (puts the repository on sys.path)
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, RealClock, VirtualClock
 from imucald.drivers.emulator import emulated_board

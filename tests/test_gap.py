@@ -110,3 +110,17 @@ def test_gap_on_the_temperature_sweep_is_too_narrow():
     from imucald.gap.diagnose import GapError, diagnose
     with pytest.raises(GapError, match="1 still poses found"):
         diagnose(tempsweep())
+
+
+def test_saturation_check_finds_samples_at_the_rail():
+    # a pose holding clipped samples is usually too vibrating for the stillness detector
+    # to call still at all; this check catches those that get through
+    from imucald.gap.diagnose import _saturated
+    from imucald.recording import Recording
+    a = np.tile([0.0, 0.0, 1.0], (300, 1))
+    a[150:160, 2] = 2.0
+    rec = Recording(t=np.arange(300) / 100, acc=a, meta={"board": "mpu6050", "rate_hz": "100",
+                                                          "accel_range_g": "2"})
+    assert _saturated(rec, [slice(0, 100), slice(100, 200), slice(200, 300)]).tolist() == [False, True, False]
+    rec.meta.pop("accel_range_g")                  # no range given: a recurring extreme > 1.2 g
+    assert _saturated(rec, [slice(0, 100), slice(100, 200)]).tolist() == [False, True]

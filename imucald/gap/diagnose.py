@@ -357,22 +357,23 @@ def _norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, 
         entry = {"name": c.name, "score_chi2": round(d["stat"], 3), "score_p_value": d["p"],
                  "visibility": round(d["vis"], 3)}
         if d["q"] == 0:
-            entry["note"] = "leaves no trace in this pose set (absorbed by the baseline model)"
-            entry["significant"] = False
+            entry.update({"note": "leaves no trace in this pose set (absorbed by the baseline model)",
+                          "significant": False, "ratio_after": ratio, "params": {}})
             effects.append(entry)
             continue
-        if significant and d["p"] < bonf:
-            z, chi2a, ea, twa, sd = refit([c])
-            dchi = chi2 - chi2a
-            pn, lpn = _p_and_log10(max(dchi, 0.0), c.q)
-            ra_after = float(np.sqrt(np.mean(ea * ea)) / twa)      # against the augmented model's twin
-            entry.update({"ratio_after": ra_after, "nested_p_value": pn, "chi2_after": chi2a,
-                          "significant": bool(pn < bonf and np.mean(ea * ea) < np.mean(e * e)),
-                          "params": {c.name + (f"_{c.units}" if c.units else ""): z[p0:].tolist()},
-                          "stderr": {c.name + (f"_{c.units}" if c.units else ""): sd[p0:].tolist()}})
-            fits[c.name] = (chi2a, ea, ra_after)
-        else:
-            entry["significant"] = False
+        # every visible candidate is refitted (cheap), so each reports its shrink and
+        # parameters; it is significant only when the gap is, its score test passes
+        # (Bonferroni), the nested test passes and the held-out residual falls
+        z, chi2a, ea, twa, sd = refit([c])
+        dchi = chi2 - chi2a
+        pn, lpn = _p_and_log10(max(dchi, 0.0), c.q)
+        ra_after = float(np.sqrt(np.mean(ea * ea)) / twa)      # against the augmented model's twin
+        key = c.name + (f"_{c.units}" if c.units else "")
+        entry.update({"ratio_after": ra_after, "nested_p_value": pn, "chi2_after": chi2a,
+                      "significant": bool(significant and d["p"] < bonf and pn < bonf
+                                          and np.mean(ea * ea) < np.mean(e * e)),
+                      "params": {key: z[p0:].tolist()}, "stderr": {key: sd[p0:].tolist()}})
+        fits[c.name] = (chi2a, ea, ra_after)
         effects.append(entry)
     out["effects"] = effects
     # --- choose
@@ -519,8 +520,8 @@ def _gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> D
     tested.sort(key=lambda d: d[5])
     for c, Ct, stat, qv, p, lpc, vis in tested:
         ent = {"name": c.name, "score_chi2": round(stat, 3), "score_p_value": p, "visibility": round(vis, 3),
-               "significant": False}
-        if significant and qv and p < bonf:
+               "significant": False, "ratio_after": ratio, "params": {}}
+        if qv:
             X = np.hstack([X0, c.columns(ctx)])
             beta, r1, Ai = wls(X)
             chi2a = float(np.sum(w * r1 * r1))
@@ -529,7 +530,8 @@ def _gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> D
             twa = float(np.median(_twin(-X, var, w, sims, rng)))
             ra = float(np.sqrt(np.mean(e1 ** 2)) / twa)
             ent.update({"ratio_after": ra, "nested_p_value": pn,
-                        "significant": bool(pn < bonf and np.mean(e1 ** 2) < np.mean(e0 ** 2)),
+                        "significant": bool(significant and p < bonf and pn < bonf
+                                            and np.mean(e1 ** 2) < np.mean(e0 ** 2)),
                         "params": {f"{c.name}_{c.units}": beta[3:].tolist()},
                         "stderr": {f"{c.name}_{c.units}": np.sqrt(np.diag(Ai))[3:].tolist()}})
             fits[c.name] = (chi2a, ra)
@@ -574,6 +576,31 @@ def _gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> D
     return out
 
 
+def _saturated(rec: Recording, slices) -> np.ndarray:
+    """Poses with accelerometer samples at the range limit.  The limit is the
+    recording's accel_range_g when given, else an extreme value that recurs (a rail)."""
+    a = rec.acc
+    rail = None
+    try:
+        rail = float(rec.meta.get("accel_range_g", "nan"))
+    except ValueError:
+        rail = None
+    out = np.zeros(len(slices), bool)
+    if rail is not None and np.isfinite(rail):
+        hit = np.abs(a) >= rail * (1 - 1e-4)
+    else:
+        hit = np.zeros_like(a, bool)
+        for j in range(3):
+            for v in (a[:, j].max(), a[:, j].min()):
+                at = a[:, j] == v
+                if at.sum() >= 5 and abs(v) > 1.2:       # a recurring extreme beyond 1.2 g
+                    hit[:, j] |= at
+    h = hit.any(axis=1)
+    for i, s in enumerate(slices):
+        out[i] = h[s].any()
+    return out
+
+
 # --- entry point --------------------------------------------------------------------------------
 
 def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int = 200,
@@ -602,9 +629,11 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         miss = acc.coverage()["missing"][:6]
         raise GapError(f"{name}: {N} still poses found; the diagnosis needs at least {MIN_POSES} "
                        f"(25-30 recommended): {MIN_POSES - N} more, e.g. {', '.join(miss)}")
+    # saturation (E10: not a model term): samples at the range limit bias a pose mean
+    sat = _saturated(rec, sl)
     # robust noise and disturbed poses (accelerometer)
     s2 = np.einsum("nii->n", ps.acc_sample_cov) / 3
-    bad = _flag_disturbed(s2, ps.n)
+    bad = _flag_disturbed(s2, ps.n) | sat
     keep = ~bad
     if keep.sum() < MIN_POSES:
         keep = np.ones(N, bool)
@@ -639,6 +668,14 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         if bad.any():
             r["where"]["disturbed_poses"] = {"indices": np.flatnonzero(bad).tolist(),
                                              "t0_s": np.round(ps.t0[bad], 2).tolist()}
+        if sat.any():
+            idx = np.flatnonzero(sat).tolist()
+            r["effects"].insert(0, {"name": "saturation", "significant": True, "poses": idx,
+                                    "ratio_after": r["ratio_after"], "params": {},
+                                    "note": "samples at the range limit (clipping, e.g. vibration peaks) "
+                                            "bias these poses' means; they were left out of the fit: "
+                                            "reduce vibration or raise the range"})
+            r["verdict"] = "saturation" if r["verdict"] in ("none",) else f"saturation+{r['verdict']}"
         result["sensors"]["accel"] = r
     if "gyro" in sensors:
         gv = np.einsum("nii->ni", ps.gyro_cov) if ps.gyro_cov is not None else None

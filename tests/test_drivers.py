@@ -227,3 +227,37 @@ def test_mpu_burst_reads_two_transactions_per_batch_and_sustains_1khz():
     assert bus.stats.transactions - t0 <= 2 * batches + 2 * 6
     got = b.stats.samples - n0
     assert abs(got - 5000) <= 20 and b.stats.missing == 0
+
+
+@pytest.mark.parametrize("grange", [250, 500, 1000, 2000])
+@pytest.mark.parametrize("variant,formula", [("mpu6050", (340.0, 36.53)), ("mpu9250", (333.87, 21.0))])
+def test_mpu_gyro_scaling_per_range_and_temperature_per_variant(grange, variant, formula):
+    eb, bus, clk = rig(variant, still((0, 0, 1), temp0=18.0))
+    m = mpu6050.MPU6xxx(bus, 0x68, variant)
+    m.setup(2, grange, 200)
+    clk.advance(0.15)                      # 30 frames: within the 512-byte MPU-9250 FIFO
+    fr = m.read_fifo()
+    n = len(fr.gyro_dps)
+    assert n >= 25 and not fr.reset
+    spec = GYRO["mpu6050" if variant == "mpu6050" else "mpu9250"]
+    lsb = 1 / {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}[grange]
+    sig = np.hypot(spec.noise_density_dps_rthz * np.sqrt(94), lsb / np.sqrt(12))
+    assert np.all(np.abs(fr.gyro_dps.mean(0) - eb.truth.gyro_bias_dps) < 5 * sig / np.sqrt(n) + lsb / 2)
+    # every value is a whole number of this range's LSB
+    assert np.allclose(fr.gyro_dps / lsb, np.round(fr.gyro_dps / lsb), atol=1e-6)
+    div, off = formula
+    assert np.all(np.abs(fr.temp_c - 18.0) <= 0.5 / div + 1e-9)
+
+
+@pytest.mark.parametrize("rng_g", [2, 4, 8, 16])
+def test_adxl345_full_resolution_scale_is_the_same_for_every_range(rng_g):
+    eb, bus, clk = rig("9dof", still((0, 0, -1)))
+    a = adxl345.ADXL345(bus)
+    a.setup(rng_g, 100)
+    assert eb.devices[0x53].regs[0x31] & 0x03 == [2, 4, 8, 16].index(rng_g)
+    clk.advance(0.3)
+    acc, _ = a.read_fifo()
+    expect = T9.inverse(eb.truth.accel, np.array([[0.0, 0.0, -1.0]]))[0]
+    assert np.allclose(acc / 0.0039, np.round(acc / 0.0039), atol=1e-6)     # 3.9 mg/LSB
+    sig = np.hypot(ACCEL["adxl345"].noise_density_g_rthz * np.sqrt(50), 0.0039 / np.sqrt(12))
+    assert np.all(np.abs(acc.mean(0) - expect) < 5 * sig / np.sqrt(len(acc)))

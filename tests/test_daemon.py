@@ -300,3 +300,24 @@ def test_notify_ready_status_and_watchdog_only_while_samples_flow(tmp_path):
     assert len(wd) >= 5
     t_last_status = max(t for t, m in msgs if m.startswith("STATUS="))
     assert t_last_status - wd[-1] > 1.0
+
+
+def test_sigterm_saves_state_and_a_corrupt_calibration_is_set_aside(tmp_path):
+    st = tmp_path / "state"
+    st.mkdir()
+    (st / "calibration.yaml").write_text("format_version: 1\naccel: {theta: [1, 2, 3]}\n")
+    p, rt, st = start_daemon(tmp_path, "--speed", "20", "--seed", "3")
+    try:
+        wait_for(rt / "control.sock", p)
+        time.sleep(3.0)                                   # about a minute of sensor time
+        p.send_signal(signal.SIGTERM)
+        out, err = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, err
+    assert "set aside as" in err and "unreadable calibration" in err
+    assert any(f.startswith("calibration.yaml.corrupt-") for f in os.listdir(st))
+    assert "stopped; state saved" in err
+    assert sum(1 for l in open(st / "poses.csv") if l[:1].isdigit()) >= 3
+    assert not os.path.exists(rt / "control.sock")          # sockets removed on exit

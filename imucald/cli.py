@@ -310,7 +310,7 @@ def parse_fault(spec: str, faults) -> None:
 def open_board(args, motion_seed: int = 0):
     """(board, bus, description): real I2C when a bus exists and --emulate is not given."""
     from .drivers.board import make_board
-    from .drivers.bus import Bus, RealClock, VirtualClock, open_bus, real_bus_numbers
+    from .drivers.bus import Bus, ScaledClock, VirtualClock, open_bus, real_bus_numbers
     nums = real_bus_numbers()
     if args.emulate or (args.bus is None and not nums):
         from .drivers.emulator import Faults, emulated_board
@@ -319,7 +319,7 @@ def open_board(args, motion_seed: int = 0):
         faults = Faults()
         for f in args.fault or []:
             parse_fault(f, faults)
-        clock = RealClock() if getattr(args, "realtime", False) else VirtualClock()
+        clock = ScaledClock(1.0) if getattr(args, "realtime", False) else VirtualClock()
         rng = np.random.default_rng(args.seed)
         tour = PoseTour(random_pose_set(args.poses, rng), rng=rng, loop=True)
         eb = emulated_board(args.board, tour, rng=rng, clock=clock, faults=faults)

@@ -605,7 +605,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--window-s", type=float, default=1.0, help="still detector window, s")
     c.add_argument("--threshold-k", type=float, default=6.0,
                    help="still when moving variance < k x noise floor")
-    c.add_argument("--min-still-s", type=float, default=2.0, help="shortest still interval, s")
+    c.add_argument("--min-still-s", type=float, default=1.0, help="shortest still interval, s")
     c.set_defaults(func=cmd_calibrate)
 
     pr = sub.add_parser("probe", help="list what answers on the I2C bus and what each device is")

@@ -81,7 +81,7 @@ def moving_variance(x: np.ndarray, w: int) -> np.ndarray:
 
 def detect_static(t: np.ndarray, acc: np.ndarray, gyro: Optional[np.ndarray] = None,
                   window_s: float = 1.0, k: float = 6.0, floor_pct: float = 5.0,
-                  min_still_s: float = 2.0, trim_s: float = 0.25,
+                  min_still_s: float = 1.0, trim_s: float = 0.25,
                   rate_hz: Optional[float] = None) -> List[slice]:
     """Index slices of the still intervals (see module doc)."""
     t = np.asarray(t, float)

@@ -114,8 +114,7 @@ def lateness(seconds):
         bt = b.read_batch(batch_s=0.02)
         busy = pipe.pending is not None
         if not busy and clk.now() - idle_since > 2.0:      # alternate 2 s idle / one calibration
-            pipe.force = True
-            pipe.next_cal_added = 0
+            pipe.request_calibration()
         pipe.process(bt)
         if busy and pipe.pending is None:
             idle_since = clk.now()

@@ -2,7 +2,6 @@
 closing notes, and no test asserts a wall time)."""
 import importlib.util
 import os
-import sys
 
 import pytest
 

@@ -11,11 +11,11 @@ from __future__ import annotations
 import logging
 from concurrent.futures import Executor, Future
 from datetime import datetime, timezone
-from typing import Any, Callable, Dict, List, Optional
+from collections import deque
+from typing import Any, Callable, Deque, Dict, List, Optional
 
 import numpy as np
 
-from ..calib.models import Triangular9
 from .accumulator import PoseAccumulator
 from .calibrator import Applied, MagReservoir, calibration_job
 from .outputs import encode_samples, event
@@ -24,7 +24,8 @@ from .stillness import StillnessDetector
 __all__ = ["Pipeline", "InlineExecutor", "applied_from_doc"]
 
 log = logging.getLogger("imucald")
-_T9 = Triangular9()
+#: fewest poses a forced calibration may use (9 parameters plus one degree of freedom)
+MIN_FIT_POSES = 10
 
 
 class InlineExecutor(Executor):
@@ -70,8 +71,9 @@ class Pipeline:
         self.force = False
         self.samples = 0
         self.last_still = False
-        self.history: List[Dict[str, Any]] = []
-        self.events: List[str] = []          # human log lines for status
+        # bounded: a daemon runs for months and adds an event per pose
+        self.history: Deque[Dict[str, Any]] = deque(maxlen=100)
+        self.events: Deque[str] = deque(maxlen=100)     # human log lines for status
         self.cal_doc: Optional[Dict[str, Any]] = None
         self.t_last = 0.0
         self.temp_range = [np.inf, -np.inf]
@@ -134,6 +136,14 @@ class Pipeline:
                 "predicted_bias_std_g": None if sd is None else sd[6:9].tolist(),
                 "predicted_scale_std": None if sd is None else sd[3:6].tolist()}
 
+    def request_calibration(self) -> bool:
+        """Calibrate now with the poses there are (at least MIN_FIT_POSES); True if started."""
+        if len(self.acc) < MIN_FIT_POSES:
+            return False
+        self.force = True
+        self.maybe_calibrate()
+        return self.pending is not None
+
     def maybe_calibrate(self) -> None:
         if self.pending is not None:
             return
@@ -142,9 +152,13 @@ class Pipeline:
         if not self.force and key == getattr(self, "_checked", None):
             return
         self._checked = key
-        r = self.ready_to_calibrate()
-        if not (r["poses"] and r["uncertainty"] and (self.force or self.acc.added >= self.next_cal_added)):
-            return
+        if self.force:                      # asked for (control socket): any fit-able pose set
+            if len(self.acc) < MIN_FIT_POSES:
+                return
+        else:
+            r = self.ready_to_calibrate()
+            if not (r["poses"] and r["uncertainty"] and self.acc.added >= self.next_cal_added):
+                return
         c = self.cfg["calibration"]
         ps = self.acc.pose_set()
         mag_pts = None

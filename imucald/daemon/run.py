@@ -209,16 +209,12 @@ class Daemon:
             return {"class": "COVERAGE", **p.acc.coverage(),
                     **({"mag_coverage": p.reservoir.coverage()} if p.reservoir is not None else {})}
         if cmd == "recalibrate":
-            if len(p.acc) < 10:
-                return {"class": "ERROR", "message": f"only {len(p.acc)} poses: need at least 10"}
-            p.force = True
-            p.next_cal_added = 0
-            saved = p.cfg["calibration"]["min_poses"]
-            p.cfg = {**p.cfg, "calibration": {**p.cfg["calibration"], "min_poses": min(saved, len(p.acc)),
-                                              "target_bias_g": 1.0, "target_scale": 1.0}}
-            p.maybe_calibrate()
-            p.cfg = self.cfg
-            return {"class": "RECALIBRATE", "started": p.pending is not None}
+            from .pipeline import MIN_FIT_POSES
+            if len(p.acc) < MIN_FIT_POSES:
+                return {"class": "ERROR", "message": f"only {len(p.acc)} poses: need at least {MIN_FIT_POSES}"}
+            if p.pending is not None:
+                return {"class": "RECALIBRATE", "started": False}
+            return {"class": "RECALIBRATE", "started": p.request_calibration()}
         if cmd == "reset":
             p.acc.poses = []
             p.acc.added = 0

@@ -71,6 +71,7 @@ class Board:
         self.t0: Optional[float] = None
         self._last_ok = None
         self._last_check = None
+        self._next_poll: Optional[float] = None
         self.mag_last: Optional[np.ndarray] = None
 
     # subclasses: _init_chips(), _read() -> (acc, gyro, temp, mag or None, lost_estimate), _configured()
@@ -124,7 +125,7 @@ class Board:
             # sleep to the next poll deadline (not a fixed period), so processing time
             # does not stretch the poll interval
             now = self.clock.now()
-            nxt = getattr(self, "_next_poll", now) + batch_s
+            nxt = (now if self._next_poll is None else self._next_poll) + batch_s
             if nxt < now - batch_s:
                 nxt = now
             self.clock.sleep(nxt - now)

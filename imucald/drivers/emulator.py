@@ -26,7 +26,6 @@ from typing import Dict, List, Optional, Sequence, Set, Tuple, Union
 
 import numpy as np
 
-from ..calib.models import Triangular9
 from ..sim.sensor import Truth, draw_truth
 from ..sim.specs import ACCEL, GYRO, MAG
 from . import adxl345 as _adxl, ak8963 as _ak, hmc5883l as _hmc, itg3200 as _itg, mpu6050 as _mpu
@@ -36,7 +35,6 @@ from .regmap import RegisterMap
 __all__ = ["Faults", "EmulatedBus", "EmuMPU6xxx", "EmuAK8963", "EmuADXL345", "EmuITG3200",
            "EmuHMC5883L", "EmuQMC5883L", "emulated_board"]
 
-_T9 = Triangular9()
 RngLike = Union[int, None, np.random.Generator]
 
 
@@ -236,9 +234,9 @@ class EmuMPU6xxx(EmuDevice):
         g_lsb = [131.0, 65.5, 32.8, 16.4][fs]
         bw_a, bw_g = _mpu.DLPF_HZ.get(self._dlpf(), (260, 256))
         n = len(t)
-        acc = _T9.inverse(self.truth.accel, m["f"]) + self._noise(
+        acc = self.truth.accel_raw(m["f"]) + self._noise(
             self.spec_a.noise_density_g_rthz, min(bw_a, self.odr_hz() / 2), (n, 3))
-        gyr = m["w"] @ self.truth.gyro_matrix.T + self.truth.gyro_bias_dps + self._noise(
+        gyr = self.truth.gyro_raw(m["w"]) + self._noise(
             self.spec_g.noise_density_dps_rthz, min(bw_g, self.odr_hz() / 2), (n, 3))
         div, off = _mpu.TEMP_FORMULA[self.variant]
         vals = np.empty((n, 7), np.int64)
@@ -328,8 +326,7 @@ class EmuAK8963(EmuDevice):
 
     def emit(self, t, skipped):
         m = self.motion.sample(t[-1:])
-        tr = self.truth
-        mag = m["h"] @ np.linalg.inv(tr.mag_soft_iron).T + tr.mag_hard_iron_gauss
+        mag = self.truth.mag_raw(m["h"])
         mag = mag + self.rng.normal(scale=MAG["ak8963"].noise_gauss, size=mag.shape)
         ak = np.array([mag[0, 1], mag[0, 0], -mag[0, 2]])        # MPU frame -> AK8963 frame (K)
         adj = (self.asa_raw.astype(float) - 128) * 0.5 / 128 + 1
@@ -379,7 +376,7 @@ class EmuADXL345(EmuDevice):
         R = self.regmap
         spec = ACCEL["adxl345"]
         m = self.motion.sample(t)
-        acc = _T9.inverse(self.truth.accel, m["f"]) + self._noise(
+        acc = self.truth.accel_raw(m["f"]) + self._noise(
             spec.noise_density_g_rthz, self.odr_hz() / 2, (len(t), 3))
         df = self.regs[R.DATA_FORMAT.addr]
         rng_g = (2, 4, 8, 16)[df & 0x03]
@@ -432,7 +429,7 @@ class EmuITG3200(EmuDevice):
         spec = GYRO["itg3200"]
         m = self.motion.sample(t[-1:])
         dl = self.regs[self.regmap.DLPF_FS.addr] & 0x07
-        gyr = m["w"] @ self.truth.gyro_matrix.T + self.truth.gyro_bias_dps + self._noise(
+        gyr = self.truth.gyro_raw(m["w"]) + self._noise(
             spec.noise_density_dps_rthz, min(_itg.DLPF_HZ.get(dl, 256), self.odr_hz() / 2), (1, 3))
         fs3 = ((self.regs[self.regmap.DLPF_FS.addr] >> 3) & 3) == 3
         lsb = _itg.LSB_PER_DPS if fs3 else _itg.LSB_PER_DPS * 4   # other FS_SEL values: undocumented
@@ -479,9 +476,8 @@ class EmuHMC5883L(EmuDevice):
         return 2.0 / self.odr_hz() if self._md() == 0 else 0.006
 
     def emit(self, t, skipped):
-        tr = self.truth
         m = self.motion.sample(t[-1:])
-        mag = m["h"] @ np.linalg.inv(tr.mag_soft_iron).T + tr.mag_hard_iron_gauss
+        mag = self.truth.mag_raw(m["h"])
         mag = mag[0] + self.rng.normal(scale=MAG["hmc5883l"].noise_gauss, size=3)
         counts = np.round(mag * _hmc.GAIN_LSB_PER_GAUSS[self.gain_in_use]).astype(np.int64)
         counts = np.where((counts < -2048) | (counts > 2047), _hmc.OVERFLOW, counts)

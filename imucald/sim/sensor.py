@@ -54,6 +54,19 @@ class Truth:
     field_gauss: float = 0.5                #: local field magnitude
     dip_deg: float = 60.0                   #: inclination (field points down in the north)
 
+    # the error model, in one place for the simulator and the emulated chips
+    def accel_raw(self, f_g: np.ndarray) -> np.ndarray:
+        """Measured acceleration (g, before noise) for true specific force f (n, 3)."""
+        return _T9.inverse(self.accel, f_g)
+
+    def gyro_raw(self, w_dps: np.ndarray) -> np.ndarray:
+        """Measured rate (deg/s, before noise) for true rate w (n, 3)."""
+        return w_dps @ self.gyro_matrix.T + self.gyro_bias_dps
+
+    def mag_raw(self, h_gauss: np.ndarray) -> np.ndarray:
+        """Measured field (gauss, before noise) for true body-frame field h (n, 3)."""
+        return h_gauss @ np.linalg.inv(self.mag_soft_iron).T + self.mag_hard_iron_gauss
+
 
 def draw_truth(board: str = "mpu6050", rng: RngLike = None) -> Truth:
     """True errors drawn within the board's datasheet tolerances (N(0, tol/2), clipped)."""
@@ -203,14 +216,14 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
     temp = temperature_profile(t, temp_kind, temp0_c, temp_rise_c)
     ctx = {"t": t, "temp": temp, "f": f, "w": w_dps, "R": R}
 
-    acc = _T9.inverse(truth.accel, f)
-    gyro = w_dps @ truth.gyro_matrix.T + truth.gyro_bias_dps
+    acc = truth.accel_raw(f)
+    gyro = truth.gyro_raw(w_dps)
     mag = None
     if mspec is not None:
         dip = np.radians(truth.dip_deg)
         B = truth.field_gauss * np.array([np.cos(dip), 0.0, -np.sin(dip)])
         h = np.einsum("nji,j->ni", R, B)
-        mag = h @ np.linalg.inv(truth.mag_soft_iron).T + truth.mag_hard_iron_gauss
+        mag = truth.mag_raw(h)
         ctx["h"] = h
     for eff in effects:
         eff("accel", acc, ctx)

@@ -90,13 +90,15 @@ def _fmt_vec(v, unit_scale=1.0, fmt="{:+.6f}"):
 
 
 def cmd_calibrate(args) -> int:
-    from .calib.fit import fit_gyro_bias, fit_norm, thin_directions
+    from .calib.fit import fit_gyro_bias, fit_norm
     from .calib.inputs import load_input
     from .calib.models import MODEL_NAMES
     from .calib.poses import poses_from_recording
     columns = args.columns.split(",") if args.columns else None
     kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
     sensor = args.sensor
+    if sensor is None:      # a magnetometer-only recording: calibrate the magnetometer
+        sensor = "mag" if kind == "recording" and obj.acc is None and obj.mag is not None else "accel"
     model = args.model or DEFAULT_MODEL[sensor]
     if sensor == "accel" and not (model in MODEL_NAMES and not model.startswith("mag_")):
         raise UserError(f"--model {model!r} does not fit --sensor accel: allowed "
@@ -106,9 +108,13 @@ def cmd_calibrate(args) -> int:
     if sensor == "gyro" and model not in ("mean", "eq6"):
         raise UserError(f"--model {model!r} does not fit --sensor gyro: allowed mean, eq6")
     rec = obj if kind == "recording" else None
+    progress = None if args.json else _eprint
+    if sensor == "mag" and rec is not None:
+        if rec.mag is None:
+            raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
+        return _calibrate_mag_rotation(args, rec, model, progress)
     poses = poses_from_recording(rec, window_s=args.window_s, k=args.threshold_k,
                                  min_still_s=args.min_still_s) if rec is not None else obj
-    progress = None if args.json else _eprint
     if sensor == "accel":
         if len(poses) < 10:
             raise UserError(f"{args.input}: only {len(poses)} still poses found; the 9-parameter "
@@ -120,23 +126,10 @@ def cmd_calibrate(args) -> int:
         chip = BOARDS.get(poses.meta.get("board", ""), (None,))[0]
         cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed,
                        chip=chip, **kw)
-    elif sensor == "mag":
-        if rec is not None and rec.mag is not None:
-            idx = thin_directions(rec.mag, rng=args.seed)
-            pts = rec.mag[idx]
-            cov = None
-            if poses.mag_cov is not None and len(poses):
-                # per-sample noise from the still poses (covariance of the mean times n)
-                cov = np.median(poses.mag_cov * poses.n[:, None, None], axis=0)
-                cov = np.broadcast_to(cov, (len(pts), 3, 3))
-        elif poses.mag is not None:
-            pts, cov = poses.mag, poses.mag_cov
-        else:
+    elif sensor == "mag":           # a pose file: the pose means are the points
+        if poses.mag is None:
             raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
-        if progress:
-            progress(f"imucald: {len(pts)} magnetometer points (thinned over the sphere); "
-                     f"fitting {model} with {args.method}")
-        cal = fit_norm(pts, model, args.method, pose_cov=cov, rng=args.seed)
+        cal = fit_norm(poses.mag, model, args.method, pose_cov=poses.mag_cov, rng=args.seed)
     else:
         if poses.gyro is None:
             raise UserError(f"{args.input}: no gyro columns (gx, gy, gz)")
@@ -148,12 +141,17 @@ def cmd_calibrate(args) -> int:
             sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
             samples = np.concatenate([rec.gyro[s] for s in sl])
         cal = fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
-    out = cal.to_json()
     if args.json:
-        print(json.dumps(out))
+        print(json.dumps(cal.to_json()))
         return 0
+    _print_cal(sensor, cal)
+    return 0
+
+
+def _print_cal(sensor: str, cal) -> None:
     unit = {"accel": ("mg", 1e3), "mag": ("mG", 1e3), "gyro": ("deg/s", 1.0)}[sensor]
-    print(f"{sensor} {cal.model} by {cal.method}: {cal.poses} poses, fitness {cal.fitness:.6g}")
+    what = "points (thinned rotation samples)" if cal.noise_source == "second differences" else "poses"
+    print(f"{sensor} {cal.model} by {cal.method}: {cal.poses} {what}, fitness {cal.fitness:.6g}")
     for g, v in cal.params.items():
         se = cal.stderr.get(g)
         vv = v if isinstance(v, list) else [v]
@@ -162,7 +160,7 @@ def cmd_calibrate(args) -> int:
     if sensor != "gyro":
         print(f"  residual |x|-target RMS: in-sample {cal.rms * unit[1]:.4f} {unit[0]}, "
               f"held-out {cal.heldout_rms * unit[1]:.4f} {unit[0]}")
-        print(f"  noise per pose {cal.noise * unit[1]:.4f} {unit[0]} (from {cal.noise_source}); "
+        print(f"  noise per {what.split()[0][:-1]} {cal.noise * unit[1]:.4f} {unit[0]} (from {cal.noise_source}); "
               f"rank {cal.uncertainty.rank}/{int(get_free(cal))}, condition {cal.uncertainty.condition:.3g}")
         if cal.uncertainty.unobservable:
             print(f"  not determined by these poses: {', '.join(cal.uncertainty.unobservable)}")
@@ -175,6 +173,24 @@ def cmd_calibrate(args) -> int:
                   f"calibrated {pe['calibrated']:.3g} m")
     else:
         print(f"  between-pose scatter RMS {cal.rms:.4f} deg/s")
+
+
+def _calibrate_mag_rotation(args, rec, model, progress) -> int:
+    """Magnetometer from the rotation cloud (any recording with mx, my, mz).
+    Exit 3 when the cloud does not determine a calibration (a one-plane swing)."""
+    from .calib.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
+    if progress:
+        progress(f"imucald: {len(rec)} magnetometer samples; thinning over the sphere and fitting "
+                 f"{model} with {args.method}")
+    res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed)
+    if args.json:
+        print(json.dumps(rotation_json(res)))
+        return 0 if res["determined"] else 3
+    if not res["determined"]:
+        _eprint(f"imucald: {args.input}: {flat_message(res)}")
+        return 3
+    _print_cal("mag", res["calibration"])
+    print("\n".join(rotation_lines(res)))
     return 0
 
 
@@ -590,7 +606,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("calibrate", help="calibrate from a recording or pose file")
     c.add_argument("input", help="recording, pose file, or raw table (with --columns)")
-    c.add_argument("--sensor", default="accel", choices=SENSORS)
+    c.add_argument("--sensor", choices=SENSORS, help="default accel; mag for a recording with "
+                   "magnetometer columns only")
     c.add_argument("--method", default="ga", choices=METHODS)
     c.add_argument("--model", help="accel: triangular9 (default), full12, cosine[-o|-s|-os|-om|-sm]; "
                                    "mag: mag_sym (default), mag_diag, mag_sphere; gyro: mean, eq6")

@@ -17,7 +17,7 @@ from .models import MagModel, NormModel, get_model, gyro_bias_eq6_fitness, mag_r
 from .optim import OptimResult, Problem, _lm_converge, run_method, sphere_fit
 from .uncertainty import Uncertainty, crlb, residual_variance
 
-__all__ = ["Calibration", "fit_norm", "heldout_residuals", "fit_gyro_bias", "thin_directions",
+__all__ = ["Calibration", "fit_norm", "heldout_residuals", "fit_gyro_bias",
            "robust_pose_variance"]
 
 
@@ -207,33 +207,6 @@ def _mag_bounds(model: MagModel, raw: np.ndarray, target: float):
     lo = np.array([inv / 3] * kd + [-inv] * (model.kw - kd) + list(c - r))
     hi = np.array([inv * 3] * kd + [inv] * (model.kw - kd) + list(c + r))
     return lo, hi
-
-
-def thin_directions(x: np.ndarray, cells: int = 200, per_cell: int = 5,
-                    rng=None) -> np.ndarray:
-    """Indices of samples thinned so that no region of the sphere dominates.
-
-    Directions (from a sphere-fit centre) are binned to the nearest of ``cells``
-    Fibonacci-lattice points; at most ``per_cell`` samples are kept per cell.
-    """
-    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    x = np.asarray(x, float)
-    c, _ = sphere_fit(x)
-    d = x - c
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    i = np.arange(cells) + 0.5
-    z = 1 - 2 * i / cells
-    phi = np.pi * (1 + 5 ** 0.5) * i
-    rr = np.sqrt(1 - z * z)
-    P = np.column_stack([rr * np.cos(phi), rr * np.sin(phi), z])
-    cell = np.argmax(d @ P.T, axis=1)
-    keep = []
-    for k in np.unique(cell):
-        idx = np.flatnonzero(cell == k)
-        if len(idx) > per_cell:
-            idx = rng.choice(idx, per_cell, replace=False)
-        keep.extend(idx.tolist())
-    return np.sort(np.array(keep, int))
 
 
 def fit_gyro_bias(pose_means_dps: np.ndarray, counts: np.ndarray,

@@ -44,16 +44,14 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
             if not s or s[0] in "#%":
                 continue
             parts = s.replace(",", " ").split()
+            if not rows and not _numeric(parts):
+                continue  # header lines before the first row of numbers
             if len(parts) != len(cols):
-                if lineno == 1 and not _numeric(parts):
-                    continue  # a header line
                 raise UserError(f"{path}:{lineno}: expected {len(cols)} values "
                                 f"({','.join(cols)}), found {len(parts)}")
             try:
                 rows.append([float(p) for p in parts])
             except ValueError:
-                if lineno == 1:
-                    continue
                 raise UserError(f"{path}:{lineno}: a value is not a number") from None
     if not rows:
         raise UserError(f"{path}: no numeric rows")

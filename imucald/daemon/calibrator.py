@@ -16,8 +16,8 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 
 from ..calib.fit import fit_norm
+from ..calib.magcal import SphereReservoir as MagReservoir
 from ..calib.models import MagModel, Triangular9, mag_report
-from ..calib.optim import sphere_fit
 from ..calib.uncertainty import residual_variance
 
 __all__ = ["Applied", "calibration_job", "MagReservoir", "correct_accel"]
@@ -65,57 +65,6 @@ class Applied:
 
 def correct_accel(theta: Optional[np.ndarray], raw: np.ndarray) -> np.ndarray:
     return raw if theta is None else _T9.forward(theta, raw)
-
-
-class MagReservoir:
-    """Magnetometer samples thinned over the sphere: at most ``per_cell`` in each of
-    ``cells`` direction cells (about a running centre), so no region dominates.
-    Newer samples replace older ones in a full cell."""
-
-    def __init__(self, cells: int = 200, per_cell: int = 5):
-        i = np.arange(cells) + 0.5
-        z = 1 - 2 * i / cells
-        phi = np.pi * (1 + 5 ** 0.5) * i
-        r = np.sqrt(1 - z * z)
-        self.P = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-        self.per_cell = per_cell
-        self.buf = np.full((cells, per_cell, 3), np.nan)
-        self.count = np.zeros(cells, int)
-        self.centre: Optional[np.ndarray] = None
-        self.seen = 0
-        self._pending: List[np.ndarray] = []
-
-    def add(self, m: np.ndarray) -> None:
-        m = np.asarray(m, float).reshape(-1, 3)
-        m = m[np.all(np.isfinite(m), axis=1)]
-        if not len(m):
-            return
-        self.seen += len(m)
-        if self.centre is None:
-            self._pending.append(m)
-            pts = np.vstack(self._pending)
-            if len(pts) < 50 or np.ptp(pts, axis=0).min() < 1e-3:
-                return
-            self.centre, _ = sphere_fit(pts)
-            self._pending = []
-            m = pts
-        d = m - self.centre
-        cell = np.argmax(d @ self.P.T / np.linalg.norm(d, axis=1, keepdims=True), axis=1)
-        for c, x in zip(cell, m):
-            k = self.count[c] % self.per_cell
-            self.buf[c, k] = x
-            self.count[c] += 1
-
-    def points(self) -> np.ndarray:
-        return self.buf[~np.isnan(self.buf[..., 0])]
-
-    def coverage(self) -> float:
-        return float((self.count > 0).mean())
-
-    def recentre(self) -> None:
-        pts = self.points()
-        if len(pts) >= 20:
-            self.centre, _ = sphere_fit(pts)
 
 
 def _holdout(n: int, frac: float) -> np.ndarray:

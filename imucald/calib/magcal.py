@@ -1,0 +1,273 @@
+"""Magnetometer calibration from rotation alone (no still poses, no accelerometer).
+
+Hard and soft iron come from turning the sensor: the raw readings of a fixed
+field lie on an ellipsoid, m = W^-1 h + v with |h| = F.  This module takes the
+raw cloud (a recording's mx, my, mz, or the daemon's reservoir), thins it over
+the sphere with the daemon's own :class:`SphereReservoir` (so the still start of
+a recording or a slow sweep does not dominate), and fits the same hard + soft iron
+model, with the same CRLB and held-out machinery, as the accelerometer-paired
+path (:func:`imucald.calib.fit.fit_norm`).
+
+What the cloud can determine is said, not assumed:
+
+* coverage: the fraction of direction cells (Fibonacci lattice) the corrected
+  cloud reaches, and the eigenvalues of the scatter (covariance) of its unit
+  directions (1/3 each for the whole sphere; one near 0 for a swing in one plane);
+* a swing in one plane (the out-of-plane spread of the raw cloud is within
+  ``FLAT_K`` noise standard deviations) leaves the axis normal to the plane
+  undetermined: then no 3-D calibration is returned, only the plane, its normal
+  and the ring's centre in the plane.
+
+Noise per sample comes from second differences of the time series (robust: a
+smooth hand rotation contributes little to them at 10-200 Hz).
+"""
+from __future__ import annotations
+
+from typing import Any, Dict, List, Optional
+
+import numpy as np
+
+from .fit import Calibration, fit_norm
+from .models import MagModel, get_model
+from .optim import sphere_fit
+from .uncertainty import residual_variance
+
+__all__ = ["SphereReservoir", "fibonacci_cells", "sample_noise", "flat_axis", "coverage",
+           "calibrate_rotation", "rel_std", "FLAT_K"]
+
+#: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
+#: along the plane normal is flat: the normal axis is not determined (3 sigma)
+FLAT_K = 3.0
+
+
+def fibonacci_cells(cells: int) -> np.ndarray:
+    """Unit vectors (cells, 3) spread evenly over the sphere (Fibonacci lattice)."""
+    i = np.arange(cells) + 0.5
+    z = 1 - 2 * i / cells
+    phi = np.pi * (1 + 5 ** 0.5) * i
+    r = np.sqrt(1 - z * z)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+class SphereReservoir:
+    """Magnetometer samples thinned over the sphere: at most ``per_cell`` in each of
+    ``cells`` direction cells (about a running centre), so no region dominates.
+    Newer samples replace older ones in a full cell.  Used by the daemon (fed as
+    samples arrive) and by the offline rotation calibration (fed a whole recording)."""
+
+    def __init__(self, cells: int = 200, per_cell: int = 5):
+        self.P = fibonacci_cells(cells)
+        self.per_cell = per_cell
+        self.buf = np.full((cells, per_cell, 3), np.nan)
+        self.count = np.zeros(cells, int)
+        self.centre: Optional[np.ndarray] = None
+        self.seen = 0
+        self._pending: List[np.ndarray] = []
+
+    def add(self, m: np.ndarray) -> None:
+        m = np.asarray(m, float).reshape(-1, 3)
+        m = m[np.all(np.isfinite(m), axis=1)]
+        if not len(m):
+            return
+        self.seen += len(m)
+        if self.centre is None:
+            self._pending.append(m)
+            pts = np.vstack(self._pending)
+            if len(pts) < 50 or np.ptp(pts, axis=0).min() < 1e-3:
+                return
+            self.centre, _ = sphere_fit(pts)
+            self._pending = []
+            m = pts
+        d = m - self.centre
+        n = np.linalg.norm(d, axis=1, keepdims=True)
+        cell = np.argmax(d @ self.P.T / np.where(n > 0, n, 1.0), axis=1)
+        for c, x in zip(cell, m):
+            k = self.count[c] % self.per_cell
+            self.buf[c, k] = x
+            self.count[c] += 1
+
+    def points(self) -> np.ndarray:
+        return self.buf[~np.isnan(self.buf[..., 0])]
+
+    def coverage(self) -> float:
+        return float((self.count > 0).mean())
+
+    def recentre(self) -> None:
+        pts = self.points()
+        if len(pts) >= 20:
+            self.centre, _ = sphere_fit(pts)
+
+
+def sample_noise(m: np.ndarray) -> np.ndarray:
+    """Per-axis white-noise standard deviation (sensor units) of a time series
+    (N, 3): robust scale (1.4826 MAD) of second differences / sqrt(6)."""
+    m = np.asarray(m, float)
+    d2 = np.diff(m, 2, axis=0)
+    d2 = d2[np.all(np.isfinite(d2), axis=1)]
+    if len(d2) < 10:
+        return np.full(3, np.nan)
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+def flat_axis(points: np.ndarray, noise: np.ndarray, k: float = FLAT_K) -> Optional[Dict[str, Any]]:
+    """The plane of a one-plane swing, or None when the cloud spans three dimensions.
+
+    Flat when the raw cloud's standard deviation along its least-spread principal
+    axis is below ``k`` times the noise's along that axis."""
+    x = np.asarray(points, float)
+    c = x.mean(0)
+    ev, V = np.linalg.eigh(np.cov((x - c).T))
+    n = V[:, 0]
+    sd_out = float(np.sqrt(max(ev[0], 0.0)))
+    sd_noise = float(np.sqrt(n @ np.diag(np.asarray(noise, float) ** 2) @ n))
+    if not sd_out < k * sd_noise:
+        return None
+    # the ring in the plane: algebraic conic fit A u^2 + B uv + C v^2 + D u + E v = 1
+    e1, e2 = V[:, 2], V[:, 1]
+    u, v = (x - c) @ e1, (x - c) @ e2
+    s = max(np.std(u), np.std(v), 1e-300)
+    u, v = u / s, v / s
+    D = np.column_stack([u * u, u * v, v * v, u, v])
+    sol, *_ = np.linalg.lstsq(D, np.ones(len(u)), rcond=None)
+    M = np.array([[2 * sol[0], sol[1]], [sol[1], 2 * sol[2]]])
+    try:
+        u0, v0 = np.linalg.solve(M, -sol[3:5]) * s
+    except np.linalg.LinAlgError:
+        u0 = v0 = 0.0
+    return {"normal": (n * np.sign(n[np.argmax(np.abs(n))])).tolist(),
+            "out_of_plane_std": sd_out, "noise_std_along_normal": sd_noise,
+            "ring_centre": (c + u0 * e1 + v0 * e2).tolist()}
+
+
+def coverage(model: MagModel, theta: np.ndarray, points: np.ndarray, cells: int = 200
+             ) -> Dict[str, Any]:
+    """How much of the sphere the corrected cloud spans: fraction of direction cells
+    reached, and the eigenvalues (descending) and axes of the covariance of the
+    corrected unit directions (1/3 each for a full sphere)."""
+    h = model.forward(theta, np.asarray(points, float))
+    d = h / np.linalg.norm(h, axis=1, keepdims=True)
+    P = fibonacci_cells(cells)
+    reached = np.unique(np.argmax(d @ P.T, axis=1))
+    ev, V = np.linalg.eigh(np.cov(d.T))
+    order = np.argsort(ev)[::-1]
+    return {"fraction": float(len(reached) / cells), "cells": cells,
+            "direction_eigenvalues": [float(x) for x in ev[order]],
+            "least_spread_axis": V[:, order[-1]].tolist()}
+
+
+def rel_std(norms: np.ndarray) -> float:
+    """Relative standard deviation of a field norm: std / mean."""
+    n = np.asarray(norms, float)
+    return float(np.std(n) / np.mean(n))
+
+
+def _fit(model, points, noise, method, rng, heldout=True) -> Calibration:
+    cov = np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (len(points), 3, 3))
+    return fit_norm(points, model, method, pose_cov=cov, rng=rng, heldout=heldout)
+
+
+def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "lm",
+                       holdout_fraction: float = 0.3, rng=None, noise: Optional[np.ndarray] = None,
+                       cells: int = 200, per_cell: int = 5) -> Dict[str, Any]:
+    """Hard + soft iron from a rotation time series ``mag`` (N, 3), in time order.
+
+    Returns a dict: ``determined`` (False for a one-plane swing, with ``flat``
+    describing the plane), ``calibration`` (a :class:`Calibration` fitted on the
+    whole thinned cloud), ``coverage``, ``noise`` (per-axis, sensor units),
+    ``norm_rel_std`` (corrected norm over every sample), ``predicted_rel_std``
+    (what the noise alone would give), and ``heldout``: the calibration fitted on
+    the first ``1 - holdout_fraction`` of the samples in time and tested on the
+    rest (relative std of the corrected norm there).
+    """
+    mag = np.asarray(mag, float)
+    mag = mag[np.all(np.isfinite(mag), axis=1)]
+    mdl = get_model(model)
+    if not isinstance(mdl, MagModel):
+        raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")
+    sigma = sample_noise(mag) if noise is None else np.asarray(noise, float)
+    res = SphereReservoir(cells, per_cell)
+    res.add(mag)
+    pts = res.points()
+    out: Dict[str, Any] = {"samples": int(len(mag)), "points": int(len(pts)),
+                           "noise": sigma.tolist()}
+    if len(pts) <= int(mdl.free_mask.sum()):
+        from ..errors import UserError
+        raise UserError(f"{len(mag)} magnetometer samples reach only {len(pts)} direction cells: "
+                        f"rotate the sensor through many orientations")
+    flat = flat_axis(pts, sigma)
+    if flat is not None:
+        out.update(determined=False, flat=flat)
+        return out
+    cal = _fit(mdl, pts, sigma, method, rng)
+    cal.noise_source = "second differences"
+    out["determined"] = True
+    out["calibration"] = cal
+    out["coverage"] = coverage(mdl, cal.theta, pts, cells)
+    hn = np.linalg.norm(mdl.forward(cal.theta, mag), axis=1)
+    out["norm_rel_std"] = rel_std(hn)
+    out["predicted_rel_std"] = float(np.sqrt(np.mean(residual_variance(
+        mdl, cal.theta, pts, np.broadcast_to(np.diag(sigma ** 2), (len(pts), 3, 3))))))
+    k = int(round(len(mag) * (1 - holdout_fraction)))
+    if 0 < k < len(mag):
+        r_tr = SphereReservoir(cells, per_cell)
+        r_tr.add(mag[:k])
+        p_tr = r_tr.points()
+        if len(p_tr) > int(mdl.free_mask.sum()) and flat_axis(p_tr, sigma) is None:
+            c_tr = _fit(mdl, p_tr, sigma, "lm", rng, heldout=False)
+            out["heldout"] = {
+                "train_samples": k, "test_samples": int(len(mag) - k),
+                "norm_rel_std": rel_std(np.linalg.norm(mdl.forward(c_tr.theta, mag[k:]), axis=1)),
+                "train_coverage": coverage(mdl, c_tr.theta, p_tr, cells)["fraction"]}
+        else:
+            out["heldout"] = {"train_samples": k, "note": "the first part of the rotation alone "
+                              "does not span three dimensions: no held-out figure"}
+    return out
+
+
+def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:
+    """The JSON object ``imucald calibrate --sensor mag`` prints for a rotation fit."""
+    d: Dict[str, Any] = {"sensor": "mag", "input": "rotation", "determined": bool(res["determined"]),
+                         "samples": res["samples"], "points": res["points"], "noise_gauss": res["noise"]}
+    if not res["determined"]:
+        f = res["flat"]
+        d["undetermined_axis"] = f["normal"]
+        d["flat"] = {"out_of_plane_std_gauss": f["out_of_plane_std"],
+                     "noise_std_along_normal_gauss": f["noise_std_along_normal"],
+                     "ring_centre_gauss": f["ring_centre"]}
+        return d
+    d.update(res["calibration"].to_json())
+    d["input"] = "rotation"
+    d["coverage"] = res["coverage"]
+    d["norm_rel_std"] = res["norm_rel_std"]
+    d["predicted_rel_std"] = res["predicted_rel_std"]
+    if "heldout" in res:
+        d["heldout_time_split"] = res["heldout"]
+    return d
+
+
+def flat_message(res: Dict[str, Any]) -> str:
+    f = res["flat"]
+    n = ", ".join(f"{x:+.3f}" for x in f["normal"])
+    return (f"the rotation stayed in one plane (normal [{n}] in sensor axes: spread across it "
+            f"{f['out_of_plane_std']:.4g} vs noise {f['noise_std_along_normal']:.4g}): hard and soft "
+            f"iron along that axis are not determined, so no calibration is given; tilt the sensor "
+            f"onto another face and keep turning it (in-plane ring centre: "
+            f"[{', '.join(f'{x:.6g}' for x in f['ring_centre'])}])")
+
+
+def rotation_lines(res: Dict[str, Any]) -> List[str]:
+    """Text lines for coverage, corrected-norm spread and the held-out figure."""
+    c = res["coverage"]
+    ev = ", ".join(f"{x:.3f}" for x in c["direction_eigenvalues"])
+    out = [f"  coverage: {c['fraction']:.0%} of {c['cells']} direction cells; direction scatter "
+           f"eigenvalues [{ev}] (1/3 each for the whole sphere)",
+           f"  corrected |h| relative std {res['norm_rel_std']:.4f} over {res['samples']} samples "
+           f"(noise alone would give {res['predicted_rel_std']:.4f})"]
+    h = res.get("heldout")
+    if h and "norm_rel_std" in h:
+        out.append(f"  held out in time: fitted on the first {h['train_samples']} samples, "
+                   f"relative std {h['norm_rel_std']:.4f} on the last {h['test_samples']}")
+    elif h:
+        out.append(f"  held out in time: {h['note']}")
+    return out

@@ -97,11 +97,15 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int) -
             out.append(f"{Q[i]},{TT[i]},{A[i][0]},{A[i][1]},{A[i][2]},{G[i][0]},{G[i][1]},{G[i][2]},"
                        f"{m[0]},{m[1]},{m[2]},{T[i]},{int(S[i])},{cal_id}\n")
     else:
+        # absent values (NaN: no accelerometer on a gy273 board, no temperature) are
+        # omitted, never written as null or NaN (gpsd convention)
         for i in range(n):
             a, g = A[i], G[i]
+            aa = f',"acc_g":[{a[0]},{a[1]},{a[2]}]' if a[0] == a[0] else ""
+            gg = f',"gyro_dps":[{g[0]},{g[1]},{g[2]}]' if g[0] == g[0] else ""
             mm = f',"mag_gauss":[{M[i][0]},{M[i][1]},{M[i][2]}]' if M is not None and M[i][0] == M[i][0] else ""
-            out.append(f'{{"class":"IMU","seq":{Q[i]},"t":{TT[i]},"acc_g":[{a[0]},{a[1]},{a[2]}],'
-                       f'"gyro_dps":[{g[0]},{g[1]},{g[2]}]{mm},"temp_c":{T[i]},'
+            tt = f',"temp_c":{T[i]}' if T[i] == T[i] else ""
+            out.append(f'{{"class":"IMU","seq":{Q[i]},"t":{TT[i]}{aa}{gg}{mm}{tt},'
                        f'"still":{"true" if S[i] else "false"},"cal":{cal_id}}}\n')
     return "".join(out).encode()
 

@@ -21,13 +21,14 @@ import numpy as np
 from .adxl345 import ADXL345
 from .ak8963 import AK8963
 from .bus import Bus, BusError, Clock, RealClock
-from .hmc5883l import HMC5883L
 from .itg3200 import ITG3200
+from .magnetometer import MAG_CHIPS, MAG_DEFAULT_HZ, mag_name, mag_setup, open_magnetometer
 from .mpu6050 import MPU6xxx
 
-__all__ = ["SampleBatch", "Board", "MPUBoard", "NineDofBoard", "make_board", "BOARD_NAMES"]
+__all__ = ["SampleBatch", "Board", "MPUBoard", "NineDofBoard", "make_board", "merge_batches",
+           "BOARD_NAMES", "MAG_CHIPS"]
 
-BOARD_NAMES = ("mpu6050", "mpu6500", "mpu9250", "9dof")
+BOARD_NAMES = ("mpu6050", "mpu6500", "mpu9250", "9dof", "gy273")
 
 
 @dataclass
@@ -61,6 +62,7 @@ class BoardStats:
 class Board:
     name = "board"
     has_mag = False
+    has_acc = True
 
     def __init__(self, bus: Bus, clock: Optional[Clock] = None, rate_hz: float = 100.0):
         self.bus = bus
@@ -81,6 +83,10 @@ class Board:
     #: transient bus faults are only counted at first; if reads keep failing this long,
     #: the chips are re-initialised
     reinit_after_s = 0.5
+
+    def chips(self) -> dict:
+        """Chip names by role (accel, gyro, mag), for the stream, status and recordings."""
+        return {}
 
     def start(self) -> None:
         self._last_ok = self._last_check = self.clock.now()
@@ -151,6 +157,19 @@ class Board:
                 return self._recover(now, str(e))
             return self._empty()
 
+    def _polled(self, wait: bool, batch_s: Optional[float], period: float) -> SampleBatch:
+        """Chips without a FIFO: poll every ``period`` and return the polls of ``batch_s``
+        together."""
+        if batch_s is None or batch_s <= period:
+            return Board.read_batch(self, wait, period)
+        parts = []
+        t_end = self.clock.now() + batch_s
+        while True:
+            parts.append(Board.read_batch(self, wait, period))
+            if self.clock.now() >= t_end - 0.5 * period:
+                break
+        return merge_batches(parts)
+
     def _empty(self) -> SampleBatch:
         return self._emit(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), None, False, 0)
 
@@ -185,6 +204,10 @@ class MPUBoard(Board):
         self.cfg = dict(accel_range_g=accel_range_g, gyro_range_dps=gyro_range_dps, rate_hz=rate_hz)
         self._mag_next = 0.0
 
+    def chips(self):
+        c = {"accel": self.name, "gyro": self.name}
+        return {**c, "mag": "ak8963"} if self.has_mag else c
+
     def _init_chips(self):
         self.mpu.chip = None
         self.mpu.identify()
@@ -214,26 +237,37 @@ class MPUBoard(Board):
 
 
 class NineDofBoard(Board):
-    """ADXL345 + ITG3200 + HMC5883L.  The ADXL345 FIFO sets the sample clock; the gyro
-    (no FIFO) and the magnetometer are read once per poll and held."""
+    """ADXL345 + ITG3200 + a magnetometer (HMC5883L or QMC5883L, found by ID unless
+    ``mag`` names one).  The ADXL345 FIFO sets the sample clock; the gyro (no FIFO)
+    and the magnetometer are read once per poll and held."""
 
     name = "9dof"
     has_mag = True
 
     def __init__(self, bus: Bus, accel_addr: int = 0x53, gyro_addr: int = 0x68,
-                 mag_addr: int = 0x1E, accel_range_g: int = 16, rate_hz: float = 100.0,
-                 mag_rate_hz: float = 75.0, clock: Optional[Clock] = None):
+                 mag_addr: Optional[int] = None, accel_range_g: int = 16, rate_hz: float = 100.0,
+                 mag_rate_hz: Optional[float] = None, clock: Optional[Clock] = None, mag: str = "auto"):
         super().__init__(bus, clock, rate_hz)
         self.acc = ADXL345(bus, accel_addr, self.clock)
         self.gyr = ITG3200(bus, gyro_addr, self.clock)
-        self.mag = HMC5883L(bus, mag_addr, self.clock)
+        self.mag_choice, self.mag_addr = mag, mag_addr
+        self.mag = None
         self.accel_range_g, self.mag_rate_hz = accel_range_g, mag_rate_hz
         self._mag_next = 0.0
+
+    def chips(self):
+        return {"accel": "adxl345", "gyro": "itg3200",
+                "mag": mag_name(self.mag) if self.mag is not None else self.mag_choice}
 
     def _init_chips(self):
         self.acc.setup(self.accel_range_g, self.rate_hz)
         self.gyr.setup(self.rate_hz)
-        self.mag.setup(rate_hz=self.mag_rate_hz)
+        if self.mag is None:
+            a = {} if self.mag_addr is None else {"hmc_addr": self.mag_addr, "qmc_addr": self.mag_addr}
+            self.mag = open_magnetometer(self.bus, self.mag_choice, self.clock, **a)
+        name = mag_name(self.mag)
+        self.mag_rate_hz = self.mag_rate_hz or MAG_DEFAULT_HZ[name]
+        mag_setup(self.mag, self.mag_rate_hz)
         self.rate_hz = self.acc.rate_hz
 
     def _configured(self):
@@ -261,16 +295,7 @@ class NineDofBoard(Board):
     def read_batch(self, wait: bool = True, batch_s: Optional[float] = None) -> SampleBatch:
         """The gyro has no FIFO: poll once per sample period, so that each accelerometer
         sample gets its own gyro reading, and return the polls of ``batch_s`` together."""
-        period = 1.0 / self.rate_hz
-        if batch_s is None or batch_s <= period:
-            return super().read_batch(wait, period)
-        parts = []
-        t_end = self.clock.now() + batch_s
-        while True:
-            parts.append(super().read_batch(wait, period))
-            if self.clock.now() >= t_end - 0.5 * period:
-                break
-        return merge_batches(parts)
+        return self._polled(wait, batch_s, 1.0 / self.rate_hz)
 
 
 def merge_batches(parts: List[SampleBatch]) -> SampleBatch:
@@ -293,4 +318,7 @@ def make_board(name: str, bus: Bus, clock: Optional[Clock] = None, rate_hz: floa
         return MPUBoard(bus, name, rate_hz=rate_hz, clock=clock, **kw)
     if name == "9dof":
         return NineDofBoard(bus, rate_hz=rate_hz, clock=clock, **kw)
+    if name == "gy273":
+        from .magboard import MagOnlyBoard
+        return MagOnlyBoard(bus, rate_hz=rate_hz, clock=clock, **kw)
     raise ValueError(f"unknown board {name!r}: allowed {', '.join(BOARD_NAMES)}")

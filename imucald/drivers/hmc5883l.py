@@ -16,7 +16,6 @@ from .regmap import Field, Register, RegisterMap
 __all__ = ["REGMAP", "HMC5883L", "ADDR", "GAIN_LSB_PER_GAUSS", "OVERFLOW"]
 
 ADDR = 0x1E                                                                 # I
-QMC5883L_ADDR = 0x0D                                                        # the common clone
 REGMAP = RegisterMap(
     "hmc5883l",
     Register("CONFIG_A", 0x00, 0x10, {"MA": Field(0x60), "DO": Field(0x1C), "MS": Field(0x03)}),  # K, I

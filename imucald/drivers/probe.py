@@ -9,10 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import List, Optional
 
-from . import adxl345, ak8963, hmc5883l, itg3200, mpu6050
+from . import adxl345, ak8963, hmc5883l, itg3200, mpu6050, qmc5883l
 from .bus import AddressBusy, Bus, BusError, NoAcknowledge, kernel_driver_for
 
-__all__ = ["Found", "probe", "detect_board"]
+__all__ = ["Found", "probe", "detect_board", "magnetometer"]
 
 CANDIDATES = (0x0C, 0x0D, 0x1D, 0x1E, 0x53, 0x68, 0x69)
 
@@ -50,12 +50,12 @@ def _identify(bus: Bus, addr: int) -> Found:
         if ident == b"H43":
             return Found(addr, "hmc5883l", "ID='H43': HMC5883L magnetometer")
         return Found(addr, "unknown", f"answers, ID={ident!r}: not an HMC5883L")
-    if addr == hmc5883l.QMC5883L_ADDR:
-        cid = bus.read_byte(addr, 0x0D)
-        if cid == 0xFF:
-            return Found(addr, "qmc5883l", "CHIP_ID=0xFF: QMC5883L, the clone sold as 'HMC5883L'; "
-                                           "its register map differs and it is not supported yet")
-        return Found(addr, "unknown", f"answers, reg 0x0D=0x{cid:02X}")
+    if addr == qmc5883l.ADDR:
+        cid = bus.read_byte(addr, qmc5883l.REGMAP.CHIP_ID.addr)
+        if cid == qmc5883l.CHIP_ID:
+            return Found(addr, "qmc5883l", "CHIP_ID=0xFF: QMC5883L magnetometer (often sold as "
+                                           "'HMC5883L' on GY-273 / GY-85 boards)")
+        return Found(addr, "unknown", f"answers, reg 0x0D=0x{cid:02X}: not a QMC5883L")
     if addr == ak8963.ADDR:
         wia = bus.read_byte(addr, ak8963.REGMAP.WIA.addr)
         if wia == ak8963.WIA_ID:
@@ -94,12 +94,24 @@ def probe(bus: Bus, bus_num: Optional[int] = None, sysfs: str = "/sys/bus/i2c/de
     return sorted(out, key=lambda f: f.addr)
 
 
+MAGNETOMETERS = ("hmc5883l", "qmc5883l")
+
+
 def detect_board(found: List[Found]) -> Optional[str]:
-    """Board name from probe results: 9dof (0x53 + 0x68/0x69 + 0x1E), mpu9250, mpu6500, mpu6050."""
+    """Board name from probe results: 9dof (0x53 + 0x68/0x69 + an HMC5883L at 0x1E or a
+    QMC5883L at 0x0D), mpu9250, mpu6500, mpu6050, or gy273 (a magnetometer alone)."""
     chips = {f.chip for f in found}
-    if "adxl345" in chips and "itg3200" in chips and "hmc5883l" in chips:
+    if "adxl345" in chips and "itg3200" in chips and chips & set(MAGNETOMETERS):
         return "9dof"
     for c in ("mpu9250", "mpu6500", "mpu6050"):
         if c in chips:
             return c
+    if chips & set(MAGNETOMETERS):
+        return "gy273"
     return None
+
+
+def magnetometer(found: List[Found]) -> Optional[str]:
+    """The 9dof/gy273 magnetometer probe found (the HMC5883L if both answer)."""
+    chips = [f.chip for f in found]
+    return next((m for m in MAGNETOMETERS if m in chips), None)

@@ -78,9 +78,15 @@ class SphereReservoir:
             self.centre, _ = sphere_fit(pts)
             self._pending = []
             m = pts
+            self._next_recentre = 2 * len(pts)
+        self._bin(m)
+        if self.seen >= self._next_recentre:      # 2x, 4x, 8x ... the first centre's samples
+            self._next_recentre = 2 * self.seen
+            self.recentre()
+
+    def _bin(self, m: np.ndarray) -> None:
         d = m - self.centre
-        n = np.linalg.norm(d, axis=1, keepdims=True)
-        cell = np.argmax(d @ self.P.T / np.where(n > 0, n, 1.0), axis=1)
+        cell = np.argmax(d @ self.P.T, axis=1)
         for c, x in zip(cell, m):
             k = self.count[c] % self.per_cell
             self.buf[c, k] = x
@@ -90,12 +96,23 @@ class SphereReservoir:
         return self.buf[~np.isnan(self.buf[..., 0])]
 
     def coverage(self) -> float:
-        return float((self.count > 0).mean())
+        """Fraction of direction cells the kept points reach about *their* sphere fit (the
+        running centre, fixed early from a small arc, can be far off)."""
+        pts = self.points()
+        if len(pts) < 20:
+            return float((self.count > 0).mean())
+        c, _ = sphere_fit(pts)
+        d = pts - c
+        return float(len(np.unique(np.argmax(d @ self.P.T, axis=1))) / len(self.P))
 
     def recentre(self) -> None:
+        """Refit the centre to the kept points and re-bin them about it."""
         pts = self.points()
         if len(pts) >= 20:
             self.centre, _ = sphere_fit(pts)
+            self.buf[:] = np.nan
+            self.count[:] = 0
+            self._bin(pts)
 
 
 def sample_noise(m: np.ndarray) -> np.ndarray:

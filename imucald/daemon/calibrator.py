@@ -17,6 +17,7 @@ import numpy as np
 
 from ..calib.fit import fit_norm
 from ..calib.magcal import SphereReservoir as MagReservoir
+from ..calib.magcal import coverage, flat_axis
 from ..calib.models import MagModel, Triangular9, mag_report
 from ..calib.uncertainty import residual_variance
 
@@ -82,13 +83,24 @@ def _rms(x) -> float:
 def calibration_job(job: Dict[str, Any]) -> Dict[str, Any]:
     """Fit, validate and decide.  Pure: no I/O, no globals.
 
-    job keys: acc (N,3), acc_cov (N,3,3), t0 (N,), n (N,), temp (N,), gyro (N,3) or None,
-    mag_points (M,3) or None, current: {accel_theta, gyro_bias_dps, mag_theta} (None = raw),
-    method, holdout_fraction, seed.
+    job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3), t0 (N,),
+    n (N,), temp (N,), gyro (N,3) or None, mag_points (M,3) or None, mag_noise (3,) per-sample
+    noise or None, current: {accel_theta, gyro_bias_dps, mag_theta} (None = raw), method,
+    holdout_fraction, seed.
     """
     t_start = time.perf_counter()
     out: Dict[str, Any] = {"accel": None, "gyro": None, "mag": None}
     cur = job.get("current") or {}
+    if job.get("acc") is not None:
+        _accel_gyro(job, cur, out)
+    mp = job.get("mag_points")
+    if mp is not None and len(mp) >= 30:
+        out["mag"] = _mag(np.asarray(mp, float), job, cur)
+    out["wall_s"] = time.perf_counter() - t_start
+    return out
+
+
+def _accel_gyro(job: Dict[str, Any], cur: Dict[str, Any], out: Dict[str, Any]) -> None:
     acc = np.asarray(job["acc"], float)
     order = np.argsort(job["t0"])
     ho = np.zeros(len(acc), bool)
@@ -128,22 +140,31 @@ def calibration_job(job: Dict[str, Any]) -> Dict[str, Any]:
         out["gyro"] = {"bias_dps": b.tolist(), "stderr_dps": sd.tolist(),
                        "heldout_rms_dps": e_new, "heldout_rms_before_dps": e_cur,
                        "accept": bool(e_new < e_cur)}
-    # --- magnetometer ---
-    mp = job.get("mag_points")
-    if mp is not None and len(mp) >= 30:
-        mp = np.asarray(mp, float)
-        mho = _holdout(len(mp), job["holdout_fraction"])
-        mc = fit_norm(mp[~mho], "mag_sym", "lm", rng=job.get("seed"), heldout=False)
-        hn = np.linalg.norm(MagModel("sym").forward(mc.theta, mp[mho]), axis=1)
-        e_new = _rms(hn - 1)
-        mth = cur.get("mag_theta")
-        if mth is None:
-            hc = np.linalg.norm(mp[mho], axis=1)
-            e_cur = _rms(hc / np.median(np.linalg.norm(mp, axis=1)) - 1)
-        else:
-            e_cur = _rms(np.linalg.norm(MagModel("sym").forward(np.asarray(mth), mp[mho]), axis=1) - 1)
-        out["mag"] = {"theta": mc.theta.tolist(), "params": mc.params, "stderr": mc.stderr,
-                      "points": int(len(mp)), "heldout_rel_rms": e_new,
-                      "heldout_rel_rms_before": e_cur, "accept": bool(e_new < e_cur)}
-    out["wall_s"] = time.perf_counter() - t_start
-    return out
+
+
+def _mag(mp: np.ndarray, job: Dict[str, Any], cur: Dict[str, Any]) -> Dict[str, Any]:
+    """The rotation-cloud calibration (calib.magcal), validated on every k-th point.
+
+    A cloud from a one-plane swing is reported (the undetermined axis) and never
+    applied."""
+    noise = job.get("mag_noise")
+    cov = None
+    if noise is not None and np.all(np.isfinite(noise)) and np.all(np.asarray(noise) > 0):
+        flat = flat_axis(mp, np.asarray(noise, float))
+        if flat is not None:
+            return {"determined": False, "flat": flat, "points": int(len(mp)), "accept": False}
+        cov = np.diag(np.asarray(noise, float) ** 2)
+    mho = _holdout(len(mp), job["holdout_fraction"])
+    mc = fit_norm(mp[~mho], "mag_sym", "lm", rng=job.get("seed"), heldout=False,
+                  pose_cov=None if cov is None else np.broadcast_to(cov, (int((~mho).sum()), 3, 3)))
+    hn = np.linalg.norm(_MAG.forward(mc.theta, mp[mho]), axis=1)
+    e_new = _rms(hn - 1)
+    mth = cur.get("mag_theta")
+    if mth is None:
+        hc = np.linalg.norm(mp[mho], axis=1)
+        e_cur = _rms(hc / np.median(np.linalg.norm(mp, axis=1)) - 1)
+    else:
+        e_cur = _rms(np.linalg.norm(_MAG.forward(np.asarray(mth), mp[mho]), axis=1) - 1)
+    return {"determined": True, "theta": mc.theta.tolist(), "params": mc.params, "stderr": mc.stderr,
+            "points": int(len(mp)), "coverage": coverage(_MAG, mc.theta, mp),
+            "heldout_rel_rms": e_new, "heldout_rel_rms_before": e_cur, "accept": bool(e_new < e_cur)}

@@ -21,7 +21,10 @@ class ConfigError(UserError):
 
 #: key -> (default, kind, allowed); kind: int, float, bool, str, choice, addr, list
 SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
-    "sensor.board": ("mpu6050", "choice", ("mpu6050", "mpu6500", "mpu9250", "9dof")),
+    "sensor.board": ("mpu6050", "choice", ("mpu6050", "mpu6500", "mpu9250", "9dof", "gy273")),
+    # 9dof / gy273: which magnetometer; auto = found by ID (HMC5883L at 0x1E, else QMC5883L
+    # at 0x0D); for an emulated board, auto means the HMC5883L on 9dof, the QMC5883L on gy273
+    "sensor.magnetometer": ("auto", "choice", ("auto", "hmc5883l", "qmc5883l")),
     "sensor.bus": (None, "int?", (0, 99)),
     "sensor.emulate": ("auto", "choice", ("auto", "yes", "no")),
     "sensor.address": (None, "addr?", (0x03, 0x77)),

@@ -42,9 +42,13 @@ BINARY_FORMAT = struct.Struct("<QdIB3x3f3ff3f")
 CSV_HEADER = "seq,t,ax,ay,az,gx,gy,gz,mx,my,mz,temp,still,cal\n"
 
 
-def banner(fmt: str, board: str) -> bytes:
+def banner(fmt: str, board: str, chips: Optional[dict] = None) -> bytes:
+    """The VERSION line: release, protocol, format, board and (when known) its chips by
+    role, e.g. {"accel": "adxl345", "gyro": "itg3200", "mag": "qmc5883l"}."""
     d = {"class": "VERSION", "release": __version__, "proto_major": PROTO_MAJOR,
          "proto_minor": PROTO_MINOR, "format": fmt, "board": board}
+    if chips:
+        d["chips"] = chips
     line = json.dumps(d, separators=(",", ":")) + "\n"
     if fmt == "csv":
         return ("# " + line + CSV_HEADER).encode()
@@ -146,6 +150,7 @@ class SocketSink:
     def __init__(self, path: str, fmt: str, board: str, mode: str = "0660",
                  group: Optional[str] = None, max_buffer: int = 1 << 20):
         self.path, self.fmt, self.board, self.max_buffer = path, fmt, board, max_buffer
+        self.chips: Optional[dict] = None     #: set by the daemon once the chips are identified
         self.lsock = listen_unix(path, mode, group, 16)
         self.clients: List[_Client] = []
         self.dropped = 0          #: clients dropped for falling behind
@@ -160,7 +165,7 @@ class SocketSink:
                 return
             s.setblocking(False)
             c = _Client(s, self.accepted)
-            c.buf += banner(self.fmt, self.board)
+            c.buf += banner(self.fmt, self.board, self.chips)
             self.clients.append(c)
             self.accepted += 1
 
@@ -211,6 +216,7 @@ class FifoSink:
     def __init__(self, path: str, fmt: str, board: str, mode: str = "0660",
                  group: Optional[str] = None, max_buffer: int = 1 << 20):
         self.path, self.fmt, self.board, self.max_buffer = path, fmt, board, max_buffer
+        self.chips: Optional[dict] = None     #: set by the daemon once the chips are identified
         if not os.path.exists(path):
             os.mkfifo(path)
             _chown_chmod(path, mode, group)
@@ -230,7 +236,7 @@ class FifoSink:
                 return False          # no reader yet
             raise
         self.connects += 1
-        self.buf = bytearray(banner(self.fmt, self.board))
+        self.buf = bytearray(banner(self.fmt, self.board, self.chips))
         self._banner_left = len(self.buf)
         self._written = 0           # record bytes delivered since the banner
         self._last = b"\n"

@@ -26,6 +26,12 @@ __all__ = ["Pipeline", "InlineExecutor", "applied_from_doc"]
 log = logging.getLogger("imucald")
 #: fewest poses a forced calibration may use (9 parameters plus one degree of freedom)
 MIN_FIT_POSES = 10
+#: fresh magnetometer readings kept for the per-sample noise (second differences)
+MAG_NOISE_SAMPLES = 2000
+#: boards without an accelerometer: fewest reservoir points for a fit, and seconds of new
+#: readings between calibrations
+MIN_MAG_POINTS = 30
+MAG_RECAL_S = 20.0
 
 
 class InlineExecutor(Executor):
@@ -54,8 +60,13 @@ def applied_from_doc(doc: Dict[str, Any]) -> Applied:
 class Pipeline:
     def __init__(self, cfg: Dict[str, Dict[str, Any]], board: str, rate_hz: float, has_mag: bool,
                  executor: Optional[Executor] = None, persist: Optional[Callable] = None,
-                 chips: Optional[Dict[str, str]] = None):
+                 chips: Optional[Dict[str, str]] = None, has_acc: bool = True):
         self.cfg, self.board, self.rate_hz, self.has_mag = cfg, board, rate_hz, has_mag
+        # without an accelerometer (gy273) there are no still poses: the magnetometer is
+        # calibrated from its rotation cloud alone, as `imucald calibrate` does
+        self.has_acc = has_acc
+        self.mag_recent: Deque[np.ndarray] = deque(maxlen=MAG_NOISE_SAMPLES)
+        self._next_mag_seen = 0
         st = cfg["stillness"]
         self.det = StillnessDetector(rate_hz, st["window_s"], st["k"], st["min_still_s"],
                                      st["max_pose_s"], st["trim_s"])
@@ -93,6 +104,7 @@ class Pipeline:
                 self._pose(iv)
             if self.reservoir is not None and b.mag_fresh is not None and b.mag_fresh.any():
                 self.reservoir.add(b.mag[b.mag_fresh])
+                self.mag_recent.extend(b.mag[b.mag_fresh])
             ap = self.applied
             mag = ap.mag(b.mag) if b.mag is not None else None
             dec = self.cfg["output"]["decimate"]
@@ -137,15 +149,48 @@ class Pipeline:
                 "predicted_scale_std": None if sd is None else sd[3:6].tolist()}
 
     def request_calibration(self) -> bool:
-        """Calibrate now with the poses there are (at least MIN_FIT_POSES); True if started."""
-        if len(self.acc) < MIN_FIT_POSES:
+        """Calibrate now with the poses there are (at least MIN_FIT_POSES; a board without
+        an accelerometer: MIN_MAG_POINTS magnetometer points); True if started."""
+        if not self.has_acc:
+            if self.reservoir is None or len(self.reservoir.points()) < MIN_MAG_POINTS:
+                return False
+        elif len(self.acc) < MIN_FIT_POSES:
             return False
         self.force = True
         self.maybe_calibrate()
         return self.pending is not None
 
+    def _mag_noise(self):
+        from ..calib.magcal import sample_noise
+        return sample_noise(np.array(self.mag_recent)) if len(self.mag_recent) >= 20 else None
+
+    def _maybe_calibrate_mag_only(self) -> None:
+        c = self.cfg["calibration"]
+        r = self.reservoir
+        if not self.force:
+            if r.coverage() < c["mag_min_coverage"] or r.seen < self._next_mag_seen:
+                return
+        if len(r.points()) < MIN_MAG_POINTS:
+            return
+        self.force = False
+        self._next_mag_seen = r.seen + int(MAG_RECAL_S * self.rate_hz)
+        ap = self.applied
+        job = {"acc": None, "mag_points": r.points(), "mag_noise": self._mag_noise(),
+               "holdout_fraction": c["holdout_fraction"], "seed": int(r.seen),
+               "current": {"mag_theta": ap.mag_theta}}
+        self._job_poses = self.acc.pose_set()
+        msg = (f"calibrating the magnetometer in the background on {len(job['mag_points'])} "
+               f"points ({r.coverage():.0%} of the sphere)")
+        log.info(msg)
+        self.events.append(msg)
+        self.pending = self.executor.submit(calibration_job, job)
+
     def maybe_calibrate(self) -> None:
         if self.pending is not None:
+            return
+        if not self.has_acc:
+            if self.reservoir is not None:
+                self._maybe_calibrate_mag_only()
             return
         # the readiness check (a CRLB) only changes when the pose set does
         key = (self.acc.added, len(self.acc), self.applied.id)
@@ -166,7 +211,7 @@ class Pipeline:
             mag_pts = self.reservoir.points()
         ap = self.applied
         job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "t0": ps.t0, "n": ps.n, "temp": ps.temp,
-               "gyro": ps.gyro, "mag_points": mag_pts, "method": c["method"],
+               "gyro": ps.gyro, "mag_points": mag_pts, "mag_noise": self._mag_noise(), "method": c["method"],
                "holdout_fraction": c["holdout_fraction"], "seed": int(self.acc.added),
                "current": {"accel_theta": ap.accel_theta, "gyro_bias_dps": ap.gyro_bias_dps,
                            "mag_theta": ap.mag_theta}}
@@ -201,7 +246,11 @@ class Pipeline:
         if a:
             parts.append(f"accel held-out {a['heldout_rms_g'] * 1e3:.3f} mg vs "
                          f"{a['heldout_rms_before_g'] * 1e3:.3f} mg {'(applied)' if take_a else '(kept the current one)'}")
-        if m:
+        if m and not m.get("determined", True):
+            n = ", ".join(f"{x:+.2f}" for x in m["flat"]["normal"])
+            parts.append(f"mag not determined: the rotation so far stayed in one plane (normal [{n}]); "
+                         f"tilt the sensor onto another face and keep turning it")
+        elif m:
             parts.append(f"mag held-out {m['heldout_rel_rms'] * 100:.2f} % vs "
                          f"{m['heldout_rel_rms_before'] * 100:.2f} % {'(applied)' if take_m else '(kept)'}")
         if not (take_a or take_g or take_m):
@@ -228,7 +277,7 @@ class Pipeline:
                      accel_heldout_rms_g=a["heldout_rms_g"] if a else None,
                      accel_heldout_rms_before_g=a["heldout_rms_before_g"] if a else None,
                      accel_predicted_heldout_rms_g=a["predicted_heldout_rms_g"] if a else None,
-                     mag_heldout_rel_rms=m["heldout_rel_rms"] if m else None)
+                     mag_heldout_rel_rms=m.get("heldout_rel_rms") if m else None)
 
     def calibration_doc(self, res, ps, take_a, take_g, take_m, now) -> Dict[str, Any]:
         """The persisted calibration (YAML): parameters under the names `imucald
@@ -260,7 +309,7 @@ class Pipeline:
             doc["gyro"] = prev["gyro"]
         if take_m:
             doc["mag"] = {"model": "mag_sym", "params": m["params"], "stderr": m["stderr"],
-                          "theta": m["theta"], "points": m["points"],
+                          "theta": m["theta"], "points": m["points"], "coverage": m["coverage"],
                           "heldout_rel_rms": m["heldout_rel_rms"]}
         elif "mag" in prev:
             doc["mag"] = prev["mag"]

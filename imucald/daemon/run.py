@@ -46,8 +46,10 @@ def make_board_from_config(cfg, emulate: Optional[bool], speed: float = 1.0, see
     kw = {}
     if s["address"] is not None:
         kw = {"addr": s["address"]} if s["board"] != "9dof" else {"gyro_addr": s["address"]}
-    if s["board"] != "9dof":
+    if s["board"] not in ("9dof", "gy273"):
         kw.update(accel_range_g=s["accel_range_g"], gyro_range_dps=s["gyro_range_dps"])
+    else:
+        kw["mag"] = s["magnetometer"]
     if use_emu:
         from ..drivers.emulator import emulated_board
         from ..sim.motion import PoseTour
@@ -56,7 +58,8 @@ def make_board_from_config(cfg, emulate: Optional[bool], speed: float = 1.0, see
         rng = np.random.default_rng(seed)
         tour = PoseTour(random_pose_set(poses, rng), rng=rng, hold_s=(3.0, 4.0), move_s=(1.2, 1.8),
                         lead_s=1.0, loop=True)
-        eb = emulated_board(s["board"], tour, rng=rng, clock=clock, faults=faults)
+        eb = emulated_board(s["board"], tour, rng=rng, clock=clock, faults=faults,
+                            mag=None if s["magnetometer"] == "auto" else s["magnetometer"])
         bus = Bus(eb, name=f"emulated {s['board']}", clock=clock)
         desc = (f"emulated {s['board']} (no I2C bus found), moved through {poses} orientations"
                 + (f" at {speed:g}x speed" if speed != 1.0 else ""))
@@ -105,12 +108,14 @@ class Daemon:
                                                             self.faults)
         log.info("imucald starting: %s", desc)
         self.board.start()                                       # identifies the chips first
-        chips = {"board": self.board.name, "bus": self.bus.name}
+        chips = {"board": self.board.name, "bus": self.bus.name, **self.board.chips()}
+        log.info("found %s", ", ".join(f"{k} {v.upper()}" for k, v in self.board.chips().items()))
         self.writer = ThreadPoolExecutor(1, thread_name_prefix="imucald-state")
         self.worker = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
                                           initializer=_worker_init)
         self.pipe = Pipeline(cfg, self.board.name, self.board.rate_hz, self.board.has_mag,
-                             executor=self.worker, persist=self._persist, chips=chips)
+                             executor=self.worker, persist=self._persist, chips=chips,
+                             has_acc=self.board.has_acc)
         doc = load_calibration(sd)
         if doc is not None:
             self.pipe.applied = applied_from_doc(doc)
@@ -127,6 +132,8 @@ class Daemon:
         if o["fifo"]:
             self.sinks.append(FifoSink(self._path(rd, o["fifo"]), o["format"], self.board.name,
                                        o["socket_mode"], o["socket_group"], o["client_buffer_bytes"]))
+        for sk in self.sinks:
+            sk.chips = self.board.chips()
         self.control = ControlServer(self._path(rd, c["socket"]), self._command, c["socket_mode"],
                                      c["socket_group"])
         signal.signal(signal.SIGTERM, self._on_stop)
@@ -193,7 +200,8 @@ class Daemon:
     def _command(self, cmd: str) -> Dict[str, Any]:
         p = self.pipe
         if cmd == "status":
-            d = {"class": "STATUS", "board": self.board.name, "rate_hz": self.board.rate_hz,
+            d = {"class": "STATUS", "board": self.board.name, "chips": self.board.chips(),
+                 "rate_hz": self.board.rate_hz,
                  "bus": self.bus.name, **p.status(), "board_stats": self.board.stats.as_dict(),
                  "bus_stats": self.bus.stats.as_dict(),
                  "clients": len(self.sinks[0].clients), "clients_dropped": self.sinks[0].dropped}

@@ -124,7 +124,10 @@ def sample_noise(m: np.ndarray) -> np.ndarray:
     if len(d2) < 10:
         return np.full(3, np.nan)
     mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-    return 1.4826 * mad / np.sqrt(6.0)
+    sd = 1.4826 * mad / np.sqrt(6.0)
+    # noise below one count: most second differences are 0 and the MAD with them; the
+    # plain standard deviation still sees the quantisation
+    return np.where(sd > 0, sd, d2.std(axis=0) / np.sqrt(6.0))
 
 
 def flat_axis(points: np.ndarray, noise: np.ndarray, k: float = FLAT_K) -> Optional[Dict[str, Any]]:
@@ -199,6 +202,10 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     """
     mag = np.asarray(mag, float)
     mag = mag[np.all(np.isfinite(mag), axis=1)]
+    # a board that samples faster than its magnetometer holds the last reading: keep
+    # each reading once (repeats would fake a zero noise and weigh one direction more)
+    if len(mag) > 1:
+        mag = mag[np.r_[True, np.any(np.diff(mag, axis=0) != 0, axis=1)]]
     mdl = get_model(model)
     if not isinstance(mdl, MagModel):
         raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")

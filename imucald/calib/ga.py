@@ -1,0 +1,212 @@
+"""Genetic optimisers: paper 000's GA core and protocol (``ga-paper``), the daemon's
+light ``ga`` and paper 001's hybrid ``hga`` (see :mod:`imucald.calib.optim`)."""
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import numpy as np
+
+from .lsq import (OptimResult, Problem, RngLike, _lm_converge, _lm_steps, _result, _rng,
+                  _starts)
+from .normmodel import NormModel
+
+__all__ = ["ga_paper", "ga", "hga"]
+
+
+# --- MATLAB-style GA (paper 000), vectorised over independent runs ----------------------
+
+def _ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.random.Generator,
+             pop: int = 200, nsub: int = 2, elite: int = 2, xfrac: float = 0.8,
+             mig_frac: float = 0.2, mig_interval: int = 20, max_gen: int = 150,
+             stall_gen: int = 50, tol: float = 1e-10, mut_scale: float = 1.0,
+             mut_shrink: float = 1.0, progress: Optional[Callable[[int, np.ndarray], None]] = None
+             ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Run ``runs`` independent GAs at once.  Returns best z (R, kf), best f (R,), generations (R,)."""
+    kf = lo.size
+    Ps = pop // nsub
+    span = hi - lo
+    X = lo + rng.random((runs, nsub, Ps, kf)) * span
+    F = prob.fitness(X)
+    n_x = int(round(xfrac * (Ps - elite)))
+    n_m = Ps - elite - n_x
+    n_par = 2 * n_x + n_m
+    w = 1.0 / np.sqrt(np.arange(1, Ps + 1))
+    cw = np.cumsum(w) / w.sum()
+    n_mig = max(1, int(round(mig_frac * Ps)))
+    hist = np.full((max_gen + 1, runs), np.inf)
+    stopped = np.zeros(runs, bool)
+    stop_gen = np.full(runs, max_gen)
+    best_z = np.zeros((runs, kf))
+    best_f = np.full(runs, np.inf)
+    # flat views: row (run, subpop) offsets turn per-row indices into flat ones
+    rows = runs * nsub
+    base = (np.arange(rows) * Ps)[:, None]
+    ar = np.arange(runs)
+    gen = 0
+    for gen in range(max_gen):
+        Xf = X.reshape(rows * Ps, kf)
+        Ff = F.reshape(rows, Ps)
+        order = np.argsort(Ff, axis=1)                      # ranks, best first
+        # record the best of each run
+        top = Ff[np.arange(rows), order[:, 0]].reshape(runs, nsub)
+        sb = top.argmin(1)
+        fb = top[ar, sb]
+        zb = Xf[(base[:, 0].reshape(runs, nsub)[ar, sb] + order.reshape(runs, nsub, Ps)[ar, sb, 0])]
+        upd = ~stopped
+        best_f = np.where(upd, fb, best_f)
+        best_z = np.where(upd[:, None], zb, best_z)
+        hist[gen] = best_f
+        if progress is not None:
+            progress(gen, best_f)
+        if gen >= stall_gen:
+            old = hist[gen - stall_gen]
+            rel = (old - best_f) / np.maximum(np.abs(best_f), 1e-300) / stall_gen
+            newly = (~stopped) & (rel <= tol)
+            stop_gen[newly] = gen
+            stopped |= newly
+            if stopped.all():
+                break
+        # stochastic-uniform selection on rank-scaled fitness
+        pos = (rng.random((rows, 1)) + np.arange(n_par)) / n_par
+        rk = np.minimum(np.searchsorted(cw, pos), Ps - 1)
+        rk = rng.permuted(rk, axis=-1)
+        pidx = np.take_along_axis(order, rk, axis=1) + base
+        par = Xf[pidx]                                      # (rows, n_par, kf)
+        p1, p2, pm = par[:, :n_x], par[:, n_x:2 * n_x], par[:, 2 * n_x:]
+        xo = np.where(rng.integers(0, 2, p1.shape, dtype=bool), p1, p2)  # scattered crossover
+        sig = mut_scale * max(0.0, 1.0 - mut_shrink * gen / max_gen) * span
+        mu = pm + rng.standard_normal(pm.shape) * sig
+        bad = (mu < lo) | (mu > hi)
+        if bad.any():  # redraw between the parent and the violated bound: stays feasible
+            bound = np.where(mu < lo, lo, hi)
+            mu = np.where(bad, pm + rng.random(mu.shape) * (bound - pm), mu)
+        eidx = order[:, :elite] + base
+        children = np.concatenate([xo, mu], axis=1)
+        Fc = prob.fitness(children)
+        X = np.concatenate([Xf[eidx], children], axis=1)
+        F = np.concatenate([Ff[np.arange(rows)[:, None], order[:, :elite]], Fc], axis=1)
+        if nsub > 1 and (gen + 1) % mig_interval == 0:   # forward migration: best replace worst
+            o2 = np.argsort(F, axis=1)
+            bi = o2[:, :n_mig].reshape(runs, nsub, n_mig)
+            wi = o2[:, Ps - n_mig:].reshape(runs, nsub, n_mig)
+            X4 = X.reshape(runs, nsub, Ps, kf)
+            F3 = F.reshape(runs, nsub, Ps)
+            mX = np.roll(np.take_along_axis(X4, bi[..., None], axis=2), 1, axis=1)
+            mF = np.roll(np.take_along_axis(F3, bi, axis=2), 1, axis=1)
+            np.put_along_axis(X4, wi[..., None], mX, axis=2)
+            np.put_along_axis(F3, wi, mF, axis=2)
+        X = X.reshape(runs, nsub, Ps, kf)
+        F = F.reshape(runs, nsub, Ps)
+    flat = F.reshape(runs, -1)
+    ib = flat.argmin(1)
+    fb = flat[ar, ib]
+    zb = X.reshape(runs, -1, kf)[ar, ib]
+    upd = (~stopped) & (fb < best_f)
+    best_f = np.where(upd, fb, best_f)
+    best_z = np.where(upd[:, None], zb, best_z)
+    stop_gen = np.where(stopped, stop_gen, gen + 1)
+    return best_z, best_f, stop_gen
+
+
+def ga_paper(prob: Problem, rng: RngLike = None, runs: int = 20, iterations: int = 3,
+             narrow=(5.0, 15.0), progress: Optional[Callable[[str], None]] = None,
+             **ga_kw) -> OptimResult:
+    """Paper 000's full protocol: 20 averaged runs, 3 iterations with narrowed bounds."""
+    rng = _rng(rng)
+    prob.nfev = 0
+    lo, hi = prob.lo.copy(), prob.hi.copy()
+    per_iter = []
+    gens = 0
+    mean = None
+    for it in range(iterations):
+        z, f, g = _ga_core(prob, lo, hi, runs, rng, **ga_kw)
+        gens += int(g.sum())
+        if type(prob.model).canonical is not NormModel.canonical:
+            # average in one gauge (full12's rotation freedom), inside the bounds
+            z = prob.clip(prob.reduce(prob.model.canonical(prob.expand(z))))
+        mean = z.mean(0)
+        sd = z.std(0, ddof=1) if runs > 1 else np.zeros_like(mean)
+        per_iter.append({"theta": prob.expand(mean), "run_std": sd.copy(),
+                         "fitness": float(prob.fitness(mean)), "generations": g.tolist()})
+        if progress is not None:
+            progress(f"ga-paper iteration {it + 1}/{iterations}: {runs} runs, "
+                     f"fitness of the mean {per_iter[-1]['fitness']:.4g}")
+        if it + 1 < iterations:
+            k = narrow[min(it, len(narrow) - 1)]
+            half = np.maximum(k * sd, 1e-12 * np.maximum(1.0, np.abs(mean)))
+            lo = np.maximum(prob.lo, mean - half)
+            hi = np.minimum(prob.hi, mean + half)
+    fit = float(prob.fitness(mean))
+    return _result(prob, mean, fit, gens, "ga-paper", {"iterations": per_iter, "runs": runs})
+
+
+def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
+       stall_gen: int = 20, progress: Optional[Callable[[int, np.ndarray], None]] = None
+       ) -> OptimResult:
+    """The daemon's light GA (paper 000 operators, one run) polished by LM."""
+    rng = _rng(rng)
+    prob.nfev = 0
+    z, f, g = _ga_core(prob, prob.lo, prob.hi, 1, rng, pop=pop, max_gen=max_gen,
+                       stall_gen=stall_gen, mig_interval=10, progress=progress)
+    zp, fp, it = _lm_converge(prob, z[0])
+    # the closed-form starts are polished too, so the GA can only add to what lm finds
+    ga_won = True
+    for s in _starts(prob):
+        zs, fs, its = _lm_converge(prob, s)
+        it += its
+        if fs < fp:
+            zp, fp, ga_won = zs, fs, False
+    return _result(prob, zp, fp, int(g[0]) + it, "ga",
+                       {"ga_fitness": float(f[0]), "ga_generations": int(g[0]), "lm_iterations": it,
+                        "ga_start_won": ga_won})
+
+
+def hga(prob: Problem, rng: RngLike = None, pop: int = 300, max_gen: int = 200,
+        stall_gen: int = 70, tol: float = 1e-15, pc: float = 0.8, pm: float = 0.1,
+        refine_frac: float = 0.1, refine_steps: int = 2) -> OptimResult:
+    """Paper 001's hybrid GA with a bounded-LM local step (see module doc)."""
+    rng = _rng(rng)
+    prob.nfev = 0
+    lo, hi = prob.lo, prob.hi
+    span = hi - lo
+    kf = lo.size
+    X = lo + rng.random((pop, kf)) * span
+    F = prob.fitness(X)
+    n_ref = max(1, int(round(refine_frac * pop)))
+    hist = []
+    gen = 0
+    for gen in range(max_gen):
+        # tournament selection (size 2)
+        a = rng.integers(0, pop, (2, pop))
+        win = np.where(F[a[0]] <= F[a[1]], a[0], a[1])
+        P = X[win]
+        # arithmetic crossover on consecutive pairs
+        half = pop // 2
+        p1, p2 = P[:half], P[half:2 * half]
+        lam = rng.random((half, 1))
+        do = rng.random((half, 1)) < pc
+        c1 = np.where(do, lam * p1 + (1 - lam) * p2, p1)
+        c2 = np.where(do, (1 - lam) * p1 + lam * p2, p2)
+        C = np.concatenate([c1, c2, P[2 * half:]], axis=0)
+        # real-valued mutation, shrinking scale
+        m = rng.random(C.shape) < pm
+        sig = 0.1 * span * (1.0 - gen / max_gen)
+        C = np.where(m, C + rng.standard_normal(C.shape) * sig, C)
+        C = np.clip(C, lo, hi)
+        FC = prob.fitness(C)
+        # local refinement of the best children (Lamarckian)
+        top = np.argsort(FC)[:n_ref]
+        Zr, Fr, _, _ = _lm_steps(prob, C[top], FC[top], np.full(n_ref, 1e-3), refine_steps)
+        C[top], FC[top] = Zr, Fr
+        # (mu + lambda) reproduction
+        allX = np.concatenate([X, C])
+        allF = np.concatenate([F, FC])
+        keep = np.argsort(allF)[:pop]
+        X, F = allX[keep], allF[keep]
+        hist.append(F[0])
+        if len(hist) > stall_gen:
+            old = hist[-stall_gen - 1]
+            if (old - F[0]) / max(abs(F[0]), 1e-300) < tol:
+                break
+    zp, fp, it = _lm_converge(prob, X[0])
+    return _result(prob, zp, fp, gen + 1 + it, "hga", {"generations": gen + 1, "lm_iterations": it})

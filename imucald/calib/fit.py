@@ -14,11 +14,11 @@ import numpy as np
 
 from .metrics import path_error, rms
 from .models import MagModel, NormModel, get_model, gyro_bias_eq6_fitness, mag_report
-from .optim import OptimResult, Problem, _lm_converge, run_method, sphere_fit
-from .uncertainty import Uncertainty, crlb, residual_variance
+from .optim import OptimResult, Problem, _lm_converge, lm, run_method, sphere_fit
+from .uncertainty import Uncertainty, crlb, determination, map_covariance, residual_variance
 
 __all__ = ["Calibration", "fit_norm", "heldout_residuals", "fit_gyro_bias",
-           "robust_pose_variance"]
+           "select_model", "accel_prior", "AUTO_MODELS"]
 
 
 @dataclass
@@ -60,6 +60,16 @@ class Calibration:
                 d["unobservable"] = list(self.uncertainty.unobservable)
             if len(self.uncertainty.null_directions):
                 d["null_directions"] = np.round(self.uncertainty.null_directions, 6).tolist()
+            u = self.uncertainty
+            if u.posterior_std is not None and self.sensor != "gyro":
+                names = get_model(self.model).param_names
+                fin = lambda a, i: None if a is None or not np.isfinite(a[i]) else float(a[i])
+                d["determination"] = {n: {"std": fin(u.posterior_std, i), "prior_std": fin(u.prior_std, i),
+                                          "data_only_std": fin(u.std, i)} for i, n in enumerate(names)}
+                d["flags"] = list(u.flags)
+        for key in ("noise_model", "heldout_normalised_rms", "model_selection"):
+            if key in self.info:
+                d[key] = self.info[key]
         d[f"noise_{unit}"] = float(self.noise)
         d["noise_source"] = self.noise_source
         if "path_error_20s_std_m" in self.info:
@@ -69,25 +79,34 @@ class Calibration:
         return d
 
 
-def robust_pose_variance(pose_cov: Optional[np.ndarray]) -> Optional[float]:
-    """Median over poses of the isotropic pose-mean variance (trace/3): robust to a
-    few disturbed poses (reference/error-models.md, key point 2)."""
+def _pose_cov(pose_cov: Optional[np.ndarray], N: int,
+              noise_inflation) -> Optional[np.ndarray]:
+    """Each pose's own mean covariance (N, 3, 3) times its colour inflation, or None
+    when any pose lacks a finite positive one (the fit's residuals are used then)."""
     if pose_cov is None:
         return None
     pc = np.asarray(pose_cov, float)
-    v = np.einsum("nii->n", pc) / 3.0 if pc.ndim == 3 else pc
-    v = v[np.isfinite(v)]
-    if v.size == 0 or not np.all(v > 0):
+    if pc.ndim == 1:
+        pc = pc[:, None, None] * np.eye(3)
+    if pc.shape != (N, 3, 3) or not np.all(np.isfinite(pc)):
         return None
-    return float(np.median(v))
+    if not np.all(np.einsum("nii->n", pc) > 0):
+        return None
+    k = np.ones(N) if noise_inflation is None else np.broadcast_to(
+        np.asarray(noise_inflation, float), (N,))
+    return pc * k[:, None, None]
 
 
 def heldout_residuals(model: NormModel, theta: np.ndarray, raw: np.ndarray, target: float = 1.0,
-                      folds: Optional[int] = None, lo=None, hi=None) -> np.ndarray:
+                      folds: Optional[int] = None, lo=None, hi=None, prior=None,
+                      var: Optional[np.ndarray] = None):
     """Held-out residual of every pose: refit (LM, warm-started at theta) without it.
 
     Leave-one-pose-out when ``folds`` is None and N <= 60, otherwise k-fold over
-    poses (10 folds by default).
+    poses (10 folds by default).  ``prior``: (mean, std, noise_var) over the free
+    parameters, as in the fit.  With ``var`` (N,) each pose's residual variance, also
+    returns each held-out residual's predicted std, sqrt(var_i + g_i' C_-i g_i), with
+    C_-i the covariance of the fold's estimate: returns (residuals, predicted std).
     """
     raw = np.asarray(raw, float)
     N = len(raw)
@@ -95,30 +114,25 @@ def heldout_residuals(model: NormModel, theta: np.ndarray, raw: np.ndarray, targ
         folds = N if N <= 60 else 10
     groups = np.array_split(np.arange(N), folds)
     out = np.zeros(N)
+    pred = np.zeros(N)
     z0 = None
+    pm, psd, nv = prior if prior is not None else (None, None, 1.0)
     for g in groups:
         keep = np.ones(N, bool)
         keep[g] = False
-        prob = Problem(model, raw[keep], target, lo=lo, hi=hi)
+        prob = Problem(model, raw[keep], target, lo=lo, hi=hi, prior_mean=pm, prior_std=psd,
+                       noise_var=nv)
         if z0 is None:
             z0 = prob.reduce(theta)
         z, _, _ = _lm_converge(prob, z0, max_iter=60, ftol=1e-12)
-        out[g] = model.residual(prob.expand(z), raw[g], target)
-    return out
-
-
-def _sandwich_std(model: NormModel, theta: np.ndarray, raw: np.ndarray, var: np.ndarray,
-                  free: np.ndarray, unc: Uncertainty) -> np.ndarray:
-    """Standard error of the (unweighted) least-squares estimate: (J'J)^+ J'VJ (J'J)^+."""
-    _, J = model.jacobian(theta, raw)
-    J = J[:, free]
-    JtJ = J.T @ J
-    Jp = np.linalg.pinv(JtJ, rcond=1e-12, hermitian=True)
-    C = Jp @ (J.T * var) @ J @ Jp
-    sd = np.zeros(model.k)
-    sd[free] = np.sqrt(np.clip(np.diag(C), 0, None))
-    sd[~np.isfinite(unc.std)] = np.inf
-    return sd
+        th = prob.expand(z)
+        out[g] = model.residual(th, raw[g], target)
+        if var is not None:
+            J = model.jacobian(th, raw[keep], target)[1][:, prob.free]
+            C = map_covariance(J, var[keep], nv, prob.prior_precision())
+            Gi = model.jacobian(th, raw[g], target)[1][:, prob.free]
+            pred[g] = np.sqrt(var[g] + np.einsum("nk,kl,nl->n", Gi, C, Gi))
+    return (out, pred) if var is not None else out
 
 
 def accel_bounds(model: NormModel, chip: Optional[str]) -> Tuple[np.ndarray, np.ndarray]:
@@ -135,65 +149,175 @@ def accel_bounds(model: NormModel, chip: Optional[str]) -> Tuple[np.ndarray, np.
                                 spec_alpha=max(3 * spec.cross_axis_tol, 0.05))
 
 
+def accel_prior(model: NormModel, chip: Optional[str]) -> Tuple[np.ndarray, np.ndarray]:
+    """Gaussian prior (mean, std) over the full parameter vector from the datasheet:
+    an ideal sensor, std = the tolerance (bias: the largest axis's zero-g tolerance,
+    scale: sensitivity tolerance, non-orthogonality: cross-axis sensitivity).  Unknown
+    chips: a third of the generic box (0.083 g, 5 %, 0.027).  The search box is 3x
+    (or more) wider, so the box edge is >= 3 prior std away."""
+    from ..sim.specs import ACCEL
+    spec = ACCEL.get(chip or "")
+    if spec is None:
+        lo, hi = model.default_bounds(spec_bias=0.25 / 3, spec_scale=0.15 / 3, spec_alpha=0.08 / 3)
+    else:
+        lo, hi = model.default_bounds(spec_bias=max(spec.bias_tol_g), spec_scale=spec.scale_tol,
+                                      spec_alpha=spec.cross_axis_tol)
+    return (lo + hi) / 2, (hi - lo) / 2
+
+
+#: candidate orders for ``model='auto'``: offset + scale, + 3 non-orthogonality, + 6 misalignment
+AUTO_MODELS = ("diag6", "triangular9", "full12")
+
+
+def select_model(raw: np.ndarray, pose_cov: Optional[np.ndarray] = None, target: float = 1.0,
+                 chip: Optional[str] = None, candidates=AUTO_MODELS, noise_inflation=None
+                 ) -> Tuple[str, Dict[str, float]]:
+    """Model order by leave-one-pose-out RMS (MAP fits with the datasheet prior, from the
+    closed-form starts): the lowest wins, the simpler one on a tie within 1e-12 g.
+    Returns (name, {model: held-out RMS, g})."""
+    scores: Dict[str, float] = {}
+    for name in candidates:
+        m = get_model(name)
+        if len(raw) < int(m.free_mask.sum()) + 2:
+            continue
+        cal = fit_norm(raw, m, "lm", pose_cov=pose_cov, target=target, chip=chip,
+                       noise_inflation=noise_inflation)
+        scores[name] = float(cal.heldout_rms)
+    best = min(scores, key=lambda n: (round(scores[n], 12), candidates.index(n)))
+    return best, scores
+
+
 def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
              pose_cov: Optional[np.ndarray] = None, target: float = 1.0, rng=None,
              bounds: Optional[Tuple[np.ndarray, np.ndarray]] = None, heldout: bool = True,
-             chip: Optional[str] = None, **method_kw) -> Calibration:
+             chip: Optional[str] = None, noise_inflation=None, prior: bool = True,
+             **method_kw) -> Calibration:
     """Fit a norm model to pose means raw (N, 3) and report it.
 
-    pose_cov: covariance of each pose mean (N, 3, 3) from within-pose scatter, used
-    for the CRLB; without it (or with NaNs) the residual variance is used.
-    chip: accelerometer chip name (mpu6050, mpu9250, adxl345) for the search bounds.
+    pose_cov: covariance of each pose mean (N, 3, 3) from within-pose scatter; each
+    pose keeps its own (times ``noise_inflation``, scalar or (N,), the coloured-noise
+    factor of :mod:`imucald.calib.noise`).  Without it (or with NaNs) the residual
+    variance is used.  If the residuals scatter more than that noise explains
+    (chi-square / dof > 1: model error, drift), the variances are scaled up by that
+    ratio (``info['noise_model']['excess_scatter']``).
+    chip: accelerometer chip name (mpu6050, mpu9250, adxl345) for bounds and prior.
+    prior: the datasheet prior (MAP) for accelerometer models (not ga-paper, which
+    is the paper's protocol as written; magnetometer models have none).
+    model: a name, a model, or 'auto' (:func:`select_model`, reported in
+    ``info['model_selection']``).
     """
     t_start = time.perf_counter()
-    model = get_model(model) if isinstance(model, str) else model
     raw = np.asarray(raw, float)
     N = len(raw)
+    selection = None
+    if isinstance(model, str) and model == "auto":
+        name, scores = select_model(raw, pose_cov, target, chip, noise_inflation=noise_inflation)
+        selection = {"chosen": name, "heldout_rms_g": scores,
+                     "rule": "lowest leave-one-pose-out RMS"}
+        model = name
+    model = get_model(model) if isinstance(model, str) else model
     free = model.free_mask
-    if N < int(free.sum()) + 1:
+    kf = int(free.sum())
+    if N < kf + 1:
         from ..errors import UserError
-        raise UserError(f"{N} poses cannot determine the {int(free.sum())} parameters of "
-                        f"{model.name}: collect at least {int(free.sum()) + 1} (about 25 recommended)")
-    lo = hi = None
+        raise UserError(f"{N} poses cannot determine the {kf} parameters of "
+                        f"{model.name}: collect at least {kf + 1} (about 25 recommended)")
     if bounds is not None:
         lo, hi = bounds
     elif isinstance(model, MagModel):
         lo, hi = _mag_bounds(model, raw, target)
     else:
-        lo, hi = (b[model.free_mask] for b in accel_bounds(model, chip))
-    prob = Problem(model, raw, target, lo=lo, hi=hi)
+        lo, hi = (b[free] for b in accel_bounds(model, chip))
+    pc = _pose_cov(pose_cov, N, noise_inflation)
+    use_prior = prior and model.sensor == "accel"
+    pmean = pstd = None
+    pstd_full = np.full(model.k, np.inf)
+    if use_prior:
+        pm_full, pstd_full = accel_prior(model, chip)
+        pstd_full = np.where(free, pstd_full, np.inf)
+        pmean, pstd = pm_full[free], pstd_full[free]
+    if pc is not None:
+        nv = float(np.mean(residual_variance(model, model.nominal, raw, pc)))
+    else:   # the prior's weight needs a noise level: from a prior-less fit's residuals
+        r0 = lm(Problem(model, raw, target, lo=lo, hi=hi)).data_fitness if use_prior else 0.0
+        nv = max(r0 / max(N - kf, 1), 1e-30)
+    prob = Problem(model, raw, target, lo=lo, hi=hi, prior_mean=pmean, prior_std=pstd, noise_var=nv)
     res: OptimResult = run_method(method, prob, rng=rng, **method_kw)
     theta = res.theta
+    # per-pose residual variance: each pose's own noise, else the residuals
     r = model.residual(theta, raw, target)
-    # noise: robust within-pose estimate when available, else the fit's residuals
-    pv = robust_pose_variance(pose_cov)
-    if pv is not None:
-        var = residual_variance(model, theta, raw, np.full(N, pv))
+    if pc is not None:
+        var = residual_variance(model, theta, raw, pc)
         source = "poses"
     else:
-        dof = max(N - int(free.sum()), 1)
-        var = np.full(N, float(r @ r) / dof)
+        var = np.full(N, float(r @ r) / max(N - kf, 1))
         source = "residuals"
+    J = model.jacobian(theta, raw, target)[1][:, free]
+    lam = prob.prior_precision() if prob.has_prior and res.method != "ga-paper" else np.zeros(kf)
+    # excess scatter: chi-square of the residuals against the noise model, per dof
+    # (dof = N minus the effective number of parameters, the trace of the hat matrix)
+    H = J.T @ J / nv + np.diag(lam)
+    k_eff = float(np.trace(np.linalg.pinv(H, hermitian=True) @ (J.T @ J) / nv))
+    dof = max(N - k_eff, 1.0)
+    chi2 = float(np.sum(r * r / var))
+    phi = max(1.0, chi2 / dof) if source == "poses" else 1.0
+    var = var * phi
+    if prob.has_prior and res.method != "ga-paper" and abs(np.log(np.mean(var) / nv)) > 0.1:
+        # the prior's weight follows the noise actually seen: re-polish the MAP estimate
+        nv = float(np.mean(var))
+        prob = Problem(model, raw, target, lo=lo, hi=hi, prior_mean=pmean, prior_std=pstd,
+                       noise_var=nv)
+        z, _, _ = _lm_converge(prob, prob.reduce(theta))
+        theta = prob.expand(z)
+        r = model.residual(theta, raw, target)
+        J = model.jacobian(theta, raw, target)[1][:, free]
+    at_bound = np.zeros(model.k, bool)
+    at_bound[free] = prob.at_bound(prob.reduce(theta))
     unc = crlb(model, theta, raw, var)
-    stderr_flat = _sandwich_std(model, theta, raw, var, free, unc)
-    ho = heldout_residuals(model, theta, raw, target, lo=prob.lo, hi=prob.hi) if heldout \
-        else np.full(N, np.nan)
-    extra: Dict[str, object] = {}
+    idx = np.flatnonzero(free)
+    cov = np.zeros((model.k, model.k))
+    cov[np.ix_(idx, idx)] = map_covariance(J, var, nv, lam)
+    stderr_flat = np.sqrt(np.clip(np.diag(cov), 0, None))
+    stderr_flat[~np.isfinite(unc.std) & ~np.isfinite(pstd_full)] = np.inf
+    if lam.any():
+        unc.prior_std = pstd_full
+    unc.posterior_std = stderr_flat
+    unc.flags = determination(model, theta, raw, cov, pstd_full if lam.any() else np.full(model.k, np.inf),
+                              at_bound, float(np.median(var)), target)
+    hprior = (pmean, pstd, nv) if lam.any() else None
+    if heldout:
+        ho, ho_sd = heldout_residuals(model, theta, raw, target, lo=prob.lo, hi=prob.hi,
+                                      prior=hprior, var=var)
+        ho_norm = rms(ho / ho_sd)
+    else:
+        ho, ho_norm = np.full(N, np.nan), float("nan")
+    extra: Dict[str, object] = {
+        "noise_model": {"per_pose": source == "poses", "excess_scatter": round(phi, 4),
+                        "chi2": round(chi2, 3), "dof": round(dof, 2),
+                        "prior": ("datasheet tolerances" + (f" ({chip})" if chip else " (generic)"))
+                        if lam.any() else "none"},
+        "heldout_normalised_rms": ho_norm}
+    if noise_inflation is not None:
+        k = np.broadcast_to(np.asarray(noise_inflation, float), (N,))
+        extra["noise_model"]["colour_inflation_median"] = round(float(np.median(k)), 3)
+    if selection is not None:
+        extra["model_selection"] = selection
     if isinstance(model, MagModel):
-        params, stderr = mag_report(model, theta, unc.cov)
+        params, stderr = mag_report(model, theta, cov)
         scale = params["field_gauss"]           # residuals are on the unit sphere
         rr, hr, noise = rms(r) * scale, rms(ho) * scale, float(np.sqrt(np.median(var))) * scale
     else:
         params = model.unpack(theta)
         stderr = {g: [None if not np.isfinite(stderr_flat[i]) else float(stderr_flat[i])
-                      for i in idx] for g, idx in model.groups.items()}
+                      for i in idx_g] for g, idx_g in model.groups.items()}
         rr, hr, noise = rms(r), rms(ho), float(np.sqrt(np.median(var)))
         # paper 000's equivalent-path error after 20 s, STD over poses (pose means held)
         _, _, sd_raw = path_error([x[None] for x in raw], 10.0, 20.0)
         _, _, sd_cal = path_error([x[None] for x in model.forward(theta, raw)], 10.0, 20.0)
         extra["path_error_20s_std_m"] = {"raw": float(sd_raw[-1]), "calibrated": float(sd_cal[-1])}
+    fitness = float(model.fitness(theta, raw, target))
     return Calibration(model.sensor, model.name, res.method, N, theta, params, stderr,
-                       res.fitness, rr, hr, unc.std, unc, noise, source, res.iterations,
+                       fitness, rr, hr, unc.std, unc, noise, source, res.iterations,
                        res.nfev, time.perf_counter() - t_start,
                        {"optim": {k: v for k, v in res.info.items() if k != "iterations"}, **extra})
 

@@ -32,7 +32,8 @@ def _rng(rng: RngLike) -> np.random.Generator:
 
 @dataclass
 class Problem:
-    """A norm-fit problem: model, pose means (N, 3), target norm, weights, bounds."""
+    """A norm-fit problem: model, pose means (N, 3), target norm, weights, bounds and an
+    optional Gaussian prior on the free parameters (module doc)."""
 
     model: NormModel
     raw: np.ndarray
@@ -40,6 +41,9 @@ class Problem:
     weights: Optional[np.ndarray] = None
     lo: Optional[np.ndarray] = None        #: bounds on the free parameters
     hi: Optional[np.ndarray] = None
+    prior_mean: Optional[np.ndarray] = None  #: (kf,) prior mean of the free parameters
+    prior_std: Optional[np.ndarray] = None   #: (kf,) prior std; inf = no prior on that one
+    noise_var: float = 1.0                   #: data residual variance (sensor unit^2)
 
     def __post_init__(self):
         _malloc.tune()
@@ -55,6 +59,29 @@ class Problem:
         self._sw = None if self.weights is None else np.sqrt(np.asarray(self.weights, float))
         self.nfev = 0
         self._all_free = bool(self.free.all())
+        self._pw = None                      # sqrt(noise_var) / prior_std, 0 where no prior
+        if self.prior_std is not None:
+            ps = np.asarray(self.prior_std, float)
+            if ps.shape != self.lo.shape or np.any(ps <= 0):
+                raise ValueError("prior_std: one positive value per free parameter (inf = none)")
+            self.prior_mean = np.asarray(self.prior_mean, float)
+            pw = np.where(np.isfinite(ps), np.sqrt(self.noise_var) / np.where(np.isfinite(ps), ps, 1.0), 0.0)
+            self._pw = pw if np.any(pw > 0) else None
+
+    @property
+    def has_prior(self) -> bool:
+        return self._pw is not None
+
+    def without_prior(self) -> "Problem":
+        """The same problem with the prior removed (ga-paper: the paper's own fitness)."""
+        return dataclasses.replace(self, prior_mean=None, prior_std=None)
+
+    def prior_precision(self) -> np.ndarray:
+        """(kf,) prior precision 1/prior_std^2 (0 where there is no prior)."""
+        if self.prior_std is None:
+            return np.zeros(self.kf)
+        ps = np.asarray(self.prior_std, float)
+        return np.where(np.isfinite(ps), 1.0 / ps ** 2, 0.0)
 
     @property
     def kf(self) -> int:
@@ -71,19 +98,42 @@ class Problem:
     def reduce(self, theta: np.ndarray) -> np.ndarray:
         return np.asarray(theta, float)[..., self.free]
 
+    def data_fitness(self, z: np.ndarray) -> np.ndarray:
+        """The (weighted) sum of squared norm residuals alone, paper 000 eq. 5."""
+        return self.model.fitness(self.expand(np.asarray(z, float)), self.raw, self.target,
+                                  self.weights)
+
     def fitness(self, z: np.ndarray) -> np.ndarray:
+        """The objective: data sum of squares plus the prior term (module doc)."""
         z = np.asarray(z, float)
         self.nfev += int(np.prod(z.shape[:-1])) if z.ndim > 1 else 1
-        return self.model.fitness(self.expand(z), self.raw, self.target, self.weights)
+        f = self.model.fitness(self.expand(z), self.raw, self.target, self.weights)
+        if self._pw is not None:
+            p = (z - self.prior_mean) * self._pw
+            f = f + np.einsum("...k,...k->...", p, p)
+        return f
 
     def rj(self, z: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-        """Weighted residual and Jacobian over the free parameters."""
+        """Weighted residual and Jacobian over the free parameters; with a prior, its
+        pseudo-observations are appended (kf extra rows)."""
+        z = np.asarray(z, float)
         r, J = self.model.jacobian(self.expand(z), self.raw, self.target)
         J = J[..., self.free]
         if self._sw is not None:
             r = r * self._sw
             J = J * self._sw[:, None]
+        if self._pw is not None:
+            rp = (z - self.prior_mean) * self._pw
+            Jp = np.broadcast_to(np.diag(self._pw), z.shape[:-1] + (self.kf, self.kf))
+            r = np.concatenate([r, rp], axis=-1)
+            J = np.concatenate([J, Jp], axis=-2)
         return r, J
+
+    def at_bound(self, z: np.ndarray) -> np.ndarray:
+        """(kf,) True where z sits on a search bound (within 1e-9 of the box width)."""
+        z = np.asarray(z, float)
+        tol = 1e-9 * np.maximum(self.hi - self.lo, 1e-300)
+        return (z <= self.lo + tol) | (z >= self.hi - tol)
 
     def clip(self, z: np.ndarray) -> np.ndarray:
         return np.clip(z, self.lo, self.hi)
@@ -102,9 +152,13 @@ class OptimResult:
     nfev: int = 0
     info: Dict[str, object] = field(default_factory=dict)
     #: per-parameter standard error from the fit's own residuals,
-    #: sqrt(diag(s^2 (J'J)^+)) with s^2 = fitness / (N - k_free); 0 for fixed
-    #: parameters, inf for parameters the poses carry no information on
+    #: sqrt(diag((J'J / s^2 + prior precision)^+)) with s^2 = data SSR / (N - k_free);
+    #: 0 for fixed parameters, inf for parameters neither poses nor prior inform
     stderr: Optional[np.ndarray] = None
+    #: the data sum of squares alone (``fitness`` includes the prior term when there is one)
+    data_fitness: float = float("nan")
+    #: (k,) True for a parameter that ended on a search bound (always reported)
+    at_bound: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.theta = np.asarray(self.theta, float)
@@ -112,18 +166,26 @@ class OptimResult:
 
 def _result(prob: "Problem", z: np.ndarray, fitness: float, iterations: int, method: str,
             info: Dict[str, object]) -> "OptimResult":
-    return OptimResult(prob.expand(z), float(fitness), int(iterations), method, prob.nfev, info,
-                       _stderr(prob, z, fitness))
+    nfev = prob.nfev
+    dfit = float(prob.data_fitness(z))
+    ab = np.zeros(prob.model.k, bool)
+    ab[prob.free] = prob.at_bound(z)
+    return OptimResult(prob.expand(z), float(fitness), int(iterations), method, nfev, info,
+                       _stderr(prob, z, dfit), dfit, ab)
 
 
-def _stderr(prob: "Problem", z: np.ndarray, fitness: float) -> np.ndarray:
-    _, J = prob.rj(z)
+def _stderr(prob: "Problem", z: np.ndarray, data_fitness: float) -> np.ndarray:
+    r, J = prob.model.jacobian(prob.expand(np.asarray(z, float)), prob.raw, prob.target)
+    J = J[:, prob.free]
+    if prob._sw is not None:
+        J = J * prob._sw[:, None]
     N, kf = J.shape
-    s2 = fitness / max(N - kf, 1)
-    JtJ = J.T @ J
+    s2 = max(data_fitness / max(N - kf, 1), 1e-300)
+    lam = prob.prior_precision()
+    H = J.T @ J / s2 + np.diag(lam)
     sd = np.zeros(prob.model.k)
-    sd[prob.free] = np.sqrt(np.clip(np.diag(np.linalg.pinv(JtJ, rcond=1e-12, hermitian=True)), 0, None) * s2)
-    dead = np.linalg.norm(J, axis=0) <= 1e-12 * max(np.linalg.norm(J, axis=0).max(), 1e-300)
+    sd[prob.free] = np.sqrt(np.clip(np.diag(np.linalg.pinv(H, rcond=1e-12, hermitian=True)), 0, None))
+    dead = (np.linalg.norm(J, axis=0) <= 1e-12 * max(np.linalg.norm(J, axis=0).max(), 1e-300)) & (lam == 0)
     sd[np.flatnonzero(prob.free)[dead]] = np.inf
     return sd
 

@@ -12,13 +12,18 @@ the fit itself, s^2 = SSR / (N - k).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import List, Optional
+from typing import Dict, List, Optional
 
 import numpy as np
 
 from .models import NormModel
 
-__all__ = ["Uncertainty", "residual_variance", "fisher", "crlb"]
+__all__ = ["Uncertainty", "residual_variance", "fisher", "crlb", "map_covariance",
+           "determination", "sphere_lattice", "UNDETERMINED_RATIO"]
+
+#: a parameter whose posterior std is above this fraction of its prior std is
+#: ``undetermined``: the poses cut the prior's variance by less than 75 %
+UNDETERMINED_RATIO = 0.5
 
 
 @dataclass
@@ -32,6 +37,13 @@ class Uncertainty:
     singular_values: np.ndarray     #: of the whitened Jacobian, descending
     null_directions: np.ndarray     #: (m, k) parameter directions the data cannot see
     unobservable: List[str] = field(default_factory=list)  #: parameters with no information at all
+    #: (k,) prior std of each parameter (inf: no prior); None when the fit had no prior
+    prior_std: Optional[np.ndarray] = None
+    #: (k,) std of the estimate with the prior and the per-pose noise (what to believe)
+    posterior_std: Optional[np.ndarray] = None
+    #: parameters the data did not determine or that ended on a search bound: one dict
+    #: each (name, reason, ratio posterior/prior std, the orientation that would help)
+    flags: List[Dict[str, object]] = field(default_factory=list)
 
 
 def residual_variance(model: NormModel, theta: np.ndarray, raw: np.ndarray,
@@ -108,3 +120,73 @@ def crlb(model: NormModel, theta: np.ndarray, raw: np.ndarray, var: np.ndarray,
     cond = float(s[keep].max() / s[keep].min()) if rank else float("inf")
     return Uncertainty(cov=cov, std=std, rank=rank, condition=cond, singular_values=s,
                        null_directions=null_full, unobservable=unobs)
+
+
+def map_covariance(J: np.ndarray, var: np.ndarray, noise_var: float,
+                   prior_precision: np.ndarray) -> np.ndarray:
+    """Covariance of the MAP estimate of an unweighted norm fit with a Gaussian prior.
+
+    J (N, kf) residual Jacobian, var (N,) each pose's residual variance, noise_var the
+    variance that weighs the data against the prior, prior_precision (kf,) (0 = none).
+    With H = J'J / noise_var + P:  C = H^+ (J' V J / noise_var^2 + P) H^+  (the sandwich:
+    right when the per-pose variances differ from noise_var; H^+ when they do not).
+    Without a prior it is the plain least-squares sandwich (J'J)^+ J'VJ (J'J)^+.
+    """
+    P = np.diag(np.asarray(prior_precision, float))
+    H = J.T @ J / noise_var + P
+    Hp = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
+    return Hp @ ((J.T * np.asarray(var, float)) @ J / noise_var ** 2 + P) @ Hp
+
+
+def sphere_lattice(n: int) -> np.ndarray:
+    """n near-uniform unit vectors (Fibonacci lattice), (n, 3)."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + 5 ** 0.5) * i
+    r = np.sqrt(1 - z * z)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def _describe_up(u: np.ndarray) -> str:
+    ang = np.degrees(np.arccos(np.clip(u, -1, 1)))
+    axes = ", ".join(f"{a} {d:.0f}" for a, d in zip("xyz", ang))
+    return (f"hold a pose with the sensor axes at {axes} degrees from straight up "
+            f"(up-vector {u[0]:+.2f} {u[1]:+.2f} {u[2]:+.2f} in the sensor frame)")
+
+
+def determination(model: NormModel, theta: np.ndarray, raw: np.ndarray, cov: np.ndarray,
+                  prior_std: np.ndarray, at_bound: np.ndarray, pose_var: float,
+                  target: float = 1.0, free: Optional[np.ndarray] = None,
+                  ratio: float = UNDETERMINED_RATIO) -> List[Dict[str, object]]:
+    """Flag parameters the data did not determine, and every one on a search bound.
+
+    cov (k, k) the estimate's covariance (:func:`map_covariance`, expanded); prior_std
+    (k,) (inf: none); at_bound (k,) bool; pose_var a typical pose's residual variance.
+    A parameter is ``undetermined`` when std / prior std > ``ratio``, or when it has no
+    prior and infinite std.  For each flagged one, the up-vector (sensor frame) of the
+    single extra pose that would cut its std most is searched on a 400-point lattice.
+    """
+    free = model.free_mask if free is None else np.asarray(free, bool)
+    idx = np.flatnonzero(free)
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    C = cov[np.ix_(idx, idx)]
+    U = sphere_lattice(400)
+    G = model.jacobian(theta, model.inverse(theta, U * target), target)[1][:, free]   # (400, kf)
+    CG = G @ C
+    denom = pose_var + np.einsum("nk,nk->n", G, CG)
+    flags: List[Dict[str, object]] = []
+    for jj, j in enumerate(idx):
+        ps = float(prior_std[j])
+        rho = sd[j] / ps if np.isfinite(ps) else (np.inf if not np.isfinite(sd[j]) else 0.0)
+        und = rho > ratio
+        if not (und or at_bound[j]):
+            continue
+        gain = CG[:, jj] ** 2 / denom
+        b = int(np.argmax(gain))
+        after = float(np.sqrt(max(C[jj, jj] - gain[b], 0.0)))
+        reason = "at_bound+undetermined" if (und and at_bound[j]) else ("undetermined" if und else "at_bound")
+        flags.append({"name": model.param_names[j], "reason": reason,
+                      "std_over_prior_std": None if not np.isfinite(rho) else round(float(rho), 3),
+                      "hint": _describe_up(U[b]), "up_vector": np.round(U[b], 3).tolist(),
+                      "std_after_one_such_pose": after})
+    return flags

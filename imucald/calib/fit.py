@@ -260,7 +260,11 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
     k_eff = float(np.trace(np.linalg.pinv(H, hermitian=True) @ (J.T @ J) / nv))
     dof = max(N - k_eff, 1.0)
     chi2 = float(np.sum(r * r / var))
-    phi = max(1.0, chi2 / dof) if source == "poses" else 1.0
+    # scale up only when the noise model is rejected (chi-square above its 99 % point,
+    # Wilson-Hilferty): with 10 poses and 9 parameters one degree of freedom is too
+    # noisy to rescale by on every fit
+    q99 = dof * (1 - 2 / (9 * dof) + 2.326 * np.sqrt(2 / (9 * dof))) ** 3
+    phi = chi2 / dof if (source == "poses" and chi2 > q99) else 1.0
     var = var * phi
     if prob.has_prior and res.method != "ga-paper" and abs(np.log(np.mean(var) / nv)) > 0.1:
         # the prior's weight follows the noise actually seen: re-polish the MAP estimate
@@ -279,11 +283,11 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
     cov[np.ix_(idx, idx)] = map_covariance(J, var, nv, lam)
     stderr_flat = np.sqrt(np.clip(np.diag(cov), 0, None))
     stderr_flat[~np.isfinite(unc.std) & ~np.isfinite(pstd_full)] = np.inf
-    if lam.any():
+    if use_prior:       # ga-paper too: its data-only std is compared with the tolerance
         unc.prior_std = pstd_full
     unc.posterior_std = stderr_flat
-    unc.flags = determination(model, theta, raw, cov, pstd_full if lam.any() else np.full(model.k, np.inf),
-                              at_bound, float(np.median(var)), target)
+    unc.flags = determination(model, theta, raw, cov, pstd_full, at_bound, float(np.median(var)),
+                              target)
     hprior = (pmean, pstd, nv) if lam.any() else None
     if heldout:
         ho, ho_sd = heldout_residuals(model, theta, raw, target, lo=prob.lo, hi=prob.hi,
@@ -295,7 +299,8 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
         "noise_model": {"per_pose": source == "poses", "excess_scatter": round(phi, 4),
                         "chi2": round(chi2, 3), "dof": round(dof, 2),
                         "prior": ("datasheet tolerances" + (f" ({chip})" if chip else " (generic)"))
-                        if lam.any() else "none"},
+                        if lam.any() else ("none: ga-paper is paper 000 as written" if use_prior
+                                           else "none")},
         "heldout_normalised_rms": ho_norm}
     if noise_inflation is not None:
         k = np.broadcast_to(np.asarray(noise_inflation, float), (N,))

@@ -1,0 +1,46 @@
+"""calib/noise.py: the coloured-noise inflation of pose-mean variance (Allan model)."""
+import numpy as np
+import pytest
+
+from imucald.calib.noise import allan_model, colour_inflation, colour_inflation_per_pose
+
+RATE = 100.0
+DUR = 600.0
+
+
+def _signal(q, seed):
+    """White noise (sigma 1 per sample) plus a random walk of rate q per sqrt(s), 3 axes.
+    AVAR = 1/(rate tau) + q^2 tau / 3, so the inflation at T is 1 + q^2 rate T^2 / 3."""
+    rng = np.random.default_rng(seed)
+    n = int(DUR * RATE)
+    w = rng.standard_normal((n, 3))
+    rw = np.cumsum(rng.standard_normal((n, 3)) * q / np.sqrt(RATE), axis=0)
+    return w + rw
+
+
+@pytest.mark.parametrize("q,T", [(0.0, 10.0), (0.03, 10.0), (0.03, 5.0), (0.06, 3.0)])
+def test_inflation_matches_the_noise_model(q, T):
+    k_true = 1 + q * q * RATE * T * T / 3
+    k, info = colour_inflation(_signal(q, 1), RATE, T)
+    # the Allan variance at T rests on K = DUR/T averages: relative s.e. sqrt(2/(K-1));
+    # the fitted curve pools every tau, so 3 of those bound it
+    K = DUR / T
+    assert abs(k - k_true) < 3 * np.sqrt(2 / (K - 1)) * k_true, (k, k_true)
+    assert info["variance_inflation"] == pytest.approx(k, abs=1e-3)
+
+
+def test_white_noise_gives_no_random_walk_term_and_per_pose_follows_length():
+    coef = allan_model(_signal(0.0, 2), RATE)
+    # white: AVAR = 1/(rate tau); at 4 samples 15000 averages, relative s.e. 1.2 %: 10 % ~ 8 s.e.
+    assert np.all(coef[:, 0] == pytest.approx(1 / RATE, rel=0.1))
+    k, _ = colour_inflation_per_pose(_signal(0.03, 3), RATE, np.array([2.0, 5.0, 10.0, 400.0]))
+    assert np.all(np.diff(k) > 0)                                   # longer poses, more colour
+    assert k[-1] == pytest.approx(colour_inflation_per_pose(_signal(0.03, 3), RATE,
+                                                            np.array([DUR / 3]))[0][0])
+
+
+def test_short_stretch_means_white_noise_with_a_note():
+    k, info = colour_inflation(_signal(0.03, 4)[:2000], RATE, 5.0)
+    assert k == 1.0 and "too short" in info["note"]
+    k, info = colour_inflation_per_pose(None, RATE, np.array([5.0, 6.0]))
+    assert np.all(k == 1.0) and "white noise assumed" in info["note"]

@@ -40,14 +40,11 @@ def test_xsens_held_out_residuals_match_their_predicted_std(xsens_poses):
     """Leave-one-pose-out residuals over their predicted std (each pose's own noise,
     coloured-noise inflation from the initial rest, excess scatter): RMS near 1.  For N
     independent unit normals the RMS has s.e. ~ 1/sqrt(2N); the band is 3 of those."""
-    from imucald.calib.inputs import read_table as _rt
-    from imucald.calib.noise import colour_inflation_per_pose
+    from imucald.calib.noise import pose_colour_inflation
     p = real_path("imutk_xsens_mti", "xsens_acc.mat")
-    rec = _rt(str(p), ["t", "ax", "ay", "az"], XSENS_COUNTS_PER_G, 32768.0)
+    rec = read_table(str(p), ["t", "ax", "ay", "az"], XSENS_COUNTS_PER_G, 32768.0)
     ps = xsens_poses
-    i = int(np.argmax(ps.n))
-    i0, i1 = np.searchsorted(rec.t, [ps.t0[i], ps.t1[i]])
-    k, _ = colour_inflation_per_pose(rec.acc[i0:i1], rec.rate_hz, ps.n / rec.rate_hz)
+    k, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, ps.t0, ps.t1, ps.n)
     cal = fit_norm(ps.acc, "triangular9", "lm", pose_cov=ps.acc_cov, noise_inflation=k)
     N = len(ps)
     z = cal.info["heldout_normalised_rms"]

@@ -172,19 +172,25 @@ AUTO_MODELS = ("diag6", "triangular9", "full12")
 def select_model(raw: np.ndarray, pose_cov: Optional[np.ndarray] = None, target: float = 1.0,
                  chip: Optional[str] = None, candidates=AUTO_MODELS, noise_inflation=None
                  ) -> Tuple[str, Dict[str, float]]:
-    """Model order by leave-one-pose-out RMS (MAP fits with the datasheet prior, from the
-    closed-form starts): the lowest wins, the simpler one on a tie within 1e-12 g.
-    Returns (name, {model: held-out RMS, g})."""
+    """Model order by leave-one-pose-out error (MAP fits with the datasheet prior, lm from
+    the closed-form starts), with the one-standard-error rule: the simplest model whose
+    held-out RMS is within one standard error of the lowest (the s.e. of an RMS over N
+    poses from the spread of the squared residuals, std(r^2) / (2 RMS sqrt(N))).
+    Returns (name, {model: held-out RMS, g}) and, under '_se', that standard error."""
     scores: Dict[str, float] = {}
+    se: Dict[str, float] = {}
     for name in candidates:
         m = get_model(name)
         if len(raw) < int(m.free_mask.sum()) + 2:
             continue
         cal = fit_norm(raw, m, "lm", pose_cov=pose_cov, target=target, chip=chip,
                        noise_inflation=noise_inflation)
+        r2 = np.asarray(cal.info["heldout_residuals"]) ** 2
         scores[name] = float(cal.heldout_rms)
-    best = min(scores, key=lambda n: (round(scores[n], 12), candidates.index(n)))
-    return best, scores
+        se[name] = float(np.std(r2, ddof=1) / (2 * max(cal.heldout_rms, 1e-300) * np.sqrt(len(r2))))
+    low = min(scores, key=scores.get)
+    best = next(n for n in candidates if n in scores and scores[n] <= scores[low] + se[low])
+    return best, {**scores, "_se": se[low]}
 
 
 def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
@@ -212,8 +218,10 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
     selection = None
     if isinstance(model, str) and model == "auto":
         name, scores = select_model(raw, pose_cov, target, chip, noise_inflation=noise_inflation)
-        selection = {"chosen": name, "heldout_rms_g": scores,
-                     "rule": "lowest leave-one-pose-out RMS"}
+        se = scores.pop("_se")
+        selection = {"chosen": name, "heldout_rms_g": scores, "standard_error_g": se,
+                     "rule": "simplest model within one standard error of the lowest "
+                             "leave-one-pose-out RMS"}
         model = name
     model = get_model(model) if isinstance(model, str) else model
     free = model.free_mask
@@ -301,7 +309,7 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
                         "prior": ("datasheet tolerances" + (f" ({chip})" if chip else " (generic)"))
                         if lam.any() else ("none: ga-paper is paper 000 as written" if use_prior
                                            else "none")},
-        "heldout_normalised_rms": ho_norm}
+        "heldout_normalised_rms": ho_norm, "heldout_residuals": ho}
     if noise_inflation is not None:
         k = np.broadcast_to(np.asarray(noise_inflation, float), (N,))
         extra["noise_model"]["colour_inflation_median"] = round(float(np.median(k)), 3)

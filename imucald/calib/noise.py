@@ -23,6 +23,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 __all__ = ["allan_deviation", "allan_model", "colour_inflation", "colour_inflation_per_pose",
+           "pose_colour_inflation",
            "MIN_STRETCH_S", "MAX_INFLATION"]
 
 MIN_STRETCH_S = 30.0        #: shortest still stretch that gives an Allan deviation, s
@@ -117,3 +118,14 @@ def colour_inflation_per_pose(x_still: Optional[np.ndarray], rate_hz: float,
     k = _k_of(allan_model(x_still, rate_hz), np.minimum(T, dur / 3.0))
     return k, {"still_stretch_s": round(dur, 1), "variance_inflation_median": round(float(np.median(k)), 3),
                "variance_inflation_range": [round(float(k.min()), 3), round(float(k.max()), 3)]}
+
+
+def pose_colour_inflation(t_s: np.ndarray, x: np.ndarray, rate_hz: float, t0_s: np.ndarray,
+                          t1_s: np.ndarray, n: np.ndarray) -> Tuple[np.ndarray, Dict[str, object]]:
+    """Per-pose inflation for poses [t0, t1] (s) of a recording (t_s, x): the longest pose
+    is the still stretch the Allan model is read from; each pose's length is n / rate."""
+    if len(t0_s) == 0:
+        return np.ones(0), {"note": "no poses"}
+    i = int(np.argmax(np.asarray(t1_s) - np.asarray(t0_s)))
+    i0, i1 = np.searchsorted(t_s, [t0_s[i], t1_s[i]])
+    return colour_inflation_per_pose(x[i0:i1], rate_hz, np.asarray(n, float) / rate_hz)

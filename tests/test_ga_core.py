@@ -51,8 +51,8 @@ def test_ga_core_alone_with_paper_budget_beats_the_sphere_fit(seed):
 
 def _full12_cap_case():
     """12 poses within 40 deg of vertical, full12 misalignment near the box edge: the
-    closed-form starts lead lm into a local minimum (found by a search over seeds, the
-    only such accelerometer case in 160 trials; see README 'Which optimiser')."""
+    closed-form starts lead lm into a local minimum (found by a search over seeds: one
+    of 80 full12 cases, none for triangular9 or cosine; README 'Which optimiser')."""
     m = Full12()
     lo, hi = m.default_bounds()
     rng = np.random.default_rng(1)

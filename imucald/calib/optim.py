@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from typing import Callable, Dict
 
-from .ga import _ga_core, ga, ga_paper, hga
+from .ga import _ga_core, ga, ga_paper, hga  # noqa: F401 (_ga_core, _lm_*, _starts: tests, fit)
 from .lsq import (OptimResult, Problem, RngLike, _lm_converge, _lm_steps, _starts, ellipsoid_fit,
                   lm, sphere_fit)
 

@@ -168,3 +168,14 @@ def test_real_qmc5883l_rotation(name):
     auth = rel_std(np.linalg.norm(m @ A.T + B, axis=1))
     print(f"{name}: imucald {res['norm_rel_std']:.4f} (held out {res['heldout']['norm_rel_std']:.4f}), "
           f"authors {auth:.4f}, noise-predicted {pred:.4f}")
+
+
+def test_a_still_sensor_is_not_mistaken_for_a_plane():
+    # readings that only scatter with the noise: no axis is determined, and the
+    # message says the sensor was hardly turned (not that it swung in a plane)
+    rng = np.random.default_rng(5)
+    raw = V_TRUE + rng.normal(scale=0.002, size=(3000, 3))
+    res = calibrate_rotation(raw, rng=0)
+    assert res["determined"] is False and res["flat"]["rank"] < 2
+    from imucald.calib.magcal import flat_message
+    assert "hardly turned" in flat_message(res)

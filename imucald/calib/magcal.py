@@ -134,14 +134,20 @@ def flat_axis(points: np.ndarray, noise: np.ndarray, k: float = FLAT_K) -> Optio
     """The plane of a one-plane swing, or None when the cloud spans three dimensions.
 
     Flat when the raw cloud's standard deviation along its least-spread principal
-    axis is below ``k`` times the noise's along that axis."""
+    axis is below ``k`` times the noise's along that axis; ``rank`` counts the axes
+    along which it does spread (2: one plane; 0 or 1: the sensor was hardly turned)."""
     x = np.asarray(points, float)
     c = x.mean(0)
     ev, V = np.linalg.eigh(np.cov((x - c).T))
+    S = np.diag(np.asarray(noise, float) ** 2)
+    sd_axes = np.sqrt(np.clip(ev, 0, None))
+    sd_noise_axes = np.sqrt(np.einsum("ij,ik,kj->j", V, S, V))
+    # principal axes along which the cloud spreads beyond the noise: 3 = turned in 3-D,
+    # 2 = one plane, 0-1 = hardly turned at all
+    rank = int(np.sum(sd_axes >= k * sd_noise_axes))
     n = V[:, 0]
-    sd_out = float(np.sqrt(max(ev[0], 0.0)))
-    sd_noise = float(np.sqrt(n @ np.diag(np.asarray(noise, float) ** 2) @ n))
-    if not sd_out < k * sd_noise:
+    sd_out, sd_noise = float(sd_axes[0]), float(sd_noise_axes[0])
+    if rank == 3 or not np.all(np.isfinite(sd_noise_axes)):
         return None
     # the ring in the plane: algebraic conic fit A u^2 + B uv + C v^2 + D u + E v = 1
     e1, e2 = V[:, 2], V[:, 1]
@@ -155,7 +161,7 @@ def flat_axis(points: np.ndarray, noise: np.ndarray, k: float = FLAT_K) -> Optio
         u0, v0 = np.linalg.solve(M, -sol[3:5]) * s
     except np.linalg.LinAlgError:
         u0 = v0 = 0.0
-    return {"normal": (n * np.sign(n[np.argmax(np.abs(n))])).tolist(),
+    return {"normal": (n * np.sign(n[np.argmax(np.abs(n))])).tolist(), "rank": rank,
             "out_of_plane_std": sd_out, "noise_std_along_normal": sd_noise,
             "ring_centre": (c + u0 * e1 + v0 * e2).tolist()}
 
@@ -272,6 +278,10 @@ def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:
 
 def flat_message(res: Dict[str, Any]) -> str:
     f = res["flat"]
+    if f.get("rank", 2) < 2:
+        return ("the magnetometer was hardly turned (its readings spread no more than its noise "
+                "in at least two directions): nothing is determined; turn the sensor through every "
+                "orientation and record again")
     n = ", ".join(f"{x:+.3f}" for x in f["normal"])
     return (f"the rotation stayed in one plane (normal [{n}] in sensor axes: spread across it "
             f"{f['out_of_plane_std']:.4g} vs noise {f['noise_std_along_normal']:.4g}): hard and soft "

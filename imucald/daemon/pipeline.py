@@ -172,10 +172,23 @@ class Pipeline:
                 return
         if len(r.points()) < MIN_MAG_POINTS:
             return
+        noise = self._mag_noise()
+        if not self.force and noise is not None:
+            from ..calib.magcal import flat_axis
+            flat = flat_axis(r.points(), noise)
+            if flat is not None:       # not turned in 3-D yet: wait, and say so once
+                self._next_mag_seen = r.seen + int(MAG_RECAL_S * self.rate_hz)
+                msg = ("magnetometer: the rotation so far stays in one plane; tilt the sensor onto "
+                       "another face and keep turning it" if flat["rank"] == 2 else
+                       "magnetometer: waiting for rotation (the readings hardly change)")
+                if not self.events or self.events[-1] != msg:
+                    log.info(msg)
+                    self.events.append(msg)
+                return
         self.force = False
         self._next_mag_seen = r.seen + int(MAG_RECAL_S * self.rate_hz)
         ap = self.applied
-        job = {"acc": None, "mag_points": r.points(), "mag_noise": self._mag_noise(),
+        job = {"acc": None, "mag_points": r.points(), "mag_noise": noise,
                "holdout_fraction": c["holdout_fraction"], "seed": int(r.seen),
                "current": {"mag_theta": ap.mag_theta}}
         self._job_poses = self.acc.pose_set()
@@ -247,9 +260,8 @@ class Pipeline:
             parts.append(f"accel held-out {a['heldout_rms_g'] * 1e3:.3f} mg vs "
                          f"{a['heldout_rms_before_g'] * 1e3:.3f} mg {'(applied)' if take_a else '(kept the current one)'}")
         if m and not m.get("determined", True):
-            n = ", ".join(f"{x:+.2f}" for x in m["flat"]["normal"])
-            parts.append(f"mag not determined: the rotation so far stayed in one plane (normal [{n}]); "
-                         f"tilt the sensor onto another face and keep turning it")
+            from ..calib.magcal import flat_message
+            parts.append("mag not determined: " + flat_message(m))
         elif m:
             parts.append(f"mag held-out {m['heldout_rel_rms'] * 100:.2f} % vs "
                          f"{m['heldout_rel_rms_before'] * 100:.2f} % {'(applied)' if take_m else '(kept)'}")

@@ -63,7 +63,7 @@ def main():
     if not os.path.isdir(REAL):
         print(f"skipped: {REAL} is absent")
         return 0
-    from imucald.cli import _gap_summary
+    from imucald.cli.gap import gap_summary
     for name, load in (("imutk_xsens_mti", xsens), ("freeimu_mpu6050_tempsweep", tempsweep),
                        ("sunsided_mpu6050_hmc5883l (all set-2 recordings appended)", sunsided)):
         print(f"=== {name}")
@@ -73,7 +73,7 @@ def main():
         except UserError as e:
             print(f"no verdict: {e}")
             continue
-        print(_gap_summary(res))
+        print(gap_summary(res))
         for s, r in res["sensors"].items():
             for k in ("noise_colour",):
                 if k in r:

@@ -81,3 +81,29 @@ def test_user_errors_are_one_line_exit_2(sim9, tmp_path, args, msg):
     assert rc == 2
     assert msg in err
     assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_parser_choices_come_from_their_owners():
+    """The CLI's board, method and format choices are the owners' lists, not copies."""
+    from imucald.calib.optim import METHODS
+    from imucald.cli.boards import EMULATED_BOARDS
+    from imucald.cli.parser import build_parser
+    from imucald.daemon.config import SCHEMA
+    from imucald.drivers.board import BOARD_NAMES
+    assert set(SCHEMA["calibration.method"][2]) == set(METHODS)
+    assert tuple(SCHEMA["sensor.board"][2]) == BOARD_NAMES
+    assert set(BOARD_NAMES) < set(EMULATED_BOARDS)
+    sub = next(a for a in build_parser()._actions if a.dest == "cmd").choices
+    opt = lambda cmd, flag: next(a for a in sub[cmd]._actions if flag in a.option_strings).choices
+    assert set(opt("calibrate", "--method")) == set(METHODS) == set(opt("run", "--method"))
+    assert tuple(opt("record", "--board")) == BOARD_NAMES
+
+
+def test_help_does_not_import_numpy():
+    """`imucald --help` stays light: command modules import their heavy dependencies lazily."""
+    code = ("import sys; from imucald.cli import build_parser; build_parser(); "
+            "print(sorted(m for m in ('numpy', 'imucald.sim.sensor', 'imucald.drivers.emulator', "
+            "'imucald.gap.diagnose') if m in sys.modules))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == "[]"

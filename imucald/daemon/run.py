@@ -14,14 +14,12 @@ import time
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, Dict, Optional
 
-import numpy as np
-
 from ..errors import UserError
 from .notify import notify, watchdog_period_s
 from .pipeline import Pipeline, applied_from_doc
 from .state import load_calibration, load_poses, save_calibration, save_poses
 
-__all__ = ["Daemon", "make_board_from_config"]
+__all__ = ["Daemon"]
 
 log = logging.getLogger("imucald")
 
@@ -34,52 +32,18 @@ def _worker_init():
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def make_board_from_config(cfg, emulate: Optional[bool], speed: float = 1.0, seed: int = 0,
-                           faults=None, poses: int = 30):
-    """(board, bus, description).  The real bus is the default whenever one exists."""
-    from ..drivers.board import make_board
-    from ..drivers.bus import Bus, ScaledClock, open_bus, real_bus_numbers
-    s = cfg["sensor"]
-    nums = real_bus_numbers()
-    mode = s["emulate"] if emulate is None else ("yes" if emulate else "no")
-    use_emu = mode == "yes" or (mode == "auto" and s["bus"] is None and not nums)
-    kw = {}
-    if s["address"] is not None:
-        kw = {"addr": s["address"]} if s["board"] != "9dof" else {"gyro_addr": s["address"]}
-    if s["board"] not in ("9dof", "gy273"):
-        kw.update(accel_range_g=s["accel_range_g"], gyro_range_dps=s["gyro_range_dps"])
-    else:
-        kw["mag"] = s["magnetometer"]
-    if use_emu:
-        from ..drivers.emulator import emulated_board
-        from ..sim.motion import PoseTour
-        from ..sim.poses import random_pose_set
-        clock = ScaledClock(speed)          # starts at 0: the tour and its warm-up begin now
-        rng = np.random.default_rng(seed)
-        tour = PoseTour(random_pose_set(poses, rng), rng=rng, hold_s=(3.0, 4.0), move_s=(1.2, 1.8),
-                        lead_s=1.0, loop=True)
-        eb = emulated_board(s["board"], tour, rng=rng, clock=clock, faults=faults,
-                            mag=None if s["magnetometer"] == "auto" else s["magnetometer"])
-        bus = Bus(eb, name=f"emulated {s['board']}", clock=clock)
-        desc = (f"emulated {s['board']} (no I2C bus found), moved through {poses} orientations"
-                + (f" at {speed:g}x speed" if speed != 1.0 else ""))
-    else:
-        if mode == "no" and not nums and s["bus"] is None:
-            raise UserError("sensor.emulate is 'no' but there is no I2C bus (/dev/i2c-* absent): "
-                            "enable I2C or set sensor.emulate: auto")
-        num = s["bus"] if s["bus"] is not None else (1 if 1 in nums else nums[0])
-        bus = open_bus(num)
-        desc = f"{s['board']} on /dev/i2c-{num}"
-    board = make_board(s["board"], bus, rate_hz=s["rate_hz"], **kw)
-    return board, bus, desc
-
-
 class Daemon:
-    def __init__(self, cfg: Dict[str, Dict[str, Any]], emulate: Optional[bool] = None,
-                 speed: float = 1.0, seed: int = 0, faults=None, duration_s: Optional[float] = None,
-                 echo: bool = False, config_path: Optional[str] = None):
+    """Runs ``board`` (on ``bus``; ``desc`` says which, for the log) until stopped.
+
+    The board is built by the caller (the CLI's board factory, real or emulated):
+    the daemon does not know whether its chips are real.
+    """
+
+    def __init__(self, cfg: Dict[str, Dict[str, Any]], board, bus, desc: str,
+                 duration_s: Optional[float] = None, echo: bool = False,
+                 config_path: Optional[str] = None):
         self.cfg, self.duration_s, self.echo, self.config_path = cfg, duration_s, echo, config_path
-        self.emulate, self.speed, self.seed, self.faults = emulate, speed, seed, faults
+        self.board, self.bus, self.desc = board, bus, desc
         self.stop = False
         self.reload = False
 
@@ -104,9 +68,7 @@ class Daemon:
         from .outputs import FifoSink, SocketSink
         cfg = self.cfg
         sd, rd = self._dirs()
-        self.board, self.bus, desc = make_board_from_config(cfg, self.emulate, self.speed, self.seed,
-                                                            self.faults)
-        log.info("imucald starting: %s", desc)
+        log.info("imucald starting: %s", self.desc)
         self.board.start()                                       # identifies the chips first
         chips = {"board": self.board.name, "bus": self.bus.name, **self.board.chips()}
         log.info("found %s", ", ".join(f"{k} {v.upper()}" for k, v in self.board.chips().items()))
@@ -155,7 +117,6 @@ class Daemon:
         last_status = last_wd = -1e9
         last_fresh = time.monotonic()
         t_start = b.clock.now()
-        self.lateness = []
         while not self.stop:
             batch = b.read_batch(batch_s=batch_s)
             data = pipe.process(batch)

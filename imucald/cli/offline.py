@@ -1,0 +1,254 @@
+"""``imucald simulate``, ``calibrate`` and ``demo``: the offline commands.
+
+Heavy modules (the simulator, the fitters) are imported inside each command so
+that ``imucald --help`` stays light.
+"""
+from __future__ import annotations
+
+import json
+
+from ..errors import UserError
+from ._common import eprint as _eprint
+
+SENSORS = ("accel", "gyro", "mag")
+DEFAULT_MODEL = {"accel": "triangular9", "mag": "mag_sym", "gyro": "mean"}
+
+
+# --- simulate ----------------------------------------------------------------------------
+
+def cmd_simulate(args) -> int:
+    import numpy as np
+    from ..recording import write_recording
+    from ..sim.poses import euler_pose_set, random_pose_set
+    from ..sim.sensor import simulate_session
+    rng = np.random.default_rng(args.seed)
+    if args.euler:
+        try:
+            nx, ny, nz = (int(v) for v in args.euler.split(","))
+        except ValueError:
+            raise UserError(f"--euler {args.euler!r}: expected three integers NX,NY,NZ") from None
+        R = euler_pose_set(nx, ny, nz, rng)
+    else:
+        if args.poses < 1:
+            raise UserError(f"--poses {args.poses}: at least 1")
+        R = random_pose_set(args.poses, rng)
+    hold, move = (args.hold * 0.8, args.hold * 1.2), (args.move * 0.7, args.move * 1.3)
+    effects = []
+    if args.effect:
+        from ..sim.effects import effect_session
+        named = [e for e in args.effect if e != "none"]
+        if args.magnitude is not None and len(named) != 1:
+            raise UserError("--magnitude applies to exactly one --effect (use NAME=X for several)")
+        spec = []
+        for e in named:
+            name, _, m = e.partition("=")
+            try:
+                spec.append((name, float(m) if m else args.magnitude))
+            except ValueError:
+                raise UserError(f"--effect {e!r}: the magnitude after '=' is not a number") from None
+        try:
+            s, effects = effect_session(args.board, R, rng, spec, args.rate, hold, move,
+                                        args.temp_profile, args.temp_rise)
+        except ValueError as ex:
+            raise UserError(f"--effect: {ex}") from None
+    else:
+        s = simulate_session(args.board, R, rng, rate_hz=args.rate, hold_s=hold, move_s=move,
+                             temp_kind=args.temp_profile, temp_rise_c=args.temp_rise)
+    s.recording.meta["seed"] = str(args.seed)
+    write_recording(s.recording, args.output)
+    if args.truth:
+        from ..atomic import atomic_write_text
+        tr = s.truth
+        d = {"board": tr.board, "accel_triangular9": tr.accel.tolist(),
+             "gyro_bias_dps": tr.gyro_bias_dps.tolist(), "gyro_matrix": tr.gyro_matrix.tolist(),
+             "hold_s": [list(h) for h in s.hold],
+             "effects": effects}
+        if tr.mag_soft_iron is not None:
+            d.update(mag_hard_iron_gauss=tr.mag_hard_iron_gauss.tolist(),
+                     mag_soft_iron=tr.mag_soft_iron.tolist(), field_gauss=tr.field_gauss,
+                     dip_deg=tr.dip_deg)
+        atomic_write_text(args.truth, json.dumps(d, indent=1) + "\n")
+    _eprint(f"imucald: wrote {args.output}: {args.board}, {len(R)} poses, "
+            f"{len(s.recording)} samples at {args.rate:g} Hz ({s.recording.t[-1]:.0f} s)")
+    return 0
+
+
+# --- calibrate ---------------------------------------------------------------------------
+
+def _fmt_vec(v, unit_scale=1.0, fmt="{:+.6f}"):
+    return "[" + ", ".join("   n/a   " if x is None else fmt.format(x * unit_scale) for x in v) + "]"
+
+
+def cmd_calibrate(args) -> int:
+    import numpy as np
+    from ..calib.fit import fit_gyro_bias, fit_norm
+    from ..calib.inputs import load_input
+    from ..calib.models import MODEL_NAMES
+    from ..calib.poses import poses_from_recording
+    columns = args.columns.split(",") if args.columns else None
+    kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
+    sensor = args.sensor
+    if sensor is None:      # a magnetometer-only recording: calibrate the magnetometer
+        sensor = "mag" if kind == "recording" and obj.acc is None and obj.mag is not None else "accel"
+    model = args.model or DEFAULT_MODEL[sensor]
+    if sensor == "accel" and not (model in MODEL_NAMES and not model.startswith("mag_")):
+        raise UserError(f"--model {model!r} does not fit --sensor accel: allowed "
+                        + ", ".join(m for m in MODEL_NAMES if not m.startswith("mag_")))
+    if sensor == "mag" and not model.startswith("mag_"):
+        raise UserError(f"--model {model!r} does not fit --sensor mag: allowed mag_sym, mag_diag, mag_sphere")
+    if sensor == "gyro" and model not in ("mean", "eq6"):
+        raise UserError(f"--model {model!r} does not fit --sensor gyro: allowed mean, eq6")
+    rec = obj if kind == "recording" else None
+    progress = None if args.json else _eprint
+    if sensor == "mag" and rec is not None:
+        if rec.mag is None:
+            raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
+        return _calibrate_mag_rotation(args, rec, model, progress)
+    poses = poses_from_recording(rec, window_s=args.window_s, k=args.threshold_k,
+                                 min_still_s=args.min_still_s) if rec is not None else obj
+    if sensor == "accel":
+        if len(poses) < 10:
+            raise UserError(f"{args.input}: only {len(poses)} still poses found; the 9-parameter "
+                            f"model needs at least 10 (about 25 recommended), well spread over the sphere")
+        if progress:
+            progress(f"imucald: {len(poses)} still poses; fitting {model} with {args.method}")
+        kw = {"progress": progress} if args.method == "ga-paper" and progress else {}
+        from ..sim.specs import BOARDS
+        chip = BOARDS.get(poses.meta.get("board", ""), (None,))[0]
+        cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed,
+                       chip=chip, **kw)
+    elif sensor == "mag":           # a pose file: the pose means are the points
+        if poses.mag is None:
+            raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
+        cal = fit_norm(poses.mag, model, args.method, pose_cov=poses.mag_cov, rng=args.seed)
+    else:
+        if poses.gyro is None:
+            raise UserError(f"{args.input}: no gyro columns (gx, gy, gz)")
+        samples = None
+        if model == "eq6":
+            if rec is None:
+                raise UserError("--model eq6 needs the still samples: give a recording")
+            from ..calib.poses import detect_static
+            sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+            samples = np.concatenate([rec.gyro[s] for s in sl])
+        cal = fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
+    if args.json:
+        print(json.dumps(cal.to_json()))
+        return 0
+    _print_cal(sensor, cal)
+    return 0
+
+
+def _print_cal(sensor: str, cal) -> None:
+    unit = {"accel": ("mg", 1e3), "mag": ("mG", 1e3), "gyro": ("deg/s", 1.0)}[sensor]
+    what = "points (thinned rotation samples)" if cal.noise_source == "second differences" else "poses"
+    print(f"{sensor} {cal.model} by {cal.method}: {cal.poses} {what}, fitness {cal.fitness:.6g}")
+    for g, v in cal.params.items():
+        se = cal.stderr.get(g)
+        vv = v if isinstance(v, list) else [v]
+        ss = se if isinstance(se, list) else [se]
+        print(f"  {g:<18} {_fmt_vec(vv)}  +- {_fmt_vec(ss, fmt='{:.2e}')}")
+    if sensor != "gyro":
+        print(f"  residual |x|-target RMS: in-sample {cal.rms * unit[1]:.4f} {unit[0]}, "
+              f"held-out {cal.heldout_rms * unit[1]:.4f} {unit[0]}")
+        print(f"  noise per {what.split()[0][:-1]} {cal.noise * unit[1]:.4f} {unit[0]} (from {cal.noise_source}); "
+              f"rank {cal.uncertainty.rank}/{int(get_free(cal))}, condition {cal.uncertainty.condition:.3g}")
+        if cal.uncertainty.unobservable:
+            print(f"  not determined by these poses: {', '.join(cal.uncertainty.unobservable)}")
+        elif len(cal.uncertainty.null_directions):
+            print(f"  {len(cal.uncertainty.null_directions)} parameter direction(s) not observable "
+                  f"by a norm fit (a rotation of the frame); errors are given in the minimum-norm gauge")
+        if "path_error_20s_std_m" in cal.info:
+            pe = cal.info["path_error_20s_std_m"]
+            print(f"  paper 000 path error after 20 s (STD over poses): raw {pe['raw']:.3g} m, "
+                  f"calibrated {pe['calibrated']:.3g} m")
+    else:
+        print(f"  between-pose scatter RMS {cal.rms:.4f} deg/s")
+
+
+def _calibrate_mag_rotation(args, rec, model, progress) -> int:
+    """Magnetometer from the rotation cloud (any recording with mx, my, mz).
+    Exit 3 when the cloud does not determine a calibration (a one-plane swing)."""
+    from ..calib.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
+    if progress:
+        progress(f"imucald: {len(rec)} magnetometer samples; thinning over the sphere and fitting "
+                 f"{model} with {args.method}")
+    res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed)
+    if args.json:
+        print(json.dumps(rotation_json(res)))
+        return 0 if res["determined"] else 3
+    if not res["determined"]:
+        _eprint(f"imucald: {args.input}: {flat_message(res)}")
+        return 3
+    _print_cal("mag", res["calibration"])
+    print("\n".join(rotation_lines(res)))
+    return 0
+
+
+def get_free(cal) -> int:
+    from ..calib.models import get_model
+    return int(get_model(cal.model).free_mask.sum())
+
+
+# --- demo (make run) ---------------------------------------------------------------------
+
+def cmd_demo(args) -> int:
+    """Simulate a handled MPU6050, find its poses, and show the GA converging."""
+    import numpy as np
+
+    from .. import __version__
+    from ..calib.fit import fit_norm
+    from ..calib.models import Triangular9
+    from ..calib.optim import Problem, ga
+    from ..calib.poses import poses_from_recording
+    from ..sim.poses import random_pose_set
+    from ..sim.sensor import simulate_session
+    rng = np.random.default_rng(args.seed)
+    print(f"imucald {__version__} demo: a calibration on a simulated MPU6050 (seed {args.seed}); "
+          f"'imucald run --emulate' runs the daemon on an emulated board")
+    R = random_pose_set(args.poses, rng)
+    s = simulate_session("mpu6050", R, rng, rate_hz=100, hold_s=(6, 10), move_s=(2, 4))
+    rec = s.recording
+    print(f"simulated {rec.t[-1]:.0f} s at 100 Hz: the board is placed in {args.poses} orientations "
+          f"with hand motion between them")
+    ps = poses_from_recording(rec)
+    print(f"still-pose detector found {len(ps)} poses (true: {args.poses})")
+    raw = ps.acc
+    print("genetic algorithm (population 100, paper 000's operators): best fitness by generation")
+    prob = Problem(Triangular9(), raw)
+
+    def show(gen, best):
+        if gen % 5 == 0:
+            f = float(best[0])
+            bar = "#" * max(1, min(60, int(round(-np.log10(max(f, 1e-30)) * 4))))
+            print(f"  gen {gen:3d}  fitness {f:10.3e}  {bar}", flush=True)
+    res = ga(prob, rng=rng, progress=show)
+    print(f"  LM polish -> fitness {res.fitness:.4e} "
+          f"({res.info['ga_generations']} GA generations, {res.info['lm_iterations']} LM iterations)")
+    cal = fit_norm(raw, "triangular9", "lm", pose_cov=ps.acc_cov)
+    tr = s.truth.accel
+    names = Triangular9().param_names
+    print(f"\n{'parameter':<10} {'true':>12} {'estimate':>12} {'error':>10} {'CRLB sd':>10} {'err/sd':>7}")
+    for i, n in enumerate(names):
+        e = cal.theta[i] - tr[i]
+        print(f"{n:<10} {tr[i]:12.6f} {cal.theta[i]:12.6f} {e:10.2e} {cal.crlb_std[i]:10.2e} "
+              f"{e / cal.crlb_std[i]:7.2f}")
+    # paper 001's measure: roll and pitch from the accelerometer against the true attitude
+    from ..calib.metrics import roll_pitch_deg
+    from ..sim.poses import up_vectors
+    true_up = up_vectors(R)[:len(raw)] if len(raw) == len(R) else None
+    if true_up is not None:
+        r0, p0 = roll_pitch_deg(true_up)
+        rr, pr = roll_pitch_deg(raw)
+        rc, pc = roll_pitch_deg(Triangular9().forward(cal.theta, raw))
+        wrap = lambda d: (d + 180) % 360 - 180
+        e_raw = np.sqrt(np.mean(np.concatenate([wrap(rr - r0), pr - p0]) ** 2))
+        e_cal = np.sqrt(np.mean(np.concatenate([wrap(rc - r0), pc - p0]) ** 2))
+        print(f"roll/pitch RMS error over the poses (paper 001's measure): raw {e_raw:.3f} deg -> "
+              f"calibrated {e_cal:.4f} deg")
+    un = np.linalg.norm(raw, axis=1) - 1
+    print(f"\n| |a| - 1 g | RMS over poses: raw {np.sqrt(np.mean(un ** 2)) * 1e3:.2f} mg -> calibrated "
+          f"{cal.rms * 1e3:.3f} mg in-sample, {cal.heldout_rms * 1e3:.3f} mg held-out "
+          f"(pose noise {cal.noise * 1e3:.3f} mg)")
+    return 0
+

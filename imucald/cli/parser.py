@@ -1,0 +1,165 @@
+"""The ``imucald`` argument parser.
+
+Choices come from the modules that own them: boards, formats, methods and log
+levels from the daemon's configuration schema, simulated boards from the
+datasheet table, emulated boards from the board factory.  Each subcommand names
+its command function as (module, function); the module is imported only when
+that command runs, so ``imucald --help`` loads neither numpy nor the simulator.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+
+from .. import __version__
+from ..daemon.config import SCHEMA
+from ..sim.specs import BOARDS as SIM_BOARDS
+from .boards import EMULATED_BOARDS
+from .offline import SENSORS
+from .service import DEFAULT_CONFIG
+
+
+def _choices(key: str):
+    return list(SCHEMA[key][2])
+
+
+def _command(module: str, name: str):
+    """The command function ``name`` of ``imucald.cli.<module>``, imported when called."""
+    def run(args) -> int:
+        return getattr(importlib.import_module(f"{__package__}.{module}"), name)(args)
+    run.__name__ = name
+    return run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="imucald", description="Field calibration of MEMS IMUs.")
+    p.add_argument("--version", action="version", version=f"imucald {__version__}")
+    sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
+
+    s = sub.add_parser("simulate", help="write a simulated recording")
+    s.add_argument("-o", "--output", required=True, help="recording file to write")
+    s.add_argument("--board", default="mpu6050", choices=list(SIM_BOARDS))
+    s.add_argument("--poses", type=int, default=30, help="number of well-spread orientations")
+    s.add_argument("--euler", help="paper 000 pose set NX,NY,NZ instead of --poses")
+    s.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
+    s.add_argument("--hold", type=float, default=10.0, help="mean still time per pose, s")
+    s.add_argument("--move", type=float, default=3.0, help="mean move time between poses, s")
+    s.add_argument("--temp-profile", default="warmup", choices=["warmup", "ramp", "heatcool", "constant"])
+    s.add_argument("--temp-rise", type=float, default=6.0, help="temperature change, degC")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--truth", help="also write the true parameters as JSON here")
+    s.add_argument("--effect", action="append", help="inject an unmodelled effect: NAME or NAME=MAGNITUDE, "
+                   "e.g. thermal_bias, accel.nonlinearity=0.002, gyro.g_sensitivity, mag.soft_iron; "
+                   "'none' for a baseline-only recording (repeatable)")
+    s.add_argument("--magnitude", type=float, help="magnitude of the single --effect (default: datasheet)")
+    s.set_defaults(func=_command("offline", "cmd_simulate"))
+
+    c = sub.add_parser("calibrate", help="calibrate from a recording or pose file")
+    c.add_argument("input", help="recording, pose file, or raw table (with --columns)")
+    c.add_argument("--sensor", choices=SENSORS, help="default accel; mag for a recording with "
+                   "magnetometer columns only")
+    c.add_argument("--method", default="ga", choices=_choices("calibration.method"))
+    c.add_argument("--model", help="accel: triangular9 (default), full12, cosine[-o|-s|-os|-om|-sm]; "
+                                   "mag: mag_sym (default), mag_diag, mag_sphere; gyro: mean, eq6")
+    c.add_argument("--json", action="store_true", help="print one JSON object")
+    c.add_argument("--seed", type=int, default=0, help="seed for the GA")
+    c.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az (- skips one)")
+    c.add_argument("--nominal-scale", type=float, default=1.0,
+                   help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384")
+    c.add_argument("--nominal-offset", type=float, default=0.0,
+                   help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit")
+    c.add_argument("--rate-hz", type=float, help="raw table without a t column: sample rate")
+    c.add_argument("--window-s", type=float, default=1.0, help="still detector window, s")
+    c.add_argument("--threshold-k", type=float, default=6.0,
+                   help="still when moving variance < k x noise floor")
+    c.add_argument("--min-still-s", type=float, default=1.0, help="shortest still interval, s")
+    c.set_defaults(func=_command("offline", "cmd_calibrate"))
+
+    pr = sub.add_parser("probe", help="list what answers on the I2C bus and what each device is")
+    pr.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1, or the first present)")
+    pr.add_argument("--emulate", choices=EMULATED_BOARDS,
+                    help="probe an emulated board instead of hardware")
+    pr.set_defaults(func=_command("hardware", "cmd_probe"))
+
+    r = sub.add_parser("record", help="record samples to a recording file")
+    r.add_argument("-o", "--output", required=True)
+    r.add_argument("--board", default="mpu6050", choices=_choices("sensor.board"))
+    r.add_argument("--seconds", type=float, default=10.0)
+    r.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
+    r.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1)")
+    r.add_argument("--emulate", action="store_true", help="use the emulated board even if a bus exists")
+    r.add_argument("--realtime", action="store_true", help="emulator runs in wall-clock time")
+    r.add_argument("--poses", type=int, default=30, help="emulator: orientations to move through")
+    r.add_argument("--seed", type=int, default=0, help="emulator: seed")
+    r.add_argument("--fault", action="append", help="emulator fault, e.g. nack=0.01, reset=0x68@3 "
+                                                    "(repeatable; see the README)")
+    r.set_defaults(func=_command("hardware", "cmd_record"))
+
+    def daemon_opts(q, state=True):
+        q.add_argument("--config", help=f"configuration file (default {DEFAULT_CONFIG} if present)")
+        q.add_argument("--runtime-dir", help="directory of the sockets (overrides runtime.directory)")
+        if state:
+            q.add_argument("--state-dir", help="overrides state.directory")
+        q.add_argument("--log-level", choices=_choices("log.level"))
+
+    rn = sub.add_parser("run", help="run the daemon (real I2C when a bus exists, else emulated)")
+    daemon_opts(rn)
+    rn.add_argument("--board", choices=_choices("sensor.board"))
+    rn.add_argument("--rate", type=float, help="sample rate, Hz")
+    rn.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N")
+    rn.add_argument("--format", choices=_choices("output.format"))
+    rn.add_argument("--fifo", help="also stream to this FIFO")
+    rn.add_argument("--method", choices=_choices("calibration.method"))
+    rn.add_argument("--min-poses", type=int)
+    g = rn.add_mutually_exclusive_group()
+    g.add_argument("--emulate", action="store_true", help="use the emulated board")
+    g.add_argument("--no-emulate", action="store_true", help="never fall back to the emulator")
+    rn.add_argument("--speed", type=float, default=1.0, help="emulator: time runs this much faster")
+    rn.add_argument("--seed", type=int, default=0, help="emulator: seed")
+    rn.add_argument("--fault", action="append", help="emulator fault (as for record)")
+    rn.add_argument("--duration", type=float, help="stop after this many (sensor-clock) seconds")
+    rn.add_argument("--echo", action="store_true", help="print one stream line per second")
+    rn.set_defaults(func=_command("service", "cmd_run"))
+
+    rp = sub.add_parser("replay", help="feed a recording through the pipeline; NDJSON to stdout")
+    rp.add_argument("recording")
+    rp.add_argument("--state-dir", help="save the calibration reached as DIR/calibration.yaml")
+    rp.add_argument("--config")
+    rp.add_argument("--format", choices=_choices("output.format"))
+    rp.add_argument("--method", choices=_choices("calibration.method"))
+    rp.add_argument("--min-poses", type=int)
+    rp.add_argument("--log-level", choices=_choices("log.level"))
+    rp.set_defaults(func=_command("service", "cmd_replay"))
+
+    for name, fn, hlp in (("status", _command("service", "cmd_status"), "the running daemon's state"),
+                          ("recalibrate", _command("service", "cmd_recalibrate"), "ask the daemon to calibrate now")):
+        q = sub.add_parser(name, help=hlp)
+        daemon_opts(q, state=False)
+        if name == "status":
+            q.add_argument("--json", action="store_true")
+        q.set_defaults(func=fn)
+    w = sub.add_parser("watch", help="print the daemon's stream")
+    daemon_opts(w, state=False)
+    w.add_argument("-n", "--count", type=int, help="stop after N lines")
+    w.set_defaults(func=_command("service", "cmd_watch"))
+
+    gp = sub.add_parser("gap", help="diagnose the sim-to-real gap of a recording")
+    gp.add_argument("recording")
+    gp.add_argument("--sensor", action="append", choices=SENSORS,
+                    help="sensor(s) to diagnose (default: all present)")
+    gp.add_argument("--json", action="store_true", help="print one JSON object")
+    gp.add_argument("--report", help="write plots to this directory (needs the plots extra)")
+    gp.add_argument("--sims", type=int, default=200, help="twin re-simulations")
+    gp.add_argument("--seed", type=int, default=0)
+    gp.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,temp")
+    gp.add_argument("--nominal-scale", type=float, default=1.0)
+    gp.add_argument("--nominal-offset", type=float, default=0.0)
+    gp.add_argument("--rate-hz", type=float)
+    gp.set_defaults(func=_command("gap", "cmd_gap"))
+
+    d = sub.add_parser("demo", help="the calibration demo that `make run` shows")
+    d.add_argument("--seed", type=int, default=1)
+    d.add_argument("--poses", type=int, default=25)
+    d.set_defaults(func=_command("offline", "cmd_demo"))
+    return p
+

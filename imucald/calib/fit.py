@@ -181,7 +181,7 @@ def select_model(raw: np.ndarray, pose_cov: Optional[np.ndarray] = None, target:
     se: Dict[str, float] = {}
     for name in candidates:
         m = get_model(name)
-        if len(raw) < int(m.free_mask.sum()) + 2:
+        if len(raw) < int(m.free_mask.sum()) + 1:      # what fit_norm needs (skipped: too few poses)
             continue
         cal = fit_norm(raw, m, "lm", pose_cov=pose_cov, target=target, chip=chip,
                        noise_inflation=noise_inflation)

@@ -91,8 +91,8 @@ def cmd_calibrate(args) -> int:
     if sensor is None:      # a magnetometer-only recording: calibrate the magnetometer
         sensor = "mag" if kind == "recording" and obj.acc is None and obj.mag is not None else "accel"
     model = args.model or DEFAULT_MODEL[sensor]
-    if sensor == "accel" and not (model in MODEL_NAMES and not model.startswith("mag_")):
-        raise UserError(f"--model {model!r} does not fit --sensor accel: allowed "
+    if sensor == "accel" and not (model == "auto" or (model in MODEL_NAMES and not model.startswith("mag_"))):
+        raise UserError(f"--model {model!r} does not fit --sensor accel: allowed auto, "
                         + ", ".join(m for m in MODEL_NAMES if not m.startswith("mag_")))
     if sensor == "mag" and not model.startswith("mag_"):
         raise UserError(f"--model {model!r} does not fit --sensor mag: allowed mag_sym, mag_diag, mag_sphere")
@@ -115,8 +115,12 @@ def cmd_calibrate(args) -> int:
         kw = {"progress": progress} if args.method == "ga-paper" and progress else {}
         from ..sim.specs import BOARDS
         chip = BOARDS.get(poses.meta.get("board", ""), (None,))[0]
+        infl = None
+        if rec is not None:     # coloured noise: the Allan model of the longest still pose
+            from ..calib.noise import pose_colour_inflation
+            infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
         cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed,
-                       chip=chip, **kw)
+                       chip=chip, noise_inflation=infl, **kw)
     elif sensor == "mag":           # a pose file: the pose means are the points
         if poses.mag is None:
             raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
@@ -158,6 +162,23 @@ def _print_cal(sensor: str, cal) -> None:
         elif len(cal.uncertainty.null_directions):
             print(f"  {len(cal.uncertainty.null_directions)} parameter direction(s) not observable "
                   f"by a norm fit (a rotation of the frame); errors are given in the minimum-norm gauge")
+        for f in cal.uncertainty.flags:
+            ratio = f["std_over_prior_std"]
+            print(f"  {f['name']}: {f['reason'].replace('+', ' and ')}"
+                  + ("" if ratio is None else f" (std {ratio:.2f} x its prior std)") + f"; {f['hint']}")
+        nm = cal.info.get("noise_model")
+        if nm is not None:
+            z = cal.info.get("heldout_normalised_rms", float("nan"))
+            print(f"  noise model: {'each pose its own' if nm['per_pose'] else 'fit residuals'}"
+                  + (f", coloured-noise inflation x{nm['colour_inflation_median']:.2f} (median)"
+                     if "colour_inflation_median" in nm else "")
+                  + f", excess scatter x{nm['excess_scatter']:.2f}; prior: {nm['prior']}; "
+                  f"held-out residual / predicted std RMS {z:.2f}")
+        ms = cal.info.get("model_selection")
+        if ms is not None:
+            print(f"  model {ms['chosen']} chosen by leave-one-pose-out RMS ("
+                  + ", ".join(f"{m} {v * unit[1]:.4f} {unit[0]}" for m, v in ms["heldout_rms_g"].items())
+                  + f"; one standard error {ms['standard_error_g'] * unit[1]:.4f} {unit[0]})")
         if "path_error_20s_std_m" in cal.info:
             pe = cal.info["path_error_20s_std_m"]
             print(f"  paper 000 path error after 20 s (STD over poses): raw {pe['raw']:.3g} m, "

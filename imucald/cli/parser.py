@@ -59,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--sensor", choices=SENSORS, help="default accel; mag for a recording with "
                    "magnetometer columns only")
     c.add_argument("--method", default="ga", choices=_choices("calibration.method"))
-    c.add_argument("--model", help="accel: triangular9 (default), full12, cosine[-o|-s|-os|-om|-sm]; "
+    c.add_argument("--model", help="accel: triangular9 (default), diag6, full12, cosine[-o|-s|-os|-om|-sm], "
+                                   "auto (order by leave-one-pose-out error); "
                                    "mag: mag_sym (default), mag_diag, mag_sphere; gyro: mean, eq6")
     c.add_argument("--json", action="store_true", help="print one JSON object")
     c.add_argument("--seed", type=int, default=0, help="seed for the GA")

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from imucald.cli import main
-from imucald.gap.stats import allan_deviation, chi2_logsf, chi2_sf, norm_sf2
+from imucald.calib.noise import allan_deviation
+from imucald.gap.stats import chi2_logsf, chi2_sf, norm_sf2
 
 from .conftest import real_path
 

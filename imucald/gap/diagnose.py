@@ -39,7 +39,8 @@ from ..calib.poses import detect_static, poses_from_slices
 from ..calib.uncertainty import residual_variance
 from ..errors import UserError
 from ..recording import Recording
-from .stats import allan_deviation, chi2_logsf, chi2_sf, norm_sf2
+from ..calib.noise import colour_inflation
+from .stats import chi2_logsf, chi2_sf, norm_sf2
 
 __all__ = ["diagnose", "GapError", "ACCEL_CANDIDATES", "GYRO_CANDIDATES", "MAG_CANDIDATES"]
 
@@ -267,23 +268,9 @@ def _flag_disturbed(s2: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 
 def _colour(rec_x: np.ndarray, still: Optional[slice], rate: float, T: float) -> Tuple[float, Optional[dict]]:
-    """Inflation of the pose-mean variance at averaging time T over white noise,
-    from the Allan deviation of the longest still stretch (if long enough)."""
-    if still is None:
-        return 1.0, None
-    x = rec_x[still]
-    dur = len(x) / rate
-    if dur < max(30.0, 3 * T):
-        return 1.0, {"note": f"longest still stretch {dur:.0f} s: too short for an Allan deviation "
-                             f"at the {T:.0f} s pose length (need {max(30.0, 3 * T):.0f} s)"}
-    taus = [1.0 / rate * 4, T]
-    ad = allan_deviation(x - x.mean(0), rate, taus)
-    white = ad[0] * math.sqrt(taus[0] / T)           # tau^-1/2 extrapolation of the short-tau level
-    k = float(np.nanmean((ad[1] / white) ** 2))
-    k = min(max(k, 1.0), 9.0)
-    return k, {"still_stretch_s": round(dur, 1), "pose_length_s": round(T, 1),
-               "allan_at_pose_length": ad[1].tolist(), "white_prediction": white.tolist(),
-               "variance_inflation": round(k, 3)}
+    """Inflation of the pose-mean variance at averaging time T over white noise, from
+    the longest still stretch: the calibration's own estimate (calib.noise)."""
+    return colour_inflation(None if still is None else rec_x[still], rate, T)
 
 
 # --- the norm-model diagnosis (accelerometer, magnetometer) --------------------------------

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["chi2_sf", "chi2_logsf", "norm_sf2", "allan_deviation"]
+__all__ = ["chi2_sf", "chi2_logsf", "norm_sf2"]
 
 
 def _log_gamma_q(a: float, x: float) -> float:
@@ -67,22 +67,3 @@ def chi2_sf(x: float, k: float) -> float:
 def norm_sf2(z: float) -> float:
     """Two-sided normal tail P(|Z| >= |z|)."""
     return math.erfc(abs(z) / math.sqrt(2.0))
-
-
-def allan_deviation(x, rate_hz: float, taus):
-    """Non-overlapping Allan deviation of a signal x (n, d) at averaging times taus (s).
-
-    sigma^2(tau) = 1/2 < (mean_{k+1} - mean_k)^2 > over consecutive tau-averages.
-    Returns an array (len(taus), d); NaN where fewer than 3 averages fit.
-    """
-    import numpy as np
-    x = np.asarray(x, float).reshape(len(x), -1)
-    out = np.full((len(taus), x.shape[1]), np.nan)
-    for i, tau in enumerate(taus):
-        m = int(round(tau * rate_hz))
-        k = len(x) // max(m, 1)
-        if m < 1 or k < 3:
-            continue
-        a = x[:k * m].reshape(k, m, -1).mean(1)
-        out[i] = np.sqrt(0.5 * np.mean(np.diff(a, axis=0) ** 2, axis=0))
-    return out

@@ -69,7 +69,8 @@ class Calibration:
                 d["flags"] = list(u.flags)
         for key in ("noise_model", "heldout_normalised_rms", "model_selection"):
             if key in self.info:
-                d[key] = self.info[key]
+                v = self.info[key]
+                d[key] = None if isinstance(v, float) and not np.isfinite(v) else v
         d[f"noise_{unit}"] = float(self.noise)
         d["noise_source"] = self.noise_source
         if "path_error_20s_std_m" in self.info:

@@ -47,7 +47,8 @@ class Calibration:
         d: Dict[str, object] = {
             "sensor": self.sensor, "model": self.model, "method": self.method,
             "poses": int(self.poses), "params": self.params, "stderr": self.stderr,
-            "fitness": float(self.fitness), f"heldout_rms_{unit}": float(self.heldout_rms),
+            "fitness": float(self.fitness),
+            f"heldout_rms_{unit}": float(self.heldout_rms) if np.isfinite(self.heldout_rms) else None,
             f"rms_{unit}": float(self.rms),
         }
         if self.uncertainty is not None:

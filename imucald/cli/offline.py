@@ -91,9 +91,9 @@ def cmd_calibrate(args) -> int:
     if sensor is None:      # a magnetometer-only recording: calibrate the magnetometer
         sensor = "mag" if kind == "recording" and obj.acc is None and obj.mag is not None else "accel"
     model = args.model or DEFAULT_MODEL[sensor]
-    if sensor == "accel" and not (model == "auto" or (model in MODEL_NAMES and not model.startswith("mag_"))):
-        raise UserError(f"--model {model!r} does not fit --sensor accel: allowed auto, "
-                        + ", ".join(m for m in MODEL_NAMES if not m.startswith("mag_")))
+    accel_models = ["auto"] + [m for m in MODEL_NAMES if not m.startswith("mag_")]
+    if sensor == "accel" and model not in accel_models:
+        raise UserError(f"--model {model!r} does not fit --sensor accel: allowed " + ", ".join(accel_models))
     if sensor == "mag" and not model.startswith("mag_"):
         raise UserError(f"--model {model!r} does not fit --sensor mag: allowed mag_sym, mag_diag, mag_sphere")
     if sensor == "gyro" and model not in ("mean", "eq6"):

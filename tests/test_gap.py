@@ -116,7 +116,7 @@ def test_gap_on_the_temperature_sweep_is_too_narrow():
 def test_saturation_check_finds_samples_at_the_rail():
     # a pose holding clipped samples is usually too vibrating for the stillness detector
     # to call still at all; this check catches those that get through
-    from imucald.gap.diagnose import _saturated
+    from imucald.gap.saturation import saturated as _saturated
     from imucald.recording import Recording
     a = np.tile([0.0, 0.0, 1.0], (300, 1))
     a[150:160, 2] = 2.0

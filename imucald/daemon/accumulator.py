@@ -3,9 +3,9 @@
 A new pose closer than ``merge_angle_deg`` to an existing one replaces it (the
 newer pose reflects the current temperature and mounting) unless it is within
 the pose noise of it, in which case the two are averaged (refined).  Coverage
-is measured against the 26 directions of a cube's faces, edges and corners; the
-accumulator says which ones still lack a pose, and what CRLB the current pose
-set predicts for the calibration.
+is measured against the 26 directions of a cube's faces, edges and corners
+(calib/coverage.py); the accumulator says which ones still lack a pose, and what
+CRLB the current pose set predicts for the calibration.
 """
 from __future__ import annotations
 
@@ -13,41 +13,22 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from ..calib.coverage import cube_coverage
 from ..calib.models import Triangular9
 from ..calib.poses import PoseSet
 from ..calib.uncertainty import crlb, residual_variance
 from .stillness import StaticInterval
 
-__all__ = ["PoseAccumulator", "TARGETS", "target_name"]
+__all__ = ["PoseAccumulator"]
 
 _T9 = Triangular9()
-
-
-def _targets():
-    out = []
-    for x in (-1, 0, 1):
-        for y in (-1, 0, 1):
-            for z in (-1, 0, 1):
-                if (x, y, z) != (0, 0, 0):
-                    v = np.array([x, y, z], float)
-                    out.append(v / np.linalg.norm(v))
-    return np.array(out)
-
-
-#: the 26 cube directions (faces, edges, corners), as up vectors in the sensor frame
-TARGETS = _targets()
-
-
-def target_name(v: np.ndarray) -> str:
-    """'+Z up', '+X+Y up' ... for a cube direction."""
-    parts = [f"{'+' if c > 0 else '-'}{ax}" for c, ax in zip(v, "XYZ") if abs(c) > 1e-9]
-    return "".join(parts) + " up"
 
 
 class PoseAccumulator:
     def __init__(self, merge_angle_deg: float = 12.0, max_poses: int = 60,
                  cover_angle_deg: float = 25.0):
         self.merge_cos = np.cos(np.radians(merge_angle_deg))
+        self.cover_angle_deg = cover_angle_deg
         self.cover_cos = np.cos(np.radians(cover_angle_deg))
         self.max_poses = max_poses
         self.poses: List[StaticInterval] = []
@@ -97,16 +78,7 @@ class PoseAccumulator:
 
     def coverage(self) -> Dict[str, object]:
         """Fraction of the 26 cube directions within 25 deg of a pose, and the missing ones."""
-        U = self.directions()
-        if len(U):
-            covered = (TARGETS @ U.T).max(1) >= self.cover_cos
-        else:
-            covered = np.zeros(len(TARGETS), bool)
-        missing = [target_name(TARGETS[i]) for i in np.flatnonzero(~covered)]
-        # suggest faces first (easiest to place), then edges, corners
-        missing.sort(key=lambda s: s.count("+") + s.count("-"))
-        return {"fraction": float(covered.mean()), "covered": int(covered.sum()),
-                "targets": len(TARGETS), "missing": missing}
+        return cube_coverage(self.directions(), self.cover_angle_deg)
 
     def pose_set(self) -> PoseSet:
         P = self.poses

@@ -1,0 +1,45 @@
+"""Pose coverage: the 26 directions of a cube's faces, edges and corners, and which
+of them a set of poses reaches (the daemon's guidance and gap's advice use it)."""
+from __future__ import annotations
+
+from typing import Dict
+
+import numpy as np
+
+__all__ = ["TARGETS", "target_name", "cube_coverage"]
+
+
+def _targets() -> np.ndarray:
+    out = []
+    for x in (-1, 0, 1):
+        for y in (-1, 0, 1):
+            for z in (-1, 0, 1):
+                if (x, y, z) != (0, 0, 0):
+                    v = np.array([x, y, z], float)
+                    out.append(v / np.linalg.norm(v))
+    return np.array(out)
+
+
+#: the 26 cube directions (faces, edges, corners), as up vectors in the sensor frame
+TARGETS = _targets()
+
+
+def target_name(v: np.ndarray) -> str:
+    """'+Z up', '+X+Y up' ... for a cube direction."""
+    parts = [f"{'+' if c > 0 else '-'}{ax}" for c, ax in zip(v, "XYZ") if abs(c) > 1e-9]
+    return "".join(parts) + " up"
+
+
+def cube_coverage(directions: np.ndarray, cover_angle_deg: float = 25.0) -> Dict[str, object]:
+    """Fraction of the 26 cube directions within ``cover_angle_deg`` of one of the unit
+    ``directions`` (N, 3), and the missing ones, faces first (easiest to place), then
+    edges, corners."""
+    U = np.asarray(directions, float).reshape(-1, 3)
+    if len(U):
+        covered = (TARGETS @ U.T).max(1) >= np.cos(np.radians(cover_angle_deg))
+    else:
+        covered = np.zeros(len(TARGETS), bool)
+    missing = [target_name(TARGETS[i]) for i in np.flatnonzero(~covered)]
+    missing.sort(key=lambda s: s.count("+") + s.count("-"))
+    return {"fraction": float(covered.mean()), "covered": int(covered.sum()),
+            "targets": len(TARGETS), "missing": missing}

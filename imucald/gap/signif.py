@@ -1,0 +1,62 @@
+"""Significance tests of the gap diagnosis: score (Lagrange-multiplier) tests of a
+candidate's signature from the baseline fit, canonical correlation between two
+signatures, chi-square p-values with their log10, and trend correlations."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .stats import chi2_logsf, norm_sf2
+
+__all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p"]
+
+
+def proj_sig(J, C, w):
+    """Candidate columns whitened and projected off the baseline Jacobian."""
+    sw = np.sqrt(w)[:, None]
+    Jw, Cw = J * sw, C * sw
+    Q, _ = np.linalg.qr(Jw)
+    Ct = Cw - Q @ (Q.T @ Cw)
+    return Ct, Cw
+
+
+def score(rw, Ct, Cw):
+    """Lagrange-multiplier (score) statistic and its visible rank."""
+    U, s, _ = np.linalg.svd(Ct, full_matrices=False)
+    full = np.linalg.norm(Cw, axis=0).max() if Cw.size else 0
+    keep = s > 0.01 * max(full, 1e-300)
+    if not keep.any():
+        return 0.0, 0, 0.0
+    Uk = U[:, keep]
+    stat = float(np.sum((Uk.T @ rw) ** 2))
+    vis = float(np.linalg.norm(Ct) / max(np.linalg.norm(Cw), 1e-300))
+    return stat, int(keep.sum()), vis
+
+
+def canon(Ct1, Ct2):
+    """Largest canonical correlation between two projected signature subspaces."""
+    def basis(C):
+        U, s, _ = np.linalg.svd(C, full_matrices=False)
+        return U[:, s > 1e-9 * max(s.max(), 1e-300)] if s.size else U[:, :0]
+    A, B = basis(Ct1), basis(Ct2)
+    if not A.shape[1] or not B.shape[1]:
+        return 0.0
+    return float(np.linalg.svd(A.T @ B, compute_uv=False).max())
+
+
+def p_and_log10(stat, dof):
+    lp = chi2_logsf(stat, dof) if dof > 0 else 0.0
+    return math.exp(lp), lp / math.log(10)
+
+
+def corr_p(x, y):
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if len(x) < 5 or x.std() == 0 or y.std() == 0:
+        return None
+    r = float(np.corrcoef(x, y)[0, 1])
+    r = max(min(r, 0.999999), -0.999999)
+    z = math.atanh(r) * math.sqrt(len(x) - 3)
+    return {"r": round(r, 3), "p_value": norm_sf2(z)}

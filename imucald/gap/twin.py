@@ -1,0 +1,94 @@
+"""The digital twin and the noise model of the gap diagnosis.
+
+Fitting kernels (numerical Jacobian, weighted Levenberg-Marquardt, hat matrix and
+leave-one-out residuals), the twin (the held-out residual the noise model predicts
+for this design, by linearised re-simulation), and the noise model itself
+(disturbed-pose flags; the coloured-noise inflation is the calibration's own,
+calib.noise.colour_inflation).
+"""
+from __future__ import annotations
+
+
+import numpy as np
+
+
+__all__ = ["numjac", "lm_weighted", "hat_diag", "heldout", "twin_rms", "flag_disturbed"]
+
+
+def numjac(fun, z, eps=None):
+    z = np.asarray(z, float)
+    r0 = fun(z)
+    J = np.zeros((len(r0), len(z)))
+    for k in range(len(z)):
+        h = (eps[k] if eps is not None else 1e-6 * max(1.0, abs(z[k])))
+        d = np.zeros_like(z)
+        d[k] = h
+        J[:, k] = (fun(z + d) - fun(z - d)) / (2 * h)
+    return r0, J
+
+
+def lm_weighted(fun, z0, w, iters=60):
+    """Weighted least squares min sum w r^2 with numerical Jacobians (small problems)."""
+    z = np.asarray(z0, float).copy()
+    r = fun(z)
+    f = float(np.sum(w * r * r))
+    mu = 1e-3
+    for _ in range(iters):
+        r, J = numjac(fun, z)
+        A = J.T @ (J * w[:, None])
+        g = J.T @ (w * r)
+        dA = np.diag(A).copy()
+        dA[dA <= 0] = 1e-12
+        improved = False
+        for _ in range(12):
+            try:
+                step = -np.linalg.solve(A + mu * np.diag(dA), g)
+            except np.linalg.LinAlgError:
+                step = -np.linalg.lstsq(A + mu * np.diag(dA), g, rcond=None)[0]
+            zn = z + step
+            rn = fun(zn)
+            fn = float(np.sum(w * rn * rn))
+            if fn < f:
+                rel = (f - fn) / max(f, 1e-300)
+                z, r, f = zn, rn, fn
+                mu = max(mu / 3, 1e-12)
+                improved = True
+                break
+            mu *= 4
+        if not improved or rel < 1e-12:
+            break
+    r, J = numjac(fun, z)
+    return z, r, J
+
+
+def hat_diag(J, w):
+    A = J.T @ (J * w[:, None])
+    Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+    return np.einsum("nk,kl,nl->n", J, Ai, J) * w, Ai
+
+
+def heldout(r, J, w):
+    h, _ = hat_diag(J, w)
+    return r / np.maximum(1 - h, 1e-3)
+
+
+def twin_rms(J, var, w, sims, rng):
+    """Held-out RMS under the noise model for this design: M linearised re-simulations."""
+    A = J.T @ (J * w[:, None])
+    Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+    H = J @ Ai @ (J * w[:, None]).T
+    h = np.diag(H)
+    n = rng.normal(size=(sims, len(var))) * np.sqrt(var)
+    r = n - n @ H.T
+    e = r / np.maximum(1 - h, 1e-3)
+    return np.sqrt(np.mean(e * e, axis=1))
+
+
+# --- noise -----------------------------------------------------------------------------------
+
+def flag_disturbed(s2: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Poses whose within-pose variance is far above the robust level (hand moved)."""
+    med = np.median(s2)
+    # chi-square(n-1)/(n-1) upper 99.9 % point ~ 1 + 3.1 sqrt(2/(n-1)); times 1.5 for colour
+    lim = med * 1.5 * (1 + 3.1 * np.sqrt(2.0 / np.maximum(n - 1, 1)))
+    return s2 > lim

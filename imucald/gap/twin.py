@@ -8,9 +8,7 @@ calib.noise.colour_inflation).
 """
 from __future__ import annotations
 
-
 import numpy as np
-
 
 __all__ = ["numjac", "lm_weighted", "hat_diag", "heldout", "twin_rms", "flag_disturbed"]
 

@@ -16,7 +16,7 @@ import time
 
 from _common import np
 
-from imucald.daemon.calibrator import Applied
+from imucald.calibration import Calibration, SensorCal
 from imucald.daemon.config import DEFAULTS
 from imucald.daemon.outputs import SocketSink
 from imucald.daemon.pipeline import Pipeline
@@ -63,8 +63,9 @@ def cost(board, rate, seconds, fmt, tmp):
     cfg["output"]["format"] = fmt
     bs = batches(board, rate, seconds)
     pipe = Pipeline(cfg, board, rate, board in ("9dof", "mpu9250"))
-    pipe.applied = Applied(1, accel_theta=np.array([0.01, 0, 0, 1.01, 0.99, 1, 0.02, -0.01, 0.03]),
-                           gyro_bias_dps=np.array([1.0, -2, 0.5]))
+    pipe.applied = Calibration(board, id=1, accel=SensorCal.accel(
+        "triangular9", [0.01, 0, 0, 1.01, 0.99, 1, 0.02, -0.01, 0.03]),
+        gyro=SensorCal("gyro", "bias", {"bias_dps": np.array([1.0, -2, 0.5])}))
     path = os.path.join(tmp, f"b-{board}-{fmt}.sock")
     sink = SocketSink(path, fmt, board, max_buffer=1 << 30)
     stop = threading.Event()

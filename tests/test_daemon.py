@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 from imucald.daemon.config import ConfigError, load_config
+from imucald.calibration import Calibration, SensorCal
+from imucald.daemon.pipeline import POSE_COLUMNS
 from imucald.daemon.state import load_calibration, save_calibration
 
 PY = sys.executable
@@ -134,7 +136,7 @@ def test_end_to_end_calibrates_and_streams_every_sample(tmp_path, board, speed, 
     assert len(still) > 500
     # corrected still samples have |a| = 1 g to the per-sample noise (~3-4 mg rms here)
     assert abs(np.median(np.linalg.norm(still, axis=1)) - 1) < 1e-3
-    doc = load_calibration(str(st))
+    doc = load_calibration(str(st)).to_dict()
     assert doc["accel"]["params"].keys() == {"alpha", "scale", "bias_g"}
     assert doc["units"]["accel"] == "g" and doc["temperature_range_c"][0] <= doc["temperature_range_c"][1]
     if board == "9dof":
@@ -144,7 +146,7 @@ def test_end_to_end_calibrates_and_streams_every_sample(tmp_path, board, speed, 
 def test_kill9_during_state_writes_keeps_a_readable_calibration(tmp_path):
     import multiprocessing as mp
     d = str(tmp_path)
-    save_calibration(d, {"id": 0, "accel": {"theta": [0] * 9}}, history=0)
+    save_calibration(d, _cal(0), history=0)
     ctx = mp.get_context("fork")
     last = 0
     rnd = random.Random(5)
@@ -156,8 +158,8 @@ def test_kill9_during_state_writes_keeps_a_readable_calibration(tmp_path):
         proc.join()
         doc = load_calibration(d)
         assert doc is not None, "the calibration became unreadable"
-        assert doc["id"] >= last and len(doc["accel"]["theta"]) == 9
-        last = doc["id"]
+        assert doc.id >= last and len(doc.accel.theta) == 9
+        last = doc.id
         leftovers = [f for f in os.listdir(d) if "corrupt" in f]
         assert not leftovers
     assert last > 0
@@ -166,9 +168,13 @@ def test_kill9_during_state_writes_keeps_a_readable_calibration(tmp_path):
 def _writer(d, start):
     i = start
     while True:
-        save_calibration(d, {"id": i, "accel": {"theta": list(np.arange(9) * i)},
-                             "poses_used": {"rows": np.zeros((60, 7)).tolist()}}, history=0)
+        save_calibration(d, _cal(i, np.zeros((60, 7)).tolist()), history=0)
         i += 1
+
+
+def _cal(i, rows=None):
+    return Calibration("mpu6050", id=i, accel=SensorCal.accel("triangular9", np.arange(9) * i),
+                       poses_used=None if rows is None else {"columns": POSE_COLUMNS, "rows": rows})
 
 
 def test_corrupt_state_is_set_aside_not_fatal(tmp_path):

@@ -1,4 +1,4 @@
-"""High-level calibration: pose means in, a reported :class:`Calibration` out.
+"""High-level calibration: pose means in, a reported :class:`FitResult` out.
 
 Everything the daemon and the command line report comes from here: the
 parameters under unit-carrying names, their standard errors and CRLB, rank and
@@ -17,12 +17,12 @@ from .models import MagModel, NormModel, get_model, gyro_bias_eq6_fitness, mag_r
 from .optim import OptimResult, Problem, _lm_converge, lm, run_method, sphere_fit
 from .uncertainty import Uncertainty, crlb, determination, map_covariance, residual_variance
 
-__all__ = ["Calibration", "fit_norm", "heldout_residuals", "fit_gyro_bias",
+__all__ = ["FitResult", "fit_norm", "heldout_residuals", "fit_gyro_bias",
            "select_model", "accel_prior", "AUTO_MODELS"]
 
 
 @dataclass
-class Calibration:
+class FitResult:
     sensor: str
     model: str
     method: str
@@ -199,7 +199,7 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
              pose_cov: Optional[np.ndarray] = None, target: float = 1.0, rng=None,
              bounds: Optional[Tuple[np.ndarray, np.ndarray]] = None, heldout: bool = True,
              chip: Optional[str] = None, noise_inflation=None, prior: bool = True,
-             **method_kw) -> Calibration:
+             **method_kw) -> FitResult:
     """Fit a norm model to pose means raw (N, 3) and report it.
 
     pose_cov: covariance of each pose mean (N, 3, 3) from within-pose scatter; each
@@ -331,7 +331,7 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
         _, _, sd_cal = path_error([x[None] for x in model.forward(theta, raw)], 10.0, 20.0)
         extra["path_error_20s_std_m"] = {"raw": float(sd_raw[-1]), "calibrated": float(sd_cal[-1])}
     fitness = float(model.fitness(theta, raw, target))
-    return Calibration(model.sensor, model.name, res.method, N, theta, params, stderr,
+    return FitResult(model.sensor, model.name, res.method, N, theta, params, stderr,
                        fitness, rr, hr, unc.std, unc, noise, source, res.iterations,
                        res.nfev, time.perf_counter() - t_start,
                        {"optim": {k: v for k, v in res.info.items() if k != "iterations"}, **extra})
@@ -350,7 +350,7 @@ def _mag_bounds(model: MagModel, raw: np.ndarray, target: float):
 
 def fit_gyro_bias(pose_means_dps: np.ndarray, counts: np.ndarray,
                   pose_cov: Optional[np.ndarray] = None, method: str = "mean",
-                  samples_dps: Optional[np.ndarray] = None, rng=None) -> Calibration:
+                  samples_dps: Optional[np.ndarray] = None, rng=None) -> FitResult:
     """Gyro bias from stationary poses: the sample-weighted mean (default), or paper
     002's eq. 6 fitness minimised by the GA ('eq6', needs the raw still samples)."""
     t0 = time.perf_counter()
@@ -385,7 +385,7 @@ def fit_gyro_bias(pose_means_dps: np.ndarray, counts: np.ndarray,
         z, f, g = _ga_core(_P(), lo, hi, 1, rng, pop=60, max_gen=80, stall_gen=20)
         b, fitness, it = z[0], float(f[0]), int(g[0])
     mk = lambda v: [float(x) for x in v]
-    return Calibration("gyro", "bias", method, N, b.copy(), {"bias_dps": mk(b)},
+    return FitResult("gyro", "bias", method, N, b.copy(), {"bias_dps": mk(b)},
                        {"bias_dps": mk(sd)}, fitness, rms(m - b), float("nan"), sd, None,
                        float(np.sqrt(np.median(np.einsum("nii->n", pose_cov) / 3)))
                        if pose_cov is not None else float("nan"),

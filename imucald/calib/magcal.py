@@ -27,7 +27,7 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
-from .fit import Calibration, fit_norm
+from .fit import FitResult, fit_norm
 from .models import MagModel, get_model
 from .optim import sphere_fit
 from .uncertainty import residual_variance
@@ -188,7 +188,7 @@ def rel_std(norms: np.ndarray) -> float:
     return float(np.std(n) / np.mean(n))
 
 
-def _fit(model, points, noise, method, rng, heldout=True) -> Calibration:
+def _fit(model, points, noise, method, rng, heldout=True) -> FitResult:
     cov = np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (len(points), 3, 3))
     return fit_norm(points, model, method, pose_cov=cov, rng=rng, heldout=heldout)
 
@@ -199,7 +199,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     """Hard + soft iron from a rotation time series ``mag`` (N, 3), in time order.
 
     Returns a dict: ``determined`` (False for a one-plane swing, with ``flat``
-    describing the plane), ``calibration`` (a :class:`Calibration` fitted on the
+    describing the plane), ``calibration`` (a :class:`FitResult` fitted on the
     whole thinned cloud), ``coverage``, ``noise`` (per-axis, sensor units),
     ``norm_rel_std`` (corrected norm over every sample), ``predicted_rel_std``
     (what the noise alone would give), and ``heldout``: the calibration fitted on

@@ -71,14 +71,12 @@ def cmd_replay(args) -> int:
     if rec.acc is None:
         raise UserError(f"{args.recording}: no accelerometer columns (ax, ay, az)")
     n = len(rec)
-    gyro = rec.gyro if rec.gyro is not None else np.zeros((n, 3))
-    temp = rec.temp if rec.temp is not None else np.full(n, np.nan)
+    gyro, temp = rec.gyro, rec.temp          # None (omitted from the stream) when absent
     fresh = None
     if rec.mag is not None:
         fresh = np.ones(n, bool)
         fresh[1:] = np.any(np.diff(rec.mag, axis=0) != 0, axis=1)
-    pipe = Pipeline(cfg, rec.meta.get("board", "unknown"), rec.rate_hz, rec.mag is not None,
-                    chips={"board": rec.meta.get("board", "unknown"), "source": args.recording})
+    pipe = Pipeline(cfg, rec.meta.get("board", "unknown"), rec.rate_hz, rec.mag is not None)
     out = sys.stdout.buffer
     from ..daemon.outputs import banner
     out.write(banner(cfg["output"]["format"], pipe.board))
@@ -86,13 +84,14 @@ def cmd_replay(args) -> int:
     seq = np.arange(n, dtype=np.int64)
     for i in range(0, n, step):
         sl = slice(i, min(n, i + step))
-        b = SampleBatch(rec.t[sl], seq[sl], rec.acc[sl], gyro[sl], temp[sl],
+        b = SampleBatch(rec.t[sl], seq[sl], rec.acc[sl], None if gyro is None else gyro[sl],
+                        None if temp is None else temp[sl],
                         None if rec.mag is None else rec.mag[sl], None if fresh is None else fresh[sl])
         out.write(pipe.process(b))
     out.flush()
-    if args.state_dir and pipe.cal_doc is not None:
+    if args.state_dir and pipe.applied.id:
         os.makedirs(args.state_dir, exist_ok=True)
-        p = save_calibration(args.state_dir, pipe.cal_doc, history=0)
+        p = save_calibration(args.state_dir, pipe.applied, history=0)
         logging.getLogger("imucald").info("calibration #%d saved to %s", pipe.applied.id, p)
     elif args.state_dir:
         logging.getLogger("imucald").info("no calibration was reached (%d poses; %s)",

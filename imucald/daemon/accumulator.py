@@ -121,8 +121,16 @@ def _merge(a: StaticInterval, b: StaticInterval) -> StaticInterval:
     sc = wa * a.acc_sample_cov + wb * b.acc_sample_cov
     mix = lambda x, y: None if x is None or y is None else wa * x + wb * y
     return StaticInterval(m, sc / n, sc, n, min(a.t0, b.t0), max(a.t1, b.t1),
-                          float(np.nansum([wa * a.temp, wb * b.temp])),
+                          _mean_temp(a.temp, b.temp, wa, wb),
                           mix(a.gyro, b.gyro),
                           None if a.gyro_cov is None or b.gyro_cov is None else
                           (a.gyro_cov * a.n ** 2 + b.gyro_cov * b.n ** 2) / n ** 2,
                           mix(a.mag, b.mag) if a.mag is not None and b.mag is not None else (b.mag if b.mag is not None else a.mag))
+
+
+def _mean_temp(ta: float, tb: float, wa: float, wb: float) -> float:
+    """Weighted mean temperature, degC; NaN (unknown) stays unknown, and a known one
+    is not pulled towards 0 by an unknown one."""
+    if np.isfinite(ta) and np.isfinite(tb):
+        return float(wa * ta + wb * tb)
+    return float(ta) if np.isfinite(ta) else float(tb)

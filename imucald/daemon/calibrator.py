@@ -1,71 +1,44 @@
-"""Background calibration: a pure job function, the applied calibration, and the
-magnetometer's sample reservoir.
+"""Background calibration: a pure job function and the acceptance gate.
 
-:func:`calibration_job` is pure (arrays in, a result dict out), so the daemon
-runs it in a worker process and replay runs it inline.  Every candidate is
-validated on held-out poses (every k-th pose in time order is withheld from the
-fit) against the calibration currently applied; it is accepted only if its
-held-out residual is smaller.  A worse calibration is never applied.
+:func:`calibration_job` is pure (arrays and the calibration in force in, a
+candidate :class:`~imucald.calibration.Calibration` and a decision per sensor
+out), so the daemon runs it in a worker process and replay runs it inline.
+Every candidate part is validated on held-out poses (every k-th pose in time
+order is withheld from the fit) against the calibration currently applied, and
+:func:`gate` decides; a part that validates worse is never applied.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, NamedTuple
 
 import numpy as np
 
 from ..calib.fit import fit_norm
 from ..calib.magcal import SphereReservoir as MagReservoir
 from ..calib.magcal import coverage, flat_axis
-from ..calib.models import MagModel, Triangular9, mag_report
+from ..calib.models import MagModel, Triangular9
 from ..calib.uncertainty import residual_variance
+from ..calibration import Calibration, SensorCal
 
-__all__ = ["Applied", "calibration_job", "MagReservoir", "correct_accel"]
+__all__ = ["calibration_job", "gate", "JobResult", "MagReservoir"]
 
 _T9 = Triangular9()
 _MAG = MagModel("sym")
 
 
-@dataclass
-class Applied:
-    """The calibration in force.  id 0 = none (raw, nominally scaled data)."""
-
-    id: int = 0
-    accel_theta: Optional[np.ndarray] = None        #: triangular9 parameters
-    gyro_bias_dps: Optional[np.ndarray] = None
-    mag_theta: Optional[np.ndarray] = None          #: mag_sym unit-sphere parameters
-    mag_field_gauss: Optional[float] = None
-    info: Dict[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self):
-        self._acc_M = self._acc_b = self._mag_W = self._mag_v = None
-        self.refresh()
-
-    def refresh(self) -> None:
-        if self.accel_theta is not None:
-            self._acc_M = _T9.matrix(self.accel_theta)
-            self._acc_b = self.accel_theta[6:9]
-        if self.mag_theta is not None:
-            p, _ = mag_report(_MAG, self.mag_theta)
-            W = np.zeros((3, 3))
-            for k, (i, j) in enumerate([(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]):
-                W[i, j] = W[j, i] = p["soft_iron"][k]
-            self._mag_W, self._mag_v = W, np.array(p["hard_iron_gauss"])
-            self.mag_field_gauss = p["field_gauss"]
-
-    def accel(self, raw: np.ndarray) -> np.ndarray:
-        return raw if self._acc_M is None else (raw - self._acc_b) @ self._acc_M.T
-
-    def gyro(self, raw: np.ndarray) -> np.ndarray:
-        return raw if self.gyro_bias_dps is None else raw - self.gyro_bias_dps
-
-    def mag(self, raw: np.ndarray) -> np.ndarray:
-        return raw if self._mag_W is None else (raw - self._mag_v) @ self._mag_W.T
+class JobResult(NamedTuple):
+    candidate: Calibration          #: the parts fitted (quality: held-out before/after)
+    accept: Dict[str, bool]         #: sensor -> the gate's decision
+    wall_s: float
+    #: mag_flat: the plane of a one-plane swing (no magnetometer part then)
+    notes: Dict[str, Any]
 
 
-def correct_accel(theta: Optional[np.ndarray], raw: np.ndarray) -> np.ndarray:
-    return raw if theta is None else _T9.forward(theta, raw)
+def gate(sensor: str, heldout_new: float, heldout_current: float) -> bool:
+    """The acceptance gate: a candidate part replaces the current one only if its
+    held-out residual RMS is smaller."""
+    return bool(heldout_new < heldout_current)
 
 
 def _holdout(n: int, frac: float) -> np.ndarray:
@@ -80,27 +53,28 @@ def _rms(x) -> float:
     return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
 
 
-def calibration_job(job: Dict[str, Any]) -> Dict[str, Any]:
+def calibration_job(job: Dict[str, Any]) -> JobResult:
     """Fit, validate and decide.  Pure: no I/O, no globals.
 
     job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3), t0 (N,),
-    n (N,), temp (N,), gyro (N,3) or None, mag_points (M,3) or None, mag_noise (3,) per-sample
-    noise or None, current: {accel_theta, gyro_bias_dps, mag_theta} (None = raw), method,
-    holdout_fraction, seed.
+    n (N,), gyro (N,3) or None, mag_points (M,3) or None, mag_noise (3,) per-sample noise or
+    None, current (the Calibration in force), method, holdout_fraction, seed.
     """
     t_start = time.perf_counter()
-    out: Dict[str, Any] = {"accel": None, "gyro": None, "mag": None}
-    cur = job.get("current") or {}
+    cur: Calibration = job.get("current") or Calibration()
+    parts: Dict[str, SensorCal] = {}
+    accept: Dict[str, bool] = {}
+    notes: Dict[str, Any]
     if job.get("acc") is not None:
-        _accel_gyro(job, cur, out)
+        _accel_gyro(job, cur, parts, accept)
     mp = job.get("mag_points")
     if mp is not None and len(mp) >= 30:
-        out["mag"] = _mag(np.asarray(mp, float), job, cur)
-    out["wall_s"] = time.perf_counter() - t_start
-    return out
+        _mag(np.asarray(mp, float), job, cur, parts, accept, notes)
+    candidate = Calibration(cur.board, dict(cur.chips), **parts)
+    return JobResult(candidate, accept, time.perf_counter() - t_start, notes)
 
 
-def _accel_gyro(job: Dict[str, Any], cur: Dict[str, Any], out: Dict[str, Any]) -> None:
+def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict[str, bool]) -> None:
     acc = np.asarray(job["acc"], float)
     order = np.argsort(job["t0"])
     ho = np.zeros(len(acc), bool)
@@ -109,62 +83,58 @@ def _accel_gyro(job: Dict[str, Any], cur: Dict[str, Any], out: Dict[str, Any]) -
     # --- accelerometer ---
     cal = fit_norm(acc[tr], "triangular9", job["method"], pose_cov=job["acc_cov"][tr],
                    rng=job.get("seed"), heldout=True)
-    r_new = 1 - np.linalg.norm(_T9.forward(cal.theta, acc[ho]), axis=1)
-    cth = cur.get("accel_theta")
-    r_cur = 1 - np.linalg.norm(correct_accel(cth, acc[ho]), axis=1)
+    e_new = _rms(1 - np.linalg.norm(_T9.forward(cal.theta, acc[ho]), axis=1))
+    e_cur = _rms(1 - np.linalg.norm(cur.apply_accel(acc[ho]), axis=1))
     # CRLB-predicted held-out residual: pose noise plus the parameters' uncertainty
     v = np.median(np.einsum("nii->n", job["acc_cov"]) / 3)
     var = residual_variance(_T9, cal.theta, acc[ho], np.full(ho.sum(), v))
     _, J = _T9.jacobian(cal.theta, acc[ho])
     pred = float(np.sqrt(np.mean(var + np.einsum("nk,kl,nl->n", J, cal.uncertainty.cov, J))))
-    out["accel"] = {
-        "theta": cal.theta.tolist(), "params": cal.params, "stderr": cal.stderr,
-        "crlb_std": [None if not np.isfinite(s) else float(s) for s in cal.crlb_std],
-        "fitness": float(cal.fitness), "rms_g": float(cal.rms), "loo_rms_g": float(cal.heldout_rms),
-        "heldout_rms_g": _rms(r_new), "heldout_rms_before_g": _rms(r_cur),
-        "predicted_heldout_rms_g": pred, "train_poses": int(tr.sum()), "heldout_poses": int(ho.sum()),
-        "noise_g": float(cal.noise), "rank": int(cal.uncertainty.rank),
-        "accept": bool(_rms(r_new) < _rms(r_cur)),
-    }
+    parts["accel"] = SensorCal.from_fit(cal, {
+        "fitness": float(cal.fitness), "heldout_rms_g": e_new, "heldout_rms_before_g": e_cur,
+        "predicted_heldout_rms_g": pred, "poses": int(len(acc)), "heldout_poses": int(ho.sum())})
+    accept["accel"] = gate("accel", e_new, e_cur)
     # --- gyro bias: weighted mean of the still poses, validated the same way ---
     g = job.get("gyro")
     if g is not None:
         g = np.asarray(g, float)
         w = np.asarray(job["n"], float)
         b = (g[tr] * w[tr, None]).sum(0) / w[tr].sum()
-        bc = cur.get("gyro_bias_dps")
         e_new = _rms(g[ho] - b)
-        e_cur = _rms(g[ho] - (0 if bc is None else np.asarray(bc)))
+        e_cur = _rms(cur.apply_gyro(g[ho]))
         bfull = (g * w[:, None]).sum(0) / w.sum()
         sd = np.sqrt(((g - bfull) ** 2 * w[:, None]).sum(0) / w.sum() / max(len(g) - 1, 1))
-        out["gyro"] = {"bias_dps": b.tolist(), "stderr_dps": sd.tolist(),
-                       "heldout_rms_dps": e_new, "heldout_rms_before_dps": e_cur,
-                       "accept": bool(e_new < e_cur)}
+        parts["gyro"] = SensorCal("gyro", "bias", {"bias_dps": b}, {"bias_dps": sd}, method="mean",
+                                  quality={"heldout_rms_dps": e_new, "heldout_rms_before_dps": e_cur,
+                                           "poses": int(len(g))})
+        accept["gyro"] = gate("gyro", e_new, e_cur)
 
 
-def _mag(mp: np.ndarray, job: Dict[str, Any], cur: Dict[str, Any]) -> Dict[str, Any]:
+def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
     """The rotation-cloud calibration (calib.magcal), validated on every k-th point.
 
-    A cloud from a one-plane swing is reported (the undetermined axis) and never
-    applied."""
+    A cloud from a one-plane swing is reported (notes["mag_flat"]: the undetermined
+    axis) and never applied."""
     noise = job.get("mag_noise")
     cov = None
     if noise is not None and np.all(np.isfinite(noise)) and np.all(np.asarray(noise) > 0):
         flat = flat_axis(mp, np.asarray(noise, float))
         if flat is not None:
-            return {"determined": False, "flat": flat, "points": int(len(mp)), "accept": False}
+            notes["mag_flat"] = flat
+            return
         cov = np.diag(np.asarray(noise, float) ** 2)
     mho = _holdout(len(mp), job["holdout_fraction"])
     mc = fit_norm(mp[~mho], "mag_sym", "lm", rng=job.get("seed"), heldout=False,
                   pose_cov=None if cov is None else np.broadcast_to(cov, (int((~mho).sum()), 3, 3)))
-    hn = np.linalg.norm(_MAG.forward(mc.theta, mp[mho]), axis=1)
-    e_new = _rms(hn - 1)
-    mth = cur.get("mag_theta")
-    if mth is None:
+    e_new = _rms(np.linalg.norm(_MAG.forward(mc.theta, mp[mho]), axis=1) - 1)
+    if cur.mag is None:
         hc = np.linalg.norm(mp[mho], axis=1)
         e_cur = _rms(hc / np.median(np.linalg.norm(mp, axis=1)) - 1)
     else:
-        e_cur = _rms(np.linalg.norm(_MAG.forward(np.asarray(mth), mp[mho]), axis=1) - 1)
-    return {"determined": True, "theta": mc.theta.tolist(), "params": mc.params, "stderr": mc.stderr,
-            "points": int(len(mp)), "coverage": coverage(_MAG, mc.theta, mp),
-            "heldout_rel_rms": e_new, "heldout_rel_rms_before": e_cur, "accept": bool(e_new < e_cur)}
+        hc = np.linalg.norm(cur.apply_mag(mp[mho]), axis=1)
+        e_cur = _rms(hc / float(cur.mag.params["field_gauss"]) - 1)
+    cv = coverage(_MAG, mc.theta, mp)
+    parts["mag"] = SensorCal.from_fit(mc, {
+        "points": int(len(mp)), "heldout_rel_rms": e_new, "heldout_rel_rms_before": e_cur,
+        "coverage_fraction": cv["fraction"], "coverage_min_eigenvalue": cv["direction_eigenvalues"][-1]})
+    accept["mag"] = gate("mag", e_new, e_cur)

@@ -4,9 +4,11 @@ NDJSON follows gpsd's habits: one object per line with a ``class`` field, a
 ``VERSION`` banner when a client connects, fields omitted rather than null.
 
 ``class: "IMU"`` (one per sample):
-  seq (int), t (s since start), acc_g [x, y, z], gyro_dps [x, y, z],
-  mag_gauss [x, y, z] (boards with a magnetometer), temp_c, still (bool),
-  cal (calibration id; 0 = uncalibrated, nominally scaled data).
+  seq (int), t (s since start), acc_g [x, y, z], gyro_dps [x, y, z] (omitted for
+  an accelerometer-only recording), mag_gauss [x, y, z] (boards with a
+  magnetometer), temp_c (omitted when unknown), still (bool), cal (calibration
+  id; 0 = uncalibrated, nominally scaled data).  A value that is not known is
+  left out, never written as NaN or null.
 ``class: "GAP"``: seq (first missing), missing (count).
 ``class: "CAL"``: id, accel/gyro/mag held-out residuals before and after.
 
@@ -69,47 +71,56 @@ def event(cls: str, fmt: str, **fields) -> bytes:
     return (("# " + line) if fmt == "csv" else line).encode()
 
 
-def _f(v: float) -> str:
-    return f"{v:.6g}"
+def _vec(name: str, V, ok, i: int) -> str:
+    """',"name":[x,y,z]' for a finite row, '' otherwise (fields are omitted, never NaN)."""
+    if V is None or not ok[i]:
+        return ""
+    v = V[i]
+    return f',"{name}":[{v[0]},{v[1]},{v[2]}]'
 
 
 def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int) -> bytes:
-    """Encode a batch of corrected samples (arrays with n rows)."""
+    """Encode a batch of corrected samples (arrays with n rows; gyro, temp and mag may
+    be None when the board or recording has none).  NDJSON omits a field whose value is
+    unknown (no gyro, NaN temperature, no fresh magnetometer reading, a non-finite
+    value); CSV leaves its cells empty; binary carries NaN."""
     n = len(seq)
     if n == 0:
         return b""
     if fmt == "binary":
-        m = mag if mag is not None else np.full((n, 3), np.nan)
+        nan3 = np.full((n, 3), np.nan)
+        m = mag if mag is not None else nan3
         flags = still.astype(np.uint8) | (np.uint8(2) if mag is not None else np.uint8(0))
         rec = np.zeros(n, dtype=np.dtype([("seq", "<u8"), ("t", "<f8"), ("cal", "<u4"), ("flags", "u1"),
                                           ("pad", "u1", 3), ("acc", "<f4", 3), ("gyro", "<f4", 3),
                                           ("temp", "<f4"), ("mag", "<f4", 3)]))
         rec["seq"], rec["t"], rec["cal"], rec["flags"] = seq, t, cal_id, flags
-        rec["acc"], rec["gyro"], rec["temp"], rec["mag"] = acc, gyro, temp, m
+        rec["acc"], rec["gyro"] = acc, gyro if gyro is not None else nan3
+        rec["temp"], rec["mag"] = temp if temp is not None else np.nan, m
         return rec.tobytes()
+    fin = lambda x: None if x is None else np.all(np.isfinite(x), axis=1).tolist()
+    okA, okG, okM = fin(acc), fin(gyro), fin(mag)
+    okT = None if temp is None else np.isfinite(temp).tolist()
     A = np.round(acc, 6).tolist()
-    G = np.round(gyro, 5).tolist()
-    T = np.round(temp, 3).tolist()
-    M = np.round(mag, 6).tolist() if mag is not None else None
+    G = None if gyro is None else np.round(gyro, 5).tolist()
+    T = None if temp is None else np.round(temp, 3).tolist()
+    M = None if mag is None else np.round(mag, 6).tolist()
     S = still.tolist()
     Q = seq.tolist()
     TT = np.round(t, 6).tolist()
     out = []
     if fmt == "csv":
+        cell = lambda V, ok, i: V[i] if V is not None and ok[i] else ("", "", "")
         for i in range(n):
-            m = M[i] if M is not None else ("", "", "")
-            out.append(f"{Q[i]},{TT[i]},{A[i][0]},{A[i][1]},{A[i][2]},{G[i][0]},{G[i][1]},{G[i][2]},"
-                       f"{m[0]},{m[1]},{m[2]},{T[i]},{int(S[i])},{cal_id}\n")
+            a, g, m = cell(A, okA, i), cell(G, okG, i), cell(M, okM, i)
+            tc = T[i] if T is not None and okT[i] else ""
+            out.append(f"{Q[i]},{TT[i]},{a[0]},{a[1]},{a[2]},{g[0]},{g[1]},{g[2]},"
+                       f"{m[0]},{m[1]},{m[2]},{tc},{int(S[i])},{cal_id}\n")
     else:
-        # absent values (NaN: no accelerometer on a gy273 board, no temperature) are
-        # omitted, never written as null or NaN (gpsd convention)
         for i in range(n):
-            a, g = A[i], G[i]
-            aa = f',"acc_g":[{a[0]},{a[1]},{a[2]}]' if a[0] == a[0] else ""
-            gg = f',"gyro_dps":[{g[0]},{g[1]},{g[2]}]' if g[0] == g[0] else ""
-            mm = f',"mag_gauss":[{M[i][0]},{M[i][1]},{M[i][2]}]' if M is not None and M[i][0] == M[i][0] else ""
-            tt = f',"temp_c":{T[i]}' if T[i] == T[i] else ""
-            out.append(f'{{"class":"IMU","seq":{Q[i]},"t":{TT[i]}{aa}{gg}{mm}{tt},'
+            tc = f',"temp_c":{T[i]}' if T is not None and okT[i] else ""
+            out.append(f'{{"class":"IMU","seq":{Q[i]},"t":{TT[i]}{_vec("acc_g", A, okA, i)}'
+                       f'{_vec("gyro_dps", G, okG, i)}{_vec("mag_gauss", M, okM, i)}{tc},'
                        f'"still":{"true" if S[i] else "false"},"cal":{cal_id}}}\n')
     return "".join(out).encode()
 

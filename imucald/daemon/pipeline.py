@@ -16,16 +16,19 @@ from typing import Any, Callable, Deque, Dict, List, Optional
 
 import numpy as np
 
+from ..calibration import Calibration
 from .accumulator import PoseAccumulator
-from .calibrator import Applied, MagReservoir, calibration_job
+from .calibrator import JobResult, MagReservoir, calibration_job
 from .outputs import encode_samples, event
 from .stillness import StillnessDetector
 
-__all__ = ["Pipeline", "InlineExecutor", "applied_from_doc"]
+__all__ = ["Pipeline", "InlineExecutor", "POSE_COLUMNS"]
 
 log = logging.getLogger("imucald")
 #: fewest poses a forced calibration may use (9 parameters plus one degree of freedom)
 MIN_FIT_POSES = 10
+#: columns of a calibration's ``poses_used`` table
+POSE_COLUMNS = ["ax_g", "ay_g", "az_g", "n", "temp_c", "t0_s", "t1_s"]
 #: fresh magnetometer readings kept for the per-sample noise (second differences)
 MAG_NOISE_SAMPLES = 2000
 #: boards without an accelerometer: fewest reservoir points for a fit, and seconds of new
@@ -46,17 +49,6 @@ class InlineExecutor(Executor):
         return f
 
 
-def applied_from_doc(doc: Dict[str, Any]) -> Applied:
-    a = doc.get("accel") or {}
-    g = doc.get("gyro") or {}
-    m = doc.get("mag") or {}
-    return Applied(id=int(doc.get("id", 0)),
-                   accel_theta=np.array(a["theta"], float) if a.get("theta") else None,
-                   gyro_bias_dps=np.array(g["params"]["bias_dps"], float) if g.get("params") else None,
-                   mag_theta=np.array(m["theta"], float) if m.get("theta") else None,
-                   info={"created": doc.get("created")})
-
-
 class Pipeline:
     def __init__(self, cfg: Dict[str, Dict[str, Any]], board: str, rate_hz: float, has_mag: bool,
                  executor: Optional[Executor] = None, persist: Optional[Callable] = None,
@@ -71,11 +63,12 @@ class Pipeline:
         self.det = StillnessDetector(rate_hz, st["window_s"], st["k"], st["min_still_s"],
                                      st["max_pose_s"], st["trim_s"])
         self.acc = PoseAccumulator(cfg["poses"]["merge_angle_deg"], cfg["poses"]["max_poses"])
-        self.applied = Applied()
+        #: the calibration in force (id 0, no parts: uncalibrated)
+        self.applied = Calibration(board, dict(chips or {}))
+        self.applied_t_s: Optional[float] = None      #: stream time it was applied at
         self.reservoir = MagReservoir() if has_mag else None
         self.executor = executor or InlineExecutor()
         self.persist = persist or (lambda kind, obj: None)
-        self.chips = chips or {}
         self.fmt = cfg["output"]["format"]
         self.pending: Optional[Future] = None
         self.next_cal_added = 0
@@ -85,7 +78,6 @@ class Pipeline:
         # bounded: a daemon runs for months and adds an event per pose
         self.history: Deque[Dict[str, Any]] = deque(maxlen=100)
         self.events: Deque[str] = deque(maxlen=100)     # human log lines for status
-        self.cal_doc: Optional[Dict[str, Any]] = None
         self.t_last = 0.0
         self.temp_range = [np.inf, -np.inf]
 
@@ -106,16 +98,13 @@ class Pipeline:
                 self.reservoir.add(b.mag[b.mag_fresh])
                 self.mag_recent.extend(b.mag[b.mag_fresh])
             ap = self.applied
-            mag = ap.mag(b.mag) if b.mag is not None else None
             dec = self.cfg["output"]["decimate"]
-            if dec > 1:
-                keep = (b.seq % dec) == 0
-                out.append(encode_samples(self.fmt, b.seq[keep], b.t[keep], ap.accel(b.acc[keep]),
-                                          ap.gyro(b.gyro[keep]), b.temp[keep],
-                                          None if mag is None else mag[keep], still[keep], ap.id))
-            else:
-                out.append(encode_samples(self.fmt, b.seq, b.t, ap.accel(b.acc), ap.gyro(b.gyro),
-                                          b.temp, mag, still, ap.id))
+            keep = (b.seq % dec) == 0 if dec > 1 else slice(None)
+            temp = None if b.temp is None else b.temp[keep]
+            gyro = None if b.gyro is None else ap.apply_gyro(b.gyro[keep], temp)
+            mag = None if b.mag is None else ap.apply_mag(b.mag[keep])
+            out.append(encode_samples(self.fmt, b.seq[keep], b.t[keep], ap.apply_accel(b.acc[keep]),
+                                      gyro, temp, mag, still[keep], ap.id))
         out.append(self.poll_calibration())
         self.maybe_calibrate()
         out.append(self.poll_calibration())
@@ -140,7 +129,8 @@ class Pipeline:
     # -- calibration ----------------------------------------------------------------------
     def ready_to_calibrate(self) -> Dict[str, Any]:
         c = self.cfg["calibration"]
-        sd = self.acc.predicted_std(self.applied.accel_theta)
+        a = self.applied.accel
+        sd = self.acc.predicted_std(a.theta if a is not None and a.model == "triangular9" else None)
         ok_n = len(self.acc) >= c["min_poses"]
         ok_u = sd is not None and bool(np.all(sd[6:9] <= c["target_bias_g"])) and \
             bool(np.all(sd[3:6] <= c["target_scale"]))
@@ -187,10 +177,9 @@ class Pipeline:
                 return
         self.force = False
         self._next_mag_seen = r.seen + int(MAG_RECAL_S * self.rate_hz)
-        ap = self.applied
         job = {"acc": None, "mag_points": r.points(), "mag_noise": noise,
                "holdout_fraction": c["holdout_fraction"], "seed": int(r.seen),
-               "current": {"mag_theta": ap.mag_theta}}
+               "current": self.applied}
         self._job_poses = self.acc.pose_set()
         msg = (f"calibrating the magnetometer in the background on {len(job['mag_points'])} "
                f"points ({r.coverage():.0%} of the sphere)")
@@ -222,12 +211,10 @@ class Pipeline:
         mag_pts = None
         if self.reservoir is not None and self.reservoir.coverage() >= c["mag_min_coverage"]:
             mag_pts = self.reservoir.points()
-        ap = self.applied
-        job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "t0": ps.t0, "n": ps.n, "temp": ps.temp,
+        job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "t0": ps.t0, "n": ps.n,
                "gyro": ps.gyro, "mag_points": mag_pts, "mag_noise": self._mag_noise(), "method": c["method"],
                "holdout_fraction": c["holdout_fraction"], "seed": int(self.acc.added),
-               "current": {"accel_theta": ap.accel_theta, "gyro_bias_dps": ap.gyro_bias_dps,
-                           "mag_theta": ap.mag_theta}}
+               "current": self.applied}
         self.force = False
         self.next_cal_added = self.acc.added + c["recalibrate_every_poses"]
         self._job_poses = ps
@@ -249,85 +236,48 @@ class Pipeline:
             return b""
         return self._apply(res, self._job_poses)
 
-    def _apply(self, res: Dict[str, Any], ps) -> bytes:
-        ap = self.applied
-        a, g, m = res.get("accel"), res.get("gyro"), res.get("mag")
-        take_a = bool(a and a["accept"])
-        take_g = bool(g and g["accept"])
-        take_m = bool(m and m["accept"])
+    def _apply(self, res: JobResult, ps) -> bytes:
+        ap, cand = self.applied, res.candidate
+        a, m = cand.accel, cand.mag
+        take = {k: v for k, v in res.accept.items() if v}
         parts = []
         if a:
-            parts.append(f"accel held-out {a['heldout_rms_g'] * 1e3:.3f} mg vs "
-                         f"{a['heldout_rms_before_g'] * 1e3:.3f} mg {'(applied)' if take_a else '(kept the current one)'}")
-        if m and not m.get("determined", True):
+            parts.append(f"accel held-out {a.quality['heldout_rms_g'] * 1e3:.3f} mg vs "
+                         f"{a.quality['heldout_rms_before_g'] * 1e3:.3f} mg "
+                         f"{'(applied)' if 'accel' in take else '(kept the current one)'}")
+        if "mag_flat" in res.notes:
             from ..calib.magcal import flat_message
-            parts.append("mag not determined: " + flat_message(m))
+            parts.append("mag not determined: " + flat_message({"flat": res.notes["mag_flat"]}))
         elif m:
-            parts.append(f"mag held-out {m['heldout_rel_rms'] * 100:.2f} % vs "
-                         f"{m['heldout_rel_rms_before'] * 100:.2f} % {'(applied)' if take_m else '(kept)'}")
-        if not (take_a or take_g or take_m):
+            parts.append(f"mag held-out {m.quality['heldout_rel_rms'] * 100:.2f} % vs "
+                         f"{m.quality['heldout_rel_rms_before'] * 100:.2f} % "
+                         f"{'(applied)' if 'mag' in take else '(kept)'}")
+        if not take:
             msg = "calibration not applied: it validates no better than the current one: " + "; ".join(parts)
             log.info(msg)
             self.events.append(msg)
-            self.history.append({"applied": False, **_summary(res)})
+            self.history.append({"applied": False, **_summary(cand)})
             return event("CAL", self.fmt, id=ap.id, applied=False)
-        new = Applied(id=ap.id + 1,
-                      accel_theta=np.array(a["theta"]) if take_a else ap.accel_theta,
-                      gyro_bias_dps=np.array(g["bias_dps"]) if take_g else ap.gyro_bias_dps,
-                      mag_theta=np.array(m["theta"]) if take_m else ap.mag_theta)
         now = datetime.now(timezone.utc).isoformat(timespec="seconds")
-        new.info = {"created": now, "created_t_s": self.t_last}
-        self.applied = new
-        doc = self.calibration_doc(res, ps, take_a, take_g, take_m, now)
-        self.cal_doc = doc
-        self.persist("calibration", doc)
+        lo, hi = self.temp_range
+        temp = ps.temp if ps.temp is not None else np.full(len(ps), np.nan)
+        rows = np.column_stack([ps.acc, ps.n, temp, ps.t0, ps.t1]).round(7).tolist()
+        new = ap.replace(id=ap.id + 1, created=now,
+                         temperature_range_c=(round(lo, 2), round(hi, 2)) if np.isfinite(lo) else None,
+                         poses_used={"columns": POSE_COLUMNS, "rows": rows} if len(ps) else None,
+                         **{k: cand.part(k) for k in take})
+        self.applied, self.applied_t_s = new, self.t_last
+        self.persist("calibration", new)
         msg = f"calibration #{new.id} applied: " + "; ".join(parts)
         log.info(msg)
         self.events.append(msg)
-        self.history.append({"applied": True, "id": new.id, **_summary(res)})
+        self.history.append({"applied": True, "id": new.id, **_summary(cand)})
+        q = a.quality if a else {}
         return event("CAL", self.fmt, id=new.id, applied=True,
-                     accel_heldout_rms_g=a["heldout_rms_g"] if a else None,
-                     accel_heldout_rms_before_g=a["heldout_rms_before_g"] if a else None,
-                     accel_predicted_heldout_rms_g=a["predicted_heldout_rms_g"] if a else None,
-                     mag_heldout_rel_rms=m.get("heldout_rel_rms") if m else None)
-
-    def calibration_doc(self, res, ps, take_a, take_g, take_m, now) -> Dict[str, Any]:
-        """The persisted calibration (YAML): parameters under the names `imucald
-        calibrate --json` uses, with units, identity, temperature range and quality."""
-        prev = self.cal_doc or {}
-        doc: Dict[str, Any] = {
-            "id": self.applied.id, "created": now, "board": self.board, "chips": self.chips,
-            "units": {"accel": "g", "gyro": "deg/s", "mag": "gauss", "temperature": "degC",
-                      "time": "s"},
-            "temperature_range_c": None if not np.isfinite(self.temp_range[0]) else
-            [round(self.temp_range[0], 2), round(self.temp_range[1], 2)],
-        }
-        a, g, m = res.get("accel"), res.get("gyro"), res.get("mag")
-        if take_a:
-            doc["accel"] = {"model": "triangular9", "method": self.cfg["calibration"]["method"],
-                            "params": a["params"], "stderr": a["stderr"], "theta": a["theta"],
-                            "fitness": a["fitness"], "rms_g": a["rms_g"], "loo_rms_g": a["loo_rms_g"],
-                            "heldout_rms_g": a["heldout_rms_g"],
-                            "heldout_rms_before_g": a["heldout_rms_before_g"],
-                            "predicted_heldout_rms_g": a["predicted_heldout_rms_g"],
-                            "crlb_std": a["crlb_std"], "poses": a["train_poses"] + a["heldout_poses"],
-                            "heldout_poses": a["heldout_poses"], "noise_g": a["noise_g"]}
-        elif "accel" in prev:
-            doc["accel"] = prev["accel"]
-        if take_g:
-            doc["gyro"] = {"model": "bias", "params": {"bias_dps": g["bias_dps"]},
-                           "stderr": {"bias_dps": g["stderr_dps"]}, "heldout_rms_dps": g["heldout_rms_dps"]}
-        elif "gyro" in prev:
-            doc["gyro"] = prev["gyro"]
-        if take_m:
-            doc["mag"] = {"model": "mag_sym", "params": m["params"], "stderr": m["stderr"],
-                          "theta": m["theta"], "points": m["points"], "coverage": m["coverage"],
-                          "heldout_rel_rms": m["heldout_rel_rms"]}
-        elif "mag" in prev:
-            doc["mag"] = prev["mag"]
-        doc["poses_used"] = {"columns": ["ax_g", "ay_g", "az_g", "n", "temp_c", "t0_s", "t1_s"],
-                             "rows": np.column_stack([ps.acc, ps.n, ps.temp, ps.t0, ps.t1]).round(7).tolist()}
-        return doc
+                     accel_heldout_rms_g=q.get("heldout_rms_g"),
+                     accel_heldout_rms_before_g=q.get("heldout_rms_before_g"),
+                     accel_predicted_heldout_rms_g=q.get("predicted_heldout_rms_g"),
+                     mag_heldout_rel_rms=m.quality.get("heldout_rel_rms") if m else None)
 
     # -- status ---------------------------------------------------------------------------
     def status(self) -> Dict[str, Any]:
@@ -338,7 +288,7 @@ class Pipeline:
              "calibration_id": ap.id, "calibrating": self.pending is not None,
              "ready": self.ready_to_calibrate(), "samples": self.samples, "still": self.last_still}
         if ap.id:
-            d["calibration_created"] = ap.info.get("created")
+            d["calibration_created"] = ap.created
         if self.reservoir is not None:
             d["mag_coverage"] = self.reservoir.coverage()
         if self.events:
@@ -346,7 +296,7 @@ class Pipeline:
         return d
 
 
-def _summary(res):
-    a = res.get("accel") or {}
-    return {"accel_heldout_rms_g": a.get("heldout_rms_g"),
-            "accel_heldout_rms_before_g": a.get("heldout_rms_before_g")}
+def _summary(cand: Calibration) -> Dict[str, Any]:
+    q = cand.accel.quality if cand.accel else {}
+    return {"accel_heldout_rms_g": q.get("heldout_rms_g"),
+            "accel_heldout_rms_before_g": q.get("heldout_rms_before_g")}

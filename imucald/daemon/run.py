@@ -7,6 +7,7 @@ sampler never waits on it); state files are written by one background thread
 from __future__ import annotations
 
 import logging
+import math
 import multiprocessing
 import os
 import signal
@@ -16,7 +17,7 @@ from typing import Any, Dict, Optional
 
 from ..errors import UserError
 from .notify import notify, watchdog_period_s
-from .pipeline import Pipeline, applied_from_doc
+from .pipeline import Pipeline
 from .state import load_calibration, load_poses, save_calibration, save_poses
 
 __all__ = ["Daemon"]
@@ -70,7 +71,7 @@ class Daemon:
         sd, rd = self._dirs()
         log.info("imucald starting: %s", self.desc)
         self.board.start()                                       # identifies the chips first
-        chips = {"board": self.board.name, "bus": self.bus.name, **self.board.chips()}
+        chips = self.board.chips()
         log.info("found %s", ", ".join(f"{k} {v.upper()}" for k, v in self.board.chips().items()))
         self.writer = ThreadPoolExecutor(1, thread_name_prefix="imucald-state")
         self.worker = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
@@ -78,11 +79,10 @@ class Daemon:
         self.pipe = Pipeline(cfg, self.board.name, self.board.rate_hz, self.board.has_mag,
                              executor=self.worker, persist=self._persist, chips=chips,
                              has_acc=self.board.has_acc)
-        doc = load_calibration(sd)
-        if doc is not None:
-            self.pipe.applied = applied_from_doc(doc)
-            self.pipe.cal_doc = doc
-            log.info("loaded calibration #%d (%s)", self.pipe.applied.id, doc.get("created"))
+        cal = load_calibration(sd, self.board.name, chips)
+        if cal is not None:
+            self.pipe.applied = cal
+            log.info("loaded calibration #%d (%s)", cal.id, cal.created)
         ps = load_poses(sd)
         if ps is not None and len(ps):
             self.pipe.acc.load(ps)
@@ -151,8 +151,8 @@ class Daemon:
         p = self.pipe
         ap = p.applied
         age = ""
-        if ap.id and "created_t_s" in ap.info:
-            age = f", age {p.t_last - ap.info['created_t_s']:.0f} s"
+        if ap.id and p.applied_t_s is not None:
+            age = f", age {p.t_last - p.applied_t_s:.0f} s"
         cal = f"cal #{ap.id}{age}" if ap.id else "uncalibrated"
         return (f"{self.board.name} {self.board.rate_hz:g} Hz, poses {len(p.acc)}/"
                 f"{self.cfg['calibration']['min_poses']}, {cal}, bus faults {self.board.stats.bus_faults}")
@@ -170,10 +170,7 @@ class Daemon:
         if cmd == "poses":
             ps = p.acc.pose_set()
             return {"class": "POSES", "count": len(ps),
-                    "poses": [{"acc_g": ps.acc[i].round(6).tolist(), "n": int(ps.n[i]),
-                               "temp_c": None if ps.temp is None else round(float(ps.temp[i]), 2),
-                               "t0": round(float(ps.t0[i]), 3), "t1": round(float(ps.t1[i]), 3)}
-                              for i in range(len(ps))]}
+                    "poses": [_pose_json(ps, i) for i in range(len(ps))]}
         if cmd == "coverage":
             return {"class": "COVERAGE", **p.acc.coverage(),
                     **({"mag_coverage": p.reservoir.coverage()} if p.reservoir is not None else {})}
@@ -228,8 +225,8 @@ class Daemon:
             self.writer.shutdown(wait=True)
         if hasattr(self, "pipe"):
             save_poses(sd, self.pipe.acc.pose_set())          # synchronous: nothing is lost
-            if self.pipe.cal_doc is not None:
-                save_calibration(sd, self.pipe.cal_doc, self.cfg["calibration"]["history"])
+            if self.pipe.applied.id:
+                save_calibration(sd, self.pipe.applied, self.cfg["calibration"]["history"])
         if hasattr(self, "worker"):
             self.worker.shutdown(wait=False, cancel_futures=True)
         for s in getattr(self, "sinks", []):
@@ -244,3 +241,12 @@ def _logged(fn):
         fn()
     except Exception as e:          # a full disk must not stop sampling; say so
         log.error("could not save state: %s", e)
+
+
+def _pose_json(ps, i: int) -> Dict[str, Any]:
+    """One pose for the control socket; an unknown temperature is omitted (gpsd habit)."""
+    d: Dict[str, Any] = {"acc_g": ps.acc[i].round(6).tolist(), "n": int(ps.n[i])}
+    if ps.temp is not None and math.isfinite(ps.temp[i]):
+        d["temp_c"] = round(float(ps.temp[i]), 2)
+    d.update(t0=round(float(ps.t0[i]), 3), t1=round(float(ps.t1[i]), 3))
+    return d

@@ -10,36 +10,18 @@ from __future__ import annotations
 import logging
 import os
 import time
-from typing import Any, Dict, Optional
+from typing import Dict, Optional
 
 import numpy as np
-import yaml
 
-from ..atomic import atomic_write_text
 from ..calib.poses import PoseSet, read_poses, write_poses
+from ..calibration import Calibration, CalibrationError, load, save
 from ..errors import UserError
 
-__all__ = ["FORMAT_VERSION", "save_calibration", "load_calibration", "save_poses", "load_poses",
+__all__ = ["save_calibration", "load_calibration", "save_poses", "load_poses",
            "set_aside"]
 
-FORMAT_VERSION = 1
 log = logging.getLogger("imucald")
-
-
-def _plain(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {k: _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, (np.floating,)):
-        return float(x)
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    return x
 
 
 def set_aside(path: str, why: str) -> str:
@@ -49,39 +31,37 @@ def set_aside(path: str, why: str) -> str:
     return dst
 
 
-def save_calibration(state_dir: str, doc: Dict[str, Any], history: int = 10) -> str:
-    doc = dict(doc)
-    doc["format_version"] = FORMAT_VERSION
-    text = "# imucald calibration (see README: calibration file)\n" + yaml.safe_dump(
-        _plain(doc), sort_keys=False, default_flow_style=None, width=100)
+def save_calibration(state_dir: str, cal: Calibration, history: int = 10) -> str:
+    """calibration.yaml (and history/calibration-<id>.yaml, the last ``history`` kept)."""
     path = os.path.join(state_dir, "calibration.yaml")
-    atomic_write_text(path, text)
+    save(cal, path)
     if history:
         hd = os.path.join(state_dir, "history")
         os.makedirs(hd, exist_ok=True)
-        atomic_write_text(os.path.join(hd, f"calibration-{int(doc.get('id', 0)):06d}.yaml"), text)
+        save(cal, os.path.join(hd, f"calibration-{int(cal.id):06d}.yaml"))
         old = sorted(f for f in os.listdir(hd) if f.startswith("calibration-"))
         for f in old[:-history]:
             os.unlink(os.path.join(hd, f))
     return path
 
 
-def load_calibration(state_dir: str) -> Optional[Dict[str, Any]]:
+def load_calibration(state_dir: str, board: Optional[str] = None,
+                     chips: Optional[Dict[str, str]] = None) -> Optional[Calibration]:
+    """The saved calibration, or None.  A file that fails validation, or that was made
+    for another board or chip (when ``board`` is given), is set aside with the reason."""
     path = os.path.join(state_dir, "calibration.yaml")
     if not os.path.exists(path):
         return None
     try:
-        with open(path, encoding="utf-8") as fh:
-            doc = yaml.safe_load(fh)
-        if not isinstance(doc, dict) or doc.get("format_version") != FORMAT_VERSION:
-            raise ValueError(f"not a format_version {FORMAT_VERSION} calibration")
-        acc = doc.get("accel")
-        if acc is not None and len(acc.get("theta", [])) != 9:
-            raise ValueError("accel.theta must have 9 numbers")
-        return doc
-    except (OSError, yaml.YAMLError, ValueError, AttributeError, TypeError) as e:
+        cal = load(path)
+    except CalibrationError as e:
         set_aside(path, f"unreadable calibration ({str(e).splitlines()[0]})")
         return None
+    why = cal.mismatch(board, chips) if board is not None else None
+    if why:
+        set_aside(path, f"calibration of another sensor ({why})")
+        return None
+    return cal
 
 
 def save_poses(state_dir: str, ps: PoseSet) -> None:
@@ -96,6 +76,11 @@ def load_poses(state_dir: str) -> Optional[PoseSet]:
         ps = read_poses(path)
         if ps.acc_sample_cov is None:
             raise UserError("no within-pose deviations")
+        for name in ("acc", "acc_sample_cov", "n", "t0", "t1", "gyro", "mag"):
+            v = getattr(ps, name)               # temp may be NaN: unknown
+            if v is not None and not np.all(np.isfinite(v)):
+                bad = int(np.flatnonzero(~np.isfinite(v.reshape(len(ps), -1)).all(1))[0])
+                raise UserError(f"pose {bad + 1}: {name} is not finite")
         return ps
     except (UserError, ValueError, IndexError) as e:
         set_aside(path, f"unreadable poses ({e})")

@@ -1,0 +1,389 @@
+"""The calibration value: one type for the daemon, the worker, ``calibrate``, ``replay``
+and the state file.
+
+A :class:`Calibration` holds the board/chip identity, the temperature range it was
+made over and up to three :class:`SensorCal` parts (accelerometer, gyro,
+magnetometer).  Each part is a model name, its parameters under unit-carrying
+names, their standard errors, optional per-parameter flags (``determined``,
+``undetermined``, ``at_bound``) and quality figures (held-out RMS, poses...).
+Every part is an affine correction in the sensor frame, ``corrected = A raw + c``:
+
+- accel (``g``): a norm model of :mod:`imucald.calib.models` (``triangular9``,
+  ``full12``, ``cosine*``), parameters as that model reports them;
+- gyro (``deg/s``): ``bias``: ``bias_dps`` (3), optionally ``matrix`` (9, row-major
+  scale/misalignment M: corrected = M (raw - bias(T))) and a thermal bias
+  polynomial ``bias_temp_poly_dps`` (K rows of 3, coefficient of (T - temp_ref_c)^k,
+  k = 1..K) with ``temp_ref_c``;
+- mag (``gauss``): ``mag_sym``/``mag_diag``/``mag_sphere``: ``hard_iron_gauss`` (3),
+  ``soft_iron`` (upper triangle xx yy zz xy xz yz of W, det 1) and ``field_gauss``;
+  corrected = W (raw - hard_iron), so a clean field has norm ``field_gauss``.
+
+:meth:`Calibration.from_dict` checks every field (type, shape, finiteness, model
+name, units) and raises a one-line :class:`CalibrationError` naming the key path
+and the fix.  :func:`load` / :func:`save` read and write the YAML atomically.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from typing import Any, Dict, Mapping, Optional, Tuple
+
+import numpy as np
+
+from ._calcheck import FLAGS, CalibrationError, _array, _fail, _flags, _keys, _table
+
+__all__ = ["Calibration", "SensorCal", "CalibrationError", "FORMAT_VERSION", "UNITS", "FLAGS",
+           "load", "save", "apply"]
+
+FORMAT_VERSION = 2
+UNITS = {"accel": "g", "gyro": "deg/s", "mag": "gauss", "temperature": "degC", "time": "s"}
+SENSORS = ("accel", "gyro", "mag")
+_MAG_PARAMS = {"hard_iron_gauss": 3, "soft_iron": 6, "field_gauss": 0}
+_GYRO_REQUIRED = {"bias_dps": 3}
+_GYRO_OPTIONAL = {"matrix": 9, "bias_temp_poly_dps": -3, "temp_ref_c": 0}   # -3: (K, 3)
+_SYM = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
+
+
+def param_shapes(sensor: str, model: str) -> Tuple[Dict[str, int], Dict[str, int]]:
+    """(required, optional) parameter names -> length (0 scalar, -3 rows of 3) of a model."""
+    if sensor == "accel":
+        from .calib.models import MODEL_NAMES, get_model
+        if model not in MODEL_NAMES or model.startswith("mag_"):
+            raise ValueError("allowed: " + ", ".join(m for m in MODEL_NAMES if not m.startswith("mag_")))
+        return {g: len(i) for g, i in get_model(model).groups.items()}, {}
+    if sensor == "gyro":
+        if model != "bias":
+            raise ValueError("allowed: bias")
+        return dict(_GYRO_REQUIRED), dict(_GYRO_OPTIONAL)
+    if model not in ("mag_sym", "mag_diag", "mag_sphere"):
+        raise ValueError("allowed: mag_sym, mag_diag, mag_sphere")
+    return dict(_MAG_PARAMS), {}
+
+
+@dataclass(frozen=True)
+class SensorCal:
+    """One sensor's correction.  params/stderr: name -> float array (stderr NaN = unknown)."""
+
+    sensor: str
+    model: str
+    params: Mapping[str, np.ndarray]
+    stderr: Mapping[str, np.ndarray] = field(default_factory=dict)
+    flags: Mapping[str, Tuple[str, ...]] = field(default_factory=dict)
+    method: str = ""
+    quality: Mapping[str, float] = field(default_factory=dict)
+
+    # -- construction ----------------------------------------------------------------
+    @classmethod
+    def accel(cls, model: str, theta, stderr_flat=None, method: str = "", quality=None,
+              flags=None) -> "SensorCal":
+        """From a norm model's flat parameter vector (and flat standard errors)."""
+        from .calib.models import get_model
+        m = get_model(model)
+        th = np.asarray(theta, float)
+        se = np.full(m.k, np.nan) if stderr_flat is None else np.asarray(stderr_flat, float)
+        return cls("accel", model, {g: th[i].copy() for g, i in m.groups.items()},
+                   {g: se[i].copy() for g, i in m.groups.items()}, dict(flags or {}), method,
+                   dict(quality or {}))
+
+    @classmethod
+    def from_fit(cls, fit, quality=None) -> "SensorCal":
+        """From a :class:`imucald.calib.fit.FitResult` (its reported params and stderr)."""
+        unit = {"accel": "g", "gyro": "dps", "mag": "gauss"}[fit.sensor]
+        q = {"poses": int(fit.poses), f"rms_{unit}": float(fit.rms),
+             f"loo_rms_{unit}": float(fit.heldout_rms), f"noise_{unit}": float(fit.noise)}
+        q = {k: v for k, v in q.items() if math.isfinite(v)}
+        arr = lambda v: np.array(np.nan if v is None else v, float) if not isinstance(v, list) \
+            else np.array([np.nan if x is None else x for x in v], float)
+        return cls(fit.sensor, fit.model, {k: arr(v) for k, v in fit.params.items()},
+                   {k: arr(v) for k, v in fit.stderr.items()}, _fit_flags(fit),
+                   fit.method, {**q, **(quality or {})})
+
+    @property
+    def theta(self) -> np.ndarray:
+        """accel: the model's flat parameter vector."""
+        from .calib.models import get_model
+        m = get_model(self.model)
+        th = m.nominal.copy()
+        for g, i in m.groups.items():
+            th[i] = self.params[g]
+        return th
+
+    # -- correction ------------------------------------------------------------------
+    @cached_property
+    def affine(self) -> Tuple[np.ndarray, np.ndarray]:
+        """(A, c): corrected = raw @ A.T + c (thermal gyro terms excluded)."""
+        p = self.params
+        if self.sensor == "accel":
+            from .calib.models import get_model
+            A, c = get_model(self.model).affine(self.theta)
+            return np.asarray(A, float), np.asarray(c, float)
+        if self.sensor == "gyro":
+            M = p["matrix"].reshape(3, 3) if "matrix" in p else np.eye(3)
+            return M, -M @ p["bias_dps"]
+        W = np.zeros((3, 3))
+        for k, (i, j) in enumerate(_SYM):
+            W[i, j] = W[j, i] = p["soft_iron"][k]
+        return W, -W @ p["hard_iron_gauss"]
+
+    def apply(self, raw, temp_c=None) -> np.ndarray:
+        """Correct raw readings (N, 3) in this sensor's unit; temp_c (N,) degC feeds a gyro
+        thermal polynomial when there is one (unknown = NaN: the bias at temp_ref_c)."""
+        x = np.asarray(raw, float)
+        if x.ndim != 2 or x.shape[1] != 3:
+            raise ValueError(f"{self.sensor}: raw readings must have shape (N, 3), got {x.shape}")
+        A, c = self.affine
+        if self.sensor == "gyro" and "bias_temp_poly_dps" in self.params:
+            if temp_c is None:
+                raise ValueError("gyro: this calibration has a thermal bias term: give temp_c")
+            dt = np.nan_to_num(np.asarray(temp_c, float) - float(self.params["temp_ref_c"]))
+            poly = self.params["bias_temp_poly_dps"].reshape(-1, 3)
+            drift = sum(np.outer(dt ** (k + 1), poly[k]) for k in range(len(poly)))
+            x = x - drift
+        return x @ A.T + c
+
+    # -- serialisation ---------------------------------------------------------------
+    def to_dict(self) -> Dict[str, Any]:
+        d: Dict[str, Any] = {"model": self.model}
+        if self.method:
+            d["method"] = self.method
+        d["params"] = {k: _out(v) for k, v in self.params.items()}
+        if self.stderr:
+            d["stderr"] = {k: _out(v) for k, v in self.stderr.items()}
+        if self.flags:
+            d["flags"] = {k: list(v) for k, v in self.flags.items()}
+        if self.quality:
+            d["quality"] = {k: (int(v) if isinstance(v, (int, np.integer)) else float(v))
+                            for k, v in self.quality.items()}
+        return d
+
+    @classmethod
+    def from_dict(cls, sensor: str, d: Any, path: str = "") -> "SensorCal":
+        path = path or sensor
+        if not isinstance(d, Mapping):
+            _fail(path, f"expected a mapping, got {type(d).__name__}", "see README: calibration file")
+        _keys(d, path, {"model", "params"}, {"method", "stderr", "flags", "quality"})
+        model = d["model"]
+        try:
+            req, opt = param_shapes(sensor, model if isinstance(model, str) else "")
+        except ValueError as e:
+            _fail(f"{path}.model", f"{model!r} is not a {sensor} model", str(e))
+        method = d.get("method", "")
+        if not isinstance(method, str):
+            _fail(f"{path}.method", f"expected text, got {type(method).__name__}", "e.g. method: ga")
+        pd = d["params"]
+        if not isinstance(pd, Mapping):
+            _fail(f"{path}.params", f"expected a mapping, got {type(pd).__name__}",
+                  "give " + ", ".join(req))
+        _keys(pd, f"{path}.params", set(req), set(opt))
+        params = {k: _array(pd[k], f"{path}.params.{k}", {**req, **opt}[k]) for k in pd}
+        if ("bias_temp_poly_dps" in params) != ("temp_ref_c" in params):
+            _fail(f"{path}.params.temp_ref_c", "bias_temp_poly_dps and temp_ref_c go together",
+                  "give both or neither")
+        sd = d.get("stderr", {})
+        if not isinstance(sd, Mapping):
+            _fail(f"{path}.stderr", f"expected a mapping, got {type(sd).__name__}", "or leave it out")
+        _keys(sd, f"{path}.stderr", set(), set(params))
+        stderr = {k: _array(sd[k], f"{path}.stderr.{k}", params[k].shape, nullable=True,
+                            nonneg=True) for k in sd}
+        fl = d.get("flags", {})
+        if not isinstance(fl, Mapping):
+            _fail(f"{path}.flags", f"expected a mapping, got {type(fl).__name__}", "or leave it out")
+        _keys(fl, f"{path}.flags", set(), set(params))
+        flags = {k: _flags(fl[k], f"{path}.flags.{k}", params[k].size) for k in fl}
+        q = d.get("quality", {})
+        if not isinstance(q, Mapping):
+            _fail(f"{path}.quality", f"expected a mapping, got {type(q).__name__}", "or leave it out")
+        quality = {}
+        for k, v in q.items():
+            if not isinstance(k, str) or isinstance(v, bool) or not isinstance(v, (int, float)) \
+                    or not math.isfinite(v):
+                _fail(f"{path}.quality.{k}", f"{v!r} is not a finite number", "fix or remove it")
+            quality[k] = v
+        return cls(sensor, model, params, stderr, flags, method, quality)
+
+
+def _fit_flags(fit) -> Dict[str, Tuple[str, ...]]:
+    """Per-parameter flags of an accelerometer fit (``determined`` unless the fit
+    flagged it), grouped like its params; {} when the fit reports none."""
+    u = fit.uncertainty
+    if fit.sensor != "accel" or u is None or not getattr(u, "flags", None):
+        return {}
+    from .calib.models import get_model
+    m = get_model(fit.model)
+    why = {f["name"]: f["reason"] for f in u.flags}
+    return {g: tuple(why.get(m.param_names[i], "determined") for i in idx) for g, idx in m.groups.items()}
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The calibration of one board.  id 0 with no parts = uncalibrated."""
+
+    board: str = "unknown"
+    chips: Mapping[str, str] = field(default_factory=dict)   #: accel/gyro/mag -> chip name
+    id: int = 0
+    created: str = ""                                         #: ISO 8601 UTC
+    temperature_range_c: Optional[Tuple[float, float]] = None
+    accel: Optional[SensorCal] = None
+    gyro: Optional[SensorCal] = None
+    mag: Optional[SensorCal] = None
+    poses_used: Optional[Mapping[str, Any]] = None           #: {columns: [...], rows: [[...]]}
+
+    def part(self, sensor: str) -> Optional[SensorCal]:
+        return getattr(self, sensor)
+
+    def replace(self, **kw) -> "Calibration":
+        return replace(self, **kw)
+
+    # -- correction (identity for a sensor without a part) ----------------------------
+    def apply_accel(self, acc_g):
+        return np.asarray(acc_g, float) if self.accel is None else self.accel.apply(acc_g)
+
+    def apply_gyro(self, gyro_dps, temp_c=None):
+        return np.asarray(gyro_dps, float) if self.gyro is None else self.gyro.apply(gyro_dps, temp_c)
+
+    def apply_mag(self, mag_gauss):
+        return np.asarray(mag_gauss, float) if self.mag is None else self.mag.apply(mag_gauss)
+
+    # -- identity ----------------------------------------------------------------------
+    def mismatch(self, board: str, chips: Optional[Mapping[str, str]] = None) -> Optional[str]:
+        """Why this calibration does not belong to the running board (None: it does)."""
+        if self.board != board:
+            return f"made for board {self.board!r}, this is {board!r}"
+        for k, v in (chips or {}).items():
+            if k in self.chips and self.chips[k] != v:
+                return f"made for {k} chip {self.chips[k]!r}, this board has {v!r}"
+        return None
+
+    # -- serialisation -----------------------------------------------------------------
+    def to_dict(self) -> Dict[str, Any]:
+        d: Dict[str, Any] = {"format_version": FORMAT_VERSION, "id": int(self.id),
+                             "created": self.created, "board": self.board, "chips": dict(self.chips),
+                             "units": dict(UNITS)}
+        if self.temperature_range_c is not None:
+            d["temperature_range_c"] = [float(x) for x in self.temperature_range_c]
+        for s in SENSORS:
+            p = self.part(s)
+            if p is not None:
+                d[s] = p.to_dict()
+        if self.poses_used is not None:
+            d["poses_used"] = {"columns": list(self.poses_used["columns"]),
+                               "rows": [[_num(x) for x in r] for r in self.poses_used["rows"]]}
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Any) -> "Calibration":
+        if not isinstance(d, Mapping):
+            _fail("(top level)", f"expected a mapping, got {type(d).__name__}",
+                  "see README: calibration file")
+        if d.get("format_version") == 1:
+            d = _from_v1(d)
+        _keys(d, "", {"format_version", "id", "board", "units"},
+              {"created", "chips", "temperature_range_c", "poses_used", *SENSORS})
+        if d["format_version"] != FORMAT_VERSION:
+            _fail("format_version", f"{d['format_version']!r} is not supported",
+                  f"this imucald reads 1 and {FORMAT_VERSION}")
+        if isinstance(d["id"], bool) or not isinstance(d["id"], int) or d["id"] < 0:
+            _fail("id", f"{d['id']!r} is not a non-negative integer", "e.g. id: 1")
+        for k in ("board", "created"):
+            if not isinstance(d.get(k, ""), str):
+                _fail(k, f"expected text, got {type(d[k]).__name__}", "quote it")
+        chips = d.get("chips", {})
+        if not isinstance(chips, Mapping):
+            _fail("chips", "expected a mapping of sensor -> chip name", "e.g. {accel: mpu6050}")
+        for k, v in chips.items():
+            if k not in SENSORS or not isinstance(v, str):
+                _fail(f"chips.{k}", f"{v!r} is not a chip name of a sensor",
+                      "keys accel, gyro, mag; values e.g. mpu6050")
+        if d["units"] != UNITS:
+            u = d["units"] if isinstance(d["units"], Mapping) else {}
+            bad = next((k for k in UNITS if u.get(k) != UNITS[k]), "units")
+            _fail(f"units.{bad}" if bad != "units" else "units", f"{u.get(bad)!r} is not the stored unit",
+                  "imucald stores " + ", ".join(f"{k}: {v}" for k, v in UNITS.items()))
+        tr = d.get("temperature_range_c")
+        if tr is not None:
+            tr = _array(tr, "temperature_range_c", 2)
+            if tr[0] > tr[1]:
+                _fail("temperature_range_c", f"{tr.tolist()} is not [low, high]", "swap them")
+            tr = (float(tr[0]), float(tr[1]))
+        parts = {s: SensorCal.from_dict(s, d[s]) for s in SENSORS if d.get(s) is not None}
+        pu = d.get("poses_used")
+        if pu is not None:
+            pu = _table(pu, "poses_used")
+        return cls(d["board"], dict(chips), d["id"], d.get("created", ""), tr, parts.get("accel"),
+                   parts.get("gyro"), parts.get("mag"), pu)
+
+
+# --- files ----------------------------------------------------------------------------
+
+def save(cal: Calibration, path) -> None:
+    """Write ``cal`` as YAML, atomically (temp file, fsync, rename)."""
+    import yaml
+    from .atomic import atomic_write_text
+    text = ("# imucald calibration (see README: calibration file)\n"
+            + yaml.safe_dump(cal.to_dict(), sort_keys=False, default_flow_style=None, width=100))
+    atomic_write_text(os.fspath(path), text)
+
+
+def load(path) -> Calibration:
+    """Read and validate a calibration file; CalibrationError names the file and key."""
+    import yaml
+    p = os.fspath(path)
+    try:
+        with open(p, encoding="utf-8") as fh:
+            doc = yaml.safe_load(fh)
+    except OSError as e:
+        raise CalibrationError(f"{p}: cannot read: {e.strerror}") from None
+    except yaml.YAMLError as e:
+        raise CalibrationError(f"{p}: not valid YAML ({' '.join(str(e).split())})") from None
+    try:
+        return Calibration.from_dict(doc)
+    except CalibrationError as e:
+        raise CalibrationError(f"{p}: {e}") from None
+
+
+def apply(cal: Calibration, accel_g=None, gyro_dps=None, mag_gauss=None, temp_c=None
+          ) -> Dict[str, np.ndarray]:
+    """Correct whichever arrays are given ((N, 3) each); returns them by name."""
+    out = {}
+    if accel_g is not None:
+        out["accel_g"] = cal.apply_accel(accel_g)
+    if gyro_dps is not None:
+        out["gyro_dps"] = cal.apply_gyro(gyro_dps, temp_c)
+    if mag_gauss is not None:
+        out["mag_gauss"] = cal.apply_mag(mag_gauss)
+    return out
+
+
+def _num(x):
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _out(v: np.ndarray):
+    a = np.asarray(v, float)
+    return _num(float(a)) if a.ndim == 0 else [(_out(x) if a.ndim > 1 else _num(float(x))) for x in a]
+
+
+# --- format_version 1 (imucald 0.1 state files) -----------------------------------------
+
+_V1_QUALITY = {"accel": ("fitness", "rms_g", "loo_rms_g", "heldout_rms_g", "heldout_rms_before_g",
+                         "predicted_heldout_rms_g", "poses", "heldout_poses", "noise_g"),
+               "gyro": ("heldout_rms_dps",), "mag": ("points", "heldout_rel_rms")}
+
+
+def _from_v1(d: Mapping) -> Dict[str, Any]:
+    """A v1 document in the v2 layout: quality figures move under ``quality``, the
+    redundant ``theta`` is dropped, ``chips`` (v1: board and bus) become unknown."""
+    out = {k: v for k, v in d.items() if k not in (*SENSORS, "chips")}
+    out["format_version"] = FORMAT_VERSION
+    for s in SENSORS:
+        p = d.get(s)
+        if p is None:
+            continue
+        if not isinstance(p, Mapping):
+            _fail(s, f"expected a mapping, got {type(p).__name__}", "see README: calibration file")
+        q = {k: p[k] for k in _V1_QUALITY[s] if p.get(k) is not None}
+        rest = {k: v for k, v in p.items() if k not in (*_V1_QUALITY[s], "theta", "crlb_std")}
+        out[s] = {**rest, **({"quality": q} if q else {})}
+    return out

@@ -35,21 +35,21 @@ def test_gy273_calibrates_from_rotation_alone():
     eb, b, pipe, raw, stream = _run("gy273", tour, 60.0)
     assert b.chips() == {"mag": "qmc5883l"} and not b.has_acc
     ap = pipe.applied
-    assert ap.id >= 1 and ap.mag_theta is not None, list(pipe.events)
+    assert ap.id >= 1 and ap.mag is not None, list(pipe.events)
     assert len(pipe.acc) == 0                                   # no still poses were needed
     tr = eb.truth
     # corrected field magnitude: the truth's F, to the noise-limited accuracy
-    h = ap.mag(raw[-500:])
+    h = ap.apply_mag(raw[-500:])
     F = tour.sample(np.array([0.0]))["h"]
     F = float(np.linalg.norm(F))
     sigma = MAG["qmc5883l"].noise_gauss
     assert abs(np.linalg.norm(h, axis=1).mean() / F - 1) < 0.02
     assert np.linalg.norm(h, axis=1).std() < 2.5 * sigma
-    assert np.allclose(ap._mag_v, tr.mag_hard_iron_gauss, atol=6 * sigma)
+    assert np.allclose(ap.mag.params["hard_iron_gauss"], tr.mag_hard_iron_gauss, atol=6 * sigma)
     assert b'"acc_g"' not in stream and b'"mag_gauss"' in stream
-    doc = pipe.cal_doc
+    doc = pipe.applied.to_dict()
     assert doc["chips"]["mag"] == "qmc5883l"
-    assert min(doc["mag"]["coverage"]["direction_eigenvalues"]) > 0.05       # a 3-D cloud
+    assert doc["mag"]["quality"]["coverage_min_eigenvalue"] > 0.05       # a 3-D cloud
 
 
 def test_gy273_flat_swing_is_not_applied():
@@ -72,7 +72,7 @@ def test_nine_dof_with_qmc_reaches_an_accel_and_mag_calibration():
     pipe.request_calibration()
     pipe.process(b.read_batch(True, 0.1))
     ap = pipe.applied
-    assert ap.accel_theta is not None and ap.mag_theta is not None, list(pipe.events)
-    h = ap.mag(raw[-300:])
+    assert ap.accel is not None and ap.mag is not None, list(pipe.events)
+    h = ap.apply_mag(raw[-300:])
     F = float(np.linalg.norm(tour.sample(np.array([0.0]))["h"]))
     assert abs(np.linalg.norm(h, axis=1).mean() / F - 1) < 0.02

@@ -64,7 +64,7 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     cur: Calibration = job.get("current") or Calibration()
     parts: Dict[str, SensorCal] = {}
     accept: Dict[str, bool] = {}
-    notes: Dict[str, Any]
+    notes: Dict[str, Any] = {}
     if job.get("acc") is not None:
         _accel_gyro(job, cur, parts, accept)
     mp = job.get("mag_points")

@@ -82,3 +82,19 @@ def test_merging_poses_keeps_an_unknown_temperature_unknown():
         assert a.add(_iv([0, 0, 1.00001], tb)) == "refined"
         got = a.poses[0].temp
         assert (np.isnan(got) and np.isnan(want)) or abs(got - want) < 1e-9, (ta, tb, got)
+
+
+def test_real_accelerometer_only_recording_streams_strict_json(tmp_path):
+    """The Xsens MTi log: accelerometer only, no temperature; replayed as a user would."""
+    from imucald.calib.inputs import read_table
+    from imucald.calibration import load
+    from .conftest import real_path
+    rec = read_table(str(real_path("imutk_xsens_mti", "xsens_acc.mat")), ["t", "ax", "ay", "az"],
+                     415 * 9.80665, 32768.0)
+    write_recording(rec, tmp_path / "xsens.csv")
+    lines = _replay(tmp_path / "xsens.csv", "--state-dir", str(tmp_path / "st"), "--min-poses", "10")
+    objs = [strict(l) for l in lines]
+    assert sum(o["class"] == "IMU" for o in objs) == len(rec)
+    assert not any("temp_c" in o or "gyro_dps" in o for o in objs)
+    cal = load(tmp_path / "st" / "calibration.yaml")          # what replay saved reads back
+    assert cal.temperature_range_c is None and cal.accel is not None

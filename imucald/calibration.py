@@ -208,8 +208,8 @@ def _fit_flags(fit) -> Dict[str, Tuple[str, ...]]:
     """Per-parameter flags of an accelerometer fit (``determined`` unless the fit
     flagged it), grouped like its params; {} when the fit reports none."""
     u = fit.uncertainty
-    if fit.sensor != "accel" or u is None or not getattr(u, "flags", None):
-        return {}
+    if fit.sensor != "accel" or u is None or getattr(u, "posterior_std", None) is None:
+        return {}                       # no determination reported (e.g. ga-paper)
     from .calib.models import get_model
     m = get_model(fit.model)
     why = {f["name"]: f["reason"] for f in u.flags}

@@ -76,3 +76,19 @@ def test_readme_stream_example_reads_the_daemon(tmp_path, capsys):
 def test_client_says_when_no_daemon_runs(tmp_path):
     with pytest.raises(imucald.UserError, match=r"cannot connect .*is imucald running"):
         imucald.connect(str(tmp_path / "nothing.sock"))
+
+
+def test_calibrate_output_writes_the_calibration_file(tmp_path, capsys):
+    rec = tmp_path / "s.csv"
+    assert main(["simulate", "-o", str(rec), "--poses", "16", "--hold", "4", "--seed", "2"]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", str(rec), "--method", "lm", "--json", "-o", str(tmp_path / "c.yaml")]) == 0
+    js = json.loads(capsys.readouterr().out)
+    cal = imucald.load_calibration(tmp_path / "c.yaml")
+    assert cal.board == "mpu6050" and cal.gyro is None and cal.accel.method == "lm"
+    for g, v in js["params"].items():
+        assert np.allclose(cal.accel.params[g], v, rtol=0, atol=1e-12)
+    from imucald.calib.models import Triangular9
+    raw = np.random.default_rng(0).normal(size=(20, 3))
+    th = np.concatenate([js["params"][g] for g in ("alpha", "scale", "bias_g")])
+    assert np.allclose(cal.apply_accel(raw), Triangular9().forward(th, raw), atol=1e-12)

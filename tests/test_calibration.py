@@ -184,6 +184,7 @@ def test_the_corruption_list_covers_every_field():
 def _run_daemon(tmp_path, doc_text, board="mpu6050", caplog=None):
     """Run the daemon in-process on the emulated board for a few sensor seconds with
     ``doc_text`` as its calibration.yaml; returns (daemon, the stream lines a client read)."""
+    from imucald.cli.boards import open_board
     from imucald.daemon.config import load_config
     from imucald.daemon.run import Daemon
     st, rt = tmp_path / "state", tmp_path / "run"
@@ -192,8 +193,8 @@ def _run_daemon(tmp_path, doc_text, board="mpu6050", caplog=None):
         (st / "calibration.yaml").write_text(doc_text)
     cfg = load_config(None)
     cfg["state"]["directory"], cfg["runtime"]["directory"] = str(st), str(rt)
-    cfg["sensor"]["board"] = board
-    d = Daemon(cfg, emulate=True, speed=20.0, seed=1, duration_s=15.0)
+    board, bus, desc = open_board(board, 100.0, "yes", speed=20.0, seed=1)
+    d = Daemon(cfg, board, bus, desc, duration_s=15.0)
     lines = []
 
     def client():

@@ -136,6 +136,8 @@ def cmd_calibrate(args) -> int:
             sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
             samples = np.concatenate([rec.gyro[s] for s in sl])
         cal = fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
+    if args.output:
+        _write_calibration(args.output, poses.meta.get("board", "unknown"), cal)
     if args.json:
         print(json.dumps(cal.to_json()))
         return 0
@@ -195,6 +197,8 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
         progress(f"imucald: {len(rec)} magnetometer samples; thinning over the sphere and fitting "
                  f"{model} with {args.method}")
     res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed)
+    if args.output and res["determined"]:
+        _write_calibration(args.output, rec.meta.get("board", "unknown"), res["calibration"])
     if args.json:
         print(json.dumps(rotation_json(res)))
         return 0 if res["determined"] else 3
@@ -204,6 +208,16 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     _print_cal("mag", res["calibration"])
     print("\n".join(rotation_lines(res)))
     return 0
+
+
+def _write_calibration(path: str, board: str, fit) -> None:
+    """--output: the fitted part as a calibration file (the daemon's and
+    imucald.load_calibration's format), written atomically."""
+    from ..calibration import Calibration, SensorCal, save
+    try:
+        save(Calibration(board, id=1, **{fit.sensor: SensorCal.from_fit(fit)}), path)
+    except OSError as e:
+        raise UserError(f"--output {path}: cannot write: {e.strerror}") from None
 
 
 def get_free(cal) -> int:

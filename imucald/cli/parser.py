@@ -63,6 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "auto (order by leave-one-pose-out error); "
                                    "mag: mag_sym (default), mag_diag, mag_sphere; gyro: mean, eq6")
     c.add_argument("--json", action="store_true", help="print one JSON object")
+    c.add_argument("-o", "--output", help="also write the calibration file (the daemon's calibration.yaml "
+                                          "format, read by imucald.load_calibration)")
     c.add_argument("--seed", type=int, default=0, help="seed for the GA")
     c.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az (- skips one)")
     c.add_argument("--nominal-scale", type=float, default=1.0,

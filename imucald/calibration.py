@@ -62,7 +62,7 @@ def param_shapes(sensor: str, model: str) -> Tuple[Dict[str, int], Dict[str, int
     return dict(_MAG_PARAMS), {}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SensorCal:
     """One sensor's correction.  params/stderr: name -> float array (stderr NaN = unknown)."""
 
@@ -216,7 +216,7 @@ def _fit_flags(fit) -> Dict[str, Tuple[str, ...]]:
     return {g: tuple(why.get(m.param_names[i], "determined") for i in idx) for g, idx in m.groups.items()}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Calibration:
     """The calibration of one board.  id 0 with no parts = uncalibrated."""
 
@@ -373,10 +373,14 @@ _V1_QUALITY = {"accel": ("fitness", "rms_g", "loo_rms_g", "heldout_rms_g", "held
 
 
 def _from_v1(d: Mapping) -> Dict[str, Any]:
-    """A v1 document in the v2 layout: quality figures move under ``quality``, the
-    redundant ``theta`` is dropped, ``chips`` (v1: board and bus) become unknown."""
+    """A v1 document in the v2 layout: quality figures move under ``quality``; the
+    redundant ``theta`` and ``crlb_std``, the mag ``coverage`` report and the board
+    and bus names under ``chips`` are dropped."""
     out = {k: v for k, v in d.items() if k not in (*SENSORS, "chips")}
     out["format_version"] = FORMAT_VERSION
+    chips = d.get("chips")
+    if isinstance(chips, Mapping):          # v1 also kept board and bus names there
+        out["chips"] = {k: v for k, v in chips.items() if k in SENSORS}
     for s in SENSORS:
         p = d.get(s)
         if p is None:
@@ -384,6 +388,7 @@ def _from_v1(d: Mapping) -> Dict[str, Any]:
         if not isinstance(p, Mapping):
             _fail(s, f"expected a mapping, got {type(p).__name__}", "see README: calibration file")
         q = {k: p[k] for k in _V1_QUALITY[s] if p.get(k) is not None}
-        rest = {k: v for k, v in p.items() if k not in (*_V1_QUALITY[s], "theta", "crlb_std")}
+        rest = {k: v for k, v in p.items()
+                if k not in (*_V1_QUALITY[s], "theta", "crlb_std", "coverage")}
         out[s] = {**rest, **({"quality": q} if q else {})}
     return out

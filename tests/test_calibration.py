@@ -70,7 +70,7 @@ def test_round_trip_and_apply(tmp_path):
 
 def test_a_version_1_state_file_is_converted():
     v1 = {"id": 2, "created": "2026-01-01T00:00:00+00:00", "board": "9dof",
-          "chips": {"board": "9dof", "bus": "emulated 9dof"},
+          "chips": {"board": "9dof", "bus": "emulated 9dof", "accel": "adxl345"},
           "units": {"accel": "g", "gyro": "deg/s", "mag": "gauss", "temperature": "degC", "time": "s"},
           "temperature_range_c": None,
           "accel": {"model": "triangular9", "method": "ga",
@@ -82,13 +82,18 @@ def test_a_version_1_state_file_is_converted():
                     "heldout_poses": 4, "noise_g": 2e-4},
           "gyro": {"model": "bias", "params": {"bias_dps": [1, 2, 3]},
                    "stderr": {"bias_dps": [0.1, 0.1, 0.1]}, "heldout_rms_dps": 0.2},
+          "mag": {"model": "mag_sym", "params": {"hard_iron_gauss": [0.1, 0, 0], "field_gauss": 0.5,
+                                                 "soft_iron": [1, 1, 1, 0, 0, 0]},
+                  "stderr": {}, "theta": [2, 2, 2, 0, 0, 0, 0.1, 0, 0], "points": 400,
+                  "coverage": {"fraction": 0.9}, "heldout_rel_rms": 0.01},
           "poses_used": {"columns": ["ax_g", "ay_g", "az_g", "n", "temp_c", "t0_s", "t1_s"],
                          "rows": [[0, 0, 1, 100, None, 0.0, 1.0]]},
           "format_version": 1}
     cal = Calibration.from_dict(v1)
-    assert cal.board == "9dof" and cal.chips == {} and cal.accel.quality["heldout_rms_g"] == 1.3e-3
+    assert cal.board == "9dof" and cal.chips == {"accel": "adxl345"} and cal.accel.quality["heldout_rms_g"] == 1.3e-3
     assert np.allclose(cal.accel.theta, v1["accel"]["theta"])
     assert cal.gyro.quality == {"heldout_rms_dps": 0.2}
+    assert cal.mag.quality == {"points": 400, "heldout_rel_rms": 0.01}
 
 
 # --- every field corrupted, one at a time ---------------------------------------------

@@ -71,12 +71,12 @@ def event(cls: str, fmt: str, **fields) -> bytes:
     return (("# " + line) if fmt == "csv" else line).encode()
 
 
-def _vec(name: str, V, ok, i: int) -> str:
-    """',"name":[x,y,z]' for a finite row, '' otherwise (fields are omitted, never NaN)."""
-    if V is None or not ok[i]:
-        return ""
-    v = V[i]
-    return f',"{name}":[{v[0]},{v[1]},{v[2]}]'
+def _vecs(name: str, V, ok, n: int):
+    """',"name":[x,y,z]' per row, '' where the row is absent or not finite (fields are
+    omitted, never NaN)."""
+    if V is None:
+        return [""] * n
+    return [f',"{name}":[{v[0]},{v[1]},{v[2]}]' if k else "" for v, k in zip(V, ok)]
 
 
 def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int) -> bytes:
@@ -98,9 +98,9 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int) -
         rec["acc"], rec["gyro"] = acc, gyro if gyro is not None else nan3
         rec["temp"], rec["mag"] = temp if temp is not None else np.nan, m
         return rec.tobytes()
-    fin = lambda x: None if x is None else np.all(np.isfinite(x), axis=1).tolist()
+    fin = lambda x: None if x is None else np.all(np.isfinite(x), axis=1)
     okA, okG, okM = fin(acc), fin(gyro), fin(mag)
-    okT = None if temp is None else np.isfinite(temp).tolist()
+    okT = None if temp is None else np.isfinite(temp)
     A = np.round(acc, 6).tolist()
     G = None if gyro is None else np.round(gyro, 5).tolist()
     T = None if temp is None else np.round(temp, 3).tolist()
@@ -116,12 +116,23 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int) -
             tc = T[i] if T is not None and okT[i] else ""
             out.append(f"{Q[i]},{TT[i]},{a[0]},{a[1]},{a[2]},{g[0]},{g[1]},{g[2]},"
                        f"{m[0]},{m[1]},{m[2]},{tc},{int(S[i])},{cal_id}\n")
-    else:
+    elif G is not None and T is not None and okA.all() and okG.all() and okT.all():
+        # the usual case, every value known: one f-string per sample
+        mm = _vecs("mag_gauss", M, okM, n)
         for i in range(n):
-            tc = f',"temp_c":{T[i]}' if T is not None and okT[i] else ""
-            out.append(f'{{"class":"IMU","seq":{Q[i]},"t":{TT[i]}{_vec("acc_g", A, okA, i)}'
-                       f'{_vec("gyro_dps", G, okG, i)}{_vec("mag_gauss", M, okM, i)}{tc},'
+            a, g = A[i], G[i]
+            out.append(f'{{"class":"IMU","seq":{Q[i]},"t":{TT[i]},"acc_g":[{a[0]},{a[1]},{a[2]}],'
+                       f'"gyro_dps":[{g[0]},{g[1]},{g[2]}]{mm[i]},"temp_c":{T[i]},'
                        f'"still":{"true" if S[i] else "false"},"cal":{cal_id}}}\n')
+    else:
+        # one comprehension per field (a value that is not known contributes "")
+        aa = _vecs("acc_g", A, okA, n)
+        gg = _vecs("gyro_dps", G, okG, n)
+        mm = _vecs("mag_gauss", M, okM, n)
+        tt = [""] * n if T is None else [f',"temp_c":{x}' if ok else "" for x, ok in zip(T, okT)]
+        tail = f',"cal":{cal_id}}}\n'
+        out = [f'{{"class":"IMU","seq":{q},"t":{ts}{a}{g}{m}{tc},"still":{"true" if st else "false"}{tail}'
+               for q, ts, a, g, m, tc, st in zip(Q, TT, aa, gg, mm, tt, S)]
     return "".join(out).encode()
 
 

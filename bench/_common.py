@@ -6,7 +6,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import numpy as np  # noqa: E402
 
-from imucald.sim.specs import ACCEL  # noqa: E402
+from imucald.specs import ACCEL  # noqa: E402
 from imucald.sim.sensor import pose_sigma  # noqa: E402
 
 #: Paper 000 does not state its simulation noise.  We use the MPU-6050 datasheet

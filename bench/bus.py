@@ -15,7 +15,7 @@ import time
 import _common  # noqa: F401  (puts the repository on sys.path)
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, RealClock, VirtualClock
-from imucald.drivers.emulator import emulated_board
+from imucald.sim.emulators import emulated_board
 from imucald.sim.motion import PoseTour
 from imucald.sim.poses import random_pose_set
 

@@ -22,7 +22,7 @@ from imucald.daemon.outputs import SocketSink
 from imucald.daemon.pipeline import Pipeline
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, RealClock, VirtualClock
-from imucald.drivers.emulator import emulated_board
+from imucald.sim.emulators import emulated_board
 from imucald.sim.motion import PoseTour
 from imucald.sim.poses import random_pose_set
 import copy

@@ -22,7 +22,7 @@ def fit(poses: PoseSet, model: str = "triangular9", method: str = "ga", seed: Op
     """Calibrate the accelerometer (and the gyro bias, when the poses have gyro means)
     from still poses; returns a Calibration for ``board`` (default: the recording's)."""
     from .calib.fit import fit_gyro_bias, fit_norm
-    from .sim.specs import BOARDS
+    from .specs import BOARDS
     board = board or poses.meta.get("board", "unknown")
     chip = BOARDS.get(board, (None,))[0]
     f = fit_norm(poses.acc, model, method, pose_cov=poses.acc_cov, rng=seed, chip=chip)

@@ -102,7 +102,7 @@ def test_parser_choices_come_from_their_owners():
 def test_help_does_not_import_numpy():
     """`imucald --help` stays light: command modules import their heavy dependencies lazily."""
     code = ("import sys; from imucald.cli import build_parser; build_parser(); "
-            "print(sorted(m for m in ('numpy', 'imucald.sim.sensor', 'imucald.drivers.emulator', "
+            "print(sorted(m for m in ('numpy', 'imucald.sim.sensor', 'imucald.sim.emulators', "
             "'imucald.gap.diagnose') if m in sys.modules))")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr

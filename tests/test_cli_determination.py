@@ -8,7 +8,7 @@ import pytest
 from imucald.calib.poses import write_poses, PoseSet
 from imucald.cli import main
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_pose_means
-from imucald.sim.specs import ACCEL
+from imucald.specs import ACCEL
 
 _C = np.cos(np.radians(45))
 HAND = np.array([[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0],

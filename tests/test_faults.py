@@ -9,7 +9,7 @@ import pytest
 
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import AddressBusy, Bus, ChipMismatch, VirtualClock, kernel_driver_for
-from imucald.drivers.emulator import Faults, emulated_board
+from imucald.sim.emulators import Faults, emulated_board
 from imucald.sim.motion import PoseTour
 from imucald.sim.poses import random_pose_set
 

@@ -12,7 +12,7 @@ from imucald.calib.models import Full12, Triangular9
 from imucald.calib.optim import Problem, _ga_core, _lm_converge, _starts, ga, hga, lm
 from imucald.sim.poses import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_pose_means
-from imucald.sim.specs import ACCEL
+from imucald.specs import ACCEL
 
 T9 = Triangular9()
 SIGMA = pose_sigma(ACCEL["mpu6050"].noise_density_g_rthz, 50.0, 20.0)[1]

@@ -8,10 +8,10 @@ from imucald.daemon.config import load_config
 from imucald.daemon.pipeline import Pipeline
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, VirtualClock
-from imucald.drivers.emulator import emulated_board
+from imucald.sim.emulators import emulated_board
 from imucald.sim.motion import PoseTour
 from imucald.sim.poses import random_pose_set
-from imucald.sim.specs import MAG
+from imucald.specs import MAG
 
 
 def _run(board, tour, seconds, seed=4, mag=None):

@@ -8,7 +8,7 @@ from imucald.calib.optim import Problem, ga, ga_paper, hga, lm
 from imucald.calib.uncertainty import crlb, residual_variance
 from imucald.sim.poses import euler_pose_set, random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_pose_means
-from imucald.sim.specs import ACCEL
+from imucald.specs import ACCEL
 
 T9 = Triangular9()
 # MPU-6050 at 50 Hz, 20 s poses (paper 000's real experiment): 400 ug/rtHz -> ~63 ug per pose mean

@@ -15,7 +15,7 @@ from imucald.calib.models import Triangular9
 from imucald.calib.optim import Problem, ga, hga, lm
 from imucald.sim.poses import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_pose_means
-from imucald.sim.specs import ACCEL
+from imucald.specs import ACCEL
 
 T9 = Triangular9()
 SIGMA = pose_sigma(ACCEL["mpu6050"].noise_density_g_rthz, 100.0, 3.0)[1]

@@ -5,11 +5,11 @@ import pytest
 from imucald.drivers import qmc5883l
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, ChipMismatch, VirtualClock
-from imucald.drivers.emulator import Faults, emulated_board
+from imucald.sim.emulators import Faults, emulated_board
 from imucald.drivers.probe import detect_board, magnetometer, probe
 from imucald.sim.motion import PoseTour
 from imucald.sim.poses import rotation_from_up
-from imucald.sim.specs import MAG
+from imucald.specs import MAG
 
 R = qmc5883l.REGMAP
 NOISE = MAG["qmc5883l"].noise_gauss

@@ -4,7 +4,7 @@ import pytest
 
 from imucald.sim.poses import euler_pose_set, random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_session, temperature_profile
-from imucald.sim.specs import ACCEL, BOARDS, GYRO, MAG
+from imucald.specs import ACCEL, BOARDS, GYRO, MAG
 
 
 @pytest.mark.parametrize("board", list(BOARDS))

@@ -142,7 +142,7 @@ def accel_bounds(model: NormModel, chip: Optional[str]) -> Tuple[np.ndarray, np.
     real parts: bias +-max(3 tol, 0.1 g), scale +-max(3 tol, 5 %), non-orthogonality
     +-max(3 cross-axis, 0.05).  Unknown chips get the generic wide box
     (+-0.25 g, +-15 %, +-0.08)."""
-    from ..sim.specs import ACCEL
+    from ..specs import ACCEL
     spec = ACCEL.get(chip or "")
     if spec is None:
         return model.default_bounds()
@@ -157,7 +157,7 @@ def accel_prior(model: NormModel, chip: Optional[str]) -> Tuple[np.ndarray, np.n
     scale: sensitivity tolerance, non-orthogonality: cross-axis sensitivity).  Unknown
     chips: a third of the generic box (0.083 g, 5 %, 0.027).  The search box is 3x
     (or more) wider, so the box edge is >= 3 prior std away."""
-    from ..sim.specs import ACCEL
+    from ..specs import ACCEL
     spec = ACCEL.get(chip or "")
     if spec is None:
         lo, hi = model.default_bounds(spec_bias=0.25 / 3, spec_scale=0.15 / 3, spec_alpha=0.08 / 3)

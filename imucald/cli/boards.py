@@ -28,7 +28,7 @@ def emulated_bus(board: str, speed: Optional[float] = None, seed: int = 0, poses
     import numpy as np
 
     from ..drivers.bus import Bus, ScaledClock, VirtualClock
-    from ..drivers.emulator import emulated_board
+    from ..sim.emulators import emulated_board
     from ..sim.motion import PoseTour
     from ..sim.poses import random_pose_set
     clock = VirtualClock() if speed is None else ScaledClock(speed)

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Optional
 from ..errors import UserError
 
 if TYPE_CHECKING:
-    from ..drivers.emulator import Faults
+    from ..sim.emulators import Faults
 
 
 def parse_fault(spec: str, faults) -> None:
@@ -43,7 +43,7 @@ def faults_from_options(specs) -> "Optional[Faults]":
     """The emulator's :class:`Faults` from repeated ``--fault`` options; None when none given."""
     if not specs:
         return None
-    from ..drivers.emulator import Faults
+    from ..sim.emulators import Faults
     faults = Faults()
     for f in specs:
         parse_fault(f, faults)

@@ -113,7 +113,7 @@ def cmd_calibrate(args) -> int:
         if progress:
             progress(f"imucald: {len(poses)} still poses; fitting {model} with {args.method}")
         kw = {"progress": progress} if args.method == "ga-paper" and progress else {}
-        from ..sim.specs import BOARDS
+        from ..specs import BOARDS
         chip = BOARDS.get(poses.meta.get("board", ""), (None,))[0]
         infl = None
         if rec is not None:     # coloured noise: the Allan model of the longest still pose

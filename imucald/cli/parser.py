@@ -13,7 +13,7 @@ import importlib
 
 from .. import __version__
 from ..daemon.config import SCHEMA
-from ..sim.specs import BOARDS as SIM_BOARDS
+from ..specs import BOARDS as SIM_BOARDS
 from .boards import EMULATED_BOARDS
 from .offline import SENSORS
 from .service import DEFAULT_CONFIG

@@ -23,7 +23,7 @@ from ..calib.models import Triangular9
 from ..recording import Recording
 from .motion import log_so3
 from .poses import axis_angle
-from .specs import ACCEL, BOARDS, GYRO, MAG
+from ..specs import ACCEL, BOARDS, GYRO, MAG
 
 __all__ = ["Truth", "draw_truth", "pose_sigma", "simulate_pose_means", "Session",
            "simulate_session", "temperature_profile"]

@@ -1,4 +1,4 @@
-"""Register-accurate emulated QMC5883L behind the smbus2 API (see emulator.py).
+"""Register-accurate emulated QMC5883L behind the smbus2 API (see the emulators package).
 
 Shares the driver's register map (:mod:`imucald.drivers.qmc5883l`).  Modelled
 (D = QMC5883L datasheet rev 1.0, section 9; L = libdriver/qmc5883l): power-on in
@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..sim.specs import MAG
-from . import qmc5883l as _qmc
-from .emulator import EmuDevice
+from ...specs import MAG
+from ...drivers import qmc5883l as _qmc
+from .base import EmuDevice
 
 __all__ = ["EmuQMC5883L"]
 

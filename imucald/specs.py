@@ -1,4 +1,5 @@
-"""Datasheet figures for the simulated chips.
+"""Datasheet figures of the supported chips: a leaf module (it imports nothing from imucald)
+that the calibration (priors, bounds), the simulator and the emulated chips all read.
 
 Sources (as collected in ../shared/reference/error-models.md section 2, with the
 datasheet section named beside each figure):

@@ -21,21 +21,29 @@
 * Units: t in s, accelerometer in g, gyro in deg/s, magnetometer in gauss,
   temp in degC, after the datasheet's nominal scaling and before calibration.
 
-Reader errors are :class:`RecordingError` and name the file and line.
+* The file is UTF-8 (the body is ASCII numbers); ``rate_hz`` is a number > 0.
+* Every value is finite, sensor values lie within +-PLAUSIBLE_LIMIT (1e6), and t
+  never decreases.  Lines starting with ``#`` in the body and blank lines are skipped.
+
+Reader errors are :class:`RecordingError`, one line naming the file and line
+(and the column or byte offset).  The body is parsed in bulk, block by block
+(:mod:`imucald.tables`): ``open_recording(path).chunks()`` streams it in bounded
+memory, ``read_recording(path)`` returns it whole.
 """
 from __future__ import annotations
 
 import io
 import os
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, TextIO, Union
+from typing import Dict, Iterator, List, Optional, TextIO, Union
 
 import numpy as np
 
 from .errors import UserError
+from .tables import CHUNK_BYTES, TableSpec, decode_line, gather, iter_blocks
 
-__all__ = ["Recording", "RecordingError", "read_recording", "write_recording", "MAGIC",
-           "COLUMNS"]
+__all__ = ["Recording", "RecordingError", "RecordingReader", "open_recording", "iter_recording",
+           "read_recording", "write_recording", "MAGIC", "COLUMNS", "PLAUSIBLE_LIMIT"]
 
 MAGIC = "# imucald recording v1"
 COLUMNS = ["t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz", "temp"]
@@ -114,30 +122,77 @@ def write_recording(rec: Recording, path: Union[str, os.PathLike, TextIO]) -> No
     atomic_write_text(os.fspath(path), text)
 
 
-def read_recording(path: Union[str, os.PathLike]) -> Recording:
-    """Read a v1 recording.  Raises RecordingError naming file:line on any defect."""
-    path = os.fspath(path)
+#: No MEMS sensor reads anywhere near this in g, deg/s, gauss or degC (the widest full-scale
+#: ranges are +-4000 deg/s, +-400 g and +-50 gauss): a larger value is a corrupt line, which
+#: would otherwise swamp every variance and mean it enters.
+PLAUSIBLE_LIMIT = 1e6
+_LIMIT_NOTE = " (|value| > 1e6 g, deg/s, gauss or degC)"
+_MAX_HEADER_LINE = 1 << 16
+
+
+def _open_binary(path: str, error=None):
+    """Open ``path`` for reading bytes, or raise the one-line error saying why not."""
+    error = error or RecordingError
+    if os.path.isdir(path):
+        raise error(f"{path}: is a directory; give the file inside it")
     try:
-        fh = open(path, "r", encoding="utf-8")
+        return open(path, "rb")
     except OSError as e:
-        raise RecordingError(f"{path}: cannot open: {e.strerror}") from None
-    with fh:
-        first = fh.readline().rstrip("\r\n")
-        if first != MAGIC:
+        raise error(f"{path}: cannot open: {e.strerror}") from None
+
+
+class RecordingReader:
+    """An open v1 recording: header parsed and checked at once, samples read on demand.
+
+    ``chunks()`` yields the samples as consecutive Recordings of a few thousand rows (bounded
+    memory: replay and streaming detectors); ``read()`` returns the whole file as one
+    Recording with contiguous float64 arrays.  Use as a context manager, or call close().
+    """
+
+    def __init__(self, path: Union[str, os.PathLike]):
+        self.path = os.fspath(path)
+        self._fh = _open_binary(self.path)
+        try:
+            self._read_header()
+        except BaseException:
+            self._fh.close()
+            raise
+
+    def _line(self, lineno: int) -> Optional[str]:
+        raw = self._fh.readline(_MAX_HEADER_LINE)
+        if not raw:
+            return None
+        if len(raw) >= _MAX_HEADER_LINE and not raw.endswith(b"\n"):
+            raise RecordingError(f"{self.path}:{lineno}: header line longer than "
+                                 f"{_MAX_HEADER_LINE} bytes: not an imucald recording")
+        s = decode_line(self.path, raw, lineno, self._offset, RecordingError)
+        self._offset += len(raw)
+        return s.rstrip("\r\n")
+
+    def _read_header(self) -> None:
+        path = self.path
+        self._offset = 0
+        raw = self._fh.readline(len(MAGIC) + 3)
+        if raw.rstrip(b"\r\n") != MAGIC.encode():
+            found = raw.rstrip(b"\r\n").decode("utf-8", errors="replace")
             raise RecordingError(f"{path}:1: not an imucald recording (expected {MAGIC!r}, "
-                                 f"found {first[:40]!r})")
+                                 f"found {found[:40]!r})")
+        self._offset = len(raw)
         meta: Dict[str, str] = {}
-        lineno = 1
-        header = None
-        for line in fh:
+        where: Dict[str, int] = {}
+        lineno, header = 1, None
+        while True:
+            s = self._line(lineno + 1)
+            if s is None:
+                break
             lineno += 1
-            s = line.rstrip("\r\n")
             if s.startswith("#"):
                 body = s[1:].strip()
                 if ":" not in body:
                     raise RecordingError(f"{path}:{lineno}: header line must be '# key: value'")
                 k, v = body.split(":", 1)
                 meta[k.strip()] = v.strip()
+                where[k.strip()] = lineno
                 continue
             header = [c.strip() for c in s.split(",")]
             break
@@ -146,14 +201,19 @@ def read_recording(path: Union[str, os.PathLike]) -> Recording:
         hl = lineno
         for key in ("board", "rate_hz"):
             if key not in meta:
-                raise RecordingError(f"{path}: header lacks required key '{key}'")
+                raise RecordingError(f"{path}: header lacks required key '{key}' "
+                                     f"(add a line '# {key}: ...' before the column header)")
         try:
-            float(meta["rate_hz"])
+            rate = float(meta["rate_hz"])
         except ValueError:
-            raise RecordingError(f"{path}: header rate_hz={meta['rate_hz']!r} is not a number") from None
+            rate = None
+        if rate is None or not (0 < rate < np.inf):
+            raise RecordingError(f"{path}:{where['rate_hz']}: header rate_hz={meta['rate_hz']!r} is "
+                                 f"not a number of samples per second > 0 (e.g. '# rate_hz: 100')")
         bad = [c for c in header if c not in COLUMNS]
         if bad:
-            raise RecordingError(f"{path}:{hl}: unknown column {bad[0]!r}; allowed: {', '.join(COLUMNS)}")
+            raise RecordingError(f"{path}:{hl}: unknown column {bad[0][:40]!r}; allowed: "
+                                 f"{', '.join(COLUMNS)}")
         if header[0] != "t":
             raise RecordingError(f"{path}:{hl}: the first column must be t")
         if len(set(header)) != len(header):
@@ -162,40 +222,68 @@ def read_recording(path: Union[str, os.PathLike]) -> Recording:
             n = sum(c in header for c in cols)
             if n not in (0, 3):
                 raise RecordingError(f"{path}:{hl}: columns {','.join(cols)} must come together")
-        rows = []
-        ncol = len(header)
-        for line in fh:
-            lineno += 1
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            parts = s.split(",")
-            if len(parts) != ncol:
-                raise RecordingError(f"{path}:{lineno}: expected {ncol} values, found {len(parts)}")
-            try:
-                rows.append([float(p) for p in parts])
-            except ValueError:
-                bad = next(p for p in parts if not _isfloat(p))
-                raise RecordingError(f"{path}:{lineno}: {bad.strip()!r} is not a number") from None
-        if not rows:
-            raise RecordingError(f"{path}:{lineno}: no samples after the column header")
-    data = np.array(rows)
-    if not np.all(np.isfinite(data)):
-        r = int(np.argwhere(~np.isfinite(data))[0, 0])
-        raise RecordingError(f"{path}: sample {r + 1} holds a non-finite value")
-    if np.any(np.diff(data[:, 0]) < 0):
-        r = int(np.argmax(np.diff(data[:, 0]) < 0))
-        raise RecordingError(f"{path}: time goes backwards at sample {r + 2}")
-    col = {c: i for i, c in enumerate(header)}
-    get = lambda cs: data[:, [col[c] for c in cs]] if cs[0] in col else None
-    return Recording(t=data[:, 0], acc=get(_GROUPS["acc"]), gyro=get(_GROUPS["gyro"]),
-                     mag=get(_GROUPS["mag"]), temp=data[:, col["temp"]] if "temp" in col else None,
-                     meta=meta)
+        self.meta, self.header, self._hl = meta, header, hl
+        half = [np.inf] + [PLAUSIBLE_LIMIT] * (len(header) - 1)
+        self._spec = TableSpec(path, header, RecordingError, comma_only=True, skip="#",
+                               halfwidth=half, tcol=0, limit_note=_LIMIT_NOTE)
+        col = {c: i for i, c in enumerate(header)}
+        self._groups = [(g, [col[c] for c in cs]) for g, cs in _GROUPS.items() if cs[0] in col]
+        self._groups.insert(0, ("t", [0]))
+        if "temp" in col:
+            self._groups.append(("temp", [col["temp"]]))
+        self._started = False
+
+    def _blocks(self, chunk_bytes: int) -> Iterator[np.ndarray]:
+        if self._started:
+            raise ValueError("a RecordingReader reads its samples once")
+        self._started = True
+        return iter_blocks(self._fh, self._spec, self._hl + 1, self._offset, chunk_bytes=chunk_bytes)
+
+    def _empty(self):
+        return RecordingError(f"{self.path}:{self._hl}: no samples after the column header")
+
+    def chunks(self, chunk_bytes: int = CHUNK_BYTES) -> Iterator[Recording]:
+        """Consecutive Recordings (views of one block each); raises on the first bad line."""
+        any_rows = False
+        for b in self._blocks(chunk_bytes):
+            any_rows = True
+            g = {name: (b[:, ix] if len(ix) > 1 else b[:, ix[0]]) for name, ix in self._groups}
+            yield Recording(t=g["t"], acc=g.get("acc"), gyro=g.get("gyro"), mag=g.get("mag"),
+                            temp=g.get("temp"), meta=self.meta)
+        if not any_rows:
+            raise self._empty()
+
+    def read(self, chunk_bytes: int = CHUNK_BYTES) -> Recording:
+        """The whole recording; peak memory is the result plus one block."""
+        blocks = list(self._blocks(chunk_bytes))
+        if not blocks:
+            raise self._empty()
+        g = gather(blocks, self._groups)
+        return Recording(t=g["t"], acc=g.get("acc"), gyro=g.get("gyro"), mag=g.get("mag"),
+                         temp=g.get("temp"), meta=self.meta)
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> "RecordingReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
-def _isfloat(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
+def open_recording(path: Union[str, os.PathLike]) -> RecordingReader:
+    """Open a v1 recording and check its header; raises RecordingError naming file:line."""
+    return RecordingReader(path)
+
+
+def iter_recording(path: Union[str, os.PathLike], chunk_bytes: int = CHUNK_BYTES) -> Iterator[Recording]:
+    """The samples of a recording as consecutive chunks (see RecordingReader.chunks)."""
+    with RecordingReader(path) as r:
+        yield from r.chunks(chunk_bytes)
+
+
+def read_recording(path: Union[str, os.PathLike]) -> Recording:
+    """Read a whole v1 recording.  Raises RecordingError naming file:line on any defect."""
+    with RecordingReader(path) as r:
+        return r.read()

@@ -45,7 +45,7 @@ def _write(tmp_path, text):
     (MAGIC + "\n# board: x\nt,ax,ay,az\n0,1,2,3\n", "bad.csv:", "required key 'rate_hz'"),
     (MAGIC + "\n# board: x\n# rate_hz: fast\nt,ax,ay,az\n0,1,2,3\n", "bad.csv:", "not a number"),
     (MAGIC + "\n# board: x\n# rate_hz: 100\nt,ax,ay,az\n", ":4:", "no samples"),
-    (MAGIC + "\n# board: x\n# rate_hz: 100\nt,ax,ay,az\n1,0,0,1\n0,0,0,1\n", "sample 2", "backwards"),
+    (MAGIC + "\n# board: x\n# rate_hz: 100\nt,ax,ay,az\n1,0,0,1\n0,0,0,1\n", ":6:", "time goes backwards"),
 ])
 def test_errors_name_file_and_line(tmp_path, text, where, what):
     p = _write(tmp_path, text)
@@ -59,3 +59,125 @@ def test_errors_name_file_and_line(tmp_path, text, where, what):
 def test_missing_file(tmp_path):
     with pytest.raises(RecordingError, match="cannot open"):
         read_recording(tmp_path / "nope.csv")
+
+
+# --- faults from issue 12: one line naming the place, never a traceback -----------------
+
+HEAD = MAGIC + "\n# board: mpu6050\n# rate_hz: 100\nt,ax,ay,az\n"
+
+
+def _one_line_error(fn, *a, cls=RecordingError):
+    with pytest.raises(cls) as e:
+        fn(*a)
+    msg = str(e.value)
+    assert "\n" not in msg and msg
+    return msg
+
+
+def test_non_utf8_after_header_names_line_and_offset(tmp_path):
+    body = "0,0,0,1\n0.01,0,0,1\n0.02,0,0,1 \xb0C\n"
+    p = tmp_path / "latin1.csv"
+    p.write_bytes((HEAD + body).encode("latin-1"))
+    msg = _one_line_error(read_recording, p)
+    off = (HEAD + body).encode("latin-1").index(b"\xb0")
+    assert f"{p}:7:" in msg and f"offset {off}" in msg and "0xb0" in msg and "not UTF-8" in msg
+
+
+def test_non_utf8_in_header(tmp_path):
+    p = tmp_path / "h.csv"
+    p.write_bytes((MAGIC + "\n# note: 25 \xb0C\n").encode("latin-1"))
+    msg = _one_line_error(read_recording, p)
+    assert f"{p}:2:" in msg and "offset" in msg
+
+
+def test_binary_garbage(tmp_path):
+    p = tmp_path / "garbage.bin"
+    p.write_bytes(np.random.default_rng(1).bytes(200_000))
+    msg = _one_line_error(read_recording, p)
+    assert f"{p}:1: not an imucald recording" in msg
+
+
+@pytest.mark.parametrize("rate", ["nan", "inf", "-inf", "0", "-100", "1e400"])
+def test_rate_must_be_positive_finite(tmp_path, rate):
+    p = _write(tmp_path, HEAD.replace("rate_hz: 100", f"rate_hz: {rate}") + "0,0,0,1\n")
+    msg = _one_line_error(read_recording, p)
+    assert f"{p}:3:" in msg and "rate_hz" in msg and "> 0" in msg
+
+
+@pytest.mark.parametrize("value,what", [("1e308", "beyond what a sensor reads"), ("nan", "not a finite"),
+                                        ("-inf", "not a finite")])
+def test_recording_non_finite_or_absurd_value_named(tmp_path, value, what):
+    p = _write(tmp_path, HEAD + "0,0,0,1\n0.01,0,0,1\n0.02,0," + value + ",1\n0.03,0,0,1\n")
+    msg = _one_line_error(read_recording, p)
+    assert f"{p}:7:" in msg and "column ay" in msg and what in msg
+
+
+def test_missing_file_and_directory(tmp_path):
+    assert "No such file" in _one_line_error(read_recording, tmp_path / "nope.csv")
+    assert "is a directory" in _one_line_error(read_recording, tmp_path)
+
+
+def test_chunked_read_matches_whole_and_lines_count_across_blocks(tmp_path):
+    from imucald.recording import open_recording
+    r = _rec(n=3000, mag=True)
+    p = tmp_path / "r.csv"
+    write_recording(r, p)
+    whole = read_recording(p)
+    with open_recording(p) as rd:
+        parts = list(rd.chunks(chunk_bytes=4096))
+    assert len(parts) > 20
+    for name in ("t", "acc", "gyro", "mag", "temp"):
+        assert np.array_equal(np.concatenate([getattr(c, name) for c in parts]), getattr(whole, name))
+    with open_recording(p) as rd:
+        small = rd.read(chunk_bytes=1000)
+    assert np.array_equal(small.acc, whole.acc) and small.acc.flags.c_contiguous
+    # a bad value deep in the file: the line number counts every block before it
+    lines = p.read_text().splitlines()
+    k = len(lines) - 17
+    lines[k] = lines[k].replace(",", ",nan,", 1).replace(",nan,", ",", 1).rsplit(",", 1)[0] + ",inf"
+    p.write_text("\n".join(lines) + "\n")
+    with open_recording(p) as rd:
+        with pytest.raises(RecordingError, match=f":{k + 1}: column temp: inf"):
+            for _ in rd.chunks(chunk_bytes=4096):
+                pass
+
+
+def test_table_nan_and_1e308_named(tmp_path):
+    from imucald.calib.inputs import read_table
+    p = tmp_path / "raw.txt"
+    rows = [f"{i / 100:.2f} 32768 32768 {32768 + 16384}" for i in range(50)]
+    for bad, what in (("nan", "not a finite"), ("1e308", "beyond what a sensor reads")):
+        rr = list(rows)
+        rr[30] = f"0.30 32768 {bad} 49152"
+        p.write_text("% t ax ay az\n" + "\n".join(rr) + "\n")
+        msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, 32768.0,
+                              cls=UserError)
+        assert f"{p}:32: column ay" in msg and what in msg
+    p.write_text("% t ax ay az\n" + "\n".join(rows) + "\n")
+    rec = read_table(str(p), ["t", "ax", "ay", "az"], 16384.0, 32768.0)
+    assert len(rec) == 50 and np.allclose(rec.acc[:, 2], 1.0) and rec.meta["rate_hz"] == "100"
+
+
+@pytest.mark.parametrize("make,expect", [
+    (lambda d: d / "nope.csv", "No such file"),
+    (lambda d: d, "is a directory"),
+])
+def test_cli_missing_or_directory_one_line(tmp_path, capsys, make, expect):
+    from imucald.cli import main
+    for argv in (["calibrate", str(make(tmp_path))], ["gap", str(make(tmp_path))],
+                 ["replay", str(make(tmp_path))]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and expect in err and "Traceback" not in err
+
+
+def test_cli_replay_binary_garbage_one_line(tmp_path, capsys):
+    from imucald.cli import main
+    p = tmp_path / "g.bin"
+    p.write_bytes(bytes(range(256)) * 100)
+    assert main(["replay", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not an imucald recording" in err
+
+
+from imucald.errors import UserError  # noqa: E402

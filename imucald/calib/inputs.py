@@ -4,27 +4,45 @@ A raw table (no imucald magic line) is whitespace- or comma-separated numbers
 whose columns are named by ``columns`` (e.g. ``t,ax,ay,az``); sensor columns
 in raw counts are converted with ``(value - nominal_offset) / nominal_scale``.
 This is how the IMU-TK Xsens files (ASCII, unsigned 16-bit counts) are read.
+
+Lines that are blank or start with ``#`` or ``%`` are skipped, and so are
+non-numeric lines before the first row of numbers (a column header).  Every
+named column must hold finite numbers, sensor values within
+:data:`imucald.recording.PLAUSIBLE_LIMIT` after scaling, and t must not
+decrease; otherwise the one-line error names file:line and the column.  Columns
+named ``-`` are skipped (any number).  The body is parsed in bulk by
+:mod:`imucald.tables`.
 """
 from __future__ import annotations
 
+import math
 import os
 from typing import Optional, Sequence
 
 import numpy as np
 
 from ..errors import UserError
-from ..recording import COLUMNS, MAGIC, Recording, read_recording
+from ..recording import (COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, _open_binary,
+                         read_recording)
+from ..tables import TableSpec, decode_line, gather, iter_blocks
 from .poses import POSES_MAGIC, read_poses
 
 __all__ = ["load_input", "read_table"]
 
+_SENSOR = {"ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"}
+
 
 def _first_line(path: str) -> str:
+    with _open_binary(path, UserError) as fh:
+        return fh.readline(4096).decode("utf-8", errors="replace").rstrip("\r\n")
+
+
+def _numeric(parts) -> bool:
     try:
-        with open(path, encoding="utf-8", errors="replace") as fh:
-            return fh.readline().rstrip("\r\n")
-    except OSError as e:
-        raise UserError(f"{path}: cannot open: {e.strerror}") from None
+        [float(p) for p in parts]
+        return True
+    except ValueError:
+        return False
 
 
 def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
@@ -35,49 +53,64 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
     if bad:
         raise UserError(f"--columns: unknown column {bad[0]!r}; allowed {', '.join(COLUMNS)} "
                         f"(or - to skip one)")
-    if nominal_scale == 0:
-        raise UserError("--nominal-scale: 0 is not allowed (counts per unit, e.g. 16384)")
-    rows = []
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, 1):
-            s = line.strip()
-            if not s or s[0] in "#%":
-                continue
-            parts = s.replace(",", " ").split()
-            if not rows and not _numeric(parts):
-                continue  # header lines before the first row of numbers
-            if len(parts) != len(cols):
-                raise UserError(f"{path}:{lineno}: expected {len(cols)} values "
-                                f"({','.join(cols)}), found {len(parts)}")
-            try:
-                rows.append([float(p) for p in parts])
-            except ValueError:
-                raise UserError(f"{path}:{lineno}: a value is not a number") from None
-    if not rows:
-        raise UserError(f"{path}: no numeric rows")
-    d = np.array(rows)
-    c = {name: d[:, i] for i, name in enumerate(cols) if name != "-"}
-    rate = rate_hz
+    named = [c for c in cols if c != "-"]
+    if len(set(named)) != len(named):
+        raise UserError(f"--columns: a column is repeated in {','.join(cols)}")
+    if not math.isfinite(nominal_scale) or nominal_scale == 0:
+        raise UserError(f"--nominal-scale {nominal_scale}: must be a finite, non-zero number "
+                        f"(counts per unit, e.g. 16384)")
+    if not math.isfinite(nominal_offset):
+        raise UserError(f"--nominal-offset {nominal_offset}: must be a finite number "
+                        f"(counts at zero input, e.g. 32768)")
+    if rate_hz is not None and not (0 < rate_hz < math.inf):
+        raise UserError(f"--rate-hz {rate_hz}: must be a number of samples per second > 0")
+    sensor = [c in _SENSOR for c in cols]
+    centre = [nominal_offset if s else 0.0 for s in sensor]
+    half = [PLAUSIBLE_LIMIT * abs(nominal_scale) if s else (PLAUSIBLE_LIMIT if c == "temp" else np.inf)
+            for s, c in zip(sensor, cols)]
+    spec = TableSpec(path, cols, UserError, comma_only=False, skip="#%", centre=centre,
+                     halfwidth=half, tcol=cols.index("t") if "t" in cols else None,
+                     checked=[c != "-" for c in cols],
+                     limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
+    with _open_binary(path, UserError) as fh:
+        lineno, offset = 1, 0
+        while True:             # skip blank, comment and header lines before the first numbers
+            raw = fh.readline(1 << 16)
+            if not raw:
+                raise UserError(f"{path}: no numeric rows (expected {len(cols)} numbers per line: "
+                                f"{','.join(cols)})")
+            s = decode_line(path, raw, lineno, offset).strip()
+            if s and s[0] not in "#%" and _numeric(s.replace(",", " ").split()):
+                fh.seek(offset)
+                break
+            lineno, offset = lineno + 1, offset + len(raw)
+        blocks = list(iter_blocks(fh, spec, lineno, offset))
+    idx = {name: i for i, name in enumerate(cols) if name != "-"}
+    groups = [(k, [idx[k]]) for k in ("t", "temp") if k in idx]
+    for g, ks in (("acc", ["ax", "ay", "az"]), ("gyro", ["gx", "gy", "gz"]), ("mag", ["mx", "my", "mz"])):
+        if all(k in idx for k in ks):
+            groups.append((g, [idx[k] for k in ks]))
+    n = sum(len(b) for b in blocks)
+    c = gather(blocks, groups)
+    for g in ("acc", "gyro", "mag"):
+        if g in c:
+            c[g] -= nominal_offset
+            c[g] /= nominal_scale
     if "t" in c:
         t = c["t"]
+        dt = np.diff(t)
+        dt = dt[dt > 0]
+        if not rate_hz and not len(dt):
+            raise UserError(f"{path}: t never advances, so the sample rate is unknown: give --rate-hz")
+        rate = rate_hz or 1.0 / float(np.median(dt))
     else:
-        if not rate:
+        if not rate_hz:
             raise UserError(f"{path}: no t column: give --rate-hz")
-        t = np.arange(len(d)) / rate
-    grp = lambda ks: (np.column_stack([c[k] for k in ks]) - nominal_offset) / nominal_scale \
-        if all(k in c for k in ks) else None
-    meta = {"board": "unknown", "rate_hz": f"{rate or 1.0 / np.median(np.diff(t)):g}",
-            "source": os.path.basename(path)}
-    return Recording(t=t, acc=grp(["ax", "ay", "az"]), gyro=grp(["gx", "gy", "gz"]),
-                     mag=grp(["mx", "my", "mz"]), temp=c.get("temp"), meta=meta)
-
-
-def _numeric(parts) -> bool:
-    try:
-        [float(p) for p in parts]
-        return True
-    except ValueError:
-        return False
+        rate = rate_hz
+        t = np.arange(n) / rate
+    meta = {"board": "unknown", "rate_hz": f"{rate:g}", "source": os.path.basename(path)}
+    return Recording(t=t, acc=c.get("acc"), gyro=c.get("gyro"), mag=c.get("mag"),
+                     temp=c.get("temp"), meta=meta)
 
 
 def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: float = 1.0,

@@ -40,7 +40,8 @@ from typing import Dict, Iterator, List, Optional, TextIO, Union
 import numpy as np
 
 from .errors import UserError
-from .tables import CHUNK_BYTES, TableSpec, decode_line, gather, iter_blocks
+from . import tables
+from .tables import TableSpec, decode_line, gather, iter_blocks
 
 __all__ = ["Recording", "RecordingError", "RecordingReader", "open_recording", "iter_recording",
            "read_recording", "write_recording", "MAGIC", "COLUMNS", "PLAUSIBLE_LIMIT"]
@@ -237,12 +238,13 @@ class RecordingReader:
         if self._started:
             raise ValueError("a RecordingReader reads its samples once")
         self._started = True
-        return iter_blocks(self._fh, self._spec, self._hl + 1, self._offset, chunk_bytes=chunk_bytes)
+        return iter_blocks(self._fh, self._spec, self._hl + 1, self._offset,
+                           chunk_bytes=chunk_bytes or tables.CHUNK_BYTES)
 
     def _empty(self):
         return RecordingError(f"{self.path}:{self._hl}: no samples after the column header")
 
-    def chunks(self, chunk_bytes: int = CHUNK_BYTES) -> Iterator[Recording]:
+    def chunks(self, chunk_bytes: Optional[int] = None) -> Iterator[Recording]:
         """Consecutive Recordings (views of one block each); raises on the first bad line."""
         any_rows = False
         for b in self._blocks(chunk_bytes):
@@ -253,7 +255,7 @@ class RecordingReader:
         if not any_rows:
             raise self._empty()
 
-    def read(self, chunk_bytes: int = CHUNK_BYTES) -> Recording:
+    def read(self, chunk_bytes: Optional[int] = None) -> Recording:
         """The whole recording; peak memory is the result plus one block."""
         blocks = list(self._blocks(chunk_bytes))
         if not blocks:
@@ -277,7 +279,7 @@ def open_recording(path: Union[str, os.PathLike]) -> RecordingReader:
     return RecordingReader(path)
 
 
-def iter_recording(path: Union[str, os.PathLike], chunk_bytes: int = CHUNK_BYTES) -> Iterator[Recording]:
+def iter_recording(path: Union[str, os.PathLike], chunk_bytes: Optional[int] = None) -> Iterator[Recording]:
     """The samples of a recording as consecutive chunks (see RecordingReader.chunks)."""
     with RecordingReader(path) as r:
         yield from r.chunks(chunk_bytes)

@@ -64,30 +64,41 @@ def cmd_replay(args) -> int:
     from ..daemon.pipeline import Pipeline
     from ..daemon.state import save_calibration
     from ..drivers.board import SampleBatch
-    from ..recording import read_recording
+    from ..recording import open_recording
     cfg, _ = _daemon_config(args)
     _setup_logging(cfg["log"]["level"])
-    rec = read_recording(args.recording)
-    if rec.acc is None:
-        raise UserError(f"{args.recording}: no accelerometer columns (ax, ay, az)")
-    n = len(rec)
-    gyro, temp = rec.gyro, rec.temp          # None (omitted from the stream) when absent
-    fresh = None
-    if rec.mag is not None:
-        fresh = np.ones(n, bool)
-        fresh[1:] = np.any(np.diff(rec.mag, axis=0) != 0, axis=1)
-    pipe = Pipeline(cfg, rec.meta.get("board", "unknown"), rec.rate_hz, rec.mag is not None)
-    out = sys.stdout.buffer
-    from ..daemon.outputs import banner
-    out.write(banner(cfg["output"]["format"], pipe.board))
-    step = max(1, int(round(cfg["sensor"]["batch_s"] * rec.rate_hz)))
-    seq = np.arange(n, dtype=np.int64)
-    for i in range(0, n, step):
-        sl = slice(i, min(n, i + step))
-        b = SampleBatch(rec.t[sl], seq[sl], rec.acc[sl], None if gyro is None else gyro[sl],
-                        None if temp is None else temp[sl],
-                        None if rec.mag is None else rec.mag[sl], None if fresh is None else fresh[sl])
-        out.write(pipe.process(b))
+    with open_recording(args.recording) as reader:      # streamed: memory bounded by one block
+        cols = reader.header
+        if "ax" not in cols:
+            raise UserError(f"{args.recording}: no accelerometer columns (ax, ay, az)")
+        meta, has_mag = reader.meta, "mx" in cols
+        rate_hz = float(meta["rate_hz"])
+        pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag)
+        out = sys.stdout.buffer
+        from ..daemon.outputs import banner
+        out.write(banner(cfg["output"]["format"], pipe.board))
+        step = max(1, int(round(cfg["sensor"]["batch_s"] * rate_hz)))
+        seq0, prev_mag, pending = 0, None, []
+        for chunk in reader.chunks():
+            n = len(chunk)
+            gyro, temp = chunk.gyro, chunk.temp      # None (omitted from the stream) when absent
+            fresh = None
+            if has_mag:         # a new magnetometer reading differs from the one before it
+                before = np.vstack([chunk.mag[:1] + 1 if prev_mag is None else prev_mag, chunk.mag[:-1]])
+                fresh = np.any(chunk.mag != before, axis=1)
+                prev_mag = chunk.mag[-1:]
+            seq = np.arange(seq0, seq0 + n, dtype=np.int64)
+            seq0 += n
+            pending.append((chunk.t, seq, chunk.acc, gyro, temp, chunk.mag, fresh))
+            rows = _cat(pending)
+            i = 0
+            while len(rows[0]) - i >= step:
+                out.write(pipe.process(SampleBatch(*(None if a is None else a[i:i + step] for a in rows))))
+                i += step
+            pending = [tuple(None if a is None else a[i:] for a in rows)]
+        rows = _cat(pending)
+        if len(rows[0]):
+            out.write(pipe.process(SampleBatch(*rows)))
     out.flush()
     if args.state_dir and pipe.applied.id:
         os.makedirs(args.state_dir, exist_ok=True)
@@ -97,6 +108,15 @@ def cmd_replay(args) -> int:
         logging.getLogger("imucald").info("no calibration was reached (%d poses; %s)",
                                           len(pipe.acc), pipe.ready_to_calibrate())
     return 0
+
+
+def _cat(parts):
+    """Concatenate tuples of arrays field by field (None stays None)."""
+    import numpy as np
+    if len(parts) == 1:
+        return parts[0]
+    return tuple(None if parts[0][k] is None else np.concatenate([p[k] for p in parts])
+                 for k in range(len(parts[0])))
 
 
 def _control_path(args) -> str:

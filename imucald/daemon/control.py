@@ -11,7 +11,6 @@ import os
 import socket
 from typing import Callable, Dict, List, Optional
 
-from .outputs import listen_unix
 
 __all__ = ["ControlServer", "request", "COMMANDS"]
 
@@ -21,6 +20,7 @@ COMMANDS = ("status", "poses", "coverage", "recalibrate", "reset", "reload")
 class ControlServer:
     def __init__(self, path: str, handler: Callable[[str], Dict], mode: str = "0660",
                  group: Optional[str] = None):
+        from .outputs import listen_unix     # here: the client side (status) stays without numpy
         self.path, self.handler = path, handler
         self.lsock = listen_unix(path, mode, group, 8)
         self.conns: List[list] = []          # [sock, inbuf, outbuf]

@@ -198,3 +198,16 @@ def test_replay_streamed_in_small_blocks_gives_the_same_stream(tmp_path, monkeyp
     assert main(["replay", str(p)]) == 0
     small = capsysbinary.readouterr().out
     assert whole == small and whole.count(b"\n") > 1000
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["status", "--runtime-dir", "{d}"], ["watch", "--runtime-dir", "{d}"]])
+def test_light_commands_do_not_import_numpy(tmp_path, argv):
+    """--help, status and watch start without numpy or the calibration code (issue 15)."""
+    import subprocess
+    import sys
+    code = ("import sys\nfrom imucald.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n"
+            "    pass\nprint(sorted(m for m in ('numpy', 'imucald.calib', 'imucald.recording') "
+            "if m in sys.modules))")
+    p = subprocess.run([sys.executable, "-c", code, *[a.format(d=tmp_path) for a in argv]],
+                       capture_output=True, text=True)
+    assert p.stdout.strip().splitlines()[-1] == "[]", p.stdout + p.stderr

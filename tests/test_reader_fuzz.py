@@ -35,14 +35,15 @@ eol = st.sampled_from(["\n", "\n", "\n", "\r\n", "\r"])
 text = st.lists(st.tuples(line, eol), max_size=8).map(lambda ls: "".join(a + b for a, b in ls))
 junk = st.binary(max_size=300)
 
-# a RAM file system where there is one: thousands of small files, opened in microseconds
-_DIR = tempfile.mkdtemp(prefix="imucald-fuzz-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
+_DIR = None     # set by _scratch: a RAM file system where there is one (thousands of small files)
 
 
 @pytest.fixture(scope="module", autouse=True)
-def _cleanup():
-    yield
+def _scratch():
     import shutil
+    global _DIR
+    _DIR = tempfile.mkdtemp(prefix="imucald-fuzz-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
+    yield
     shutil.rmtree(_DIR, ignore_errors=True)
 
 

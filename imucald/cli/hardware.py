@@ -7,7 +7,7 @@ from ._common import eprint as _eprint
 
 def cmd_probe(args) -> int:
     from ..drivers.bus import open_bus, real_bus_numbers
-    from ..drivers.probe import detect_board, probe
+    from ..drivers.probe import detect_board, magnetometer, probe
     if args.emulate:
         from .boards import emulated_bus
         bus, num = emulated_bus(args.emulate, seed=0, poses=4), None
@@ -28,7 +28,9 @@ def cmd_probe(args) -> int:
     for f in found:
         print("  " + f.line())
     b = detect_board(found)
-    print(f"board: {b}" if b else "board: none of the supported boards (mpu6050, mpu6500, mpu9250, 9dof)")
+    mag = magnetometer(found) if b in ("9dof", "gy273") else None
+    print((f"board: {b}" + (f" (magnetometer: {mag.upper()})" if mag else "")) if b else
+          "board: none of the supported boards (mpu6050, mpu6500, mpu9250, 9dof, gy273)")
     return 0
 
 
@@ -40,7 +42,8 @@ def cmd_record(args) -> int:
     from .faults import faults_from_options
     board, bus, desc = open_board(args.board, args.rate, "yes" if args.emulate else "auto", args.bus,
                                   speed=1.0 if args.realtime else None,
-                                  seed=args.seed, poses=args.poses, faults=faults_from_options(args.fault))
+                                  seed=args.seed, poses=args.poses, faults=faults_from_options(args.fault),
+                                  mag=args.mag)
     board.start()
     _eprint(f"imucald: recording {args.seconds:g} s from {desc} at {board.rate_hz:g} Hz")
     parts = []
@@ -54,13 +57,18 @@ def cmd_record(args) -> int:
                             f"(last fault: {getattr(board, 'last_fault', 'none')})")
     cat = lambda k: np.concatenate([getattr(p, k) for p in parts])
     keep = cat("t") < args.seconds
-    meta = {"board": board.name, "rate_hz": f"{board.rate_hz:g}", "source": f"imucald record: {desc}"}
+    meta = {"board": board.name, "rate_hz": f"{board.rate_hz:g}", "source": f"imucald record: {desc}",
+            "chips": ",".join(f"{k}={v}" for k, v in board.chips().items())}
     mag = cat("mag")[keep] if board.has_mag else None
     if mag is not None and np.isnan(mag).any():      # before the first magnetometer reading
         first = int(np.argmax(~np.isnan(mag[:, 0])))
         mag[:first] = mag[first]
-    rec = Recording(t=cat("t")[keep], acc=cat("acc")[keep], gyro=cat("gyro")[keep], mag=mag,
-                    temp=cat("temp")[keep], meta=meta)
+    acc, gyro = (cat("acc")[keep], cat("gyro")[keep]) if board.has_acc else (None, None)
+    temp = cat("temp")[keep]
+    if not board.has_acc:       # gy273: the QMC5883L's temperature has no calibrated offset
+        meta["temp"] = "relative (QMC5883L, offset not calibrated)"
+        temp = None if np.isnan(temp).all() else temp
+    rec = Recording(t=cat("t")[keep], acc=acc, gyro=gyro, mag=mag, temp=temp, meta=meta)
     write_recording(rec, args.output)
     st = board.stats
     _eprint(f"imucald: wrote {args.output}: {len(rec)} samples; gaps {st.gaps} ({st.missing} samples "

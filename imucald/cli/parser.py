@@ -87,6 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("record", help="record samples to a recording file")
     r.add_argument("-o", "--output", required=True)
     r.add_argument("--board", default="mpu6050", choices=_choices("sensor.board"))
+    r.add_argument("--mag", default="auto", choices=_choices("sensor.magnetometer"),
+                   help="9dof/gy273 magnetometer: found by ID (auto) or forced; emulated: auto = "
+                        "HMC5883L on 9dof, QMC5883L on gy273")
     r.add_argument("--seconds", type=float, default=10.0)
     r.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
     r.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1)")
@@ -108,6 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
     rn = sub.add_parser("run", help="run the daemon (real I2C when a bus exists, else emulated)")
     daemon_opts(rn)
     rn.add_argument("--board", choices=_choices("sensor.board"))
+    rn.add_argument("--mag", choices=_choices("sensor.magnetometer"),
+                    help="9dof/gy273 magnetometer (overrides sensor.magnetometer)")
     rn.add_argument("--rate", type=float, help="sample rate, Hz")
     rn.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N")
     rn.add_argument("--format", choices=_choices("output.format"))

@@ -23,6 +23,7 @@ def _daemon_config(args):
         path = DEFAULT_CONFIG
     cfg = load_config(path)
     for attr, key, flag in (("board", "sensor.board", "--board"), ("rate", "sensor.rate_hz", "--rate"),
+                            ("mag", "sensor.magnetometer", "--mag"),
                             ("bus", "sensor.bus", "--bus"), ("state_dir", "state.directory", "--state-dir"),
                             ("runtime_dir", "runtime.directory", "--runtime-dir"),
                             ("format", "output.format", "--format"), ("fifo", "output.fifo", "--fifo"),
@@ -69,14 +70,17 @@ def cmd_replay(args) -> int:
     _setup_logging(cfg["log"]["level"])
     with open_recording(args.recording) as reader:      # streamed: memory bounded by one block
         cols = reader.header
-        if "ax" not in cols:
-            raise UserError(f"{args.recording}: no accelerometer columns (ax, ay, az)")
-        meta, has_mag = reader.meta, "mx" in cols
+        if "ax" not in cols and "mx" not in cols:
+            raise UserError(f"{args.recording}: no accelerometer (ax, ay, az) or magnetometer "
+                            f"(mx, my, mz) columns")
+        meta, has_mag, has_acc = reader.meta, "mx" in cols, "ax" in cols
         rate_hz = float(meta["rate_hz"])
-        pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag)
+        chips = dict(kv.split("=", 1) for kv in meta.get("chips", "").split(",") if "=" in kv)
+        pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag, chips=chips,
+                        has_acc=has_acc)
         out = sys.stdout.buffer
         from ..daemon.outputs import banner
-        out.write(banner(cfg["output"]["format"], pipe.board))
+        out.write(banner(cfg["output"]["format"], pipe.board, chips or None))
         step = max(1, int(round(cfg["sensor"]["batch_s"] * rate_hz)))
         seq0, prev_mag, pending = 0, None, []
         for chunk in reader.chunks():
@@ -89,7 +93,8 @@ def cmd_replay(args) -> int:
                 prev_mag = chunk.mag[-1:]
             seq = np.arange(seq0, seq0 + n, dtype=np.int64)
             seq0 += n
-            pending.append((chunk.t, seq, chunk.acc, gyro, temp, chunk.mag, fresh))
+            acc = chunk.acc if has_acc else np.full((n, 3), np.nan)     # gy273: none
+            pending.append((chunk.t, seq, acc, gyro, temp, chunk.mag, fresh))
             rows = _cat(pending)
             i = 0
             while len(rows[0]) - i >= step:
@@ -104,6 +109,11 @@ def cmd_replay(args) -> int:
         os.makedirs(args.state_dir, exist_ok=True)
         p = save_calibration(args.state_dir, pipe.applied, history=0)
         logging.getLogger("imucald").info("calibration #%d saved to %s", pipe.applied.id, p)
+    elif args.state_dir and not pipe.has_acc:
+        logging.getLogger("imucald").info(
+            "no calibration was reached (magnetometer rotation coverage %.0f%%, %.0f%% needed, "
+            "turned in all three dimensions)", 100 * pipe.reservoir.coverage(),
+            100 * cfg["calibration"]["mag_min_coverage"])
     elif args.state_dir:
         logging.getLogger("imucald").info("no calibration was reached (%d poses; %s)",
                                           len(pipe.acc), pipe.ready_to_calibrate())
@@ -134,7 +144,10 @@ def cmd_status(args) -> int:
     if r.get("class") == "ERROR":
         raise UserError(r.get("message", "error"))
     cal = f"#{r['calibration_id']} ({r.get('calibration_created')})" if r.get("calibration_id") else "none yet"
-    print(f"board {r['board']} at {r['rate_hz']:g} Hz on {r['bus']}")
+    chips = ", ".join(f"{k} {v.upper()}" for k, v in (r.get("chips") or {}).items())
+    print(f"board {r['board']} at {r['rate_hz']:g} Hz on {r['bus']}" + (f" ({chips})" if chips else ""))
+    if "mag_coverage" in r:
+        print(f"magnetometer rotation coverage {r['mag_coverage']:.0%} of the sphere")
     print(f"poses {r['poses']}/{r['poses_needed']}, coverage {r['coverage']:.0%}"
           + (f", next: {r['next_orientation']}" if r.get("next_orientation") else ""))
     print(f"calibration {cal}{', calibrating now' if r.get('calibrating') else ''}")

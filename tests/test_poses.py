@@ -2,18 +2,10 @@
 import numpy as np
 import pytest
 
-from imucald.calib.poses import moving_variance, poses_from_recording, read_poses, write_poses
+from imucald.calib.poses import poses_from_recording, read_poses, write_poses
 from imucald.errors import UserError
 from imucald.sim.poses import random_pose_set
 from imucald.sim.sensor import simulate_session
-
-
-def test_moving_variance_matches_direct_computation():
-    x = np.random.default_rng(0).normal(size=(200, 2))
-    mv = moving_variance(x, 21)
-    for i in (0, 5, 100, 199):
-        lo = min(max(i - 10, 0), 200 - 21)
-        assert np.allclose(mv[i], x[lo:lo + 21].var(0, ddof=1))
 
 
 @pytest.mark.parametrize("board,seed", [("mpu6050", 1), ("9dof", 2), ("mpu9250", 3)])

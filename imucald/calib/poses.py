@@ -1,16 +1,9 @@
 """Static-pose extraction from sample streams, and the pose-average file format.
 
-The detector is a pure function over arrays (the daemon wraps the same
-statistics in a streaming shell):
-
-1. moving variance of each accelerometer axis (and gyro axis when present) over
-   a centred window (``window_s``, 1 s by default), summed over axes;
-2. the noise floor is learnt from the quietest windows: the ``floor_pct``-th
-   percentile of the windowed variance.  No dedicated initial still period is
-   needed; a recording that is still at least ``floor_pct`` % of the time is enough;
-3. still = variance below ``k`` x floor (accelerometer and gyro);
-4. runs of still samples at least ``min_still_s`` long, trimmed by ``trim_s``
-   at each edge, become poses.
+Still intervals come from the one stillness detector,
+:mod:`imucald.calib.stillness` (criterion, noise floor and defaults are documented
+there): the batch call here runs the daemon's streaming detector over the whole
+file, so ``calibrate``, ``replay``, the daemon and ``gap`` find the same poses.
 
 Each pose carries its mean, sample covariance, covariance of the mean, count,
 mean temperature and start/end time.
@@ -24,8 +17,9 @@ import numpy as np
 
 from ..errors import UserError
 from ..recording import Recording
+from .stillness import StillnessDetector
 
-__all__ = ["PoseSet", "moving_variance", "detect_static", "poses_from_recording",
+__all__ = ["PoseSet", "detect_static", "detect_intervals", "poses_from_recording",
            "read_poses", "write_poses", "POSES_MAGIC"]
 
 POSES_MAGIC = "# imucald poses v1"
@@ -58,65 +52,38 @@ class PoseSet:
                        f(self.mag_cov), f(self.temp), dict(self.meta))
 
 
-def moving_variance(x: np.ndarray, w: int) -> np.ndarray:
-    """Centred moving variance over w samples of each column, via cumulative sums.
-
-    x (n, d) -> (n, d).  Edges use the window clipped to the data.
-    """
-    x = np.asarray(x, float)
-    n = len(x)
-    w = max(2, min(int(w), n))
-    x0 = x - x.mean(0)                       # improves the cumulative-sum conditioning
-    c1 = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x0, 0)])
-    c2 = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x0 * x0, 0)])
-    i = np.arange(n)
-    lo = np.clip(i - w // 2, 0, n)
-    hi = np.clip(lo + w, 0, n)
-    lo = np.clip(hi - w, 0, n)
-    cnt = (hi - lo)[:, None]
-    s1 = c1[hi] - c1[lo]
-    s2 = c2[hi] - c2[lo]
-    return np.maximum(s2 / cnt - (s1 / cnt) ** 2, 0.0) * cnt / np.maximum(cnt - 1, 1)
-
-
 def detect_static(t: np.ndarray, acc: np.ndarray, gyro: Optional[np.ndarray] = None,
-                  window_s: float = 1.0, k: float = 6.0, floor_pct: float = 5.0,
-                  min_still_s: float = 1.0, trim_s: float = 0.25,
-                  rate_hz: Optional[float] = None) -> List[slice]:
-    """Index slices of the still intervals (see module doc)."""
-    t = np.asarray(t, float)
-    n = len(t)
-    if n < 4:
-        return []
-    rate = rate_hz or 1.0 / max(np.median(np.diff(t)), 1e-9)
-    w = max(3, int(round(window_s * rate)))
-    va = moving_variance(acc, w).sum(1)
-    still = va <= k * _floor(va, floor_pct)
-    if gyro is not None:
-        vg = moving_variance(gyro, w).sum(1)
-        still &= vg <= k * _floor(vg, floor_pct)
-    # runs of True
-    d = np.diff(np.concatenate([[0], still.astype(np.int8), [0]]))
-    starts = np.flatnonzero(d == 1)
-    ends = np.flatnonzero(d == -1)
-    out = []
-    for s, e in zip(starts, ends):
-        ts, te = t[s] + trim_s, t[e - 1] - trim_s
-        if te - ts < min_still_s:
-            continue
-        i0 = int(np.searchsorted(t, ts, "left"))
-        i1 = int(np.searchsorted(t, te, "right"))
-        if i1 - i0 >= 3:
-            out.append(slice(i0, i1))
+                  rate_hz: Optional[float] = None, **params) -> List[slice]:
+    """Index slices of the still intervals: the streaming detector
+    (:class:`imucald.calib.stillness.StillnessDetector`, whose docstring gives the
+    criterion and the defaults) run over the whole file, then flushed.  ``params`` are
+    its keyword arguments (window_s, k, min_still_s, max_pose_s, trim_s, max_turn_deg).
+    The pieces the streaming detector cuts from one long still run (every
+    ``max_pose_s``, so that a daemon reports a resting board) are joined again here."""
+    return merge_cut(detect_intervals(t, acc, gyro, rate_hz, **params)[0])
+
+
+def merge_cut(intervals) -> List[slice]:
+    """Slices of intervals, contiguous pieces (cut at max_pose_s) joined."""
+    out: List[slice] = []
+    for iv in intervals:
+        if out and out[-1].stop == iv.i0:
+            out[-1] = slice(out[-1].start, iv.i1)
+        else:
+            out.append(slice(iv.i0, iv.i1))
     return out
 
 
-def _floor(v: np.ndarray, pct: float) -> float:
-    f = float(np.percentile(v, pct))
-    if f <= 0:  # quantised, noiseless data: fall back to the smallest positive variance
-        pos = v[v > 0]
-        f = float(pos.min()) if pos.size else 1e-30
-    return f
+def detect_intervals(t, acc, gyro=None, rate_hz=None, temp=None, **params):
+    """(intervals, samples dropped as non-finite or absurd) for a whole file."""
+    t = np.asarray(t, float)
+    if len(t) < 4:
+        return [], 0
+    rate = rate_hz or 1.0 / max(float(np.median(np.diff(t))), 1e-9)
+    det = StillnessDetector(rate, **params)
+    _, out = det.update(t, acc, gyro, temp)
+    out += det.flush()
+    return out, det.dropped
 
 
 def _mean_cov(x: np.ndarray):
@@ -131,8 +98,11 @@ def poses_from_recording(rec: Recording, **kw) -> PoseSet:
     if rec.acc is None:
         raise UserError("the recording has no accelerometer columns (ax, ay, az): "
                         "poses are detected from the accelerometer")
-    sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz, **kw)
-    return poses_from_slices(rec, sl)
+    ivs, dropped = detect_intervals(rec.t, rec.acc, rec.gyro, rec.rate_hz, **kw)
+    ps = poses_from_slices(rec, merge_cut(ivs))
+    if dropped:
+        ps.meta["dropped_samples"] = str(dropped)
+    return ps
 
 
 def poses_from_slices(rec: Recording, slices: List[slice]) -> PoseSet:

@@ -11,6 +11,7 @@ from typing import Any, Dict, Optional, Tuple
 import yaml
 
 from ..errors import UserError
+from ..calib.stillness import DEFAULTS as _STILL  # one set of stillness defaults
 
 __all__ = ["ConfigError", "DEFAULTS", "load_config", "validate", "set_override"]
 
@@ -32,11 +33,11 @@ SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
     "sensor.accel_range_g": (2, "choice", (2, 4, 8, 16)),
     "sensor.gyro_range_dps": (250, "choice", (250, 500, 1000, 2000)),
     "sensor.batch_s": (0.02, "float", (0.001, 0.5)),
-    "stillness.window_s": (1.0, "float", (0.1, 10.0)),
-    "stillness.k": (6.0, "float", (1.5, 100.0)),
-    "stillness.min_still_s": (1.5, "float", (0.2, 60.0)),
-    "stillness.max_pose_s": (20.0, "float", (1.0, 600.0)),
-    "stillness.trim_s": (0.25, "float", (0.0, 5.0)),
+    "stillness.window_s": (_STILL["window_s"], "float", (0.1, 10.0)),
+    "stillness.k": (_STILL["k"], "float", (1.5, 100.0)),
+    "stillness.min_still_s": (_STILL["min_still_s"], "float", (0.2, 60.0)),
+    "stillness.max_pose_s": (_STILL["max_pose_s"], "float", (1.0, 600.0)),
+    "stillness.trim_s": (_STILL["trim_s"], "float", (0.0, 5.0)),
     "poses.merge_angle_deg": (12.0, "float", (0.5, 45.0)),
     "poses.max_poses": (60, "int", (10, 500)),
     "calibration.min_poses": (25, "int", (10, 500)),

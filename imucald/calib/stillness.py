@@ -1,0 +1,305 @@
+"""The one stillness detector (streaming; the batch call in calib.poses runs it over a whole file).
+
+Defaults (``DEFAULTS``) and what they mean, documented once here and in the README:
+
+* ``window_s`` = 1.0 s: trailing window of the moving statistics.
+* ``k`` = 6: a window is quiet when the summed variance of the three accelerometer
+  axes is at most ``k`` x the learnt floor.  Hand-held poses sit at 1.3-3.2x the floor
+  (tremor), and the floor itself is a low percentile of window variances (for 100
+  samples per window it is ~0.85x the mean still variance), so 6 leaves margin.
+* ``max_turn_deg`` = 0.5 deg: the gyro does not vote on tremor; it only rules out real
+  rotation (e.g. about gravity, which the accelerometer cannot see): the angle turned
+  over the window, |mean rate - bias| x window_s, must stay below it.  Derivation:
+  tremor of 2 deg/s RMS at 6-12 Hz averages over a 1 s window to <= 2*sqrt(2)/(pi*6)
+  ~ 0.15 deg/s, and an MPU-6050's mean-rate noise over 1 s is ~0.01 deg/s; a hand
+  moving a board turns tens of deg/s.  0.5 deg sits 3x above the worst tremor residue.
+  The bias is the median window-mean rate of the accelerometer-quiet windows seen.
+* ``min_still_s`` = 1.0 s, ``trim_s`` = 0.25 s: a sample is still when some quiet
+  window contains it; a run of still samples, cut ``trim_s`` at its start and (after
+  the motion-onset cut) at its end, is a pose when it lasts ``min_still_s``.  A 1.5 s
+  hold therefore counts.  Runs longer than ``max_pose_s`` (20 s) are cut in several.
+
+Noise floor: the ``FLOOR_PCT`` (5th) percentile of the accelerometer variances of the
+last ``FLOOR_WINDOWS`` (300) non-overlapping windows.  No decision is taken before
+``WARMUP_WINDOWS`` (8) windows are seen: the first samples wait and are judged with
+the floor at that point, so a pose at the very start of a file counts.  A floor is
+fixed once per window; every sample is judged by the floor of the windows before it,
+so the result does not depend on how the stream is cut in batches.
+
+Non-finite samples, and samples with any value beyond ``ABSURD`` (1e6: no IMU range
+comes near), are never still and never averaged; they are counted in ``dropped``.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Dict, List, Optional
+
+import numpy as np
+
+__all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS"]
+
+DEFAULTS = {"window_s": 1.0, "k": 6.0, "min_still_s": 1.0, "max_pose_s": 20.0,
+            "trim_s": 0.25, "max_turn_deg": 0.5}
+FLOOR_PCT = 5.0
+FLOOR_WINDOWS = 300
+WARMUP_WINDOWS = 8
+ABSURD = 1e6
+_CH = ("t", "acc", "gyro", "temp", "mag", "fresh")
+
+
+@dataclass
+class StaticInterval:
+    acc: np.ndarray               #: mean specific force, g (3,)
+    acc_cov: np.ndarray           #: covariance of the mean, g^2 (3, 3)
+    acc_sample_cov: np.ndarray    #: within-interval sample covariance, g^2
+    n: int
+    t0: float                     #: s
+    t1: float
+    temp: float                   #: mean, degC (nan when unknown)
+    gyro: Optional[np.ndarray] = None       #: mean, deg/s
+    gyro_cov: Optional[np.ndarray] = None   #: covariance of the mean
+    mag: Optional[np.ndarray] = None        #: mean of fresh readings, gauss
+    i0: int = -1                  #: first sample, index in the stream since start
+    i1: int = -1                  #: one past the last sample
+
+
+class StillnessDetector:
+    def __init__(self, rate_hz: float, window_s: float = DEFAULTS["window_s"],
+                 k: float = DEFAULTS["k"], min_still_s: float = DEFAULTS["min_still_s"],
+                 max_pose_s: float = DEFAULTS["max_pose_s"], trim_s: float = DEFAULTS["trim_s"],
+                 max_turn_deg: float = DEFAULTS["max_turn_deg"]):
+        self.rate = float(rate_hz)
+        self.w = max(3, int(round(window_s * rate_hz)))
+        self.window_s = self.w / self.rate
+        self.k, self.max_turn_deg = float(k), float(max_turn_deg)
+        self.min_n = max(3, int(round(min_still_s * rate_hz)))
+        self.max_n = max(self.min_n, int(round(max_pose_s * rate_hz)))
+        self.trim_n = int(round(trim_s * rate_hz))
+        self.dropped = 0
+        self.floor_a: Optional[float] = None
+        self.bias_g: Optional[np.ndarray] = None
+        self._seen = 0                       # samples received
+        self._last = None                    # last good row, fills bad ones for the statistics
+        self._tail = None                    # last w-1 rows of [acc | gyro] (filled)
+        self._blk = None                     # partial non-overlapping window
+        self._hist_a = deque(maxlen=FLOOR_WINDOWS)
+        self._hist_g = deque(maxlen=FLOOR_WINDOWS)
+        self._F: Dict[int, tuple] = {}       # windows completed -> (floor, bias)
+        self._nblk = 0
+        self._buf: Optional[dict] = None     # samples whose still flag is not decided yet
+        self._q_done = 0                     # quiet flags known for stream index < this
+        self._run: List[dict] = []
+        self._run_n = 0
+        self._run_i0 = 0
+        self._run_cut = False                # run continues a piece cut at max_pose_s
+
+    # -- statistics -------------------------------------------------------------------
+    def _blocks(self, x: np.ndarray, gy: bool) -> None:
+        buf = x if self._blk is None else np.vstack([self._blk, x])
+        m = len(buf) // self.w
+        for b in (buf[:m * self.w].reshape(m, self.w, buf.shape[1]) if m else ()):
+            self._hist_a.append(float(b[:, :3].var(0, ddof=1).sum()))
+            if gy:
+                self._hist_g.append(b[:, 3:].mean(0))
+            self._nblk += 1
+            fa = _floor(np.fromiter(self._hist_a, float))
+            bias = None
+            if gy:
+                ga = np.array(self._hist_g)
+                qa = np.fromiter(self._hist_a, float) <= self.k * fa
+                bias = np.median(ga[qa] if qa.any() else ga, axis=0)
+            self._F[self._nblk] = (fa, bias)
+            self.floor_a, self.bias_g = fa, bias
+        self._blk = buf[m * self.w:]
+
+    def _window_stats(self, x: np.ndarray):
+        full = x if self._tail is None else np.vstack([self._tail, x])
+        n = len(x)
+        self._tail = full[-(self.w - 1):]
+        ref = full[0]
+        c1 = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), full - ref]), 0)
+        c2 = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), (full - ref) ** 2]), 0)
+        hi = np.arange(len(full) - n, len(full)) + 1
+        lo = np.maximum(hi - self.w, 0)
+        cnt = (hi - lo)[:, None]
+        s1, s2 = c1[hi] - c1[lo], c2[hi] - c2[lo]
+        var = np.maximum(s2 - s1 * s1 / cnt, 0) / np.maximum(cnt - 1, 1)
+        return var[:, :3].sum(1), s1[:, 3:] / cnt + ref[3:], cnt[:, 0] >= self.w
+
+    # -- streaming --------------------------------------------------------------------
+    def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
+        """Feed one batch; returns (quiet flag per sample of the batch, intervals completed).
+
+        The quiet flag is the trailing-window test (False while undecided); poses
+        are emitted up to a window after their end."""
+        acc = np.asarray(acc, float)
+        n = len(acc)
+        x = acc if gyro is None else np.hstack([acc, np.asarray(gyro, float)])
+        good = np.all(np.isfinite(x), 1) & np.all(np.abs(x) < ABSURD, 1)
+        if not good.all():
+            self.dropped += int((~good).sum())
+            x = x.copy()
+            idx = np.where(good, np.arange(n), -1)
+            np.maximum.accumulate(idx, out=idx)
+            fill = self._last if self._last is not None else np.zeros(x.shape[1])
+            x = np.where((idx >= 0)[:, None], x[np.maximum(idx, 0)], fill)
+        if n:
+            self._last = x[-1]
+        self._blocks(x, gyro is not None)
+        va, gm, full = self._window_stats(x)
+        new = {"t": np.asarray(t, float), "acc": acc, "gyro": None if gyro is None else x[:, 3:],
+               "temp": None if temp is None else np.asarray(temp, float), "mag": mag,
+               "fresh": mag_fresh, "good": good & full, "ok": good, "va": va, "gm": gm,
+               "i": np.arange(self._seen, self._seen + n), "q": np.zeros(n, bool),
+               "known": np.zeros(n, bool)}
+        self._seen += n
+        if gyro is not None:
+            new["gyro"] = np.asarray(gyro, float)
+        self._buf = new if self._buf is None else {
+            k: (None if v is None else np.concatenate([self._buf[k], v])) for k, v in new.items()}
+        self._judge()
+        b = self._buf
+        q_batch = b["q"][-n:] & b["known"][-n:] if n else np.zeros(0, bool)
+        return q_batch, self._advance(final=False)
+
+    def flush(self) -> List[StaticInterval]:
+        """End of stream: judge what waits (with the floor known so far) and close the run."""
+        if self._buf is None:
+            return []
+        self._judge(final=True)
+        out = self._advance(final=True)
+        if self._run:
+            iv = self._close(trim=True)
+            if iv is not None:
+                out.append(iv)
+        return out
+
+    def _judge(self, final: bool = False) -> None:
+        b = self._buf
+        todo = ~b["known"]
+        if not todo.any() or not self._F:
+            return
+        j = np.maximum(b["i"] // self.w, WARMUP_WINDOWS)
+        if final:
+            j = np.minimum(j, self._nblk)
+        avail = todo & (j <= self._nblk)
+        for jj in np.unique(j[avail]):
+            sel = avail & (j == jj)
+            fa, bias = self._F[int(jj)]
+            q = b["good"][sel] & (b["va"][sel] <= self.k * fa)
+            if bias is not None:
+                turn = np.linalg.norm(b["gm"][sel] - bias, axis=1) * self.window_s
+                q &= turn <= self.max_turn_deg
+            b["q"][sel] = q
+            b["known"][sel] = True
+        lo = max(int(b["i"][0]) // self.w, WARMUP_WINDOWS) if len(b["i"]) else self._nblk
+        for kk in [kk for kk in self._F if kk < min(lo, self._nblk)]:
+            del self._F[kk]              # no waiting sample needs these floors any more
+
+    def _advance(self, final: bool) -> List[StaticInterval]:
+        """Decide 'still' (some quiet window holds the sample) where the look-ahead is known."""
+        b = self._buf
+        known = b["known"]
+        nk = int(np.argmin(known)) if not known.all() else len(known)
+        # sample i is still if any window ending in [i, i+w-1] is quiet (and it is good)
+        q = b["q"][:nk]
+        nd = nk if final else max(0, nk - (self.w - 1))
+        if nd == 0:
+            return []
+        c = np.concatenate([[0], np.cumsum(q)])
+        hi = np.minimum(np.arange(nd) + self.w, nk)
+        still = (c[hi] - c[np.arange(nd)] > 0) & b["ok"][:nd]
+        out = self._runs(still, {k: (None if b[k] is None else b[k][:nd]) for k in _CH + ("i",)})
+        self._buf = {k: (None if v is None else v[nd:]) for k, v in b.items()}
+        return out
+
+    # -- intervals --------------------------------------------------------------------
+    def _runs(self, still, ch) -> List[StaticInterval]:
+        out: List[StaticInterval] = []
+        n, i = len(still), 0
+        while i < n:
+            j = i
+            while j < n and still[j] == still[i]:
+                j += 1
+            if still[i]:
+                s = i
+                while s < j:
+                    take = min(j - s, self.max_n - self._run_n)
+                    if not self._run:
+                        self._run_i0 = int(ch["i"][s])
+                    self._run.append({k: (None if ch[k] is None else ch[k][s:s + take]) for k in _CH})
+                    self._run_n += take
+                    s += take
+                    if self._run_n >= self.max_n:
+                        iv = self._close(trim=False)
+                        if iv is not None:
+                            out.append(iv)
+                        self._run_cut = True
+            elif self._run:
+                iv = self._close(trim=True)
+                if iv is not None:
+                    out.append(iv)
+            i = j
+        return out
+
+    def _close(self, trim: bool) -> Optional[StaticInterval]:
+        run, self._run, self._run_n = self._run, [], 0
+        start = 0 if self._run_cut else self.trim_n
+        if trim:
+            self._run_cut = False
+        cat = lambda k: None if run[0][k] is None else np.concatenate([r[k] for r in run])
+        t, acc = cat("t"), cat("acc")
+        end = len(t)
+        if trim:
+            # a slow motion onset shows in the means before the variance: cut where a
+            # short moving average first leaves the first half's mean by 5 sigma
+            end = max(0, _onset(acc) - self.trim_n)
+        if end - start < self.min_n:
+            return None
+        sl = slice(start, end)
+        t, acc = t[sl], acc[sl]
+        gyro, temp, mag, fresh = cat("gyro"), cat("temp"), cat("mag"), cat("fresh")
+        m = acc.mean(0)
+        d = acc - m
+        sc = d.T @ d / (len(acc) - 1)
+        tmp = float("nan")
+        if temp is not None and np.isfinite(temp[sl]).any():
+            tmp = float(np.nanmean(temp[sl]))
+        iv = StaticInterval(m, sc / len(acc), sc, len(acc), float(t[0]), float(t[-1]), tmp,
+                            i0=self._run_i0 + start, i1=self._run_i0 + end)
+        if gyro is not None:
+            g = gyro[sl]
+            iv.gyro = g.mean(0)
+            dg = g - iv.gyro
+            iv.gyro_cov = dg.T @ dg / (len(g) - 1) / len(g)
+        if mag is not None:
+            mm = np.asarray(mag, float)[sl]
+            f = np.asarray(fresh, bool)[sl].copy() if fresh is not None else np.ones(len(mm), bool)
+            f &= np.all(np.isfinite(mm), axis=1)
+            if f.any():
+                iv.mag = mm[f].mean(0)
+        return iv
+
+
+def _onset(acc: np.ndarray, short: int = 10) -> int:
+    """Index where motion starts at the end of a still run (len(acc) if none)."""
+    n = len(acc)
+    if n < 4 * short:
+        return n
+    half = n // 2
+    m0 = acc[:half].mean(0)
+    sd = acc[:half].std(0, ddof=1) + 1e-12
+    c = np.cumsum(np.vstack([np.zeros((1, 3)), acc]), 0)
+    ma = (c[short:] - c[:-short]) / short            # ma[i] = mean of acc[i:i+short]
+    dev = np.abs(ma - m0) / (sd / np.sqrt(short))
+    bad = np.flatnonzero(dev[half:].max(1) > 5.0)
+    return n if not len(bad) else half + int(bad[0])
+
+
+def _floor(v: np.ndarray) -> float:
+    f = float(np.percentile(v, FLOOR_PCT))
+    if f <= 0:  # quantised, noiseless data: the smallest positive variance
+        pos = v[v > 0]
+        f = float(pos.min()) if pos.size else 1e-12
+    return f

@@ -1,0 +1,106 @@
+"""The one stillness detector: the batch call and the streaming daemon find the same
+poses; hand tremor passes; non-finite and absurd samples do not wipe detection out."""
+import numpy as np
+import pytest
+
+from imucald.calib.poses import detect_static, merge_cut
+from imucald.calib.stillness import StillnessDetector
+from imucald.recording import Recording
+from imucald.sim.poses import random_pose_set
+from imucald.sim.sensor import simulate_session
+
+from .conftest import real_path
+
+
+def _streamed(rec, batch_n, rate):
+    """What the daemon and replay do: the detector fed in batches, then flushed."""
+    det = StillnessDetector(rate)
+    ivs = []
+    for i in range(0, len(rec.t), batch_n):
+        sl = slice(i, i + batch_n)
+        ivs += det.update(rec.t[sl], rec.acc[sl], None if rec.gyro is None else rec.gyro[sl])[1]
+    return merge_cut(ivs + det.flush())
+
+
+def _tremor(rng, n, rate, gyro_rms_dps):
+    """Band-limited (6-12 Hz) angular tremor, rad, per axis: the same small oscillation
+    gives the gyro its rate and the accelerometer the gravity-direction wobble."""
+    f = np.fft.rfftfreq(n, 1 / rate)
+    spec = (rng.normal(size=(3, len(f))) + 1j * rng.normal(size=(3, len(f)))) * ((f >= 6) & (f <= 12))
+    rate_dps = np.fft.irfft(spec, n).T
+    rate_dps *= gyro_rms_dps / rate_dps.std(0)
+    ang = np.cumsum(rate_dps, 0) / rate * np.pi / 180
+    return rate_dps, ang - ang.mean(0)
+
+
+def _hand_session(seed, holds=(1.5, 3.0), n_poses=10):
+    rng = np.random.default_rng(seed)
+    s = simulate_session("mpu6050", random_pose_set(n_poses, rng), rng, hold_s=holds,
+                         move_s=(1.5, 3.0), lead_s=0.0)
+    rec = s.recording
+    rate_dps, ang = _tremor(rng, len(rec.t), rec.rate_hz, 1.5)
+    g = rec.acc.copy()
+    rec.acc = rec.acc + np.cross(ang, g)           # small-angle rotation of the gravity reading
+    rec.gyro = rec.gyro + rate_dps
+    return s, rec
+
+
+@pytest.mark.parametrize("batch_n", [1, 7, 100])
+def test_batch_and_streaming_find_the_same_poses_simulated(batch_n):
+    s, rec = _hand_session(3)
+    a = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+    assert a == _streamed(rec, batch_n, rec.rate_hz)
+
+
+def test_batch_and_streaming_find_the_same_poses_on_real_xsens():
+    p = real_path("imutk_xsens_mti", "xsens_acc.mat")
+    a = np.loadtxt(str(p))
+    g = np.loadtxt(str(real_path("imutk_xsens_mti", "xsens_gyro.mat")))
+    rec = Recording(t=a[:, 0] - a[0, 0], acc=(a[:, 1:4] - 32768) / (415 * 9.80665),
+                    gyro=(g[:, 1:4] - 32768) / (4778 * np.pi / 180))
+    b = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=100.0)
+    assert len(b) == 38              # SOURCE.md: 38 (k = 10) to 40 (k = 3) segments
+    assert b == _streamed(rec, 20, 100.0)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_short_hand_held_holds_with_tremor_count(seed):
+    s, rec = _hand_session(seed)
+    gstd = np.array([rec.gyro[int(h0 * 100) + 50:int(h1 * 100) - 50].std(0) for h0, h1 in s.hold])
+    assert np.median(gstd) > 0.8                   # the tremor the real hands show
+    sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+    mids = np.array([(rec.t[x.start] + rec.t[x.stop - 1]) / 2 for x in sl])
+    found = [np.any((mids > h0) & (mids < h1)) for h0, h1 in s.hold]
+    assert all(found), found
+    assert len(sl) == len(s.hold)
+    for x in sl:                                    # and no pose straddles a move
+        assert any(rec.t[x.start] >= h0 - 0.01 and rec.t[x.stop - 1] <= h1 + 0.01 for h0, h1 in s.hold)
+
+
+def test_a_rotation_the_accelerometer_cannot_see_is_not_still():
+    # a slow turn about gravity: the accelerometer is unchanged, the gyro reads 5 deg/s
+    s, rec = _hand_session(4)
+    base = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+    h0, h1 = s.hold[5]
+    gy = rec.gyro.copy()
+    inside = (rec.t > h0) & (rec.t < h1)
+    gy[inside] += 5.0 * rec.acc[inside] / np.linalg.norm(rec.acc[inside], axis=1)[:, None]
+    turned = detect_static(rec.t, rec.acc, gy, rate_hz=rec.rate_hz)
+    assert len(turned) == len(base) - 1
+
+
+@pytest.mark.parametrize("bad", [np.nan, 1e308, np.inf])
+def test_one_absurd_sample_does_not_wipe_out_detection(bad):
+    s, rec = _hand_session(5)
+    base = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+    det = StillnessDetector(rec.rate_hz)
+    acc = rec.acc.copy()
+    i = base[2].start + 40                          # inside the third pose
+    acc[i, 1] = bad
+    ivs = det.update(rec.t, acc, rec.gyro)[1] + det.flush()
+    assert det.dropped == 1
+    sl = merge_cut(ivs)
+    # the pose holding the bad sample ends before it or starts after it; the rest stand
+    assert len(sl) >= len(base) - 1
+    assert all(not (x.start <= i < x.stop) for x in sl)
+    assert all(np.all(np.isfinite(acc[x])) for x in sl)

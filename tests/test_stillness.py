@@ -22,27 +22,25 @@ def _streamed(rec, batch_n, rate):
     return merge_cut(ivs + det.flush())
 
 
-def _tremor(rng, n, rate, gyro_rms_dps):
-    """Band-limited (6-12 Hz) angular tremor, rad, per axis: the same small oscillation
-    gives the gyro its rate and the accelerometer the gravity-direction wobble."""
-    f = np.fft.rfftfreq(n, 1 / rate)
-    spec = (rng.normal(size=(3, len(f))) + 1j * rng.normal(size=(3, len(f)))) * ((f >= 6) & (f <= 12))
-    rate_dps = np.fft.irfft(spec, n).T
-    rate_dps *= gyro_rms_dps / rate_dps.std(0)
-    ang = np.cumsum(rate_dps, 0) / rate * np.pi / 180
-    return rate_dps, ang - ang.mean(0)
-
-
 def _hand_session(seed, holds=(1.5, 3.0), n_poses=10):
+    """Hand-held: 1.5-3 s holds, hand tremor 1.5 deg/s RMS per gyro axis."""
     rng = np.random.default_rng(seed)
     s = simulate_session("mpu6050", random_pose_set(n_poses, rng), rng, hold_s=holds,
-                         move_s=(1.5, 3.0), lead_s=0.0)
-    rec = s.recording
-    rate_dps, ang = _tremor(rng, len(rec.t), rec.rate_hz, 1.5)
-    g = rec.acc.copy()
-    rec.acc = rec.acc + np.cross(ang, g)           # small-angle rotation of the gravity reading
-    rec.gyro = rec.gyro + rate_dps
-    return s, rec
+                         move_s=(1.5, 3.0), lead_s=0.0, tremor_dps=1.5)
+    return s, s.recording
+
+
+def test_simulated_tremor_is_what_real_hands_show():
+    s, rec = _hand_session(8, holds=6.0)
+    rng = np.random.default_rng(8)                 # the same session without tremor
+    quiet = simulate_session("mpu6050", random_pose_set(10, rng), rng, hold_s=6.0,
+                             move_s=(1.5, 3.0), lead_s=0.0).recording
+    mid = lambda r, h0, h1: slice(int(h0 * r.rate_hz) + 50, int(h1 * r.rate_hz) - 50)
+    g = np.array([rec.gyro[mid(rec, *h)].std(0) for h in s.hold])
+    ratio = np.array([rec.acc[mid(rec, *h)].var(0).sum() / quiet.acc[mid(quiet, *h)].var(0).sum()
+                      for h in s.hold])
+    assert np.all((g > 1.2) & (g < 1.8))          # 1.5 deg/s RMS per axis
+    assert np.all((ratio > 1.3) & (ratio < 3.2))   # real hand poses: 1.3-3.2x the floor
 
 
 @pytest.mark.parametrize("batch_n", [1, 7, 100])
@@ -104,3 +102,28 @@ def test_one_absurd_sample_does_not_wipe_out_detection(bad):
     assert len(sl) >= len(base) - 1
     assert all(not (x.start <= i < x.stop) for x in sl)
     assert all(np.all(np.isfinite(acc[x])) for x in sl)
+
+
+def _pipeline_poses(rec, board="mpu6050"):
+    """The daemon's pipeline fed the way replay feeds it (batch_s from the config)."""
+    from imucald.daemon.config import load_config
+    from imucald.daemon.pipeline import Pipeline
+    from imucald.drivers.board import SampleBatch
+    cfg = load_config(None)
+    pipe = Pipeline(cfg, board, rec.rate_hz, has_mag=False)
+    got = []
+    pipe._pose = got.append
+    n = len(rec.t)
+    step = max(1, int(round(cfg["sensor"]["batch_s"] * rec.rate_hz)))
+    seq = np.arange(n, dtype=np.int64)
+    temp = np.full(n, 25.0)
+    for i in range(0, n, step):
+        sl = slice(i, min(n, i + step))
+        pipe.process(SampleBatch(rec.t[sl], seq[sl], rec.acc[sl], rec.gyro[sl], temp[sl], None, None))
+    pipe.end_of_stream()
+    return merge_cut(got)
+
+
+def test_the_daemon_pipeline_and_calibrate_find_the_same_poses():
+    s, rec = _hand_session(6)
+    assert _pipeline_poses(rec) == detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)

@@ -39,8 +39,7 @@ import numpy as np
 
 __all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS"]
 
-DEFAULTS = {"window_s": 1.0, "k": 6.0, "min_still_s": 1.0, "max_pose_s": 20.0,
-            "trim_s": 0.25, "max_turn_deg": 0.5}
+from . import STILLNESS_DEFAULTS as DEFAULTS
 FLOOR_PCT = 5.0
 FLOOR_WINDOWS = 300
 WARMUP_WINDOWS = 8

@@ -53,7 +53,8 @@ def cmd_simulate(args) -> int:
             raise UserError(f"--effect: {ex}") from None
     else:
         s = simulate_session(args.board, R, rng, rate_hz=args.rate, hold_s=hold, move_s=move,
-                             temp_kind=args.temp_profile, temp_rise_c=args.temp_rise)
+                             temp_kind=args.temp_profile, temp_rise_c=args.temp_rise,
+                             tremor_dps=args.tremor_dps)
     s.recording.meta["seed"] = str(args.seed)
     write_recording(s.recording, args.output)
     if args.truth:

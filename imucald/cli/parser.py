@@ -12,6 +12,7 @@ import argparse
 import importlib
 
 from .. import __version__
+from ..calib import STILLNESS_DEFAULTS as _ST
 from ..daemon.config import SCHEMA
 from ..specs import BOARDS as SIM_BOARDS
 from .boards import EMULATED_BOARDS
@@ -47,6 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--temp-profile", default="warmup", choices=["warmup", "ramp", "heatcool", "constant"])
     s.add_argument("--temp-rise", type=float, default=6.0, help="temperature change, degC")
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--tremor-dps", type=float, default=0.0,
+                   help="hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
     s.add_argument("--truth", help="also write the true parameters as JSON here")
     s.add_argument("--effect", action="append", help="inject an unmodelled effect: NAME or NAME=MAGNITUDE, "
                    "e.g. thermal_bias, accel.nonlinearity=0.002, gyro.g_sensitivity, mag.soft_iron; "
@@ -72,10 +75,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--nominal-offset", type=float, default=0.0,
                    help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit")
     c.add_argument("--rate-hz", type=float, help="raw table without a t column: sample rate")
-    c.add_argument("--window-s", type=float, default=1.0, help="still detector window, s")
-    c.add_argument("--threshold-k", type=float, default=6.0,
-                   help="still when moving variance < k x noise floor")
-    c.add_argument("--min-still-s", type=float, default=1.0, help="shortest still interval, s")
+    c.add_argument("--window-s", type=float, default=_ST["window_s"], help="still detector window, s")
+    c.add_argument("--threshold-k", type=float, default=_ST["k"],
+                   help="still when the accelerometer's moving variance < k x its noise floor")
+    c.add_argument("--min-still-s", type=float, default=_ST["min_still_s"],
+                   help="shortest still interval, s")
     c.set_defaults(func=_command("offline", "cmd_calibrate"))
 
     pr = sub.add_parser("probe", help="list what answers on the I2C bus and what each device is")

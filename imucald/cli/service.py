@@ -104,6 +104,7 @@ def cmd_replay(args) -> int:
         rows = _cat(pending)
         if len(rows[0]):
             out.write(pipe.process(SampleBatch(*rows)))
+        out.write(pipe.end_of_stream())
     out.flush()
     if args.state_dir and pipe.applied.id:
         os.makedirs(args.state_dir, exist_ok=True)

@@ -11,7 +11,7 @@ from typing import Any, Dict, Optional, Tuple
 import yaml
 
 from ..errors import UserError
-from ..calib.stillness import DEFAULTS as _STILL  # one set of stillness defaults
+from ..calib import STILLNESS_DEFAULTS as _STILL  # one set of stillness defaults
 
 __all__ = ["ConfigError", "DEFAULTS", "load_config", "validate", "set_override"]
 

@@ -110,6 +110,14 @@ class Pipeline:
         out.append(self.poll_calibration())
         return b"".join(out)
 
+    def end_of_stream(self) -> bytes:
+        """A recording ended (replay): the detector judges what waits and closes the
+        still run, so replay finds the poses ``calibrate`` finds in the same file."""
+        for iv in self.det.flush():
+            self._pose(iv)
+        self.maybe_calibrate()
+        return self.poll_calibration()
+
     # -- poses ------------------------------------------------------------------------
     def _pose(self, iv) -> None:
         what = self.acc.add(iv)

@@ -130,8 +130,8 @@ class StillnessDetector:
     def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
         """Feed one batch; returns (quiet flag per sample of the batch, intervals completed).
 
-        The quiet flag is the trailing-window test (False while undecided); poses
-        are emitted up to a window after their end."""
+        The quiet flag is the trailing-window test (during the warm-up, with the floor
+        known so far); poses are emitted up to a window after their end."""
         acc = np.asarray(acc, float)
         n = len(acc)
         x = acc if gyro is None else np.hstack([acc, np.asarray(gyro, float)])
@@ -160,7 +160,18 @@ class StillnessDetector:
         self._judge()
         b = self._buf
         q_batch = b["q"][-n:] & b["known"][-n:] if n else np.zeros(0, bool)
+        wait = ~b["known"][-n:] if n else np.zeros(0, bool)
+        if wait.any() and self._nblk:
+            # the live flag does not wait for the warm-up: it uses the floor known so far
+            q_batch[wait] = self._quiet({k: b[k][-n:][wait] for k in ("good", "va", "gm")},
+                                        *self._F[self._nblk])
         return q_batch, self._advance(final=False)
+
+    def _quiet(self, b, fa, bias) -> np.ndarray:
+        q = b["good"] & (b["va"] <= self.k * fa)
+        if bias is not None:
+            q &= np.linalg.norm(b["gm"] - bias, axis=1) * self.window_s <= self.max_turn_deg
+        return q
 
     def flush(self) -> List[StaticInterval]:
         """End of stream: judge what waits (with the floor known so far) and close the run."""
@@ -185,12 +196,8 @@ class StillnessDetector:
         avail = todo & (j <= self._nblk)
         for jj in np.unique(j[avail]):
             sel = avail & (j == jj)
-            fa, bias = self._F[int(jj)]
-            q = b["good"][sel] & (b["va"][sel] <= self.k * fa)
-            if bias is not None:
-                turn = np.linalg.norm(b["gm"][sel] - bias, axis=1) * self.window_s
-                q &= turn <= self.max_turn_deg
-            b["q"][sel] = q
+            b["q"][sel] = self._quiet({k: b[k][sel] for k in ("good", "va", "gm")},
+                                      *self._F[int(jj)])
             b["known"][sel] = True
         lo = max(int(b["i"][0]) // self.w, WARMUP_WINDOWS) if len(b["i"]) else self._nblk
         for kk in [kk for kk in self._F if kk < min(lo, self._nblk)]:

@@ -87,6 +87,7 @@ class StillnessDetector:
         self._F: Dict[int, tuple] = {}       # windows completed -> (floor, bias)
         self._nblk = 0
         self._buf: Optional[dict] = None     # samples whose still flag is not decided yet
+        self._pend: List[dict] = []          # batches received during the warm-up
         self._q_done = 0                     # quiet flags known for stream index < this
         self._run: List[dict] = []
         self._run_n = 0
@@ -155,19 +156,26 @@ class StillnessDetector:
         self._seen += n
         if gyro is not None:
             new["gyro"] = np.asarray(gyro, float)
-        self._buf = new if self._buf is None else {
-            k: (None if v is None else np.concatenate([self._buf[k], v])) for k, v in new.items()}
+        self._pend.append(new)
+        if self._nblk < WARMUP_WINDOWS:
+            # warm-up: nothing is decided yet; keep the batches (joined once, later)
+            q_batch = np.zeros(n, bool)
+            if self._nblk:    # the live flag does not wait: it uses the floor known so far
+                q_batch = self._quiet(new, *self._F[self._nblk])
+            return q_batch, []
+        self._join()
         self._judge()
-        b = self._buf
-        q_batch = b["q"][-n:] & b["known"][-n:] if n else np.zeros(0, bool)
-        wait = ~b["known"][-n:] if n else np.zeros(0, bool)
-        if wait.any() and self._nblk:
-            # the live flag does not wait for the warm-up: it uses the floor known so far
-            q_batch[wait] = self._quiet({k: b[k][-n:][wait] for k in ("good", "va", "gm")},
-                                        *self._F[self._nblk])
-        return q_batch, self._advance(final=False)
+        return self._buf["q"][-n:].copy() if n else np.zeros(0, bool), self._advance(final=False)
+
+    def _join(self) -> None:
+        parts = ([self._buf] if self._buf is not None else []) + self._pend
+        self._pend = []
+        self._buf = parts[0] if len(parts) == 1 else {
+            k: (None if parts[0][k] is None else np.concatenate([p[k] for p in parts]))
+            for k in parts[0]}
 
     def _quiet(self, b, fa, bias) -> np.ndarray:
+        """Quiet trailing windows: accelerometer variance <= k floor, turn <= max_turn_deg."""
         q = b["good"] & (b["va"] <= self.k * fa)
         if bias is not None:
             q &= np.linalg.norm(b["gm"] - bias, axis=1) * self.window_s <= self.max_turn_deg
@@ -175,6 +183,8 @@ class StillnessDetector:
 
     def flush(self) -> List[StaticInterval]:
         """End of stream: judge what waits (with the floor known so far) and close the run."""
+        if self._pend:
+            self._join()
         if self._buf is None:
             return []
         self._judge(final=True)

@@ -87,7 +87,8 @@ class StillnessDetector:
         self._F: Dict[int, tuple] = {}       # windows completed -> (floor, bias)
         self._nblk = 0
         self._buf: Optional[dict] = None     # samples whose still flag is not decided yet
-        self._pend: List[dict] = []          # batches received during the warm-up
+        self._pend: List[dict] = []          # batches not yet joined (warm-up, or < w/4)
+        self._pend_n = 0
         self._q_done = 0                     # quiet flags known for stream index < this
         self._run: List[dict] = []
         self._run_n = 0
@@ -157,19 +158,20 @@ class StillnessDetector:
         if gyro is not None:
             new["gyro"] = np.asarray(gyro, float)
         self._pend.append(new)
-        if self._nblk < WARMUP_WINDOWS:
-            # warm-up: nothing is decided yet; keep the batches (joined once, later)
-            q_batch = np.zeros(n, bool)
-            if self._nblk:    # the live flag does not wait: it uses the floor known so far
-                q_batch = self._quiet(new, *self._F[self._nblk])
+        self._pend_n += n
+        # the live flag: this batch against the floor known now (it does not wait)
+        q_batch = self._quiet(new, *self._F[self._nblk]) if self._nblk else np.zeros(n, bool)
+        if self._nblk < WARMUP_WINDOWS or self._pend_n < max(1, self.w // 4):
+            # poses are decided in chunks of a quarter window (the decisions do not depend
+            # on the chunking; the per-batch cost at 1-2 samples a batch does)
             return q_batch, []
         self._join()
         self._judge()
-        return self._buf["q"][-n:].copy() if n else np.zeros(0, bool), self._advance(final=False)
+        return q_batch, self._advance(final=False)
 
     def _join(self) -> None:
         parts = ([self._buf] if self._buf is not None else []) + self._pend
-        self._pend = []
+        self._pend, self._pend_n = [], 0
         self._buf = parts[0] if len(parts) == 1 else {
             k: (None if parts[0][k] is None else np.concatenate([p[k] for p in parts]))
             for k in parts[0]}

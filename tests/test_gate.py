@@ -1,0 +1,183 @@
+"""The acceptance gate (calib/gate.py): the signed-rank test itself, the CV scheme's
+pose count, the false-accept property against the truth, and its power."""
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from imucald.calib.fit import fit_norm
+from imucald.calib.gate import (fold_groups, gate_accel, gate_gyro_bias, loo_weighted_mean_residuals,
+                                paired_gate, poses_needed, signed_rank_p)
+from imucald.calib.models import Triangular9
+from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.sim.sensor import draw_truth, pose_sigma
+from imucald.sim.specs import ACCEL
+
+T9 = Triangular9()
+#: 2 s hand-held holds at 100 Hz, MPU-6050 datasheet noise density
+SIGMA_POSE_G = pose_sigma(ACCEL["mpu6050"].noise_density_g_rthz, 100.0, 2.0)[1]
+ALPHA = 0.05
+
+
+def _dirs(n=2000):
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + 5 ** 0.5) * i
+    r = np.sqrt(1 - z * z)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+DIRS = _dirs()
+
+
+def truth_error(theta, truth):
+    raw = T9.inverse(truth, DIRS)
+    return float(np.sqrt(np.mean(np.sum((T9.forward(theta, raw) - DIRS) ** 2, 1))))
+
+
+def session(truth, n, rng):
+    ups = up_vectors(random_pose_set(n, rng))
+    s = SIGMA_POSE_G * rng.uniform(1.0, 3.0, n)          # tremor: up to 3x the floor
+    raw = T9.inverse(truth, ups) + rng.normal(size=(n, 3)) * s[:, None]
+    return raw, np.eye(3)[None] * (s ** 2)[:, None, None]
+
+
+def binom_upper(n, p, tail=0.002):
+    """Largest count a Binomial(n, p) exceeds with probability below ``tail``."""
+    q = 0
+    while sum(math.comb(n, k) * p ** k * (1 - p) ** (n - k) for k in range(q + 1, n + 1)) >= tail:
+        q += 1
+    return q
+
+
+# --- the test statistic ---------------------------------------------------------------------
+@pytest.mark.parametrize("d", [
+    [0.3, -0.1, 0.7, 1.2, -0.4, 0.9, 0.2],
+    [1, 1, 2, -1, 3, 3, -2, 4],                  # tied magnitudes
+    [0.5, 0, -0.2, 0.8, 0, 1.1],                 # zeros are dropped
+    [-1.0, -2.0, -3.0],
+])
+def test_signed_rank_p_is_the_exact_permutation_tail(d):
+    d = np.array(d, float)
+    nz = d[d != 0]
+    a = np.abs(nz)
+    ranks = np.array([np.mean(np.flatnonzero(np.sort(a) == x) + 1) for x in a])
+    w = ranks[nz > 0].sum()
+    tails = [ranks[np.array(s, bool)].sum() >= w - 1e-9
+             for s in itertools.product([0, 1], repeat=len(nz))]
+    assert signed_rank_p(d) == pytest.approx(np.mean(tails), rel=1e-12)
+
+
+def test_signed_rank_p_matches_scipy_normal_approximation_for_large_sets():
+    st = pytest.importorskip("scipy.stats")
+    d = np.random.default_rng(3).normal(0.15, 1.0, 300)
+    ref = st.wilcoxon(d, alternative="greater", method="approx", correction=True).pvalue
+    assert signed_rank_p(d) == pytest.approx(ref, rel=1e-6)
+
+
+def test_paired_gate_rejects_nan_rather_than_skipping_it():
+    with pytest.raises(ValueError, match="non-finite"):
+        paired_gate(np.ones(10), np.r_[np.ones(9), np.nan])
+
+
+# --- the cross-validation scheme ------------------------------------------------------------
+def test_poses_needed_follows_the_parameter_count_and_the_folds():
+    assert poses_needed(9) == 10                 # leave-one-out: 9 poses left for 9 parameters
+    assert poses_needed(6) == 7
+    n = poses_needed(9, folds=5)                 # 5 folds hold out 2..3 of 12
+    assert all(n - len(g) >= 9 for g in fold_groups(n, 5))
+    assert any(n - 1 - len(g) < 9 for g in fold_groups(n - 1, 5))
+    assert [len(g) for g in fold_groups(61)] == [7] * 1 + [6] * 9
+
+
+def test_loo_weighted_mean_residuals_refit_without_each_pose():
+    rng = np.random.default_rng(0)
+    x, w = rng.normal(size=(6, 3)), rng.integers(50, 300, 6).astype(float)
+    e = loo_weighted_mean_residuals(x, w)
+    for i in range(6):
+        k = np.arange(6) != i
+        assert np.allclose(e[i], x[i] - (x[k] * w[k, None]).sum(0) / w[k].sum())
+
+
+# --- false accepts, judged by the truth -----------------------------------------------------
+TRIALS = 50
+
+
+def test_false_accepts_stay_within_alpha_when_the_incumbent_is_near_the_truth():
+    """Incumbent fitted on an earlier session of the same size: candidate and incumbent
+    are equally good in distribution, so every acceptance is one a 'no better' null
+    allows at rate alpha.  Both the acceptances and the truly worse ones applied must
+    stay within the binomial tolerance of alpha (the former bare comparison accepted
+    about 35 % and applied a truly worse one in about 17 %)."""
+    rng = np.random.default_rng(11)
+    accepted = worse_applied = 0
+    for t in range(TRIALS):
+        truth = draw_truth("mpu6050", rng).accel
+        raw0, cov0 = session(truth, 25, rng)
+        inc = fit_norm(raw0, "triangular9", "lm", pose_cov=cov0, rng=t, heldout=False).theta
+        raw, cov = session(truth, 25, rng)
+        cal, _, dec = gate_accel(raw, cov, T9.forward(inc, raw), "lm", ALPHA, rng=t)
+        accepted += dec.accept
+        worse_applied += dec.accept and truth_error(cal.theta, truth) > truth_error(inc, truth)
+    bound = binom_upper(TRIALS, ALPHA)
+    assert accepted <= bound, (accepted, bound)
+    assert worse_applied <= bound, (worse_applied, bound)
+
+
+def test_a_candidate_is_not_accepted_against_the_truth_itself():
+    """The incumbent is the truth: every candidate is worse.  Scoring the candidate on
+    the poses it was fitted on (no cross-validation) would accept it every time."""
+    rng = np.random.default_rng(12)
+    accepted = 0
+    for t in range(TRIALS):
+        truth = draw_truth("mpu6050", rng).accel
+        raw, cov = session(truth, 25, rng)
+        _, _, dec = gate_accel(raw, cov, T9.forward(truth, raw), "lm", ALPHA, rng=t)
+        accepted += dec.accept
+    assert accepted <= binom_upper(TRIALS, ALPHA)
+
+
+# --- power ------------------------------------------------------------------------------------
+def test_a_clearly_better_candidate_is_accepted():
+    """Incumbent off by 5 mg of bias (10x the pose noise): the new fit must replace it."""
+    rng = np.random.default_rng(13)
+    acc = []
+    for t in range(10):
+        truth = draw_truth("mpu6050", rng).accel
+        inc = truth.copy()
+        inc[6:9] += 0.005 * rng.normal(size=3) / np.sqrt(3)
+        raw, cov = session(truth, 25, rng)
+        _, _, dec = gate_accel(raw, cov, T9.forward(inc, raw), "lm", ALPHA, rng=t)
+        acc.append(dec.accept)
+    assert sum(acc) >= 9, acc
+
+
+def test_first_calibration_from_a_raw_sensor_at_the_tenth_hand_pose():
+    rng = np.random.default_rng(14)
+    acc = []
+    for t in range(10):
+        truth = draw_truth("mpu6050", rng).accel.copy()
+        b = rng.normal(size=3)
+        truth[6:9] = 0.1 * b / np.linalg.norm(b)
+        raw, cov = session(truth, 10, rng)
+        cal, r_cv, dec = gate_accel(raw, cov, raw, "lm", ALPHA, against="raw", rng=t)
+        assert dec.against == "raw" and dec.n == 10 and np.all(np.isfinite(r_cv))
+        acc.append(dec.accept)
+        # the applied parameters are the all-pose fit, within a few mg of the truth
+        assert truth_error(cal.theta, truth) < truth_error(T9.nominal, truth) / 10
+    assert sum(acc) >= 9, acc
+
+
+def test_gyro_bias_gate():
+    rng = np.random.default_rng(15)
+    n = 12
+    w = rng.integers(150, 300, n).astype(float)
+    sd = 0.05 / np.sqrt(w)                                    # dps, pose-mean noise
+    true_b = np.array([0.8, -1.1, 0.4])
+    m = true_b + rng.normal(size=(n, 3)) * sd[:, None]
+    bias, dec = gate_gyro_bias(m, w, m, ALPHA, "raw")          # raw: a still pose reads the bias
+    assert dec.accept and np.allclose(bias, true_b, atol=5 * sd.max())
+    # the incumbent is the truth: the refitted mean cannot do significantly better
+    _, dec = gate_gyro_bias(m, w, m - true_b, ALPHA)
+    assert not dec.accept

@@ -232,6 +232,7 @@ def test_bus_faults_do_not_stop_the_daemon(tmp_path):
     (["--rate", "5000"], 78, "--rate: sensor.rate_hz: 5000.0 is out of range; allowed 4.0..1000.0"),
     (["--config", "{bad}"], 78, "bad.yaml:3: sensor.rate_hz: 'fast' is not a number"),
     (["--config", "{unknown}"], 78, "unknown.yaml:2: unknown key 'sensor.baud'"),
+    (["--min-poses", "9"], 78, "--min-poses: calibration.min_poses: 9 is too few"),
 ])
 def test_bad_start_exits_non_zero_with_one_line(tmp_path, args, code, msg):
     (tmp_path / "bad.yaml").write_text("sensor:\n  board: mpu6050\n  rate_hz: fast\n")
@@ -255,8 +256,17 @@ def test_config_validation_names_key_value_and_allowed(tmp_path):
     with pytest.raises(ConfigError, match=r"c.yaml:2: not valid YAML"):
         load_config(str(f))
     f.write_text("calibration:\n  min_poses: 3\n")
-    with pytest.raises(ConfigError, match=r"min_poses: 3 is out of range; allowed 10..500"):
+    with pytest.raises(ConfigError, match=r"c.yaml:2: calibration.min_poses: 3 is too few: the triangular9 "
+                                          r"fit \(9 parameters\) scored by leave-one-pose-out needs at "
+                                          r"least 10 poses; allowed 10..500"):
         load_config(str(f))
+    # each key in range, together a contradiction: the accumulator could never hold min_poses
+    f.write_text("poses:\n  max_poses: 20\ncalibration:\n  min_poses: 25\n")
+    with pytest.raises(ConfigError, match=r"c.yaml:2: poses.max_poses: 20 is below calibration.min_poses 25"):
+        load_config(str(f))
+    # the fewest poses a fit needs is a valid setting
+    f.write_text("calibration:\n  min_poses: 10\n")
+    assert load_config(str(f))["calibration"]["min_poses"] == 10
     assert load_config(os.path.join(ROOT, "config", "imucald.yaml"))["sensor"]["rate_hz"] == 100.0
 
 

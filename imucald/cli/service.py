@@ -17,11 +17,12 @@ def _setup_logging(level: str) -> None:
 
 
 def _daemon_config(args):
-    from ..daemon.config import load_config, set_override
+    from ..daemon.config import _lines, check_consistency, load_config, set_override
     path = args.config
     if path is None and os.path.exists(DEFAULT_CONFIG):
         path = DEFAULT_CONFIG
     cfg = load_config(path)
+    flags = {}
     for attr, key, flag in (("board", "sensor.board", "--board"), ("rate", "sensor.rate_hz", "--rate"),
                             ("mag", "sensor.magnetometer", "--mag"),
                             ("bus", "sensor.bus", "--bus"), ("state_dir", "state.directory", "--state-dir"),
@@ -33,6 +34,13 @@ def _daemon_config(args):
         v = getattr(args, attr, None)
         if v is not None:
             set_override(cfg, key, v, flag)
+            flags[key] = flag
+    if flags:       # an override may contradict a key of the file (or another override)
+        lines = {}
+        if path is not None:
+            with open(path, encoding="utf-8") as fh:
+                lines = _lines(fh.read())
+        check_consistency(cfg, path or "", lines, flags)
     return cfg, path
 
 

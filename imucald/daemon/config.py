@@ -13,7 +13,8 @@ import yaml
 from ..errors import UserError
 from ..calib import STILLNESS_DEFAULTS as _STILL  # one set of stillness defaults
 
-__all__ = ["ConfigError", "DEFAULTS", "load_config", "validate", "set_override"]
+__all__ = ["ConfigError", "DEFAULTS", "load_config", "validate", "set_override",
+           "check_consistency", "accel_poses_needed"]
 
 
 class ConfigError(UserError):
@@ -40,11 +41,17 @@ SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
     "stillness.trim_s": (_STILL["trim_s"], "float", (0.0, 5.0)),
     "poses.merge_angle_deg": (12.0, "float", (0.5, 45.0)),
     "poses.max_poses": (60, "int", (10, 500)),
-    "calibration.min_poses": (25, "int", (10, 500)),
+    # the lower limit is what a fit needs (checked in check_consistency, from the model's
+    # parameter count and the cross-validation scheme)
+    "calibration.min_poses": (25, "int", (2, 500)),
     "calibration.method": ("ga", "choice", ("ga", "hga", "lm", "ga-paper")),
     "calibration.target_bias_g": (0.002, "float", (1e-6, 1.0)),
     "calibration.target_scale": (0.002, "float", (1e-6, 1.0)),
+    # magnetometer cloud only: points withheld from its fit to validate it (poses are
+    # cross-validated, every one of them)
     "calibration.holdout_fraction": (0.2, "float", (0.05, 0.5)),
+    # the gate's stated rate of accepting a calibration that is no better (calib/gate.py)
+    "calibration.false_accept_rate": (0.05, "float", (0.001, 0.5)),
     "calibration.recalibrate_every_poses": (5, "int", (1, 1000)),
     "calibration.mag_min_coverage": (0.5, "float", (0.05, 1.0)),
     "calibration.history": (10, "int", (0, 1000)),
@@ -159,7 +166,47 @@ def validate(cfg: Dict[str, Any], path: str = "", lines: Optional[Dict[str, int]
             key = f"{sec}.{k}"
             w = f"{path}:{lines.get(key, '?')}: " if path else ""
             out[sec][k] = _check(key, v, w)
+    check_consistency(out, path, lines)
     return out
+
+
+def accel_poses_needed() -> int:
+    """Fewest poses the daemon's accelerometer fit (triangular9) and its
+    leave-one-pose-out scoring need."""
+    from ..calib.gate import poses_needed
+    from ..calib.models import Triangular9
+    return poses_needed(Triangular9().k)
+
+
+def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
+                      lines: Optional[Dict[str, int]] = None, flags: Optional[Dict[str, str]] = None
+                      ) -> None:
+    """Keys that are each in range but contradict one another or what a fit needs.
+
+    flags: key -> the command-line flag that set it (named instead of file:line)."""
+    lines, flags = lines or {}, flags or {}
+
+    def where(key):
+        if key in flags:
+            return f"{flags[key]}: "
+        return f"{path}:{lines.get(key, '?')}: " if path else ""
+    c = cfg["calibration"]
+    need = accel_poses_needed()
+    if c["min_poses"] < need:
+        raise ConfigError(f"{where('calibration.min_poses')}calibration.min_poses: {c['min_poses']} is too "
+                          f"few: the triangular9 fit (9 parameters) scored by leave-one-pose-out needs "
+                          f"at least {need} poses; allowed {need}..500")
+    mp = cfg["poses"]["max_poses"]
+    if mp < c["min_poses"]:
+        raise ConfigError(f"{where('poses.max_poses')}poses.max_poses: {mp} is below calibration.min_poses "
+                          f"{c['min_poses']}, so a calibration would never start; allowed "
+                          f"{c['min_poses']}..500 (or lower calibration.min_poses)")
+    floor = 0.5 ** need
+    if c["false_accept_rate"] < floor:
+        raise ConfigError(f"{where('calibration.false_accept_rate')}calibration.false_accept_rate: "
+                          f"{c['false_accept_rate']:g} is below {floor:.2g}, the smallest p-value {need} "
+                          f"poses can give: the first calibration could never be accepted; allowed "
+                          f"{floor:.2g}..0.5")
 
 
 def load_config(path: Optional[str]) -> Dict[str, Dict[str, Any]]:
@@ -181,6 +228,7 @@ def load_config(path: Optional[str]) -> Dict[str, Dict[str, Any]]:
 
 
 def set_override(cfg: Dict[str, Dict[str, Any]], key: str, value: Any, flag: str) -> None:
-    """Apply a command-line override (already parsed) with the same validation."""
+    """Apply a command-line override (already parsed) with the same validation; call
+    check_consistency once all overrides are in."""
     sec, k = key.split(".")
     cfg[sec][k] = _check(key, value, f"{flag}: ")

@@ -3,6 +3,7 @@ path, the problem and the fix (used by :mod:`imucald.calibration`)."""
 from __future__ import annotations
 
 import math
+import re
 from typing import Any, Dict, Mapping, Tuple
 
 import numpy as np
@@ -89,3 +90,20 @@ def _table(v: Any, path: str) -> Dict[str, Any]:
     return {"columns": list(cols), "rows": out}
 
 
+
+
+def _provisional(v: Any, path: str) -> Dict[str, Any]:
+    """{poses, poses_for_final, missing_orientations}: a calibration applied before the
+    pose set met the readiness targets (README: provisional calibrations)."""
+    if not isinstance(v, Mapping):
+        _fail(path, f"expected a mapping, got {type(v).__name__}", "or leave it out (not provisional)")
+    _keys(v, path, {"poses", "poses_for_final", "missing_orientations"}, set())
+    for k in ("poses", "poses_for_final"):
+        if isinstance(v[k], bool) or not isinstance(v[k], int) or v[k] < 1:
+            _fail(f"{path}.{k}", f"{v[k]!r} is not a positive integer", "e.g. 10")
+    m = v["missing_orientations"]
+    if not isinstance(m, list) or not all(isinstance(x, str) and re.fullmatch(r"([+-][XYZ]){1,3} up", x)
+                                          for x in m):
+        _fail(f"{path}.missing_orientations", f"{m!r} is not a list of orientation names",
+              "e.g. ['-Z up', '+X+Y up']")
+    return {"poses": v["poses"], "poses_for_final": v["poses_for_final"], "missing_orientations": list(m)}

@@ -32,7 +32,7 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 
 import numpy as np
 
-from ._calcheck import FLAGS, CalibrationError, _array, _fail, _flags, _keys, _table
+from ._calcheck import FLAGS, CalibrationError, _array, _fail, _flags, _keys, _provisional, _table
 
 __all__ = ["Calibration", "SensorCal", "CalibrationError", "FORMAT_VERSION", "UNITS", "FLAGS",
            "load", "save", "apply"]
@@ -229,6 +229,9 @@ class Calibration:
     gyro: Optional[SensorCal] = None
     mag: Optional[SensorCal] = None
     poses_used: Optional[Mapping[str, Any]] = None           #: {columns: [...], rows: [[...]]}
+    #: None, or {poses, poses_for_final, missing_orientations}: applied before the pose set
+    #: met the readiness targets (README: provisional calibrations)
+    provisional: Optional[Mapping[str, Any]] = None
 
     def part(self, sensor: str) -> Optional[SensorCal]:
         return getattr(self, sensor)
@@ -270,6 +273,8 @@ class Calibration:
         if self.poses_used is not None:
             d["poses_used"] = {"columns": list(self.poses_used["columns"]),
                                "rows": [[_num(x) for x in r] for r in self.poses_used["rows"]]}
+        if self.provisional is not None:
+            d["provisional"] = _provisional(self.provisional, "provisional")
         return d
 
     @classmethod
@@ -280,7 +285,7 @@ class Calibration:
         if d.get("format_version") == 1:
             d = _from_v1(d)
         _keys(d, "", {"format_version", "id", "board", "units"},
-              {"created", "chips", "temperature_range_c", "poses_used", *SENSORS})
+              {"created", "chips", "temperature_range_c", "poses_used", "provisional", *SENSORS})
         if d["format_version"] != FORMAT_VERSION:
             _fail("format_version", f"{d['format_version']!r} is not supported",
                   f"this imucald reads 1 and {FORMAT_VERSION}")
@@ -311,8 +316,10 @@ class Calibration:
         pu = d.get("poses_used")
         if pu is not None:
             pu = _table(pu, "poses_used")
+        pv = d.get("provisional")
         return cls(d["board"], dict(chips), d["id"], d.get("created", ""), tr, parts.get("accel"),
-                   parts.get("gyro"), parts.get("mag"), pu)
+                   parts.get("gyro"), parts.get("mag"), pu,
+                   None if pv is None else _provisional(pv, "provisional"))
 
 
 # --- files ----------------------------------------------------------------------------

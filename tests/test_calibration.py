@@ -37,7 +37,8 @@ def full_cal(board=BOARD, chips=CHIPS) -> Calibration:
                     {"field_gauss": np.array(0.002)}, quality={"heldout_rel_rms": 0.004})
     return Calibration(board, dict(chips), 3, "2026-01-01T00:00:00+00:00", (21.5, 30.25), acc, gyro,
                        mag, {"columns": ["ax_g", "ay_g", "az_g", "temp_c"],
-                             "rows": [[0.0, 0.0, 1.0, 25.0], [1.0, 0.0, 0.0, None]]})
+                             "rows": [[0.0, 0.0, 1.0, 25.0], [1.0, 0.0, 0.0, None]]},
+                       {"poses": 10, "poses_for_final": 25, "missing_orientations": ["-Z up", "+X+Y up"]})
 
 
 def test_round_trip_and_apply(tmp_path):
@@ -111,7 +112,10 @@ _REQUIRED = {("format_version",), ("id",), ("board",), ("units",), ("accel", "mo
              ("accel", "params"), ("gyro", "model"), ("gyro", "params"), ("mag", "model"),
              ("mag", "params")} | {("units", u) for u in _DOC["units"]} | {
     (s, "params", k) for s in ("accel", "mag") for k in _DOC[s]["params"]} | {
-    ("gyro", "params", "bias_dps"), ("gyro", "params", "temp_ref_c")}   # temp_ref_c: with the poly
+    ("gyro", "params", "bias_dps"), ("gyro", "params", "temp_ref_c")} | {   # temp_ref_c: with the poly
+    ("provisional", k) for k in _DOC["provisional"]}
+#: lists whose length is free (a shorter one is no corruption)
+_FREE_LENGTH = {("provisional", "missing_orientations")}
 
 
 def _corruptions():
@@ -133,8 +137,10 @@ def _corruptions():
                 out.append((key, "wrong shape", v + [v[0]] if not isinstance(v[0], list)
                             else v[:-1] + [v[-1][:-1]]))
                 out.append((key, "NaN", _nan_in(v)))
-            else:
+            elif path not in _FREE_LENGTH:
                 out.append((key, "wrong shape", v[:-1]))
+            else:
+                out.append((key, "not an orientation", v[:-1] + ["sideways"]))
         elif isinstance(v, (int, float)) and not isinstance(v, bool):
             out.append((key, "NaN", math.nan))
             out.append((key, "wrong shape", [v, v]))
@@ -181,7 +187,8 @@ def test_the_corruption_list_covers_every_field():
     leaves = {".".join(p) for p, _ in _leaves(_DOC)}
     assert set(kinds) == leaves
     for k, v in _leaves(_DOC):
-        numeric = isinstance(v, float) or (isinstance(v, list) and k[-1] != "columns" and "flags" not in k)
+        numeric = isinstance(v, float) or (isinstance(v, list) and k[-1] not in ("columns", "missing_orientations")
+                                           and "flags" not in k)
         if numeric:
             assert {"NaN", "wrong shape", "wrong type"} <= kinds[".".join(k)], k
 

@@ -304,14 +304,15 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
                                       prior=hprior, var=var)
         ho_norm = rms(ho / ho_sd)
     else:
-        ho, ho_norm = np.full(N, np.nan), float("nan")
+        ho, ho_sd, ho_norm = np.full(N, np.nan), np.full(N, np.nan), float("nan")
     extra: Dict[str, object] = {
         "noise_model": {"per_pose": source == "poses", "excess_scatter": round(phi, 4),
                         "chi2": round(chi2, 3), "dof": round(dof, 2),
                         "prior": ("datasheet tolerances" + (f" ({chip})" if chip else " (generic)"))
                         if lam.any() else ("none: ga-paper is paper 000 as written" if use_prior
                                            else "none")},
-        "heldout_normalised_rms": ho_norm, "heldout_residuals": ho}
+        "heldout_normalised_rms": ho_norm, "heldout_residuals": ho,
+        "heldout_predicted_std": ho_sd}
     if noise_inflation is not None:
         k = np.broadcast_to(np.asarray(noise_inflation, float), (N,))
         extra["noise_model"]["colour_inflation_median"] = round(float(np.median(k)), 3)

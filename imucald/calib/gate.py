@@ -120,12 +120,12 @@ class Decision:
         return {"accept": self.accept, "p_value": self.p_value, "alpha": self.alpha, "n": self.n,
                 "rms_cv": self.rms_cv, "rms_incumbent": self.rms_incumbent, "against": self.against}
 
-    def text(self, scale: float = 1.0, unit: str = "") -> str:
-        """'0.912 mg (cross-validated) vs 58.3 mg raw on 10 poses, p = 0.001 <= 0.05'."""
+    def text(self, scale: float = 1.0, unit: str = "", what: str = "poses") -> str:
+        """'0.912 mg cross-validated vs 58.3 mg raw on 10 poses, p = 0.001 <= 0.05'."""
         rel = "<=" if self.p_value <= self.alpha else ">"
         who = "raw" if self.against == "raw" else "current"
         return (f"{self.rms_cv * scale:.3f} {unit} cross-validated vs {self.rms_incumbent * scale:.3f} "
-                f"{unit} {who} on {self.n}, p = {self.p_value:.2g} {rel} {self.alpha:g}")
+                f"{unit} {who} on {self.n} {what}, p = {self.p_value:.2g} {rel} {self.alpha:g}")
 
 
 def paired_gate(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = ALPHA,

@@ -3,9 +3,12 @@
 :func:`calibration_job` is pure (arrays and the calibration in force in, a
 candidate :class:`~imucald.calibration.Calibration` and a decision per sensor
 out), so the daemon runs it in a worker process and replay runs it inline.
-Every candidate part is validated on held-out poses (every k-th pose in time
-order is withheld from the fit) against the calibration currently applied, and
-:func:`gate` decides; a part that validates worse is never applied.
+Every candidate part is fitted on all poses and scored by leave-one-pose-out
+against the calibration in force (the raw sensor before the first) on the same
+poses; calib/gate.py's paired signed-rank test accepts it only if it predicts
+significantly better, at the configured false-accept rate (job key ``alpha``).
+The magnetometer cloud goes through the same test on its withheld points and is
+then refitted on all of them.
 """
 from __future__ import annotations
 
@@ -15,13 +18,13 @@ from typing import Any, Dict, NamedTuple
 import numpy as np
 
 from ..calib.fit import fit_norm
+from ..calib.gate import ALPHA, Decision, gate_accel, gate_gyro_bias, paired_gate
 from ..calib.magcal import SphereReservoir as MagReservoir
 from ..calib.magcal import coverage, flat_axis
 from ..calib.models import MagModel, Triangular9
-from ..calib.uncertainty import residual_variance
 from ..calibration import Calibration, SensorCal
 
-__all__ = ["calibration_job", "gate", "JobResult", "MagReservoir"]
+__all__ = ["calibration_job", "JobResult", "MagReservoir"]
 
 _T9 = Triangular9()
 _MAG = MagModel("sym")
@@ -30,15 +33,10 @@ _MAG = MagModel("sym")
 class JobResult(NamedTuple):
     candidate: Calibration          #: the parts fitted (quality: held-out before/after)
     accept: Dict[str, bool]         #: sensor -> the gate's decision
+    #: notes: "gate": sensor -> calib.gate.Decision (p-value, alpha, cross-validated RMS...)
     wall_s: float
     #: mag_flat: the plane of a one-plane swing (no magnetometer part then)
     notes: Dict[str, Any]
-
-
-def gate(sensor: str, heldout_new: float, heldout_current: float) -> bool:
-    """The acceptance gate: a candidate part replaces the current one only if its
-    held-out residual RMS is smaller."""
-    return bool(heldout_new < heldout_current)
 
 
 def _holdout(n: int, frac: float) -> np.ndarray:
@@ -48,25 +46,21 @@ def _holdout(n: int, frac: float) -> np.ndarray:
     return mask
 
 
-def _rms(x) -> float:
-    x = np.asarray(x, float)
-    return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
-
-
 def calibration_job(job: Dict[str, Any]) -> JobResult:
     """Fit, validate and decide.  Pure: no I/O, no globals.
 
     job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3), t0 (N,),
     n (N,), gyro (N,3) or None, mag_points (M,3) or None, mag_noise (3,) per-sample noise or
-    None, current (the Calibration in force), method, holdout_fraction, seed.
+    None, current (the Calibration in force), method, holdout_fraction (magnetometer points),
+    alpha (the gate's false-accept rate), seed.
     """
     t_start = time.perf_counter()
     cur: Calibration = job.get("current") or Calibration()
     parts: Dict[str, SensorCal] = {}
     accept: Dict[str, bool] = {}
-    notes: Dict[str, Any] = {}
+    notes: Dict[str, Any] = {"gate": {}}
     if job.get("acc") is not None:
-        _accel_gyro(job, cur, parts, accept)
+        _accel_gyro(job, cur, parts, accept, notes["gate"])
     mp = job.get("mag_points")
     if mp is not None and len(mp) >= 30:
         _mag(np.asarray(mp, float), job, cur, parts, accept, notes)
@@ -74,40 +68,34 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     return JobResult(candidate, accept, time.perf_counter() - t_start, notes)
 
 
-def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict[str, bool]) -> None:
+def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict[str, bool],
+                gates: Dict[str, Decision]) -> None:
     acc = np.asarray(job["acc"], float)
-    order = np.argsort(job["t0"])
-    ho = np.zeros(len(acc), bool)
-    ho[order[_holdout(len(acc), job["holdout_fraction"])]] = True
-    tr = ~ho
-    # --- accelerometer ---
-    cal = fit_norm(acc[tr], "triangular9", job["method"], pose_cov=job["acc_cov"][tr],
-                   rng=job.get("seed"), heldout=True)
-    e_new = _rms(1 - np.linalg.norm(_T9.forward(cal.theta, acc[ho]), axis=1))
-    e_cur = _rms(1 - np.linalg.norm(cur.apply_accel(acc[ho]), axis=1))
-    # CRLB-predicted held-out residual: pose noise plus the parameters' uncertainty
-    v = np.median(np.einsum("nii->n", job["acc_cov"]) / 3)
-    var = residual_variance(_T9, cal.theta, acc[ho], np.full(ho.sum(), v))
-    _, J = _T9.jacobian(cal.theta, acc[ho])
-    pred = float(np.sqrt(np.mean(var + np.einsum("nk,kl,nl->n", J, cal.uncertainty.cov, J))))
+    alpha = job.get("alpha", ALPHA)
+    # --- accelerometer: fitted on all poses, gated on their cross-validated residuals ---
+    cal, _, dec = gate_accel(acc, job["acc_cov"], cur.apply_accel(acc), job["method"], alpha,
+                             against="raw" if cur.accel is None else "current", rng=job.get("seed"))
+    # predicted cross-validated residual: each pose's noise plus the uncertainty of the
+    # refit without it (calib.fit.heldout_residuals)
+    pred = float(np.sqrt(np.mean(np.asarray(cal.info["heldout_predicted_std"]) ** 2)))
     parts["accel"] = SensorCal.from_fit(cal, {
-        "fitness": float(cal.fitness), "heldout_rms_g": e_new, "heldout_rms_before_g": e_cur,
-        "predicted_heldout_rms_g": pred, "poses": int(len(acc)), "heldout_poses": int(ho.sum())})
-    accept["accel"] = gate("accel", e_new, e_cur)
-    # --- gyro bias: weighted mean of the still poses, validated the same way ---
+        "fitness": float(cal.fitness), "heldout_rms_g": dec.rms_cv, "heldout_rms_before_g": dec.rms_incumbent,
+        "predicted_heldout_rms_g": pred, "poses": int(len(acc)), "gate_p_value": dec.p_value,
+        "false_accept_rate": dec.alpha})
+    accept["accel"], gates["accel"] = dec.accept, dec
+    # --- gyro bias: count-weighted mean of the still poses, gated the same way ---
     g = job.get("gyro")
     if g is not None:
         g = np.asarray(g, float)
         w = np.asarray(job["n"], float)
-        b = (g[tr] * w[tr, None]).sum(0) / w[tr].sum()
-        e_new = _rms(g[ho] - b)
-        e_cur = _rms(cur.apply_gyro(g[ho]))
-        bfull = (g * w[:, None]).sum(0) / w.sum()
-        sd = np.sqrt(((g - bfull) ** 2 * w[:, None]).sum(0) / w.sum() / max(len(g) - 1, 1))
+        b, gdec = gate_gyro_bias(g, w, cur.apply_gyro(g), alpha,
+                                 against="raw" if cur.gyro is None else "current")
+        sd = np.sqrt(((g - b) ** 2 * w[:, None]).sum(0) / w.sum() / max(len(g) - 1, 1))
         parts["gyro"] = SensorCal("gyro", "bias", {"bias_dps": b}, {"bias_dps": sd}, method="mean",
-                                  quality={"heldout_rms_dps": e_new, "heldout_rms_before_dps": e_cur,
-                                           "poses": int(len(g))})
-        accept["gyro"] = gate("gyro", e_new, e_cur)
+                                  quality={"heldout_rms_dps": gdec.rms_cv,
+                                           "heldout_rms_before_dps": gdec.rms_incumbent,
+                                           "poses": int(len(g)), "gate_p_value": gdec.p_value})
+        accept["gyro"], gates["gyro"] = gdec.accept, gdec
 
 
 def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
@@ -124,17 +112,23 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
             return
         cov = np.diag(np.asarray(noise, float) ** 2)
     mho = _holdout(len(mp), job["holdout_fraction"])
+    pc = lambda n: None if cov is None else np.broadcast_to(cov, (n, 3, 3))
     mc = fit_norm(mp[~mho], "mag_sym", "lm", rng=job.get("seed"), heldout=False,
-                  pose_cov=None if cov is None else np.broadcast_to(cov, (int((~mho).sum()), 3, 3)))
-    e_new = _rms(np.linalg.norm(_MAG.forward(mc.theta, mp[mho]), axis=1) - 1)
+                  pose_cov=pc(int((~mho).sum())))
+    r_new = np.linalg.norm(_MAG.forward(mc.theta, mp[mho]), axis=1) - 1
     if cur.mag is None:
         hc = np.linalg.norm(mp[mho], axis=1)
-        e_cur = _rms(hc / np.median(np.linalg.norm(mp, axis=1)) - 1)
+        r_cur = hc / np.median(np.linalg.norm(mp, axis=1)) - 1
     else:
         hc = np.linalg.norm(cur.apply_mag(mp[mho]), axis=1)
-        e_cur = _rms(hc / float(cur.mag.params["field_gauss"]) - 1)
+        r_cur = hc / float(cur.mag.params["field_gauss"]) - 1
+    # the same paired test on the withheld points; the applied fit then uses every point
+    dec = paired_gate(r_cur ** 2, r_new ** 2, job.get("alpha", ALPHA),
+                      "raw" if cur.mag is None else "current")
+    mc = fit_norm(mp, "mag_sym", "lm", rng=job.get("seed"), heldout=False, pose_cov=pc(len(mp)))
     cv = coverage(_MAG, mc.theta, mp)
     parts["mag"] = SensorCal.from_fit(mc, {
-        "points": int(len(mp)), "heldout_rel_rms": e_new, "heldout_rel_rms_before": e_cur,
+        "points": int(len(mp)), "heldout_rel_rms": dec.rms_cv, "heldout_rel_rms_before": dec.rms_incumbent,
+        "gate_p_value": dec.p_value,
         "coverage_fraction": cv["fraction"], "coverage_min_eigenvalue": cv["direction_eigenvalues"][-1]})
-    accept["mag"] = gate("mag", e_new, e_cur)
+    accept["mag"], notes["gate"]["mag"] = dec.accept, dec

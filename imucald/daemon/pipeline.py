@@ -19,14 +19,17 @@ import numpy as np
 from ..calibration import Calibration
 from .accumulator import PoseAccumulator
 from .calibrator import JobResult, MagReservoir, calibration_job
+from .config import accel_poses_needed
 from .outputs import encode_samples, event
 from .stillness import StillnessDetector
 
 __all__ = ["Pipeline", "InlineExecutor", "POSE_COLUMNS"]
 
 log = logging.getLogger("imucald")
-#: fewest poses a forced calibration may use (9 parameters plus one degree of freedom)
-MIN_FIT_POSES = 10
+#: fewest poses any accelerometer calibration uses: the 9 parameters of triangular9 and
+#: leave-one-pose-out scoring (each refit keeps 9 poses); the first, provisional one is
+#: tried from here on
+MIN_FIT_POSES = accel_poses_needed()
 #: columns of a calibration's ``poses_used`` table
 POSE_COLUMNS = ["ax_g", "ay_g", "az_g", "n", "temp_c", "t0_s", "t1_s"]
 #: fresh magnetometer readings kept for the per-sample noise (second differences)
@@ -80,6 +83,9 @@ class Pipeline:
         self.events: Deque[str] = deque(maxlen=100)     # human log lines for status
         self.t_last = 0.0
         self.temp_range = [np.inf, -np.inf]
+        self._tried_raw_at = 0           #: acc.added at the last attempt on the raw sensor
+        self._job_ready = True           #: the pending job's pose set met the readiness targets
+        self._job_missing: List[str] = []
 
     # -- the hot path -------------------------------------------------------------------
     def process(self, b) -> bytes:
@@ -186,7 +192,8 @@ class Pipeline:
         self.force = False
         self._next_mag_seen = r.seen + int(MAG_RECAL_S * self.rate_hz)
         job = {"acc": None, "mag_points": r.points(), "mag_noise": noise,
-               "holdout_fraction": c["holdout_fraction"], "seed": int(r.seen),
+               "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
+               "seed": int(r.seen),
                "current": self.applied}
         self._job_poses = self.acc.pose_set()
         msg = (f"calibrating the magnetometer in the background on {len(job['mag_points'])} "
@@ -207,13 +214,23 @@ class Pipeline:
         if not self.force and key == getattr(self, "_checked", None):
             return
         self._checked = key
+        r = self.ready_to_calibrate()
+        ready = r["poses"] and r["uncertainty"]
+        if len(self.acc) < MIN_FIT_POSES:
+            return
         if self.force:                      # asked for (control socket): any fit-able pose set
-            if len(self.acc) < MIN_FIT_POSES:
+            pass
+        elif self.applied.accel is None:
+            # raw sensor: try at every new pose until a calibration beats the raw readings
+            # significantly; it is applied as provisional while the pose set is not ready
+            if self.acc.added <= self._tried_raw_at:
                 return
-        else:
-            r = self.ready_to_calibrate()
-            if not (r["poses"] and r["uncertainty"] and self.acc.added >= self.next_cal_added):
-                return
+        elif not ((ready or self.applied.provisional is not None) and
+                  self.acc.added >= self.next_cal_added):
+            return
+        self._tried_raw_at = self.acc.added
+        self._job_ready = bool(ready)
+        self._job_missing = self.acc.coverage()["missing"]
         c = self.cfg["calibration"]
         ps = self.acc.pose_set()
         mag_pts = None
@@ -221,7 +238,8 @@ class Pipeline:
             mag_pts = self.reservoir.points()
         job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "t0": ps.t0, "n": ps.n,
                "gyro": ps.gyro, "mag_points": mag_pts, "mag_noise": self._mag_noise(), "method": c["method"],
-               "holdout_fraction": c["holdout_fraction"], "seed": int(self.acc.added),
+               "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
+               "seed": int(self.acc.added),
                "current": self.applied}
         self.force = False
         self.next_cal_added = self.acc.added + c["recalibrate_every_poses"]
@@ -249,19 +267,29 @@ class Pipeline:
         a, m = cand.accel, cand.mag
         take = {k: v for k, v in res.accept.items() if v}
         parts = []
+        gates = res.notes.get("gate", {})
         if a:
-            parts.append(f"accel held-out {a.quality['heldout_rms_g'] * 1e3:.3f} mg vs "
-                         f"{a.quality['heldout_rms_before_g'] * 1e3:.3f} mg "
+            parts.append(f"accel {gates['accel'].text(1e3, 'mg')} "
                          f"{'(applied)' if 'accel' in take else '(kept the current one)'}")
+        if "gyro" in gates:
+            parts.append(f"gyro bias {'applied' if 'gyro' in take else 'kept'} "
+                         f"(p = {gates['gyro'].p_value:.2g})")
         if "mag_flat" in res.notes:
             from ..calib.magcal import flat_message
             parts.append("mag not determined: " + flat_message({"flat": res.notes["mag_flat"]}))
         elif m:
             parts.append(f"mag held-out {m.quality['heldout_rel_rms'] * 100:.2f} % vs "
                          f"{m.quality['heldout_rel_rms_before'] * 100:.2f} % "
-                         f"{'(applied)' if 'mag' in take else '(kept)'}")
+                         f"(p = {gates['mag'].p_value:.2g}) {'(applied)' if 'mag' in take else '(kept)'}")
         if not take:
-            msg = "calibration not applied: it validates no better than the current one: " + "; ".join(parts)
+            confirmed = bool(a) and self._job_ready and ap.provisional is not None
+            if confirmed:
+                # a fit on a ready pose set does no significantly better: the provisional
+                # calibration has been checked against the full set and stays, as final
+                self.applied = ap.replace(provisional=None)
+                self.persist("calibration", self.applied)
+            msg = ("calibration not applied: it validates no better than the current one" +
+                   (f" (#{ap.id} is no longer provisional)" if confirmed else "") + ": " + "; ".join(parts))
             log.info(msg)
             self.events.append(msg)
             self.history.append({"applied": False, **_summary(cand)})
@@ -270,18 +298,25 @@ class Pipeline:
         lo, hi = self.temp_range
         temp = ps.temp if ps.temp is not None else np.full(len(ps), np.nan)
         rows = np.column_stack([ps.acc, ps.n, temp, ps.t0, ps.t1]).round(7).tolist()
-        new = ap.replace(id=ap.id + 1, created=now,
+        # provisional: the accelerometer part came from a pose set short of the readiness
+        # targets (min_poses, predicted uncertainty); the orientations still missing are named
+        prov = ap.provisional
+        if "accel" in take:
+            prov = None if self._job_ready else {
+                "poses": len(ps), "poses_for_final": self.cfg["calibration"]["min_poses"],
+                "missing_orientations": list(self._job_missing)}
+        new = ap.replace(id=ap.id + 1, created=now, provisional=prov,
                          temperature_range_c=(round(lo, 2), round(hi, 2)) if np.isfinite(lo) else None,
                          poses_used={"columns": POSE_COLUMNS, "rows": rows} if len(ps) else None,
                          **{k: cand.part(k) for k in take})
         self.applied, self.applied_t_s = new, self.t_last
         self.persist("calibration", new)
-        msg = f"calibration #{new.id} applied: " + "; ".join(parts)
+        msg = f"calibration #{new.id} applied{_provisional_text(prov)}: " + "; ".join(parts)
         log.info(msg)
         self.events.append(msg)
         self.history.append({"applied": True, "id": new.id, **_summary(cand)})
         q = a.quality if a else {}
-        return event("CAL", self.fmt, id=new.id, applied=True,
+        return event("CAL", self.fmt, id=new.id, applied=True, provisional=prov is not None,
                      accel_heldout_rms_g=q.get("heldout_rms_g"),
                      accel_heldout_rms_before_g=q.get("heldout_rms_before_g"),
                      accel_predicted_heldout_rms_g=q.get("predicted_heldout_rms_g"),
@@ -297,11 +332,22 @@ class Pipeline:
              "ready": self.ready_to_calibrate(), "samples": self.samples, "still": self.last_still}
         if ap.id:
             d["calibration_created"] = ap.created
+            d["calibration_provisional"] = ap.provisional is not None
+            if ap.provisional is not None:
+                d["missing_orientations"] = list(ap.provisional["missing_orientations"])
         if self.reservoir is not None:
             d["mag_coverage"] = self.reservoir.coverage()
         if self.events:
             d["last_event"] = self.events[-1]
         return d
+
+
+def _provisional_text(prov) -> str:
+    if prov is None:
+        return ""
+    miss = prov["missing_orientations"]
+    return (f" as provisional ({prov['poses']} poses of the {prov['poses_for_final']} for a final one" +
+            (f"; missing orientations: {', '.join(miss)})" if miss else ")"))
 
 
 def _summary(cand: Calibration) -> Dict[str, Any]:

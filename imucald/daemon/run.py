@@ -176,8 +176,11 @@ class Daemon:
                     **({"mag_coverage": p.reservoir.coverage()} if p.reservoir is not None else {})}
         if cmd == "recalibrate":
             from .pipeline import MIN_FIT_POSES
-            if len(p.acc) < MIN_FIT_POSES:
-                return {"class": "ERROR", "message": f"only {len(p.acc)} poses: need at least {MIN_FIT_POSES}"}
+            if p.has_acc and len(p.acc) < MIN_FIT_POSES:
+                return {"class": "ERROR", "message": (
+                    f"only {len(p.acc)} poses: the 9-parameter accelerometer fit scored by "
+                    f"leave-one-pose-out needs at least {MIN_FIT_POSES}; place the sensor still in "
+                    f"{MIN_FIT_POSES - len(p.acc)} more orientations")}
             if p.pending is not None:
                 return {"class": "RECALIBRATE", "started": False}
             return {"class": "RECALIBRATE", "started": p.request_calibration()}

@@ -27,7 +27,7 @@ from imucald.calib.gate import gate_accel, poses_needed
 from imucald.calib.models import Triangular9
 from imucald.sim.poses import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma
-from imucald.sim.specs import ACCEL
+from imucald.specs import ACCEL
 
 T9 = Triangular9()
 SIGMA_POSE_G = pose_sigma(ACCEL["mpu6050"].noise_density_g_rthz, 100.0, 2.0)[1]

@@ -12,7 +12,7 @@ from imucald.calib.gate import (fold_groups, gate_accel, gate_gyro_bias, loo_wei
 from imucald.calib.models import Triangular9
 from imucald.sim.poses import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma
-from imucald.sim.specs import ACCEL
+from imucald.specs import ACCEL
 
 T9 = Triangular9()
 #: 2 s hand-held holds at 100 Hz, MPU-6050 datasheet noise density

@@ -1,0 +1,318 @@
+"""Gap diagnosis from still stretches split in time: one orientation or a few.
+
+A bench warm-up, a thermal-chamber log or a board left on a desk has one (or a
+few) orientations, so the pose-set norm model cannot be fitted; yet a gyro's
+bias needs no orientation, and an accelerometer's reading in a fixed
+orientation shows its bias (and, along gravity, its scale) changing with
+temperature and time.  Pure functions over arrays:
+
+1. **Blocks.**  Each still stretch is cut into blocks of ``block_s`` seconds;
+   a block's mean, temperature and mid time are one observation per axis.
+2. **Twin noise (coloured).**  The variance of a block mean under the noise
+   model is the Allan variance at the block length, extrapolated from inside the
+   blocks (quarters and halves, i.e. tau = T/4 and T/2) with the measured
+   log-log slope, which is clamped to [-1/2, 0]: white (-1/2) and flicker /
+   bias instability (0) are noise; anything steeper, i.e. variation that
+   grows with the time scale beyond the block, is left for the effects.
+3. **Baseline.**  One constant per orientation group and axis (the deployed
+   calibration's bias; per group because a fixed orientation's gravity share
+   and g-sensitivity are constants too).
+4. **Candidates** (shared by all groups, per axis): ``thermal_bias`` (linear in
+   temperature), ``bias_drift`` (linear in time), ``wandering_bias`` (a smooth
+   function of time: cubic spline with interior knots chosen by held-out error).
+   Held-out = leave-one-block-out; the twin re-simulates the blocks with the
+   noise of step 2 and refits the same model.  Effects are added greedily; a
+   second one only if it passes the same test against the twin of the model
+   that already contains the first.
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+
+from .stats import chi2_logsf
+
+__all__ = ["make_blocks", "block_noise_var", "series_diagnose", "orientation_groups"]
+
+ALPHA = 0.01
+
+
+def orientation_groups(acc_mean_g: np.ndarray, tol_deg: float = 20.0) -> np.ndarray:
+    """Label poses whose gravity directions lie within ``tol_deg`` of a group's first pose."""
+    u = acc_mean_g / np.linalg.norm(acc_mean_g, axis=1, keepdims=True)
+    lab = -np.ones(len(u), int)
+    heads: List[np.ndarray] = []
+    c = math.cos(math.radians(tol_deg))
+    for i, v in enumerate(u):
+        for k, h in enumerate(heads):
+            if v @ h >= c:
+                lab[i] = k
+                break
+        else:
+            heads.append(v)
+            lab[i] = len(heads) - 1
+    return lab
+
+
+def make_blocks(t_s: np.ndarray, x: np.ndarray, temp_c: Optional[np.ndarray], slices: Sequence[slice],
+                group: Sequence[int], block_s: float, min_fill: float = 0.5) -> Dict[str, np.ndarray]:
+    """Cut each still slice into blocks of ``block_s`` seconds (by time: gaps in the
+    sampling are allowed; a block needs ``min_fill`` of the median sample count).
+    Returns means (K, C), quarter means (K, 4, C), counts, mid times, temperatures, groups."""
+    rows = []
+    for s, gk in zip(slices, group):
+        ts = t_s[s]
+        if len(ts) < 8:
+            continue
+        edges = np.arange(ts[0], ts[-1] + 1e-9, block_s)
+        idx = np.searchsorted(ts, edges)
+        for a, b in zip(idx[:-1], idx[1:]):
+            if b - a >= 8:
+                rows.append((s.start + a, s.start + b, gk))
+    if not rows:
+        return {"n": np.zeros(0)}
+    n = np.array([b - a for a, b, _ in rows])
+    keep = n >= min_fill * np.median(n)
+    rows = [r for r, k in zip(rows, keep) if k]
+    C = x.shape[1]
+    K = len(rows)
+    m = np.zeros((K, C))
+    q = np.zeros((K, 4, C))
+    nq = np.zeros((K, 4))
+    tm = np.zeros(K)
+    tc = np.full(K, np.nan)
+    for k, (a, b, _) in enumerate(rows):
+        xb = x[a:b]
+        m[k] = xb.mean(0)
+        for j, part in enumerate(np.array_split(np.arange(b - a), 4)):
+            q[k, j] = xb[part].mean(0)
+            nq[k, j] = len(part)
+        tm[k] = 0.5 * (t_s[a] + t_s[b - 1])
+        if temp_c is not None:
+            tc[k] = float(np.mean(temp_c[a:b]))
+    return {"mean": m, "quarters": q, "nq": nq, "n": np.array([b - a for a, b, _ in rows]),
+            "t": tm, "temp": tc, "group": np.array([g for _, _, g in rows])}
+
+
+def block_noise_var(blk: Dict[str, np.ndarray]) -> Dict[str, object]:
+    """Variance of each block mean (K, C) under the noise model, from the Allan variance
+    inside the blocks: AVAR(T/4) from consecutive quarters, AVAR(T/2) from halves,
+    extrapolated to T with the log-log slope clamped to [-1/2, 0] (white .. flicker).
+    Each block's variance is scaled by its count relative to the median."""
+    q, nq = blk["quarters"], blk["nq"]
+    d4 = np.concatenate([q[:, 1] - q[:, 0], q[:, 3] - q[:, 2]])
+    h = np.stack([(q[:, 0] * nq[:, :1] + q[:, 1] * nq[:, 1:2]) / (nq[:, :1] + nq[:, 1:2]),
+                  (q[:, 2] * nq[:, 2:3] + q[:, 3] * nq[:, 3:4]) / (nq[:, 2:3] + nq[:, 3:4])], 1)
+    d2 = h[:, 1] - h[:, 0]
+    # robust AVAR: median of squared differences over the chi-square(1) median 0.4549
+    av4 = 0.5 * np.median(d4 ** 2, axis=0) / 0.4549
+    av2 = 0.5 * np.median(d2 ** 2, axis=0) / 0.4549
+    slope = np.clip(0.5 * np.log2(np.maximum(av2, 1e-300) / np.maximum(av4, 1e-300)), -0.5, 0.0)
+    av_T = av2 * 4.0 ** slope                      # adev ratio 2^slope -> avar ratio 4^slope
+    rel = np.median(blk["n"]) / blk["n"]
+    var = av_T[None, :] * rel[:, None]
+    return {"var": var, "adev_quarter": np.sqrt(av4), "adev_half": np.sqrt(av2), "adev_block": np.sqrt(av_T),
+            "loglog_slope": slope}
+
+
+# --- linear machinery -----------------------------------------------------------------------
+
+def _group_cols(group: np.ndarray) -> np.ndarray:
+    gs = np.unique(group)
+    return (group[:, None] == gs[None, :]).astype(float)
+
+
+def _spline_cols(s: np.ndarray, knots: Sequence[float]) -> np.ndarray:
+    """Cubic spline in s in [0, 1] without its constant: s, s^2, s^3, (s - k)_+^3."""
+    cols = [s - 0.5, (s - 0.5) ** 2, (s - 0.5) ** 3] + [np.clip(s - k, 0, None) ** 3 for k in knots]
+    X = np.stack(cols, 1)
+    return X - X.mean(0)
+
+
+def _fit(X: np.ndarray, Y: np.ndarray, V: np.ndarray):
+    """Per-channel WLS of Y (K, C) on X (K, p) with variances V (K, C).
+    Returns beta (p, C), residuals, held-out (LOO) residuals, chi2 per channel, cov (C, p, p)."""
+    K, C = Y.shape
+    p = X.shape[1]
+    beta = np.zeros((p, C))
+    R = np.zeros_like(Y)
+    E = np.zeros_like(Y)
+    cov = np.zeros((C, p, p))
+    for c in range(C):
+        w = 1.0 / V[:, c]
+        A = X.T @ (X * w[:, None])
+        Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+        b = Ai @ (X.T @ (w * Y[:, c]))
+        r = Y[:, c] - X @ b
+        hdiag = np.einsum("kp,pq,kq->k", X, Ai, X) * w
+        beta[:, c], R[:, c], cov[c] = b, r, Ai
+        E[:, c] = r / np.maximum(1 - hdiag, 1e-3)
+    chi2 = np.sum(R ** 2 / V, axis=0)
+    return beta, R, E, chi2, cov
+
+
+def _twin(X: np.ndarray, V: np.ndarray, sims: int, rng) -> np.ndarray:
+    """Normalised held-out RMS of the model X on pure noise V: (sims,) re-simulations."""
+    K, C = V.shape
+    out = np.zeros(sims)
+    acc = np.zeros(sims)
+    for c in range(C):
+        w = 1.0 / V[:, c]
+        A = X.T @ (X * w[:, None])
+        Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+        H = X @ Ai @ (X * w[:, None]).T
+        hd = np.diag(H)
+        n = rng.normal(size=(sims, K)) * np.sqrt(V[:, c])
+        e = (n - n @ H.T) / np.maximum(1 - hd, 1e-3)
+        acc += np.sum(e * e / V[None, :, c], axis=1)
+    out[:] = np.sqrt(acc / (K * C))
+    return out
+
+
+def _norm_heldout(E: np.ndarray, V: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(E * E / V)))
+
+
+def _log10p(stat: float, dof: int) -> float:
+    return chi2_logsf(stat, dof) / math.log(10) if dof > 0 else 0.0
+
+
+# --- the diagnosis --------------------------------------------------------------------------------
+
+def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: int, rng,
+                    unit: str, use_temp: bool, axis_names: str = "xyz") -> Dict[str, object]:
+    """Baseline (constant per group and axis) against thermal bias, linear drift and a
+    wandering (spline) bias; greedy, each addition judged on held-out blocks against its twin."""
+    Y, V = blk["mean"], noise["var"]
+    K, C = Y.shape
+    G = _group_cols(blk["group"])
+    t = blk["t"]
+    s = (t - t.min()) / max(np.ptp(t), 1e-9)
+    cands: Dict[str, np.ndarray] = {}
+    if use_temp:
+        cands["thermal_bias"] = (blk["temp"] - blk["temp"].mean())[:, None]
+    cands["bias_drift"] = (t - t.mean())[:, None]
+    units = {"thermal_bias": f"{unit}/degC", "bias_drift": f"{unit}/s"}
+
+    def wander_cols(base: np.ndarray):
+        """Spline knots chosen by held-out error on top of ``base``."""
+        best = None
+        for m in range(0, max(0, min(6, K // 8 - 1)) + 1):
+            knots = [(i + 1) / (m + 1) for i in range(m)]
+            S = _spline_cols(s, knots)
+            _, _, E, _, _ = _fit(np.hstack([base, S]), Y, V)
+            ho = _norm_heldout(E, V)
+            if best is None or ho < best[0]:
+                best = (ho, S, m)
+        return best[1], best[2]
+
+    X0 = G
+    _, R0, E0, chi0, _ = _fit(X0, Y, V)
+    tw0 = _twin(X0, V, sims, rng)
+    twin0 = float(np.median(tw0))
+    ratio0 = _norm_heldout(E0, V) / twin0
+    dof0 = K * C - X0.shape[1] * C
+    lp0 = _log10p(float(chi0.sum()), dof0)
+    q99 = float(np.quantile(tw0 / twin0, 0.99))
+    gap = lp0 < math.log10(ALPHA) and ratio0 > q99
+    out: Dict[str, object] = {"mode": "time_series", "blocks": K, "groups": int(G.shape[1]),
+                              "block_s": None, "ratio_before": ratio0, "twin_ratio_q99": q99,
+                              "chi2": float(chi0.sum()), "dof": dof0, "log10_p_value": round(lp0, 2),
+                              "p_value": 10 ** lp0, "unit": unit,
+                              "noise_colour": {"adev_block": noise["adev_block"].tolist(),
+                                               "loglog_slope": noise["loglog_slope"].tolist()}}
+    chosen: List[str] = []
+    X, chi_cur, E_cur, ratio_cur = X0, chi0, E0, ratio0
+    effects: List[Dict[str, object]] = []
+    pending = dict(cands)
+    pending["wandering_bias"] = None
+    steps = []
+    bonf = ALPHA / max(len(pending), 1)
+    for _step in range(2):
+        if not (lp0 < math.log10(ALPHA)):
+            break
+        # the model so far must itself leave a gap against its own twin
+        tw_cur = _twin(X, V, sims, rng)
+        if _step and not (_log10p(float(chi_cur.sum()), K * C - X.shape[1] * C) < math.log10(ALPHA)
+                          and _norm_heldout(E_cur, V) / np.median(tw_cur) > np.quantile(tw_cur / np.median(tw_cur), 0.99)):
+            break
+        trial = []
+        for name, cols in pending.items():
+            knots = None
+            if name == "wandering_bias":
+                cols, knots = wander_cols(X)
+            Xa = np.hstack([X, cols])
+            beta, R, E, chi, cov = _fit(Xa, Y, V)
+            qa = cols.shape[1] * C
+            dchi = float(chi_cur.sum() - chi.sum())
+            lpn = _log10p(max(dchi, 0.0), qa)
+            twa = _twin(Xa, V, sims, rng)
+            ra = _norm_heldout(E, V) / float(np.median(twa))
+            ok = lpn < math.log10(bonf) and np.mean(E * E / V) < np.mean(E_cur * E_cur / V)
+            ent = {"name": name, "nested_log10_p": round(lpn, 2), "ratio_after": ra,
+                   "closed": bool(ra <= float(np.quantile(twa / np.median(twa), 0.99))),
+                   "significant": bool(gap and ok), "step": _step + 1}
+            # coefficients with standard errors scaled by the remaining excess (chi2/dof > 1)
+            red = max(1.0, float(chi.sum()) / max(K * C - Xa.shape[1] * C, 1))
+            if name != "wandering_bias":
+                co = beta[X.shape[1]:, :][0]
+                se = np.sqrt(np.array([cov[c][X.shape[1], X.shape[1]] for c in range(C)]) * red)
+                ent["params"] = {f"{name}_{units[name]}": co.tolist()}
+                ent["stderr"] = {f"{name}_{units[name]}": se.tolist()}
+            else:
+                curve = cols @ beta[X.shape[1]:, :]
+                ent["params"] = {"interior_knots": knots, f"curve_rms_{unit}": np.sqrt(np.mean(curve ** 2, 0)).tolist()}
+            trial.append((ent, Xa, chi, E))
+        trial.sort(key=lambda d: (not d[0]["significant"], not d[0]["closed"], d[0]["ratio_after"]))
+        effects.extend(d[0] for d in trial)
+        best = trial[0]
+        if not best[0]["significant"]:
+            break
+        chosen.append(best[0]["name"])
+        steps.append(best)
+        X, chi_cur, E_cur, ratio_cur = best[1], best[2], best[3], best[0]["ratio_after"]
+        pending.pop(best[0]["name"])
+        if best[0]["closed"]:
+            break
+    out["effects"] = effects
+    out["chosen"] = chosen
+    out["gap"] = bool(gap)
+    out["ratio_after"] = float(ratio_cur)
+    out["closed"] = bool(steps[-1][0]["closed"]) if steps else None
+    out["confusable"] = _confusable(blk, chosen, effects, use_temp)
+    rz = (R0 / np.sqrt(V))
+    tot = float(np.sum(np.maximum(rz ** 2 - 1, 0))) or 1.0
+    out["where"] = {"axis_share": {axis_names[c]: round(float(np.sum(np.maximum(rz[:, c] ** 2 - 1, 0))) / tot, 3)
+                                   for c in range(C)}}
+    out["_plot"] = {"t": t, "temp": blk["temp"], "r": R0, "var": V}
+    return out
+
+
+def _confusable(blk, chosen, effects, use_temp) -> List[Dict[str, object]]:
+    """Effects that this recording cannot tell apart."""
+    out = []
+    if not chosen or not use_temp:
+        return out
+    T, t = blk["temp"] - blk["temp"].mean(), blk["t"] - blk["t"].mean()
+    cc = abs(float(np.corrcoef(T, t)[0, 1])) if np.std(T) > 0 and np.std(t) > 0 else 0.0
+    closed = {e["name"] for e in effects if e["step"] == 1 and e.get("closed")}
+    if "thermal_bias" in chosen or "bias_drift" in chosen:
+        if cc > 0.98:
+            out.append({"effects": ["bias_drift", "thermal_bias"], "correlation": round(cc, 4),
+                        "to_separate": "a temperature profile that rises and falls (heat then cool), "
+                                       "so temperature is not a function of time"})
+    if "thermal_bias" in chosen and "wandering_bias" in closed | {"wandering_bias"} and \
+            _monotonic(blk["temp"], blk["t"]):
+        out.append({"effects": ["thermal_bias", "wandering_bias"],
+                    "why": "on a monotonic warm-up a smooth function of time can follow the temperature "
+                           "curve; the one-coefficient thermal model is preferred when it closes the gap",
+                    "to_separate": "heat then cool, or a second warm-up from a different start temperature"})
+    return out
+
+
+def _monotonic(temp, t) -> bool:
+    o = np.argsort(t)
+    d = np.diff(temp[o])
+    return bool(np.all(d >= -0.5) or np.all(d <= 0.5))

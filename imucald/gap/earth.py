@@ -1,0 +1,40 @@
+"""Earth's rotation in a still gyro's reading, as part of the twin (not an effect).
+
+A gyro at rest reads its bias plus Earth's rate in the body frame,
+Omega_E = 7.2921e-5 rad/s = 0.004178 deg/s (IERS value; WGS-84 uses the same).
+Split along the local vertical u (from the accelerometer: the unit specific force,
+body frame) and the horizontal:
+
+* vertical: Omega_E sin(latitude) u, one unknown coefficient (the latitude is not
+  known), a column of the baseline;
+* horizontal: Omega_E cos(latitude) along north, whose body-frame direction
+  depends on the heading, unknown without a magnetometer reference.  Over poses of
+  random heading it acts as extra pose-to-pose scatter of variance
+  Omega_h^2 (1 - u_j^2) / 2 on axis j (a horizontal vector of fixed length and
+  uniform azimuth), added to the twin's noise.
+
+With a 0.005 deg/s/sqrt(Hz) gyro and 10 s poses (1.6 mdeg/s per pose mean) the
+horizontal part (2.8 mdeg/s at 48 deg latitude) is well above the noise: without
+it every consumer-gyro pose set would show a "gap".
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["EARTH_RATE_DPS", "vertical_column", "horizontal_variance"]
+
+EARTH_RATE_DPS = float(np.degrees(7.2921e-5))
+
+
+def vertical_column(u_body: np.ndarray) -> np.ndarray:
+    """(3N, 1) design column: the vertical Earth rate's coefficient times u (stacked x, y, z per pose)."""
+    u = u_body / np.linalg.norm(u_body, axis=1, keepdims=True)
+    return u.reshape(-1, 1)
+
+
+def horizontal_variance(u_body: np.ndarray, vertical_dps: float) -> np.ndarray:
+    """(N, 3) extra variance per pose and axis, (deg/s)^2, from the horizontal Earth rate
+    of unknown heading; ``vertical_dps`` is the fitted vertical component."""
+    u = u_body / np.linalg.norm(u_body, axis=1, keepdims=True)
+    h2 = max(EARTH_RATE_DPS ** 2 - float(vertical_dps) ** 2, 0.0)
+    return h2 * (1.0 - u ** 2) / 2.0

@@ -187,10 +187,10 @@ def make_case(kind: str, seed: int, rate_hz: float = 50.0) -> Tuple[Recording, D
         label.update(expect={"wandering_bias", "bias_drift"})
     elif kind == "cubic":
         acc += rng.choice([-1, 1], 3) * rng.uniform(3e-3, 5e-3, 3) * f ** 3
-        label.update(expect={"unexplained"})
+        label.update(expect={"unexplained", "partially_explained"})
     elif kind == "triple_product":
         acc += rng.choice([-1, 1], 3) * rng.uniform(8e-3, 12e-3, 3) * (f[:, 0] * f[:, 1] * f[:, 2])[:, None]
-        label.update(expect={"unexplained"})
+        label.update(expect={"unexplained", "partially_explained"})
     elif kind == "hysteresis":
         prev = np.zeros((n, 3))
         last = np.zeros(3)
@@ -202,7 +202,7 @@ def make_case(kind: str, seed: int, rate_hz: float = 50.0) -> Tuple[Recording, D
                 cur = pid[i]
             prev[i] = last
         acc += 1.5e-3 * prev
-        label.update(expect={"unexplained"})
+        label.update(expect={"unexplained", "partially_explained"})
     elif kind == "single_warmup_thermal":
         p1 = rng.choice([-1, 1], 3) * rng.uniform(0.3, 1.0, 3) * 1e-3
         c1 = rng.choice([-1, 1], 3) * rng.uniform(0.01, 0.03, 3)                  # dps/K

@@ -33,6 +33,7 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from .stats import chi2_logsf
+from .verdict import verdict
 
 __all__ = ["make_blocks", "block_noise_var", "series_diagnose", "orientation_groups"]
 
@@ -265,7 +266,9 @@ def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: 
                 curve = cols @ beta[X.shape[1]:, :]
                 ent["params"] = {"interior_knots": knots, f"curve_rms_{unit}": np.sqrt(np.mean(curve ** 2, 0)).tolist()}
             trial.append((ent, Xa, chi, E))
-        trial.sort(key=lambda d: (not d[0]["significant"], not d[0]["closed"], d[0]["ratio_after"]))
+        # the simplest significant candidate that closes the gap; else the one closing most
+        trial.sort(key=lambda d: (not d[0]["significant"], not d[0]["closed"],
+                                  d[1].shape[1] if d[0]["closed"] else 0, d[0]["ratio_after"]))
         effects.extend(d[0] for d in trial)
         best = trial[0]
         if not best[0]["significant"]:
@@ -282,6 +285,7 @@ def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: 
     out["ratio_after"] = float(ratio_cur)
     out["closed"] = bool(steps[-1][0]["closed"]) if steps else None
     out["confusable"] = _confusable(blk, chosen, effects, use_temp)
+    out.update(verdict(gap, chosen, ratio0, float(ratio_cur), out["closed"]))
     rz = (R0 / np.sqrt(V))
     tot = float(np.sum(np.maximum(rz ** 2 - 1, 0))) or 1.0
     out["where"] = {"axis_share": {axis_names[c]: round(float(np.sum(np.maximum(rz[:, c] ** 2 - 1, 0))) / tot, 3)

@@ -11,7 +11,6 @@ accel.bias_drift     g/s       1 mg over 10 minutes (the upper end of the MPU-60
 gyro.thermal_bias    dps/degC  0.03 dps/degC (ITG-class ZRO tempco)
 gyro.g_sensitivity   dps/g     0.1 dps/g (MPU-6050 linear-acceleration sensitivity)
 gyro.bias_drift      dps/s     0.02 dps over 10 minutes
-mag.soft_iron        -         symmetric 5 % deformation of the field sphere
 mag.thermal_bias     gauss/degC 0.5 mG/degC of hard-iron change
 
 Signs and axis weights are drawn per effect from the generator, so the same
@@ -28,10 +27,10 @@ __all__ = ["EFFECTS", "DEFAULT_MAGNITUDE", "make_effect", "parse_effect_name"]
 DEFAULT_MAGNITUDE = {
     "accel.thermal_bias": 0.5e-3, "accel.thermal_scale": 2e-4, "accel.nonlinearity": 2.5e-3,
     "accel.bias_drift": 1e-3 / 600, "gyro.thermal_bias": 0.03, "gyro.g_sensitivity": 0.1,
-    "gyro.bias_drift": 0.02 / 600, "mag.soft_iron": 0.05, "mag.thermal_bias": 0.5e-3,
+    "gyro.bias_drift": 0.02 / 600, "mag.thermal_bias": 0.5e-3,
 }
 EFFECTS = tuple(DEFAULT_MAGNITUDE)
-_SENSOR_OF = {"g_sensitivity": "gyro", "soft_iron": "mag"}
+_SENSOR_OF = {"g_sensitivity": "gyro"}
 
 
 def parse_effect_name(name: str) -> str:
@@ -59,11 +58,6 @@ def make_effect(name: str, magnitude: Optional[float], rng) -> Dict[str, object]
     elif kind == "g_sensitivity":
         G = rng.normal(scale=mag / np.sqrt(3), size=(3, 3))
         p["G"] = G * (mag / max(np.abs(G).max(), 1e-12))
-    elif kind == "soft_iron":
-        E = rng.normal(size=(3, 3))
-        E = (E + E.T) / 2
-        E -= np.eye(3) * np.trace(E) / 3
-        p["E"] = E * (mag / np.abs(np.linalg.eigvalsh(E)).max())
 
     def apply(s: str, raw: np.ndarray, ctx: Dict[str, np.ndarray]) -> None:
         if s != sensor:
@@ -80,8 +74,6 @@ def make_effect(name: str, magnitude: Optional[float], rng) -> Dict[str, object]
             raw += p["coef"] * ctx["f"] ** 2
         elif kind == "g_sensitivity":
             raw += ctx["f"] @ p["G"].T
-        elif kind == "soft_iron":
-            raw += ctx["h"] @ p["E"].T
 
     return {"name": name, "magnitude": mag, "params": {k: np.asarray(v).tolist() for k, v in p.items()},
             "apply": apply}
@@ -90,14 +82,13 @@ def make_effect(name: str, magnitude: Optional[float], rng) -> Dict[str, object]
 def effect_session(board: str, rotations, rng, effects, rate_hz: float = 100.0,
                    hold_s=(8.0, 12.0), move_s=(2.1, 3.9), temp_kind: str = "warmup",
                    temp_rise_c: float = 6.0):
-    """A simulated session with the gap diagnosis's baseline truth (magnetometer: hard
-    iron only) plus the given effects [(name, magnitude or None), ...].
+    """A simulated session with the deployed model's truth (the magnetometer with ordinary
+    hard and soft iron, as drawn for every board) plus the given effects
+    [(name, magnitude or None), ...].
 
     Returns (session, [effect dicts without the apply function])."""
     from .sensor import draw_truth, simulate_session
     truth = draw_truth(board, rng)
-    if truth.mag_soft_iron is not None:
-        truth.mag_soft_iron = np.eye(3)
     made = [make_effect(n, m, rng) for n, m in effects]
     s = simulate_session(board, rotations, rng, rate_hz=rate_hz, hold_s=hold_s, move_s=move_s,
                          truth=truth, temp_kind=temp_kind, temp_rise_c=temp_rise_c,

@@ -24,6 +24,9 @@ import numpy as np
 __all__ = ["EARTH_RATE_DPS", "vertical_column", "horizontal_variance"]
 
 EARTH_RATE_DPS = float(np.degrees(7.2921e-5))
+#: the fitted vertical rate also holds any isotropic g-sensitivity, so it is capped at
+#: the rate below 60 deg latitude (sin 60 = 0.866): the twin assumes a user below 60 deg
+MAX_VERTICAL_DPS = EARTH_RATE_DPS * float(np.sin(np.radians(60.0)))
 
 
 def vertical_column(u_body: np.ndarray) -> np.ndarray:
@@ -34,7 +37,8 @@ def vertical_column(u_body: np.ndarray) -> np.ndarray:
 
 def horizontal_variance(u_body: np.ndarray, vertical_dps: float) -> np.ndarray:
     """(N, 3) extra variance per pose and axis, (deg/s)^2, from the horizontal Earth rate
-    of unknown heading; ``vertical_dps`` is the fitted vertical component."""
+    of unknown heading; ``vertical_dps`` is the fitted vertical component (capped)."""
     u = u_body / np.linalg.norm(u_body, axis=1, keepdims=True)
-    h2 = max(EARTH_RATE_DPS ** 2 - float(vertical_dps) ** 2, 0.0)
+    v = min(abs(float(vertical_dps)), MAX_VERTICAL_DPS)
+    h2 = EARTH_RATE_DPS ** 2 - v ** 2
     return h2 * (1.0 - u ** 2) / 2.0

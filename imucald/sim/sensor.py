@@ -176,8 +176,11 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
                      temp0_c: float = 22.0, temp_rise_c: float = 6.0,
                      effects: Sequence[Effect] = (), move_accel_g: float = 0.2,
                      quantise: bool = True, tremor_dps: float = 0.0,
-                     tremor_lever_m: float = 0.025) -> Session:
+                     tremor_lever_m: float = 0.025, latitude_deg: float = 48.0) -> Session:
     """Raw sample stream for a board moved through ``rotations``.
+
+    The gyro also senses Earth's rotation, 7.2921e-5 rad/s (IERS), at ``latitude_deg``
+    (world frame: x north, as the magnetic field's horizontal part, z up).
 
     The board rests ``lead_s`` in the first pose, then for each pose holds still
     for ``hold_s`` (a number or a (lo, hi) range drawn uniformly) and moves to the
@@ -248,7 +251,9 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
     ctx = {"t": t, "temp": temp, "f": f, "w": w_dps, "R": R}
 
     acc = truth.accel_raw(f)
-    gyro = truth.gyro_raw(w_dps)
+    lat = np.radians(latitude_deg)
+    earth_dps = np.degrees(7.2921e-5) * np.array([np.cos(lat), 0.0, np.sin(lat)])
+    gyro = truth.gyro_raw(w_dps + np.einsum("nji,j->ni", R, earth_dps))
     mag = None
     if mspec is not None:
         dip = np.radians(truth.dip_deg)

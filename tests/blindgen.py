@@ -177,9 +177,13 @@ def make_case(kind: str, seed: int, rate_hz: float = 50.0) -> Tuple[Recording, D
         acc += (f @ Ga.T) * (s1 * dTK[:, None])
         label.update(expect={"thermal_scale"})
     elif kind == "quadratic":
-        N = rng.normal(size=(3, 3, 3))
-        N = (N + N.transpose(0, 2, 1)) / 2
-        N *= 3e-3 / np.abs(N).max()
+        # cross-coupled quadratic form per axis: a_k += f^T N_k f, N_k with its own-axis
+        # square and the other two axes' product (reference E3 + E4), 1.5-4 mg/g^2
+        N = np.zeros((3, 3, 3))
+        for k in range(3):
+            i, j = [a for a in range(3) if a != k]
+            N[k, k, k] = rng.choice([-1, 1]) * rng.uniform(1.5e-3, 4e-3)
+            N[k, i, j] = N[k, j, i] = rng.choice([-1, 1]) * rng.uniform(1.5e-3, 4e-3) / 2
         acc += np.einsum("ni,kij,nj->nk", f, N, f)
         label.update(expect={"nonlinearity"})
     elif kind == "random_walk":

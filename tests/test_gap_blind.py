@@ -124,3 +124,17 @@ def test_ten_to_fourteen_poses_are_diagnosed_with_the_reduced_power_stated():
     res = diagnose(s.recording, sims=50)
     assert res["poses_found"] == 12 and "accel" in res["sensors"]
     assert any("less power" in n for n in res["notes"])
+
+
+def test_too_few_poses_under_json_is_one_json_error_object(tmp_path, capsys):
+    import json
+    from imucald.cli import main
+    from imucald.recording import write_recording
+    g = np.random.default_rng(1)
+    s, _ = effect_session("mpu6050", random_pose_set(8, g), g, [], rate_hz=50.0, hold_s=(5.0, 6.0))
+    path = tmp_path / "few.csv"
+    write_recording(s.recording, str(path))
+    assert main(["gap", str(path), "--json"]) == 2
+    cap = capsys.readouterr()
+    out = json.loads(cap.out)
+    assert out["exit_code"] == 2 and "8 still poses found" in out["error"] and cap.err == ""

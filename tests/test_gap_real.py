@@ -29,7 +29,9 @@ def test_tempsweep_one_orientation_gets_a_thermal_verdict_with_the_source_slopes
     res = tempsweep_result
     assert res["mode"] == "time_series" and res["poses_found"] == 1
     a = res["sensors"]["accel"]
-    assert a["verdict"] == "thermal_bias" and a["explained"] == "closed"
+    # the linear thermal term comes first and closes most of the gap (a curvature over the
+    # 19 degC warm-up remains: the authors fit a cubic in temperature)
+    assert a["verdict"].split("+")[0] == "thermal_bias" and a["shrink"] > 0.9
     assert a["along_gravity_axis"] == "+z"
     c, se = _coef(a, "thermal_bias")
     # SOURCE.md: least-squares slopes over all samples, counts/degC at 16384 counts/g:
@@ -44,7 +46,7 @@ def test_tempsweep_one_orientation_gets_a_thermal_verdict_with_the_source_slopes
 
 def test_tempsweep_gyro_thermal_slope_matches_the_source(tempsweep_result):
     g = tempsweep_result["sensors"]["gyro"]
-    assert "thermal_bias" in g["verdict"].split("+")
+    assert "thermal_bias" in g["verdict"].split("+") and g["shrink"] > 0.9
     c, se = _coef(g, "thermal_bias")
     # SOURCE.md: Gy +0.455 counts/degC at 16.4 counts/(deg/s) (the +-2000 dps range FreeIMU sets)
     assert c[1] * 16.4 == pytest.approx(0.455, rel=0.10)

@@ -8,32 +8,44 @@ from ..errors import UserError
 
 def gap_summary(res) -> str:
     lines = [f"{res['poses_found']} still poses"
+             + (f" in {res['orientations']} orientation(s): time-series diagnosis" if res.get("mode") else "")
              + (f"; left out as disturbed: {res['poses_left_out']}" if res.get("poses_left_out") else "")]
     for s, r in res["sensors"].items():
         u = r.get("unit", "")
         k = 1e3 if u == "g" else 1.0
         uu = "mg" if u == "g" else u
-        lines.append(f"{s}: verdict {r['verdict']!s}"
-                     + (" (partially explained)" if r.get("partially_explained") else "")
-                     + f"; held-out residual {r['heldout_rms'] * k:.4g} {uu} vs the twin's "
-                     f"{r['twin_heldout_rms'] * k:.4g} {uu}: ratio {r['ratio_before']:.2f} -> "
+        v = r["verdict"]
+        if v == "partially_explained":
+            v += f" (by {r['partially_explained_by']}: shrink {r['shrink']:.2f})"
+        elif r.get("explained"):
+            v += f" ({r['explained']}: shrink {r['shrink']:.2f})"
+        rms = (f"; held-out residual {r['heldout_rms'] * k:.4g} {uu} vs the twin's "
+               f"{r['twin_heldout_rms'] * k:.4g} {uu}" if "heldout_rms" in r else
+               f"; {r['blocks']} blocks of {r['block_s']} s")
+        lines.append(f"{s}: verdict {v}{rms}: ratio {r['ratio_before']:.2f} -> "
                      f"{r['ratio_after']:.2f}; chi-square p = {r['p_value']:.3g}"
                      + (f" (log10 p = {r['log10_p_value']})" if r['p_value'] == 0 else ""))
         for ef in r["effects"]:
-            if ef.get("significant"):
+            if ef.get("significant") and ef.get("stderr"):
                 (pk, pv), = ef["params"].items()
                 se = list(ef["stderr"].values())[0]
                 vals = ", ".join(f"{a:.3g}+-{b:.2g}" for a, b in zip(pv, se))
                 lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {pk} = [{vals}]")
+            elif ef.get("significant"):
+                lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {ef['params']}")
         for c in r.get("confusable", []):
-            lines.append(f"  cannot tell {' from '.join(c['effects'])} apart here "
-                         f"(correlation {c['canonical_correlation']}); to separate them: {c['to_separate']}")
+            why = (f"correlation {c['canonical_correlation']}" if "canonical_correlation" in c
+                   else c.get("why", ""))
+            lines.append(f"  cannot tell {' from '.join(c['effects'])} apart here ({why}); "
+                         f"to separate them: {c['to_separate']}")
         w = r.get("where", {})
         if w.get("region_share"):
             top = sorted(w["region_share"].items(), key=lambda kv: -kv[1])[:3]
             lines.append("  excess by orientation: " + ", ".join(f"{a} {b:.0%}" for a, b in top))
         if r.get("note"):
             lines.append(f"  note: {r['note']}")
+        for n in r.get("notes", []):
+            lines.append(f"  note: {n}")
     for n in res.get("notes", []):
         lines.append(f"note: {n}")
     return "\n".join(lines)
@@ -46,7 +58,14 @@ def cmd_gap(args) -> int:
     kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
     if kind != "recording":
         raise UserError(f"{args.recording}: gap needs samples (a recording), not pose averages")
-    res = diagnose(rec, args.sensor, sims=args.sims, seed=args.seed, name=args.recording)
+    try:
+        res = diagnose(rec, args.sensor, sims=args.sims, seed=args.seed, name=args.recording)
+    except UserError as e:
+        if not args.json:
+            raise
+        # under --json the answer is one JSON object, an error included (exit status kept)
+        print(json.dumps({"error": str(e), "exit_code": e.exit_code}))
+        return e.exit_code
     if args.report:
         from ..gap.report import write_report
         write_report(res, args.report)

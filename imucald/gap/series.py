@@ -10,7 +10,7 @@ temperature and time.  Pure functions over arrays:
    a block's mean, temperature and mid time are one observation per axis.
 2. **Twin noise (coloured).**  The variance of a block mean under the noise
    model is the Allan variance at the block length, extrapolated from inside the
-   blocks (tau = T/8, T/4, T/2 from sub-block means) with the measured
+   blocks (Hadamard variance at tau = T/8, T/4 from sub-block means) with the measured
    log-log slope, which is clamped to [-1/2, 0]: white (-1/2) and flicker /
    bias instability (0) are noise; anything steeper, i.e. variation that
    grows with the time scale beyond the block, is left for the effects.
@@ -35,7 +35,8 @@ import numpy as np
 from .stats import chi2_logsf
 from .verdict import verdict
 
-__all__ = ["make_blocks", "block_noise_var", "series_diagnose", "orientation_groups"]
+__all__ = ["make_blocks", "block_noise_var", "series_diagnose", "orientation_groups",
+           "within_pose_inflation"]
 
 ALPHA = 0.01
 
@@ -98,27 +99,55 @@ def make_blocks(t_s: np.ndarray, x: np.ndarray, temp_c: Optional[np.ndarray], sl
 
 
 def block_noise_var(blk: Dict[str, np.ndarray]) -> Dict[str, object]:
-    """Variance of each block mean (K, C) under the noise model, from the Allan variance
-    inside the blocks at tau = T/8, T/4, T/2 (consecutive sub-block means within each
-    block), extrapolated to T with the fitted log-log slope clamped to [-1/2, 0]
-    (white .. flicker).  Each block's variance is scaled by its count relative to the median."""
+    """Variance of each block mean (K, C) under the noise model, from inside the blocks:
+    the Hadamard variance (second differences of consecutive sub-block means, blind to a
+    linear trend such as a warm-up's within a block; equal to the Allan variance for white
+    and close to it for flicker noise) at tau = T/8 and T/4, extrapolated to the block
+    length T with the log-log slope clamped to [-1/2, 0] (white .. flicker).  Each
+    block's variance is scaled by its count relative to the median."""
     q, nq = blk["parts"], blk["nparts"]
-    avs = []
-    for L in (8, 4, 2):
+    hv = []
+    for L in (8, 4):
         g = 8 // L
         qq = np.stack([np.sum(q[:, j * g:(j + 1) * g] * nq[:, j * g:(j + 1) * g, None], 1)
                        / np.sum(nq[:, j * g:(j + 1) * g], 1)[:, None] for j in range(L)], 1)
-        d = np.diff(qq, axis=1).reshape(-1, q.shape[2])
-        avs.append(0.5 * np.mean(d ** 2, axis=0))
-    av = np.array(avs)                                 # (3, C): tau = T/8, T/4, T/2
-    x = np.log2([1 / 8, 1 / 4, 1 / 2])
-    ly = 0.5 * np.log2(np.maximum(av, 1e-300))         # log2 ADEV
-    slope = np.clip(np.polyfit(x, ly, 1)[0], -0.5, 0.0)
-    av_T = av[2] * 4.0 ** slope                        # adev ratio 2^slope -> avar ratio 4^slope
+        d = (qq[:, 2:] - 2 * qq[:, 1:-1] + qq[:, :-2]).reshape(-1, q.shape[2])
+        hv.append(np.mean(d ** 2, axis=0) / 6.0)
+    hv = np.array(hv)                                  # (2, C): tau = T/8, T/4
+    slope = np.clip(0.5 * np.log2(np.maximum(hv[1], 1e-300) / np.maximum(hv[0], 1e-300)), -0.5, 0.0)
+    av_T = hv[1] * 16.0 ** slope                       # two doublings: avar ratio (2^slope)^4
     rel = np.median(blk["n"]) / blk["n"]
     var = av_T[None, :] * rel[:, None]
-    return {"var": var, "adev_eighth": np.sqrt(av[0]), "adev_half": np.sqrt(av[2]),
+    return {"var": var, "adev_eighth": np.sqrt(hv[0]), "adev_quarter": np.sqrt(hv[1]),
             "adev_block": np.sqrt(av_T), "loglog_slope": slope}
+
+
+def within_pose_inflation(x: np.ndarray, slices: Sequence[slice]) -> Dict[str, object]:
+    """Variance inflation of a pose mean over white noise, measured inside the poses:
+    each pose is cut in eighths and :func:`block_noise_var` extrapolates the Hadamard
+    variance at T/8 and T/4 to the pose length T.  Inflation per axis = the variance at T
+    over the white prediction (the T/8 value divided by 8), in [1, 8]."""
+    parts, nparts, n = [], [], []
+    for s in slices:
+        if s.stop - s.start < 16:
+            continue
+        xb = x[s]
+        idx = np.array_split(np.arange(len(xb)), 8)
+        parts.append([xb[i].mean(0) for i in idx])
+        nparts.append([len(i) for i in idx])
+        n.append(len(xb))
+    if len(parts) < 3:
+        return {"inflation": 1.0, "note": "fewer than 3 poses of 16 samples: white noise assumed"}
+    blk = {"parts": np.array(parts), "nparts": np.array(nparts, float), "n": np.array(n)}
+    nv = block_noise_var(blk)
+    # only colour that is clear of the slope's sampling error inflates the twin's noise:
+    # a log variance from m squared differences scatters by about sqrt(2 / m)
+    m8, m4 = 6 * len(parts), 2 * len(parts)
+    se = 0.5 * math.sqrt(2.0 / m8 + 2.0 / m4) / math.log(2.0)
+    slope = np.clip(nv["loglog_slope"] - 2 * se, -0.5, 0.0)
+    k = np.clip(16.0 ** slope * nv["adev_quarter"] ** 2 / (nv["adev_eighth"] ** 2 / 8.0), 1.0, 8.0)
+    return {"inflation": float(np.mean(k)), "per_axis": np.round(k, 3).tolist(),
+            "loglog_slope": np.round(nv["loglog_slope"], 3).tolist(), "slope_stderr": round(se, 3)}
 
 
 # --- linear machinery -----------------------------------------------------------------------
@@ -293,7 +322,6 @@ def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: 
     tot = float(np.sum(np.maximum(rz ** 2 - 1, 0))) or 1.0
     out["where"] = {"axis_share": {axis_names[c]: round(float(np.sum(np.maximum(rz[:, c] ** 2 - 1, 0))) / tot, 3)
                                    for c in range(C)}}
-    out["_plot"] = {"t": t, "temp": blk["temp"], "r": R0, "var": V}
     return out
 
 

@@ -5,8 +5,9 @@
   "datasheet" values); no temperature.
 * freeimu_mpu6050_tempsweep: one orientation for 36 minutes while warming 10 -> 29 C
   (accel 16384 counts/g, gyro 16.4 counts/dps as FreeIMU configures it, T = raw/340 + 36.53).
-* sunsided_mpu6050_hmc5883l: every recording of set 2 appended in time (placements differ
-  between recordings), magnetometer held at the MPU timestamps.
+* sunsided_mpu6050_hmc5883l: the 10-minute unmoved recording alone (one orientation), and
+  every recording of set 2 appended in time (placements differ between recordings),
+  magnetometer held at the MPU timestamps.
 Usage: python bench/real_gap.py
 """
 import json
@@ -39,10 +40,10 @@ def tempsweep():
                      meta={"board": "mpu6050", "rate_hz": f"{1 / np.median(np.diff(t)):.1f}"})
 
 
-def sunsided():
+def sunsided(only=None):
     base = os.path.join(REAL, "sunsided_mpu6050_hmc5883l")
     parts, off = [], 0.0
-    for name in sorted(os.listdir(base)):
+    for name in sorted(os.listdir(base)) if only is None else [only]:
         f = os.path.join(base, name, "mpu6050.csv")
         if not os.path.exists(f):
             continue
@@ -64,7 +65,9 @@ def main():
         print(f"skipped: {REAL} is absent")
         return 0
     from imucald.cli.gap import gap_summary
+    ten = "unmoved-with-x-pointing-forward-10min"
     for name, load in (("imutk_xsens_mti", xsens), ("freeimu_mpu6050_tempsweep", tempsweep),
+                       (f"sunsided_mpu6050_hmc5883l {ten} (one orientation, 10 min)", lambda: sunsided(ten)),
                        ("sunsided_mpu6050_hmc5883l (all set-2 recordings appended)", sunsided)):
         print(f"=== {name}")
         rec = load()

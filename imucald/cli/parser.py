@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
     s.add_argument("--truth", help="also write the true parameters as JSON here")
     s.add_argument("--effect", action="append", help="inject an unmodelled effect: NAME or NAME=MAGNITUDE, "
-                   "e.g. thermal_bias, accel.nonlinearity=0.002, gyro.g_sensitivity, mag.soft_iron; "
+                   "e.g. thermal_bias, accel.nonlinearity=0.002, gyro.g_sensitivity, mag.thermal_bias; "
                    "'none' for a baseline-only recording (repeatable)")
     s.add_argument("--magnitude", type=float, help="magnitude of the single --effect (default: datasheet)")
     s.set_defaults(func=_command("offline", "cmd_simulate"))

@@ -4,7 +4,9 @@ A norm-model candidate (accelerometer, magnetometer) is a raw-frame perturbation
 ``delta(eta, x, theta, ctx)`` removed from the readings, x' = x - delta; a gyro
 candidate is a block of design columns added to the linear bias model.  ``ctx``
 holds per-pose regressors: ``t`` and ``dt`` (s), ``temp`` and ``dT`` (degC),
-``acc_dir`` (g, calibrated specific force).
+``acc_dir`` (g, calibrated specific force), ``hat2``..``hat4`` (time hat functions).
+Several candidates may share a name (variants of one class, e.g. the knot count of
+``wandering_bias``): the variant with the lower held-out error is kept.
 """
 from __future__ import annotations
 
@@ -13,7 +15,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
-__all__ = ["Candidate", "ACCEL_CANDIDATES", "MAG_CANDIDATES", "GYRO_CANDIDATES", "SEPARATE"]
+__all__ = ["Candidate", "ACCEL_CANDIDATES", "MAG_CANDIDATES", "GYRO_CANDIDATES", "SEPARATE", "TRACELESS",
+           "hat_columns", "kron_cols"]
 
 
 @dataclass
@@ -36,19 +39,39 @@ ACCEL_CANDIDATES = [
     Candidate("thermal_scale", 3, lambda e, x, th, c: (x - th[6:9]) * np.outer(c["dT"], _vec(e)),
               units="1/degC"),
     Candidate("nonlinearity", 3, lambda e, x, th, c: _vec(e) * (x - th[6:9]) ** 2, units="g/g^2"),
+    # second order with cross-axis terms (reference E3 + E4): each axis also sees the
+    # product of the other two; a variant of the same class, chosen by held-out error
+    Candidate("nonlinearity", 6,
+              lambda e, x, th, c: _vec(e) * (x - th[6:9]) ** 2 + np.asarray(e, float)[3:]
+              * (x - th[6:9])[:, [1, 2, 0]] * (x - th[6:9])[:, [2, 0, 1]],
+              units="g/g^2 (x^2, y^2, z^2 on their own axes; then yz on x, zx on y, xy on z)"),
     Candidate("bias_drift", 3, lambda e, x, th, c: np.outer(c["dt"], _vec(e)), units="g/s"),
+    # a wandering bias: piecewise linear in time with m + 1 equally spaced knots (m = 2, 3, 4,
+    # the count chosen by held-out error), beyond the straight line of bias_drift
+    *[Candidate("wandering_bias", 3 * m, lambda e, x, th, c, m=m: c[f"hat{m}"] @ np.asarray(e).reshape(m, 3),
+                units=f"g (bias at knots 1..{m} of {m + 1} equally spaced in time, relative to the first)")
+      for m in (2, 3, 4)],
 ]
 
 
-def _sym_traceless(e):
-    a, b, c, d, f = e
-    return np.array([[a, c, d], [c, b, f], [d, f, -a - b]])
+def hat_columns(t_s: np.ndarray) -> dict:
+    """ctx entries ``hat2``..``hat4``: hat functions of time at knots 1..m of m + 1."""
+    sc = (t_s - t_s.min()) / max(float(np.ptp(t_s)), 1e-9)
+    return {f"hat{m}": np.clip(1 - np.abs(sc[:, None] * m - np.arange(1, m + 1)[None, :]), 0, None)
+            for m in (2, 3, 4)}
 
 
+#: the magnetometer's baseline is the deployed hard + soft iron model (mag_sym), so soft
+#: iron is not an effect; what it misses: hard iron and gain changing with temperature,
+#: a drifting hard iron, and interference that follows the orientation (``acc_dir``)
 MAG_CANDIDATES = [
-    Candidate("soft_iron", 5, lambda e, x, th, c: (x - th[1:4]) @ _sym_traceless(e).T,
-              units="(symmetric traceless xx, yy, xy, xz, yz)"),
     Candidate("thermal_bias", 3, lambda e, x, th, c: np.outer(c["dT"], _vec(e)), units="gauss/degC"),
+    Candidate("thermal_scale", 3, lambda e, x, th, c: (x - th[-3:]) * np.outer(c["dT"], _vec(e)),
+              units="1/degC"),
+    Candidate("bias_drift", 3, lambda e, x, th, c: np.outer(c["dt"], _vec(e)), units="gauss/s"),
+    Candidate("orientation_interference", 9,
+              lambda e, x, th, c: c["acc_dir"] @ np.asarray(e, float).reshape(3, 3).T,
+              units="gauss/g (row-major D: offset D f with f the specific force)"),
 ]
 
 
@@ -60,18 +83,24 @@ def kron_cols(v):                      # (N,) -> (3N, 3): v_i * I3
     return X
 
 
+#: traceless 3x3 matrices (row-major), 8 basis vectors: the isotropic part of a
+#: g-sensitivity G reads k u, the same as Earth's vertical rate, which the baseline holds
+TRACELESS = np.linalg.svd(np.eye(9) - np.outer(np.eye(3).ravel(), np.eye(3).ravel()) / 3)[0][:, :8]
+
+
 def _gsens_cols(c):
     a = c["acc_dir"]
     N = len(a)
     X = np.zeros((3 * N, 9))
     for j in range(3):
         X[j::3, 3 * j:3 * j + 3] = a
-    return X
+    return X @ TRACELESS
 
 
 GYRO_CANDIDATES = [
     Candidate("thermal_bias", 3, columns=lambda c: kron_cols(c["dT"]), units="dps/degC"),
-    Candidate("g_sensitivity", 9, columns=_gsens_cols, units="dps/g (row-major G)"),
+    Candidate("g_sensitivity", 8, columns=_gsens_cols,
+              units="dps/g (row-major G, traceless: its trace is not separable from Earth's vertical rate)"),
     Candidate("bias_drift", 3, columns=lambda c: kron_cols(c["dt"]), units="dps/s"),
 ]
 
@@ -87,5 +116,6 @@ SEPARATE = {
     frozenset({"thermal_scale", "bias_drift"}): "a temperature profile that rises and falls",
     frozenset({"g_sensitivity", "thermal_bias"}): "poses in every orientation at each temperature",
     frozenset({"g_sensitivity", "bias_drift"}): "poses in every orientation at the start and the end",
-    frozenset({"soft_iron", "thermal_bias"}): "rotation data over the whole sphere at a steady temperature",
+    frozenset({"wandering_bias", "bias_drift"}): "a longer recording, or a repeated reference pose at the end",
+    frozenset({"wandering_bias", "thermal_bias"}): "a temperature profile that rises and falls, more than once",
 }

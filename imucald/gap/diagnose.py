@@ -23,7 +23,9 @@ Method (../shared/reference/error-models.md sections 3-5):
    candidates whose projected signatures coincide are reported as one class,
    with the recording that would separate them.
 5. **Shrink**: ratio before and after, the effect's parameters and uncertainty.
-6. **Verdict** per sensor: the effect, ``none``, or ``unexplained``.
+6. **Verdict** per sensor (:mod:`.verdict`, one rule): ``none``, the effect(s),
+   ``partially_explained`` or ``unexplained``.  Fewer than 10 poses or 6 orientations:
+   the time-series path (:mod:`.single`, :mod:`.series`).
 
 Modules: ``candidates`` (the effects), ``twin`` (fitting kernels, twin, noise
 model), ``signif`` and ``stats`` (tests and distributions), ``verdict`` (one
@@ -44,19 +46,49 @@ from ..calib.optim import Problem, lm, sphere_fit
 from ..calib.poses import detect_static, poses_from_slices
 from ..errors import UserError
 from ..recording import Recording
-from .candidates import ACCEL_CANDIDATES, GYRO_CANDIDATES, MAG_CANDIDATES
+from .candidates import ACCEL_CANDIDATES, GYRO_CANDIDATES, MAG_CANDIDATES, hat_columns
 from .linear import gyro_diag
 from .norm import norm_diag
 from .saturation import saturated
+from .series import orientation_groups, within_pose_inflation
+from .single import diagnose_single
 from .twin import flag_disturbed
 
 __all__ = ["diagnose", "GapError", "ACCEL_CANDIDATES", "GYRO_CANDIDATES", "MAG_CANDIDATES"]
 
-MIN_POSES = 15
+MIN_POSES = 10          #: below, the time-series path (or an error)
+FULL_POSES = 15         #: below, the reduced power is stated
+MIN_ORIENTATIONS = 6    #: distinct gravity directions (20 deg apart) the 9-parameter fit needs
 
 
 class GapError(UserError):
     pass
+
+
+def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, object]:
+    """Few poses or few orientations: gyro and accelerometer from still stretches split in time."""
+    N = len(ps)
+    have = {"accel": rec.acc, "gyro": rec.gyro}
+    res = diagnose_single(rec.t, sl, ps.acc, {s: have[s] for s in sensors if s in have and have[s] is not None},
+                          rec.temp, sims, rng) if N else {}
+    ok = {k: v for k, v in res.items() if v.get("verdict") is not None}
+    why = "; ".join(f"{k}: {v['error']}" for k, v in res.items() if v.get("verdict") is None)
+    if not ok:
+        norm = np.linalg.norm(ps.acc, axis=1)
+        up = ps.acc[(norm > 0.5) & (norm < 1.5)]             # poses under 1 g (raw)
+        miss = cube_coverage(up / np.linalg.norm(up, axis=1, keepdims=True))["missing"][:6]
+        raise GapError(f"{name}: {N} still poses found in {n_orient} orientation(s); the diagnosis needs at "
+                       f"least {MIN_POSES} in {MIN_ORIENTATIONS} or more orientations (25-30 recommended): "
+                       f"{max(MIN_POSES - N, 1)} more, e.g. {', '.join(miss)}; or one still stretch of "
+                       f"several minutes for the time-series diagnosis ({why})")
+    notes = [f"{N} still pose(s) in {n_orient} orientation(s): diagnosed from still stretches split in time "
+             f"(the pose diagnosis needs {MIN_POSES} poses in {MIN_ORIENTATIONS}+ orientations)"]
+    if why:
+        notes.append(why)
+    if "mag" in sensors:
+        notes.append("mag: not diagnosed: the magnetometer needs rotation or a pose set")
+    return {"sensors": ok, "poses_found": N, "orientations": n_orient, "mode": "time_series",
+            "poses_left_out": [], "notes": notes}
 
 
 def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int = 200,
@@ -75,12 +107,12 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
     ps = poses_from_slices(rec, sl)
     N = len(ps)
     notes: List[str] = []
-    if N < MIN_POSES:
-        norm = np.linalg.norm(ps.acc, axis=1)
-        up = ps.acc[(norm > 0.5) & (norm < 1.5)]             # poses under 1 g (raw)
-        miss = cube_coverage(up / np.linalg.norm(up, axis=1, keepdims=True))["missing"][:6]
-        raise GapError(f"{name}: {N} still poses found; the diagnosis needs at least {MIN_POSES} "
-                       f"(25-30 recommended): {MIN_POSES - N} more, e.g. {', '.join(miss)}")
+    n_orient = int(orientation_groups(ps.acc).max()) + 1 if N else 0
+    if N < MIN_POSES or n_orient < MIN_ORIENTATIONS:
+        return _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient)
+    if N < FULL_POSES:
+        notes.append(f"{N} still poses: the diagnosis runs from {MIN_POSES}, with less power than with "
+                     f"{FULL_POSES} or more (25-30 recommended); a small effect may go unseen")
     # saturation (E10: not a model term): samples at the range limit bias a pose mean
     sat = saturated(rec, sl)
     # robust noise and disturbed poses (accelerometer)
@@ -99,7 +131,7 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         skip = {"thermal_bias": "flat temperature", "thermal_scale": "flat temperature"}
         notes.append(f"temperature varied by only {np.ptp(temp):.2f} C: temperature effects were skipped")
     tmid = 0.5 * (ps.t0 + ps.t1)
-    ctx_all = {"t": tmid - tmid.min(), "dt": tmid - tmid.mean()}
+    ctx_all = {"t": tmid - tmid.min(), "dt": tmid - tmid.mean(), **hat_columns(tmid)}
     if not skip:
         ctx_all["temp"] = temp
         ctx_all["dT"] = temp - temp.mean()
@@ -110,6 +142,10 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
                                  "poses_left_out": np.flatnonzero(bad).tolist() if keep.sum() < N else []}
     if "accel" in sensors:
         kap, colour = colour_inflation(None if longest is None else rec.acc[longest], rate, T_pose)
+        # colour measured inside the poses too (short holds have no long stretch)
+        wp = within_pose_inflation(rec.acc, [s_ for s_, k_ in zip(sl, keep) if k_])
+        kap = max(kap, wp["inflation"])
+        colour = dict(colour or {}, within_pose=wp)
         pv = np.median(s2[keep]) / ps.n[keep] * kap
         r = norm_diag(ps.acc[keep], sub(ctx_all, keep), pv, Triangular9(), ACCEL_CANDIDATES, sims, rng,
                        skip, "g")
@@ -134,6 +170,9 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         gs2 = gv * ps.n[:, None]
         med = np.median(gs2[keep], axis=0)
         kap_g, colour_g = colour_inflation(None if longest is None else rec.gyro[longest], rate, T_pose)
+        wp = within_pose_inflation(rec.gyro, [s_ for s_, k_ in zip(sl, keep) if k_])
+        kap_g = max(kap_g, wp["inflation"])
+        colour_g = dict(colour_g or {}, within_pose=wp)
         gvar = med[None, :] / ps.n[keep, None] * kap_g
         ctx = sub(ctx_all, keep)
         # specific force in g from the calibrated accelerometer (raw directions carry the
@@ -151,10 +190,12 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         mvar = np.maximum(mvar, (1 / 1090) ** 2 / 12 / ps.n[keep])     # quantisation floor
         x = ps.mag[keep]
         _, rad = sphere_fit(x)
-        model = MagModel("sphere")
-        r = norm_diag(x, sub(ctx_all, keep), mvar, model, MAG_CANDIDATES, sims, rng,
-                       {k: v for k, v in skip.items() if k == "thermal_bias"}, "gauss", scale=rad)
-        r["note"] = "still-pose means only; the baseline is hard iron with a single gain"
+        model = MagModel("sym")                     # the deployed hard + soft iron model
+        ctx_m = sub(ctx_all, keep)
+        t9 = Triangular9()
+        ctx_m["acc_dir"] = t9.forward(lm(Problem(t9, ps.acc[keep])).theta, ps.acc[keep])
+        r = norm_diag(x, ctx_m, mvar, model, MAG_CANDIDATES, sims, rng, skip, "gauss", scale=rad)
+        r["note"] = "still-pose means; the baseline is the deployed hard + soft iron model"
         result["sensors"]["mag"] = r
     result["notes"] = notes
     return result

@@ -2,11 +2,13 @@
 means by weighted least squares; candidates add design columns."""
 from __future__ import annotations
 
+import math
 from typing import Dict
 
 import numpy as np
 
-from .candidates import GYRO_CANDIDATES, kron_cols
+from .candidates import GYRO_CANDIDATES, TRACELESS, kron_cols
+from .earth import horizontal_variance, vertical_column
 from .signif import p_and_log10, proj_sig, score
 from .twin import heldout, twin_rms
 from .verdict import ALPHA, decide
@@ -21,7 +23,8 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
     y = g.reshape(-1)
     var = gvar.reshape(-1)
     w = 1 / var
-    X0 = kron_cols(np.ones(N))
+    # baseline: a bias per axis and Earth's vertical rate along the accelerometer's up
+    X0 = np.hstack([kron_cols(np.ones(N)), vertical_column(ctx["acc_dir"])])
 
     def wls(X):
         A = X.T @ (X * w[:, None])
@@ -29,9 +32,16 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
         beta = Ai @ (X.T @ (w * y))
         r = y - X @ beta
         return beta, r, Ai
+    b0, r0, A0 = wls(X0)
+    # Earth's horizontal rate (unknown heading) as pose-to-pose scatter in the twin; its
+    # size from the fitted vertical rate taken 2 standard errors towards zero (a larger
+    # horizontal share): an overestimated vertical rate would call Earth's rate a gap
+    v_low = max(abs(float(b0[3])) - 2 * math.sqrt(max(float(A0[3, 3]), 0.0)), 0.0)
+    var = var + horizontal_variance(ctx["acc_dir"], v_low).reshape(-1)
+    w = 1 / var
     b0, r0, _ = wls(X0)
     chi2 = float(np.sum(w * r0 * r0))
-    p_gap, lp = p_and_log10(chi2, 3 * N - 3)
+    p_gap, lp = p_and_log10(chi2, 3 * N - 4)
     J0 = -X0
     e0 = heldout(r0, J0, w)
     tw = twin_rms(J0, var, w, sims, rng)
@@ -39,7 +49,8 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
     ratio = float(np.sqrt(np.mean(e0 ** 2)) / twin)
     ratio_q99 = float(np.quantile(tw / twin, 0.99))
     out = {"poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp, 2),
-           "chi2": chi2, "dof": 3 * N - 3, "unit": "dps", "bias_dps": b0.tolist(),
+           "chi2": chi2, "dof": 3 * N - 4, "unit": "dps", "bias_dps": b0[:3].tolist(),
+           "earth_rate_vertical_dps": float(b0[3]),
            "heldout_rms": float(np.sqrt(np.mean(e0 ** 2))), "twin_heldout_rms": twin,
            "twin_ratio_q99": ratio_q99}
     significant = p_gap < ALPHA and ratio > ratio_q99
@@ -60,23 +71,27 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
                "visibility": round(vis, 3), "significant": False, "ratio_after": ratio, "params": {}}
         if qv:
             X = np.hstack([X0, c.columns(ctx)])
+            B = TRACELESS if c.name == "g_sensitivity" else np.eye(c.q)
             beta, r1, Ai = wls(X)
             chi2a = float(np.sum(w * r1 * r1))
             e1 = heldout(r1, -X, w)
             pn, _ = p_and_log10(max(chi2 - chi2a, 0.0), c.q)
-            twa = float(np.median(twin_rms(-X, var, w, sims, rng)))
+            twl = twin_rms(-X, var, w, sims, rng)
+            twa = float(np.median(twl))
             ra = float(np.sqrt(np.mean(e1 ** 2)) / twa)
-            ent.update({"ratio_after": ra, "nested_p_value": pn,
+            Ai = Ai * max(1.0, chi2a / max(3 * N - X.shape[1], 1))   # remaining excess scatter
+            ent.update({"ratio_after": ra, "nested_p_value": pn, "q": c.q,
+                        "closed": bool(ra <= float(np.quantile(twl / twa, 0.99))),
                         "significant": bool(significant and p < bonf and pn < bonf
                                             and np.mean(e1 ** 2) < np.mean(e0 ** 2)),
-                        "params": {f"{c.name}_{c.units}": beta[3:].tolist()},
-                        "stderr": {f"{c.name}_{c.units}": np.sqrt(np.diag(Ai))[3:].tolist()}})
+                        "params": {f"{c.name}_{c.units}": (B @ beta[4:]).tolist()},
+                        "stderr": {f"{c.name}_{c.units}": np.sqrt(np.diag(B @ Ai[4:, 4:] @ B.T)).tolist()}})
         effects.append(ent)
     out["effects"] = effects
     chosen = decide(out, ratio, significant, effects, {d[0].name: d[1] for d in tested if d[3]})
     if chosen and chosen[0] == "g_sensitivity":
-        out["note"] = ("Earth's rate (15 deg/h) projects on the vertical like an isotropic "
-                       "g-sensitivity of about 0.003 dps/g: below that, the two cannot be told apart")
+        out["note"] = ("Earth's vertical rate (up to 15 deg/h) is in the baseline; it takes up an "
+                       "isotropic g-sensitivity of the same size")
     rz = (r0 * np.sqrt(w)).reshape(N, 3)
     out["where"] = linear_where(rz, ctx)
     return out

@@ -16,7 +16,9 @@ from .twin import hat_diag, heldout, lm_weighted, numjac, twin_rms
 from .verdict import ALPHA, decide
 from .where import norm_where
 
-__all__ = ["norm_diag"]
+__all__ = ["norm_diag", "MIN_DOF"]
+
+MIN_DOF = 10            #: residual degrees of freedom a candidate fit must leave
 
 
 def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, model: NormModel,
@@ -78,13 +80,18 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         z, ra, Ja = lm_weighted(fun, z0, w)
         chi2a = float(np.sum(w * ra * ra))
         ea = heldout(ra, Ja, w)
-        twa = float(np.median(twin_rms(Ja, var, w, sims, rng)))
+        twl = twin_rms(Ja, var, w, sims, rng)
+        twa = float(np.median(twl))
         _, Ai = hat_diag(Ja, w)
-        sd = np.sqrt(np.clip(np.diag(Ai), 0, None))
-        return z, chi2a, ea, twa, sd
+        # standard errors scaled by the excess scatter that remains (chi2/dof above 1)
+        red = max(1.0, chi2a / max(N - len(z), 1))
+        sd = np.sqrt(np.clip(np.diag(Ai), 0, None) * red)
+        q99 = float(np.quantile(twl / twa, 0.99))
+        return z, chi2a, ea, twa, sd, q99
 
     effects = []
     fits = {}
+    cand_of: Dict[str, Candidate] = {}           # the kept variant of each name
     for d in tested:
         c = d["cand"]
         entry = {"name": c.name, "score_chi2": round(d["stat"], 3), "score_p_value": d["p"],
@@ -97,16 +104,24 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         # every visible candidate is refitted (cheap), so each reports its shrink and
         # parameters; it is significant only when the gap is, its score test passes
         # (Bonferroni), the nested test passes and the held-out residual falls
-        z, chi2a, ea, twa, sd = refit([c])
+        if p0 + c.q > N - MIN_DOF:
+            continue                              # too many parameters for this pose set
+        z, chi2a, ea, twa, sd, q99 = refit([c])
         dchi = chi2 - chi2a
         pn, lpn = p_and_log10(max(dchi, 0.0), c.q)
         ra_after = float(np.sqrt(np.mean(ea * ea)) / twa)      # against the augmented model's twin
         key = c.name + (f"_{c.units}" if c.units else "")
-        entry.update({"ratio_after": ra_after, "nested_p_value": pn, "chi2_after": chi2a,
+        entry.update({"ratio_after": ra_after, "nested_p_value": pn, "chi2_after": chi2a, "q": c.q,
+                      "closed": bool(ra_after <= q99),
                       "significant": bool(significant and d["p"] < bonf and pn < bonf
                                           and np.mean(ea * ea) < np.mean(e * e)),
                       "params": {key: z[p0:].tolist()}, "stderr": {key: sd[p0:].tolist()}})
+        if c.name in fits:                         # a second variant of the same class
+            if fits[c.name][2] <= ra_after:
+                continue
+            effects = [ef for ef in effects if ef["name"] != c.name]
         fits[c.name] = (chi2a, ea, ra_after)
+        cand_of[c.name] = c
         effects.append(entry)
     out["effects"] = effects
 
@@ -114,28 +129,31 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         """With ``first`` modelled, the second effect that still explains a significant
         part (nested test) and lowers the held-out residual most; None when none does."""
         chi2_best, e_best, _ = fits[first]
-        q_best = next(c.q for c in cands if c.name == first)
+        q_best = cand_of[first].q
         if chi2_sf(chi2_best, N - p0 - q_best) >= ALPHA:
             return None
         best_pair = None
         for d in tested:
             other = d["cand"]
-            if other.name == first or d["q"] == 0:
+            if other.name == first or d["q"] == 0 or cand_of.get(other.name) is not other:
                 continue
-            z, chi2a, ea, twa, sd = refit([next(c for c in cands if c.name == first), other])
+            if p0 + q_best + other.q > N - MIN_DOF:
+                continue
+            z, chi2a, ea, twa, sd, q99 = refit([cand_of[first], other])
             rr = float(np.sqrt(np.mean(ea * ea)) / twa)
             pn, _ = p_and_log10(max(chi2_best - chi2a, 0.0), other.q)
             if pn < bonf and np.mean(ea * ea) < np.mean(e_best * e_best) and \
                     (best_pair is None or rr < best_pair[1]):
-                best_pair = (other.name, rr, z, sd, pn)
+                best_pair = (other.name, rr, z, sd, pn, rr <= q99)
         if best_pair is None:
             return None
         return {"effects": [first, best_pair[0]], "ratio_after": best_pair[1],
-                "nested_p_value": best_pair[4], "params": best_pair[2][p0:].tolist(),
+                "nested_p_value": best_pair[4], "closed": bool(best_pair[5]), "params": best_pair[2][p0:].tolist(),
                 "stderr": best_pair[3][p0:].tolist()}
 
     chosen = decide(out, ratio, significant, effects,
-                    {d["cand"].name: d["Ct"] for d in tested if d["q"]}, second)
+                    {d["cand"].name: d["Ct"] for d in tested if d["q"] and cand_of.get(d["cand"].name) is d["cand"]},
+                    second)
     out["where"], ud = norm_where(x, r * sw, model, th, ctx)
     out["_plot"] = {"r": r, "e": e, "t": ctx["t"], "temp": ctx.get("temp"), "u": ud, "var": var,
                     "e_after": fits[chosen[0]][1] if chosen and chosen[0] in fits else None,

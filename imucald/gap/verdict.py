@@ -1,71 +1,88 @@
-"""The one verdict of the gap diagnosis, shared by the norm (accelerometer,
-magnetometer) and the linear (gyro) paths.
+"""The one verdict of the gap diagnosis, for every sensor and path (the norm path of
+the accelerometer and magnetometer, the gyro's linear path, the time-series path).
 
-A gap is *significant* when the chi-square test rejects the noise model and the
-held-out ratio lies above what the twin produces in 99 % of its re-simulations.
-Then the significant candidate with the lowest ratio after modelling is chosen
-(plus a second one when the path offers it and it still explains a significant
-part); the verdict is that effect when the ratio after falls to ``RATIO_OK``, or
-when it removes at least half of the excess (then ``partially_explained``), else
-``unexplained``.  Candidates whose projected signatures coincide with a chosen
-one (canonical correlation > 0.98) are reported as confusable, with the
+Wording from ../shared/reference/error-models.md section 5 (shrink S on held-out
+data, S = (ratio before - ratio after) / (ratio before - 1); "the tool must flag
+S < 0.5 as partially explained"):
+
+* ``none``: no gap (the chi-square test does not reject the noise model, or the
+  held-out ratio lies within the twin's 99th percentile);
+* the effect name(s), joined by ``+``: a gap, and the chosen effect(s) close it
+  (held-out ratio within the augmented model's own twin: ``explained: "closed"``)
+  or close at least half of it (S >= 0.5, ``explained: "mostly"``);
+* ``partially_explained``: a gap, and the best effect(s) close less than half of
+  it (S < 0.5); ``partially_explained_by`` names them;
+* ``unexplained``: a gap, and no candidate passes its tests.
+
+The choice (:func:`decide`): among the significant candidates, the simplest (fewest
+parameters) that closes the gap; when none closes it, the one that closes most, and
+then a second effect only if it passes the same tests against the twin of the model
+that already holds the first.  Candidates whose projected signatures coincide with
+a chosen one (canonical correlation > 0.98) are reported as confusable, with the
 recording that would separate them.
 """
 from __future__ import annotations
 
-from typing import Callable, Dict, List, Optional
+from typing import Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 
 from .candidates import SEPARATE
 from .signif import canon
 
-__all__ = ["ALPHA", "RATIO_OK", "decide"]
+__all__ = ["ALPHA", "decide", "verdict"]
 
 ALPHA = 0.01
-RATIO_OK = 1.3          # a ratio after modelling above this is not "closed"
 CONFUSABLE_CC = 0.98    # canonical correlation above which two signatures look alike
+
+
+def verdict(gap: bool, chosen: Sequence[str], ratio_before: float, ratio_after: float,
+            closed: Optional[bool]) -> Dict[str, object]:
+    """The rule of the module doc: {"verdict", "shrink"?, "explained"?, "partially_explained_by"?}."""
+    if not gap:
+        return {"verdict": "none"}
+    if not chosen:
+        return {"verdict": "unexplained"}
+    shrink = (ratio_before - ratio_after) / max(ratio_before - 1.0, 1e-9)
+    name = "+".join(chosen)
+    if closed:
+        return {"verdict": name, "shrink": float(shrink), "explained": "closed"}
+    if shrink >= 0.5:
+        return {"verdict": name, "shrink": float(shrink), "explained": "mostly"}
+    return {"verdict": "partially_explained", "shrink": float(shrink), "explained": "partially",
+            "partially_explained_by": name}
 
 
 def decide(out: Dict[str, object], ratio: float, significant: bool, effects: List[dict],
            signatures: Dict[str, np.ndarray],
            second: Optional[Callable[[str], Optional[dict]]] = None) -> List[str]:
-    """Write ``verdict``, ``ratio_after`` (and ``shrink``, ``partially_explained``,
-    ``joint``, ``confusable``, ``note``) into ``out``; return the chosen effects.
+    """Write ``verdict``, ``ratio_after`` (and ``shrink``, ``explained``, ``joint``,
+    ``confusable``, ``note``) into ``out``; return the chosen effects.
 
-    ``effects``: the tested candidates' entries (``name``, ``significant``,
-    ``ratio_after``); ``signatures``: projected signature by name, for the visible
-    candidates; ``second(best)``: the joint fit of ``best`` with the best second
-    effect (a dict with ``effects`` and ``ratio_after``), or None when none helps."""
+    ``effects``: the tested candidates' entries (``name``, ``significant``, ``q``,
+    ``closed``, ``ratio_after``); ``signatures``: projected signature by name;
+    ``second(best)``: the joint fit of ``best`` with the best second effect (a dict
+    with ``effects``, ``ratio_after``, ``closed``), or None when none passes."""
     sig = [ef for ef in effects if ef.get("significant")]
-    verdict, ratio_after, chosen = "none", ratio, []
+    ratio_after, chosen, closed = ratio, [], None
     if significant and sig:
-        best = min(sig, key=lambda ef: ef["ratio_after"])
-        chosen, ratio_after = [best["name"]], best["ratio_after"]
-        joint = second(best["name"]) if second is not None else None
+        closing = [ef for ef in sig if ef.get("closed")]
+        best = (min(closing, key=lambda ef: (ef["q"], ef["ratio_after"])) if closing
+                else min(sig, key=lambda ef: ef["ratio_after"]))
+        chosen, ratio_after, closed = [best["name"]], best["ratio_after"], bool(best.get("closed"))
+        joint = second(best["name"]) if (second is not None and not closed) else None
         if joint is not None:
             out["joint"] = joint
-            chosen, ratio_after = list(joint["effects"]), joint["ratio_after"]
-        shrink = (ratio - ratio_after) / max(ratio - 1.0, 1e-9)
-        out["shrink"] = float(shrink)
-        if ratio_after <= RATIO_OK:
-            verdict = "+".join(chosen)
-        elif shrink >= 0.5:
-            verdict = "+".join(chosen)
-            out["partially_explained"] = True
-        else:
-            verdict = "unexplained"
-    elif significant:
-        verdict = "unexplained"
-    elif ratio > float(out["twin_ratio_q99"]) * 1.05:
+            chosen, ratio_after, closed = list(joint["effects"]), joint["ratio_after"], joint["closed"]
+    elif not significant and ratio > float(out["twin_ratio_q99"]) * 1.05:
         # not significant by chi-square, yet the held-out ratio is out of the twin's range
         out["note"] = "held-out ratio above the twin's 99th percentile but chi-square not significant"
-    out["verdict"] = verdict
+    out.update(verdict(significant, chosen, ratio, ratio_after, closed))
     out["ratio_after"] = float(ratio_after)
     confused = []
     for n in chosen:
         for o, Ct in signatures.items():
-            if o == n or o in chosen:
+            if o == n or o in chosen or n not in signatures:
                 continue
             cc = canon(signatures[n], Ct)
             if cc > CONFUSABLE_CC:

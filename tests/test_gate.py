@@ -89,6 +89,11 @@ def test_poses_needed_follows_the_parameter_count_and_the_folds():
     assert all(n - len(g) >= 9 for g in fold_groups(n, 5))
     assert any(n - 1 - len(g) < 9 for g in fold_groups(n - 1, 5))
     assert [len(g) for g in fold_groups(61)] == [7] * 1 + [6] * 9
+    from imucald.cv import fold_sizes
+    for n in (5, 10, 37, 60, 61, 233):
+        assert fold_sizes(n) == [len(g) for g in fold_groups(n)]
+    from imucald.daemon.config import ACCEL_MODEL_PARAMS, accel_poses_needed
+    assert ACCEL_MODEL_PARAMS == T9.k and accel_poses_needed() == poses_needed(T9.k) == 10
 
 
 def test_loo_weighted_mean_residuals_refit_without_each_pose():

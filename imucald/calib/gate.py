@@ -33,9 +33,9 @@ __all__ = ["Decision", "fold_groups", "poses_needed", "signed_rank_p", "paired_g
 
 #: default false-accept rate (config calibration.false_accept_rate)
 ALPHA = 0.05
-#: leave-one-pose-out up to this many poses, k-fold over poses beyond
-LOO_MAX_POSES = 60
-KFOLDS = 10
+# leave-one-pose-out up to LOO_MAX_POSES poses, KFOLDS folds beyond; poses_needed: the
+# fewest poses a fit plus its cross-validation need (numpy-free, in imucald/cv.py)
+from ..cv import KFOLDS, LOO_MAX_POSES, poses_needed  # noqa: E402
 #: exact signed-rank distribution up to this many pairs, normal approximation beyond
 _EXACT_MAX = 200
 
@@ -48,16 +48,6 @@ def fold_groups(n: int, folds: Optional[int] = None) -> List[np.ndarray]:
     if folds is None:
         folds = n if n <= LOO_MAX_POSES else KFOLDS
     return [g for g in np.array_split(np.arange(n), min(folds, n)) if len(g)]
-
-
-def poses_needed(n_params: int, folds: Optional[int] = None) -> int:
-    """Fewest poses for which the full fit keeps one degree of freedom for the noise
-    (n >= k + 1) and every cross-validation refit still has at least k poses."""
-    n = n_params + 1
-    while True:
-        if min(n - len(g) for g in fold_groups(n, folds)) >= n_params:
-            return n
-        n += 1
 
 
 def _exact_upper_tail(ranks2: np.ndarray, w2: int) -> float:

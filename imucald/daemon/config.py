@@ -170,12 +170,16 @@ def validate(cfg: Dict[str, Any], path: str = "", lines: Optional[Dict[str, int]
     return out
 
 
+#: parameters of the daemon's accelerometer model, triangular9 (a test checks it against
+#: calib.models; not imported here: loading the configuration must not need numpy)
+ACCEL_MODEL_PARAMS = 9
+
+
 def accel_poses_needed() -> int:
     """Fewest poses the daemon's accelerometer fit (triangular9) and its
     leave-one-pose-out scoring need."""
-    from ..calib.gate import poses_needed
-    from ..calib.models import Triangular9
-    return poses_needed(Triangular9().k)
+    from ..cv import poses_needed
+    return poses_needed(ACCEL_MODEL_PARAMS)
 
 
 def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",

@@ -39,7 +39,7 @@ import numpy as np
 
 __all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS"]
 
-from . import STILLNESS_DEFAULTS as DEFAULTS
+from ..stillness_defaults import STILLNESS_DEFAULTS as DEFAULTS
 FLOOR_PCT = 5.0
 FLOOR_WINDOWS = 300
 WARMUP_WINDOWS = 8

@@ -12,7 +12,7 @@ import argparse
 import importlib
 
 from .. import __version__
-from ..calib import STILLNESS_DEFAULTS as _ST
+from ..stillness_defaults import STILLNESS_DEFAULTS as _ST
 from ..daemon.config import SCHEMA
 from ..specs import BOARDS as SIM_BOARDS
 from .boards import EMULATED_BOARDS

@@ -11,7 +11,7 @@ from typing import Any, Dict, Optional, Tuple
 import yaml
 
 from ..errors import UserError
-from ..calib import STILLNESS_DEFAULTS as _STILL  # one set of stillness defaults
+from ..stillness_defaults import STILLNESS_DEFAULTS as _STILL  # one set of stillness defaults
 
 __all__ = ["ConfigError", "DEFAULTS", "load_config", "validate", "set_override",
            "check_consistency", "accel_poses_needed"]

@@ -2,7 +2,7 @@
 light ``ga`` and paper 001's hybrid ``hga`` (see :mod:`imucald.calib.optim`)."""
 from __future__ import annotations
 
-from typing import Callable, Optional
+from typing import Callable, Optional, Tuple
 
 import numpy as np
 

@@ -27,21 +27,14 @@ from imucald.calib.gate import gate_accel, poses_needed
 from imucald.calib.models import Triangular9
 from imucald.sim.poses import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma
+from imucald.calib.coverage import sphere_lattice
 from imucald.specs import ACCEL
 
 T9 = Triangular9()
 SIGMA_POSE_G = pose_sigma(ACCEL["mpu6050"].noise_density_g_rthz, 100.0, 2.0)[1]
 
 
-def sphere(n=2000):
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    phi = np.pi * (1 + 5 ** 0.5) * i
-    r = np.sqrt(1 - z * z)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-
-
-DIRS = sphere()
+DIRS = sphere_lattice(2000)
 
 
 def truth_error_g(theta, truth):

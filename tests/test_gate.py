@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from imucald.calib.coverage import sphere_lattice
 from imucald.calib.fit import fit_norm
 from imucald.calib.gate import (fold_groups, gate_accel, gate_gyro_bias, loo_weighted_mean_residuals,
                                 paired_gate, poses_needed, signed_rank_p)
@@ -20,15 +21,7 @@ SIGMA_POSE_G = pose_sigma(ACCEL["mpu6050"].noise_density_g_rthz, 100.0, 2.0)[1]
 ALPHA = 0.05
 
 
-def _dirs(n=2000):
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    phi = np.pi * (1 + 5 ** 0.5) * i
-    r = np.sqrt(1 - z * z)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-
-
-DIRS = _dirs()
+DIRS = sphere_lattice(2000)
 
 
 def truth_error(theta, truth):

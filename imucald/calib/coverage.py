@@ -6,7 +6,17 @@ from typing import Dict
 
 import numpy as np
 
-__all__ = ["TARGETS", "target_name", "cube_coverage"]
+__all__ = ["TARGETS", "target_name", "cube_coverage", "sphere_lattice"]
+
+
+def sphere_lattice(n: int) -> np.ndarray:
+    """n near-uniform unit vectors (n, 3) over the sphere (spherical Fibonacci lattice):
+    the one lattice for pose sets, direction cells and dense checks over all directions."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + 5 ** 0.5) * i
+    r = np.sqrt(1 - z * z)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
 def _targets() -> np.ndarray:

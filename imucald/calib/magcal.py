@@ -27,26 +27,18 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
+from .coverage import sphere_lattice
 from .fit import FitResult, fit_norm
 from .models import MagModel, get_model
 from .optim import sphere_fit
 from .uncertainty import residual_variance
 
-__all__ = ["SphereReservoir", "fibonacci_cells", "sample_noise", "flat_axis", "coverage",
+__all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage",
            "calibrate_rotation", "rel_std", "FLAT_K"]
 
 #: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
 #: along the plane normal is flat: the normal axis is not determined (3 sigma)
 FLAT_K = 3.0
-
-
-def fibonacci_cells(cells: int) -> np.ndarray:
-    """Unit vectors (cells, 3) spread evenly over the sphere (Fibonacci lattice)."""
-    i = np.arange(cells) + 0.5
-    z = 1 - 2 * i / cells
-    phi = np.pi * (1 + 5 ** 0.5) * i
-    r = np.sqrt(1 - z * z)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
 class SphereReservoir:
@@ -56,7 +48,7 @@ class SphereReservoir:
     samples arrive) and by the offline rotation calibration (fed a whole recording)."""
 
     def __init__(self, cells: int = 200, per_cell: int = 5):
-        self.P = fibonacci_cells(cells)
+        self.P = sphere_lattice(cells)
         self.per_cell = per_cell
         self.buf = np.full((cells, per_cell, 3), np.nan)
         self.count = np.zeros(cells, int)
@@ -173,7 +165,7 @@ def coverage(model: MagModel, theta: np.ndarray, points: np.ndarray, cells: int 
     corrected unit directions (1/3 each for a full sphere)."""
     h = model.forward(theta, np.asarray(points, float))
     d = h / np.linalg.norm(h, axis=1, keepdims=True)
-    P = fibonacci_cells(cells)
+    P = sphere_lattice(cells)
     reached = np.unique(np.argmax(d @ P.T, axis=1))
     ev, V = np.linalg.eigh(np.cov(d.T))
     order = np.argsort(ev)[::-1]

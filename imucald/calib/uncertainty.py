@@ -16,6 +16,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from .coverage import sphere_lattice
 from .models import NormModel
 
 __all__ = ["Uncertainty", "residual_variance", "fisher", "crlb", "map_covariance",
@@ -136,15 +137,6 @@ def map_covariance(J: np.ndarray, var: np.ndarray, noise_var: float,
     H = J.T @ J / noise_var + P
     Hp = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
     return Hp @ ((J.T * np.asarray(var, float)) @ J / noise_var ** 2 + P) @ Hp
-
-
-def sphere_lattice(n: int) -> np.ndarray:
-    """n near-uniform unit vectors (Fibonacci lattice), (n, 3)."""
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    phi = np.pi * (1 + 5 ** 0.5) * i
-    r = np.sqrt(1 - z * z)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
 def _describe_up(u: np.ndarray) -> str:

@@ -10,6 +10,8 @@ from typing import Union
 
 import numpy as np
 
+from ..calib.coverage import sphere_lattice
+
 __all__ = ["euler_pose_set", "random_pose_set", "up_vectors", "rotation_from_up",
            "axis_angle", "small_rotation"]
 
@@ -86,11 +88,7 @@ def random_pose_set(n: int, rng: RngLike = None, jitter_deg: float = 3.0) -> np.
     """n well-spread orientations: a randomly rotated spherical Fibonacci lattice of
     up vectors, each with hand jitter and a random yaw.  Returns R (n, 3, 3)."""
     rng = _rng(rng)
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    phi = np.pi * (1 + 5 ** 0.5) * i
-    r = np.sqrt(1 - z * z)
-    ups = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+    ups = sphere_lattice(n)
     Q = small_rotation(rng, 10.0)  # large sigma: effectively a random rotation
     ups = ups @ Q.T
     rng.shuffle(ups)

@@ -229,10 +229,10 @@ def test_bus_faults_do_not_stop_the_daemon(tmp_path):
 @pytest.mark.parametrize("args,code,msg", [
     (["--fault", "wrong-id=0x68:0x70"], 2, "0x68 answered WHO_AM_I=0x70: an MPU6500, not the configured MPU6050"),
     (["--fault", "busy=0x68"], 2, "address 0x68 is busy (errno 16)"),
-    (["--rate", "5000"], 78, "--rate: sensor.rate_hz: 5000.0 is out of range; allowed 4.0..1000.0"),
+    (["--rate", "5000"], 2, "--rate: sensor.rate_hz: 5000.0 is out of range; allowed 4.0..1000.0"),
     (["--config", "{bad}"], 78, "bad.yaml:3: sensor.rate_hz: 'fast' is not a number"),
     (["--config", "{unknown}"], 78, "unknown.yaml:2: unknown key 'sensor.baud'"),
-    (["--min-poses", "9"], 78, "--min-poses: calibration.min_poses: 9 is too few"),
+    (["--min-poses", "9"], 2, "--min-poses: calibration.min_poses: 9 is too few"),
 ])
 def test_bad_start_exits_non_zero_with_one_line(tmp_path, args, code, msg):
     (tmp_path / "bad.yaml").write_text("sensor:\n  board: mpu6050\n  rate_hz: fast\n")

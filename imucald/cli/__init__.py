@@ -5,14 +5,18 @@ Layout: ``parser`` (arguments and choices), one module per command family --
 ``service`` (run, replay, status, recalibrate, watch), ``gap`` -- with
 ``boards`` (the one board factory, real or emulated) and ``faults`` (``--fault``).
 
-User errors (bad files, bad options) print one line, ``imucald: error: ...``,
-and exit 2 (78 for a bad configuration file) with no traceback.
+One error boundary (:func:`main`): every user-facing failure prints one line,
+``imucald: error: ...``, naming the place and the fix, and exits with a code
+from :mod:`imucald.errors` (2 usage/input, 69 unavailable device, 73 cannot
+create, 74 I/O, 75 another instance running, 78 configuration), no traceback.
+Arguments are checked (:mod:`.checks`) before anything is opened.
 """
 from __future__ import annotations
 
 from typing import List, Optional
 
-from ..errors import UserError
+from ..drivers.bus import BusError
+from ..errors import EX_IOERR, EX_UNAVAILABLE, UserError, os_error_line
 from ._common import eprint
 from .parser import build_parser
 
@@ -26,11 +30,23 @@ def main(argv: Optional[List[str]] = None) -> int:
         parser.print_help()
         return 2
     try:
+        from .checks import check_args
+        check_args(args)
         return int(args.func(args) or 0)
     except UserError as e:
-        eprint(f"imucald: error: {e}")
+        eprint(f"imucald: error: {_one_line(e)}")
         return e.exit_code
+    except BusError as e:           # the chip stopped answering (or never did)
+        eprint(f"imucald: error: {_one_line(e)}")
+        return EX_UNAVAILABLE
+    except OSError as e:            # disk full, read-only, EIO: said in one line
+        if isinstance(e, BrokenPipeError):
+            return 0
+        eprint(f"imucald: error: {_one_line(os_error_line(e))}")
+        return EX_IOERR
     except KeyboardInterrupt:
         return 130
-    except BrokenPipeError:
-        return 0
+
+
+def _one_line(e) -> str:
+    return " ".join(str(e).split())

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Dict, Optional, Tuple
 
-from ..errors import UserError
+from ..errors import DeviceUnavailable, UserError
 
 #: boards the emulator can build ("9dof-qmc": a 9DOF board whose magnetometer is a QMC5883L
 #: clone; "gy273": a magnetometer alone)
@@ -46,7 +46,7 @@ def real_bus_number(emulate: str, bus: Optional[int]) -> Optional[int]:
     if emulate == "yes" or (emulate == "auto" and bus is None and not nums):
         return None
     if bus is None and not nums:
-        raise UserError("sensor.emulate is 'no' but there is no I2C bus (/dev/i2c-* absent): "
+        raise DeviceUnavailable("sensor.emulate is 'no' but there is no I2C bus (/dev/i2c-* absent): "
                         "enable I2C or set sensor.emulate: auto")
     return bus if bus is not None else (1 if 1 in nums else nums[0])
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 
-from ..errors import UserError
+from ..errors import CannotCreate, UserError
 
 
 def gap_summary(res) -> str:
@@ -58,6 +58,12 @@ def cmd_gap(args) -> int:
     kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
     if kind != "recording":
         raise UserError(f"{args.recording}: gap needs samples (a recording), not pose averages")
+    if args.report:         # created before the diagnosis, so a bad place fails at once
+        import os
+        try:
+            os.makedirs(args.report, exist_ok=True)
+        except OSError as e:
+            raise CannotCreate(f"--report {args.report}: cannot create the directory: {e.strerror}") from None
     try:
         res = diagnose(rec, args.sensor, sims=args.sims, seed=args.seed, name=args.recording)
     except UserError as e:
@@ -68,7 +74,10 @@ def cmd_gap(args) -> int:
         return e.exit_code
     if args.report:
         from ..gap.report import write_report
-        write_report(res, args.report)
+        try:
+            write_report(res, args.report)
+        except OSError as e:
+            raise CannotCreate(f"--report {args.report}: cannot write: {e.strerror}") from None
     for r in res["sensors"].values():
         r.pop("_plot", None)
     if args.json:

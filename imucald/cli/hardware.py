@@ -1,7 +1,7 @@
 """``imucald probe`` and ``record``: talking to a board (real I2C or emulated)."""
 from __future__ import annotations
 
-from ..errors import UserError
+from ..errors import CannotCreate, DeviceUnavailable
 from ._common import eprint as _eprint
 
 
@@ -16,7 +16,7 @@ def cmd_probe(args) -> int:
         nums = real_bus_numbers()
         num = args.bus if args.bus is not None else (1 if 1 in nums else (nums[0] if nums else None))
         if num is None:
-            raise UserError("no I2C bus on this machine (/dev/i2c-* absent): enable I2C "
+            raise DeviceUnavailable("no I2C bus on this machine (/dev/i2c-* absent): enable I2C "
                             "(raspi-config, or dtparam=i2c_arm=on), or try --emulate 9dof")
         bus = open_bus(num)
         print(f"bus: /dev/i2c-{num}")
@@ -53,7 +53,7 @@ def cmd_record(args) -> int:
         if len(b):
             parts.append(b)
         elif board.clock.now() - board.t0 > args.seconds + 5:
-            raise UserError(f"no samples from {desc} for {args.seconds + 5:.0f} s "
+            raise DeviceUnavailable(f"no samples from {desc} for {args.seconds + 5:.0f} s "
                             f"(last fault: {getattr(board, 'last_fault', 'none')})")
     cat = lambda k: np.concatenate([getattr(p, k) for p in parts])
     keep = cat("t") < args.seconds
@@ -69,7 +69,10 @@ def cmd_record(args) -> int:
         meta["temp"] = "relative (QMC5883L, offset not calibrated)"
         temp = None if np.isnan(temp).all() else temp
     rec = Recording(t=cat("t")[keep], acc=acc, gyro=gyro, mag=mag, temp=temp, meta=meta)
-    write_recording(rec, args.output)
+    try:
+        write_recording(rec, args.output)
+    except OSError as e:
+        raise CannotCreate(f"-o {args.output}: cannot write: {e.strerror}") from None
     st = board.stats
     _eprint(f"imucald: wrote {args.output}: {len(rec)} samples; gaps {st.gaps} ({st.missing} samples "
             f"lost), re-initialisations {st.reinits}, bus faults {st.bus_faults}, retries "

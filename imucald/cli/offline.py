@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 
-from ..errors import UserError
+from ..errors import CannotCreate, UserError
 from ._common import eprint as _eprint
 
 SENSORS = ("accel", "gyro", "mag")
@@ -56,7 +56,10 @@ def cmd_simulate(args) -> int:
                              temp_kind=args.temp_profile, temp_rise_c=args.temp_rise,
                              tremor_dps=args.tremor_dps)
     s.recording.meta["seed"] = str(args.seed)
-    write_recording(s.recording, args.output)
+    try:
+        write_recording(s.recording, args.output)
+    except OSError as e:
+        raise CannotCreate(f"-o {args.output}: cannot write: {e.strerror}") from None
     if args.truth:
         from ..atomic import atomic_write_text
         tr = s.truth
@@ -68,7 +71,10 @@ def cmd_simulate(args) -> int:
             d.update(mag_hard_iron_gauss=tr.mag_hard_iron_gauss.tolist(),
                      mag_soft_iron=tr.mag_soft_iron.tolist(), field_gauss=tr.field_gauss,
                      dip_deg=tr.dip_deg)
-        atomic_write_text(args.truth, json.dumps(d, indent=1) + "\n")
+        try:
+            atomic_write_text(args.truth, json.dumps(d, indent=1) + "\n")
+        except OSError as e:
+            raise CannotCreate(f"--truth {args.truth}: cannot write: {e.strerror}") from None
     _eprint(f"imucald: wrote {args.output}: {args.board}, {len(R)} poses, "
             f"{len(s.recording)} samples at {args.rate:g} Hz ({s.recording.t[-1]:.0f} s)")
     return 0
@@ -218,7 +224,7 @@ def _write_calibration(path: str, board: str, fit) -> None:
     try:
         save(Calibration(board, id=1, **{fit.sensor: SensorCal.from_fit(fit)}), path)
     except OSError as e:
-        raise UserError(f"--output {path}: cannot write: {e.strerror}") from None
+        raise CannotCreate(f"--output {path}: cannot write: {e.strerror}") from None
 
 
 def get_free(cal) -> int:

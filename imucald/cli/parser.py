@@ -16,6 +16,7 @@ from ..stillness_defaults import STILLNESS_DEFAULTS as _ST
 from ..daemon.config import SCHEMA
 from ..specs import BOARDS as SIM_BOARDS
 from .boards import EMULATED_BOARDS
+from .checks import at_least, positive_float
 from .offline import SENSORS
 from .service import DEFAULT_CONFIG
 
@@ -32,19 +33,26 @@ def _command(module: str, name: str):
     return run
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """A usage error is one line, as every other error (exit 2), naming --help."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="imucald", description="Field calibration of MEMS IMUs.")
+    p = OneLineParser(prog="imucald", description="Field calibration of MEMS IMUs.")
     p.add_argument("--version", action="version", version=f"imucald {__version__}")
     sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
 
     s = sub.add_parser("simulate", help="write a simulated recording")
     s.add_argument("-o", "--output", required=True, help="recording file to write")
     s.add_argument("--board", default="mpu6050", choices=list(SIM_BOARDS))
-    s.add_argument("--poses", type=int, default=30, help="number of well-spread orientations")
+    s.add_argument("--poses", type=at_least(1), default=30, help="number of well-spread orientations")
     s.add_argument("--euler", help="paper 000 pose set NX,NY,NZ instead of --poses")
-    s.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
-    s.add_argument("--hold", type=float, default=10.0, help="mean still time per pose, s")
-    s.add_argument("--move", type=float, default=3.0, help="mean move time between poses, s")
+    s.add_argument("--rate", type=positive_float, default=100.0, help="sample rate, Hz")
+    s.add_argument("--hold", type=positive_float, default=10.0, help="mean still time per pose, s")
+    s.add_argument("--move", type=positive_float, default=3.0, help="mean move time between poses, s")
     s.add_argument("--temp-profile", default="warmup", choices=["warmup", "ramp", "heatcool", "constant"])
     s.add_argument("--temp-rise", type=float, default=6.0, help="temperature change, degC")
     s.add_argument("--seed", type=int, default=0)
@@ -74,11 +82,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384")
     c.add_argument("--nominal-offset", type=float, default=0.0,
                    help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit")
-    c.add_argument("--rate-hz", type=float, help="raw table without a t column: sample rate")
-    c.add_argument("--window-s", type=float, default=_ST["window_s"], help="still detector window, s")
-    c.add_argument("--threshold-k", type=float, default=_ST["k"],
+    c.add_argument("--rate-hz", type=positive_float, help="raw table without a t column: sample rate")
+    c.add_argument("--window-s", type=positive_float, default=_ST["window_s"], help="still detector window, s")
+    c.add_argument("--threshold-k", type=positive_float, default=_ST["k"],
                    help="still when the accelerometer's moving variance < k x its noise floor")
-    c.add_argument("--min-still-s", type=float, default=_ST["min_still_s"],
+    c.add_argument("--min-still-s", type=positive_float, default=_ST["min_still_s"],
                    help="shortest still interval, s")
     c.set_defaults(func=_command("offline", "cmd_calibrate"))
 
@@ -94,12 +102,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--mag", default="auto", choices=_choices("sensor.magnetometer"),
                    help="9dof/gy273 magnetometer: found by ID (auto) or forced; emulated: auto = "
                         "HMC5883L on 9dof, QMC5883L on gy273")
-    r.add_argument("--seconds", type=float, default=10.0)
-    r.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
+    r.add_argument("--seconds", type=positive_float, default=10.0)
+    r.add_argument("--rate", type=positive_float, default=100.0, help="sample rate, Hz")
     r.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1)")
     r.add_argument("--emulate", action="store_true", help="use the emulated board even if a bus exists")
     r.add_argument("--realtime", action="store_true", help="emulator runs in wall-clock time")
-    r.add_argument("--poses", type=int, default=30, help="emulator: orientations to move through")
+    r.add_argument("--poses", type=at_least(1), default=30, help="emulator: orientations to move through")
     r.add_argument("--seed", type=int, default=0, help="emulator: seed")
     r.add_argument("--fault", action="append", help="emulator fault, e.g. nack=0.01, reset=0x68@3 "
                                                     "(repeatable; see the README)")
@@ -117,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     rn.add_argument("--board", choices=_choices("sensor.board"))
     rn.add_argument("--mag", choices=_choices("sensor.magnetometer"),
                     help="9dof/gy273 magnetometer (overrides sensor.magnetometer)")
-    rn.add_argument("--rate", type=float, help="sample rate, Hz")
+    rn.add_argument("--rate", type=positive_float, help="sample rate, Hz")
     rn.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N")
     rn.add_argument("--format", choices=_choices("output.format"))
     rn.add_argument("--fifo", help="also stream to this FIFO")
@@ -126,10 +134,10 @@ def build_parser() -> argparse.ArgumentParser:
     g = rn.add_mutually_exclusive_group()
     g.add_argument("--emulate", action="store_true", help="use the emulated board")
     g.add_argument("--no-emulate", action="store_true", help="never fall back to the emulator")
-    rn.add_argument("--speed", type=float, default=1.0, help="emulator: time runs this much faster")
+    rn.add_argument("--speed", type=positive_float, default=1.0, help="emulator: time runs this much faster")
     rn.add_argument("--seed", type=int, default=0, help="emulator: seed")
     rn.add_argument("--fault", action="append", help="emulator fault (as for record)")
-    rn.add_argument("--duration", type=float, help="stop after this many (sensor-clock) seconds")
+    rn.add_argument("--duration", type=positive_float, help="stop after this many (sensor-clock) seconds")
     rn.add_argument("--echo", action="store_true", help="print one stream line per second")
     rn.set_defaults(func=_command("service", "cmd_run"))
 
@@ -152,7 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
         q.set_defaults(func=fn)
     w = sub.add_parser("watch", help="print the daemon's stream")
     daemon_opts(w, state=False)
-    w.add_argument("-n", "--count", type=int, help="stop after N lines")
+    w.add_argument("-n", "--count", type=at_least(1), help="stop after N lines")
     w.set_defaults(func=_command("service", "cmd_watch"))
 
     gp = sub.add_parser("gap", help="diagnose the sim-to-real gap of a recording")
@@ -161,17 +169,17 @@ def build_parser() -> argparse.ArgumentParser:
                     help="sensor(s) to diagnose (default: all present)")
     gp.add_argument("--json", action="store_true", help="print one JSON object")
     gp.add_argument("--report", help="write plots to this directory (needs the plots extra)")
-    gp.add_argument("--sims", type=int, default=200, help="twin re-simulations")
+    gp.add_argument("--sims", type=at_least(20, " (p-values need some resolution)"), default=200, help="twin re-simulations")
     gp.add_argument("--seed", type=int, default=0)
     gp.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,temp")
     gp.add_argument("--nominal-scale", type=float, default=1.0)
     gp.add_argument("--nominal-offset", type=float, default=0.0)
-    gp.add_argument("--rate-hz", type=float)
+    gp.add_argument("--rate-hz", type=positive_float)
     gp.set_defaults(func=_command("gap", "cmd_gap"))
 
     d = sub.add_parser("demo", help="the calibration demo that `make run` shows")
     d.add_argument("--seed", type=int, default=1)
-    d.add_argument("--poses", type=int, default=25)
+    d.add_argument("--poses", type=at_least(10, " (the 9-parameter fit scored by leave-one-pose-out)"), default=25)
     d.set_defaults(func=_command("offline", "cmd_demo"))
     return p
 

@@ -186,7 +186,8 @@ def cmd_watch(args) -> int:
     try:
         s.connect(p)
     except OSError as e:
-        raise UserError(f"{p}: cannot connect: {e.strerror}: is imucald running?") from None
+        from ..errors import DeviceUnavailable
+        raise DeviceUnavailable(f"{p}: cannot connect: {e.strerror}: is imucald running?") from None
     f = s.makefile("rb")
     count = 0
     for line in f:

@@ -10,7 +10,7 @@ from typing import Any, Dict, Optional, Tuple
 
 import yaml
 
-from ..errors import UserError
+from ..errors import EX_CONFIG, UserError
 from ..stillness_defaults import STILLNESS_DEFAULTS as _STILL  # one set of stillness defaults
 
 __all__ = ["ConfigError", "DEFAULTS", "load_config", "validate", "set_override",
@@ -18,7 +18,12 @@ __all__ = ["ConfigError", "DEFAULTS", "load_config", "validate", "set_override",
 
 
 class ConfigError(UserError):
-    exit_code = 78          # EX_CONFIG: systemd's RestartPreventExitStatus=78 stops the retry loop
+    exit_code = EX_CONFIG   # 78: systemd's RestartPreventExitStatus= stops the retry loop
+
+
+class FlagError(UserError):
+    """A command-line override that is out of range or contradicts the configuration
+    (a usage error: exit 2)."""
 
 
 #: key -> (default, kind, allowed); kind: int, float, bool, str, choice, addr, list
@@ -194,20 +199,32 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
         if key in flags:
             return f"{flags[key]}: "
         return f"{path}:{lines.get(key, '?')}: " if path else ""
+
+    def error(key, msg):
+        return (FlagError if key in flags else ConfigError)(f"{where(key)}{msg}")
+    s = cfg["sensor"]
+    from ..drivers.rates import rate_problem
+    why = rate_problem(s["board"], s["rate_hz"])
+    if why:
+        key = "sensor.rate_hz" if "sensor.rate_hz" in flags or "sensor.board" not in flags else "sensor.board"
+        raise error(key, f"sensor.rate_hz: {why}" + (f" (sensor.board is {s['board']})"
+                                                       if key == "sensor.rate_hz" else
+                                                       f"; sensor.rate_hz is {s['rate_hz']:g}"))
     c = cfg["calibration"]
     need = accel_poses_needed()
     if c["min_poses"] < need:
-        raise ConfigError(f"{where('calibration.min_poses')}calibration.min_poses: {c['min_poses']} is too "
+        raise error('calibration.min_poses', f"calibration.min_poses: {c['min_poses']} is too "
                           f"few: the triangular9 fit (9 parameters) scored by leave-one-pose-out needs "
                           f"at least {need} poses; allowed {need}..500")
     mp = cfg["poses"]["max_poses"]
     if mp < c["min_poses"]:
-        raise ConfigError(f"{where('poses.max_poses')}poses.max_poses: {mp} is below calibration.min_poses "
+        raise error('calibration.min_poses' if 'calibration.min_poses' in flags else 'poses.max_poses',
+                    f"poses.max_poses: {mp} is below calibration.min_poses "
                           f"{c['min_poses']}, so a calibration would never start; allowed "
                           f"{c['min_poses']}..500 (or lower calibration.min_poses)")
     floor = 0.5 ** need
     if c["false_accept_rate"] < floor:
-        raise ConfigError(f"{where('calibration.false_accept_rate')}calibration.false_accept_rate: "
+        raise error('calibration.false_accept_rate', f"calibration.false_accept_rate: "
                           f"{c['false_accept_rate']:g} is below {floor:.2g}, the smallest p-value {need} "
                           f"poses can give: the first calibration could never be accepted; allowed "
                           f"{floor:.2g}..0.5")
@@ -235,4 +252,7 @@ def set_override(cfg: Dict[str, Dict[str, Any]], key: str, value: Any, flag: str
     """Apply a command-line override (already parsed) with the same validation; call
     check_consistency once all overrides are in."""
     sec, k = key.split(".")
-    cfg[sec][k] = _check(key, value, f"{flag}: ")
+    try:
+        cfg[sec][k] = _check(key, value, f"{flag}: ")
+    except ConfigError as e:
+        raise FlagError(str(e)) from None

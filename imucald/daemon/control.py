@@ -22,7 +22,7 @@ class ControlServer:
                  group: Optional[str] = None):
         from .outputs import listen_unix     # here: the client side (status) stays without numpy
         self.path, self.handler = path, handler
-        self.lsock = listen_unix(path, mode, group, 8)
+        self.lsock = listen_unix(path, mode, group, 8, "control.socket")
         self.conns: List[list] = []          # [sock, inbuf, outbuf]
 
     def poll(self) -> None:
@@ -96,7 +96,7 @@ class ControlServer:
 
 def request(path: str, cmd: str, timeout: float = 5.0) -> Dict:
     """One request/reply on the control socket (used by `imucald status` and friends)."""
-    from ..errors import UserError
+    from ..errors import DeviceUnavailable as UserError      # exit 69: the service is not there
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     s.settimeout(timeout)
     try:

@@ -142,17 +142,44 @@ def _chown_chmod(path: str, mode: str, group: Optional[str]) -> None:
         try:
             gid = grp.getgrnam(group).gr_gid
         except KeyError:
-            from ..errors import UserError
-            raise UserError(f"output socket_group: group {group!r} does not exist") from None
+            from .config import ConfigError
+            raise ConfigError(f"socket_group: group {group!r} does not exist (getent group lists "
+                              f"them; create it with groupadd or change the setting)") from None
         os.chown(path, -1, gid)
 
 
-def listen_unix(path: str, mode: str, group: Optional[str], backlog: int) -> socket.socket:
-    """A non-blocking listening Unix stream socket at ``path`` (a stale one is replaced)."""
-    if os.path.exists(path) and stat.S_ISSOCK(os.stat(path).st_mode):
+#: longest path a Unix socket address holds (sun_path is 108 bytes with its NUL, unix(7))
+UNIX_PATH_MAX = 107
+
+
+def check_socket_path(path: str, key: str) -> None:
+    """A socket can be created at ``path``: short enough, and not taken by a file that
+    is not a socket (``key`` names the setting, for the message)."""
+    from ..errors import CannotCreate
+    n = len(os.fsencode(path))
+    if n > UNIX_PATH_MAX:
+        raise CannotCreate(f"{key}: {path} is {n} bytes; a Unix socket path holds at most "
+                           f"{UNIX_PATH_MAX}: choose a shorter runtime.directory (--runtime-dir)")
+    if os.path.lexists(path) and not stat.S_ISSOCK(os.lstat(path).st_mode):
+        what = "a directory" if os.path.isdir(path) else "a file"
+        raise CannotCreate(f"{key}: {path} exists and is {what}, not a socket: move it away "
+                           f"or choose another {key}")
+
+
+def listen_unix(path: str, mode: str, group: Optional[str], backlog: int,
+                key: str = "socket") -> socket.socket:
+    """A non-blocking listening Unix stream socket at ``path`` (a stale one is replaced:
+    the daemon holds the runtime directory's lock, so no other instance is using it)."""
+    check_socket_path(path, key)
+    if os.path.lexists(path):
         os.unlink(path)
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.bind(path)
+    try:
+        s.bind(path)
+    except OSError as e:
+        s.close()
+        from ..errors import CannotCreate
+        raise CannotCreate(f"{key}: cannot create the socket {path}: {e.strerror}") from None
     _chown_chmod(path, mode, group)
     s.listen(backlog)
     s.setblocking(False)
@@ -173,7 +200,7 @@ class SocketSink:
                  group: Optional[str] = None, max_buffer: int = 1 << 20):
         self.path, self.fmt, self.board, self.max_buffer = path, fmt, board, max_buffer
         self.chips: Optional[dict] = None     #: set by the daemon once the chips are identified
-        self.lsock = listen_unix(path, mode, group, 16)
+        self.lsock = listen_unix(path, mode, group, 16, "output.socket")
         self.clients: List[_Client] = []
         self.dropped = 0          #: clients dropped for falling behind
         self.disconnected = 0     #: clients that went away
@@ -243,8 +270,9 @@ class FifoSink:
             os.mkfifo(path)
             _chown_chmod(path, mode, group)
         elif not stat.S_ISFIFO(os.stat(path).st_mode):
-            from ..errors import UserError
-            raise UserError(f"output fifo: {path} exists and is not a FIFO")
+            from ..errors import CannotCreate
+            raise CannotCreate(f"output.fifo: {path} exists and is not a FIFO: move it away or "
+                               f"choose another output.fifo")
         self.fd: Optional[int] = None
         self.buf = bytearray()
         self.dropped_bytes = 0

@@ -15,12 +15,15 @@ import time
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, Dict, Optional
 
-from ..errors import UserError
+from ..errors import AlreadyRunning, CannotCreate, UserError
 from .notify import notify, watchdog_period_s
 from .pipeline import Pipeline
 from .state import load_calibration, load_poses, save_calibration, save_poses
 
-__all__ = ["Daemon"]
+__all__ = ["Daemon", "LOCK_FILE"]
+
+#: held with flock in the runtime and state directories while a daemon runs
+LOCK_FILE = "imucald.lock"
 
 log = logging.getLogger("imucald")
 
@@ -55,20 +58,59 @@ class Daemon:
             try:
                 os.makedirs(d, exist_ok=True)
             except OSError as e:
-                raise UserError(f"{key}: cannot create {d}: {e.strerror} (run as the service, or "
-                                f"give --state-dir/--runtime-dir you can write)") from None
+                raise CannotCreate(f"{key}: cannot create {d}: {e.strerror} (run as the service, or "
+                                   f"give --state-dir/--runtime-dir you can write)") from None
             if not os.access(d, os.W_OK):
-                raise UserError(f"{key}: {d} is not writable by this user")
+                raise CannotCreate(f"{key}: {d} is not writable by this user")
         return sd, rd
 
     def _path(self, rd: str, p: str) -> str:
         return p if os.path.isabs(p) else os.path.join(rd, p)
 
+    def _lock(self, d: str, key: str) -> None:
+        """Hold ``d/imucald.lock`` (flock) for the daemon's life: a second instance on the
+        same directory exits (75) instead of taking the sockets or the state files."""
+        import fcntl
+        path = os.path.join(d, LOCK_FILE)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        except OSError as e:
+            raise CannotCreate(f"{key}: cannot create the lock file {path}: {e.strerror}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            other = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "?"
+            os.close(fd)
+            raise AlreadyRunning(f"{key}: another imucald (pid {other}) holds {path}: stop it first "
+                                 f"(systemctl stop imucald) or give this one another "
+                                 f"--runtime-dir/--state-dir") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._lock_fds.append(fd)
+
     def run(self) -> int:
+        from .outputs import check_socket_path
+        cfg = self.cfg
+        sd, rd = self._dirs()
+        o, c = cfg["output"], cfg["control"]
+        check_socket_path(self._path(rd, o["socket"]), "output.socket")
+        check_socket_path(self._path(rd, c["socket"]), "control.socket")
+        self._lock_fds: list = []
+        self._lock(rd, "runtime.directory")
+        if os.path.realpath(sd) != os.path.realpath(rd):
+            self._lock(sd, "state.directory")
+        signal.signal(signal.SIGTERM, self._on_stop)
+        signal.signal(signal.SIGINT, self._on_stop)
+        signal.signal(signal.SIGHUP, self._on_hup)
+        try:
+            return self._run(sd, rd)
+        finally:
+            self._shutdown()
+
+    def _run(self, sd: str, rd: str) -> int:
         from .control import ControlServer
         from .outputs import FifoSink, SocketSink
         cfg = self.cfg
-        sd, rd = self._dirs()
         log.info("imucald starting: %s", self.desc)
         self.board.start()                                       # identifies the chips first
         chips = self.board.chips()
@@ -89,7 +131,8 @@ class Daemon:
             self.pipe.next_cal_added = 0
             log.info("resumed %d poses from %s", len(ps), os.path.join(sd, "poses.csv"))
         o, c = cfg["output"], cfg["control"]
-        self.sinks = [SocketSink(self._path(rd, o["socket"]), o["format"], self.board.name,
+        self.sinks: list = []
+        self.sinks += [SocketSink(self._path(rd, o["socket"]), o["format"], self.board.name,
                                  o["socket_mode"], o["socket_group"], o["client_buffer_bytes"])]
         if o["fifo"]:
             self.sinks.append(FifoSink(self._path(rd, o["fifo"]), o["format"], self.board.name,
@@ -98,15 +141,9 @@ class Daemon:
             sk.chips = self.board.chips()
         self.control = ControlServer(self._path(rd, c["socket"]), self._command, c["socket_mode"],
                                      c["socket_group"])
-        signal.signal(signal.SIGTERM, self._on_stop)
-        signal.signal(signal.SIGINT, self._on_stop)
-        signal.signal(signal.SIGHUP, self._on_hup)
         log.info("streaming %s on %s%s; control on %s", o["format"], self.sinks[0].path,
                  f" and {self.sinks[1].path}" if len(self.sinks) > 1 else "", self.control.path)
-        try:
-            return self._loop()
-        finally:
-            self._shutdown()
+        return self._loop()
 
     # -- the loop -------------------------------------------------------------------------
     def _loop(self) -> int:
@@ -223,20 +260,26 @@ class Daemon:
         self.reload = True
 
     def _shutdown(self) -> None:
+        """Every exit path: sockets removed, worker stopped, state saved (or said why not)."""
         sd = self.cfg["state"]["directory"]
-        if hasattr(self, "writer"):
-            self.writer.shutdown(wait=True)
-        if hasattr(self, "pipe"):
-            save_poses(sd, self.pipe.acc.pose_set())          # synchronous: nothing is lost
-            if self.pipe.applied.id:
-                save_calibration(sd, self.pipe.applied, self.cfg["calibration"]["history"])
-        if hasattr(self, "worker"):
-            self.worker.shutdown(wait=False, cancel_futures=True)
         for s in getattr(self, "sinks", []):
             s.close()
         if hasattr(self, "control"):
             self.control.close()
-        log.info("stopped; state saved in %s", sd)
+        if hasattr(self, "worker"):
+            self.worker.shutdown(wait=False, cancel_futures=True)
+        if hasattr(self, "writer"):
+            self.writer.shutdown(wait=True)
+        if hasattr(self, "pipe"):
+            try:
+                save_poses(sd, self.pipe.acc.pose_set())          # synchronous: nothing is lost
+                if self.pipe.applied.id:
+                    save_calibration(sd, self.pipe.applied, self.cfg["calibration"]["history"])
+                log.info("stopped; state saved in %s", sd)
+            except OSError as e:
+                log.error("stopped; could not save the state in %s: %s", sd, e.strerror or e)
+        for fd in getattr(self, "_lock_fds", []):
+            os.close(fd)
 
 
 def _logged(fn):

@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, Dict, List, Optional
 
-from ..errors import UserError
+from ..errors import DeviceUnavailable, UserError
 
 __all__ = ["BusError", "NoAcknowledge", "BusIOError", "BusTimeout", "AddressBusy",
            "ChipMismatch", "BusUnavailable", "Bus", "Clock", "RealClock", "VirtualClock", "ScaledClock",
@@ -59,8 +59,8 @@ class ChipMismatch(UserError):
     """The address answered, but with another chip's identity."""
 
 
-class BusUnavailable(UserError):
-    """/dev/i2c-N cannot be opened."""
+class BusUnavailable(DeviceUnavailable):
+    """/dev/i2c-N cannot be opened (exit 69)."""
 
 
 _TRANSIENT = (NoAcknowledge, BusIOError, BusTimeout)
@@ -138,13 +138,14 @@ def _classify(e: OSError, addr: int, bus_name: str) -> BusError:
     en = e.errno
     a = f"0x{addr:02X}"
     if en in (errno.EREMOTEIO, errno.ENXIO):
-        return NoAcknowledge(f"{bus_name}: no acknowledge from {a} (errno {en}): check wiring, "
-                             f"power and the address strap; on a motor robot, bus noise", addr, en)
+        return NoAcknowledge(f"no acknowledge from {a} on {bus_name} (errno {en}): check wiring/address "
+                             f"(power, SDA/SCL, the AD0 strap: 0x68 or 0x69; 'imucald probe' lists what "
+                             f"answers); on a motor robot, bus noise", addr, en)
     if en == errno.EIO:
-        return BusIOError(f"{bus_name}: I/O error talking to {a} (errno 5): loose wire, "
+        return BusIOError(f"I/O error talking to {a} on {bus_name} (errno 5): loose wire, "
                           f"missing pull-ups or electrical noise", addr, en)
     if en == errno.ETIMEDOUT:
-        return BusTimeout(f"{bus_name}: timeout talking to {a} (errno 110): the bus is stuck "
+        return BusTimeout(f"timeout talking to {a} on {bus_name} (errno 110): the bus is stuck "
                           f"or the clock too fast (use i2c_arm_baudrate=400000 or less)", addr, en)
     if en == errno.EBUSY:
         return AddressBusy(f"{bus_name}: address {a} is busy (errno 16): a kernel driver owns it; "

@@ -1,0 +1,190 @@
+"""The error boundary: every fault of issue 12's "Tracebacks" list ends in one line naming the
+place and the fix, with its documented exit code (imucald/errors.py), and nothing opened first."""
+import os
+import re
+import subprocess
+import sys
+import time
+
+import pytest
+
+from imucald.cli import main
+from imucald.errors import NO_RESTART
+
+PY = sys.executable
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def run_main(capsys, *argv):
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as e:         # argparse's own exit (usage errors)
+        rc = e.code
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def one_line(err):
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sim")
+    rec = d / "sim.csv"
+    assert main(["simulate", "-o", str(rec), "--poses", "12", "--hold", "3", "--move", "1"]) == 0
+    return rec
+
+
+@pytest.mark.parametrize("argv,code,msg", [
+    # a chip that never answers
+    (["record", "--emulate", "-o", "{d}/r.csv", "--seconds", "1", "--fault", "nack=1"], 69,
+     "no acknowledge from 0x68 on emulated mpu6050 (errno 121): check wiring/address"),
+    # rates the board cannot run at, checked before the board is opened
+    (["record", "--emulate", "--board", "9dof", "--rate", "150", "-o", "{d}/r.csv"], 2,
+     "--rate 150: 150 Hz is not a rate of the 9dof board's ADXL345; allowed 6.25, 12.5, 25, 50, 100, "
+     "200, 400, 800, 1600 Hz (nearest: 100 or 200)"),
+    (["record", "--emulate", "--rate", "0", "-o", "{d}/r.csv"], 2, "argument --rate: 0 is not a number > 0"),
+    (["record", "--emulate", "--rate", "5000", "-o", "{d}/r.csv"], 2,
+     "--rate 5000: 5000 Hz is beyond the MPU6050's 3.91..1000 Hz"),
+    (["record", "--emulate", "--poses", "0", "-o", "{d}/r.csv"], 2, "argument --poses: 0 is too few: at least 1"),
+    (["run", "--emulate", "--speed", "0"], 2, "argument --speed: 0 is not a number > 0"),
+    (["run", "--emulate", "--speed", "-1"], 2, "argument --speed: -1 is not a number > 0"),
+    (["run", "--emulate", "--board", "9dof", "--rate", "150"], 2,
+     "--rate: sensor.rate_hz: 150 Hz is not a rate of the 9dof board's ADXL345"),
+    (["run", "--emulate", "--rate", "5000"], 2, "--rate: sensor.rate_hz: 5000.0 is out of range; allowed 4.0..1000.0"),
+    (["run", "--emulate", "--config", "{d}/c9.yaml"], 78,
+     "c9.yaml:3: sensor.rate_hz: 150 Hz is not a rate of the 9dof board's ADXL345"),
+    (["simulate", "--poses", "0", "-o", "{d}/r.csv"], 2, "argument --poses: 0 is too few: at least 1"),
+    (["gap", "{sim}", "--sims", "0"], 2, "argument --sims: 0 is too few: at least 20"),
+    # outputs that cannot be created: said before the work, not after it
+    (["record", "--emulate", "-o", "{d}/missing/r.csv"], 73, "directory {d}/missing does not exist"),
+    (["record", "--emulate", "-o", "{d}"], 73, "-o {d}: is a directory; give a file name"),
+    (["simulate", "-o", "{d}/missing/r.csv"], 73, "directory {d}/missing does not exist"),
+    (["calibrate", "{sim}", "-o", "{d}/missing/c.yaml"], 73, "--output {d}/missing/c.yaml: directory"),
+    (["gap", "{sim}", "--sims", "20", "--report", "{d}/afile/plots"], 73,
+     "--report {d}/afile/plots: {d}/afile is not a directory"),
+    (["replay", "{sim}", "--state-dir", "{d}/afile"], 73, "--state-dir {d}/afile: exists and is not a directory"),
+    # no daemon to talk to
+    (["status", "--runtime-dir", "{d}/norun"], 69, "no control socket: is imucald running?"),
+])
+def test_bad_arguments_and_places_exit_with_one_line(tmp_path, capsys, sim, argv, code, msg):
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "c9.yaml").write_text("sensor:\n  board: 9dof\n  rate_hz: 150\n")
+    argv = [a.format(d=tmp_path, sim=sim) for a in argv]
+    rc, out, err = run_main(capsys, *argv)
+    line = one_line(err)
+    assert rc == code, err
+    assert msg.format(d=tmp_path) in line
+    assert not (tmp_path / "r.csv").exists()
+
+
+def _variant(src: bytes, tmp_path, name, fn):
+    p = tmp_path / name
+    p.write_bytes(fn(src))
+    return p
+
+
+@pytest.mark.parametrize("cmd", ["calibrate", "gap", "replay"])
+@pytest.mark.parametrize("name,fn,msg", [
+    ("latin.csv", lambda s: s.replace(b"\n0.200000,", b"\n0.2\xb0,", 1), "byte 0xb0 at offset"),
+    ("garbage.csv", lambda s: bytes(range(256)) * 8, "not an imucald recording"),
+    ("ratenan.csv", lambda s: s.replace(b"rate_hz: 100", b"rate_hz: nan"), "header rate_hz='nan' is not"),
+    ("rateinf.csv", lambda s: s.replace(b"rate_hz: 100", b"rate_hz: inf"), "header rate_hz='inf' is not"),
+    ("rate0.csv", lambda s: s.replace(b"rate_hz: 100", b"rate_hz: 0"), "header rate_hz='0' is not"),
+    ("big.csv", lambda s: re.sub(rb"\n(4\.000000),[^,]+,", rb"\n\1,1e308,", s, count=1),
+     "column ax: 1e308 is beyond what a sensor reads"),
+    ("nan.csv", lambda s: re.sub(rb"\n(4\.000000),[^,]+,", rb"\n\1,nan,", s, count=1),
+     "column ax: nan is not a finite number"),
+])
+def test_bad_recordings_exit_2_with_one_line(tmp_path, capsys, sim, cmd, name, fn, msg):
+    p = _variant(sim.read_bytes(), tmp_path, name, fn)
+    rc, out, err = run_main(capsys, cmd, p, *(["--sims", "20"] if cmd == "gap" else []))
+    line = one_line(err.replace("imucald: 0 still poses", ""))
+    assert rc == 2 and msg in line, err
+    assert f"{name}:" in line
+
+
+def test_nan_in_a_raw_table_is_named(tmp_path, capsys):
+    t = tmp_path / "t.txt"
+    t.write_text("0 0 0 1\n0.01 nan 0 1\n")
+    rc, out, err = run_main(capsys, "calibrate", t, "--columns", "t,ax,ay,az")
+    assert rc == 2 and "t.txt:2: column ax: nan is not a finite number" in one_line(err)
+
+
+# --- the daemon: start-up faults (subprocesses: the daemon installs signal handlers) -------
+
+def daemon(tmp_path, *extra, rt=None):
+    rt = rt or tmp_path / "run"
+    return subprocess.Popen([PY, "-m", "imucald.cli", "run", "--emulate", "--state-dir",
+                             str(tmp_path / "state"), "--runtime-dir", str(rt), *map(str, extra)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+
+
+def errline(err):
+    lines = [l for l in err.splitlines() if l.startswith("imucald: error:")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def test_daemon_chip_that_never_answers_exits_69_and_leaves_no_socket(tmp_path):
+    p = daemon(tmp_path, "--duration", "1", "--fault", "nack=1")
+    out, err = p.communicate(timeout=60)
+    assert p.returncode == 69
+    assert "no acknowledge from 0x68 on emulated mpu6050 (errno 121): check wiring/address" in errline(err)
+    assert [f for f in os.listdir(tmp_path / "run") if f.endswith(".sock")] == []
+
+
+def test_runtime_dir_too_long_for_a_socket_exits_73(tmp_path):
+    rt = tmp_path / ("r" * 110)
+    p = daemon(tmp_path, "--duration", "1", rt=rt)
+    out, err = p.communicate(timeout=60)
+    assert p.returncode == 73
+    assert re.search(r"output.socket: .* is \d+ bytes; a Unix socket path holds at most 107: choose a "
+                     r"shorter runtime.directory", errline(err))
+
+
+@pytest.mark.parametrize("name,make,what", [
+    ("imucald.sock", lambda p: p.write_text("not a socket"), "a file"),
+    ("control.sock", lambda p: p.mkdir(), "a directory"),
+])
+def test_a_file_where_a_socket_belongs_exits_73_untouched(tmp_path, name, make, what):
+    rt = tmp_path / "run"
+    rt.mkdir()
+    make(rt / name)
+    p = daemon(tmp_path, "--duration", "1")
+    out, err = p.communicate(timeout=60)
+    assert p.returncode == 73
+    assert f"{rt / name} exists and is {what}, not a socket" in errline(err)
+    assert (rt / name).exists() and not (rt / "control.sock" if name == "imucald.sock" else
+                                         rt / "imucald.sock").exists()
+
+
+def test_second_instance_exits_75_and_leaves_the_first_alone(tmp_path):
+    first = daemon(tmp_path, "--speed", "5")
+    try:
+        t0 = time.time()
+        while not (tmp_path / "run" / "control.sock").exists():
+            assert first.poll() is None and time.time() - t0 < 60, first.stderr.read()
+            time.sleep(0.05)
+        ino = os.stat(tmp_path / "run" / "imucald.sock").st_ino
+        second = daemon(tmp_path, "--duration", "1")
+        out, err = second.communicate(timeout=60)
+        assert second.returncode == 75
+        assert f"runtime.directory: another imucald (pid {first.pid}) holds" in errline(err)
+        assert os.stat(tmp_path / "run" / "imucald.sock").st_ino == ino     # its socket untouched
+        assert first.poll() is None
+    finally:
+        first.terminate()
+        first.communicate(timeout=30)
+    assert first.returncode == 0
+    assert not (tmp_path / "run" / "imucald.sock").exists()
+
+
+def test_unit_prevents_restart_exactly_for_the_unfixable_codes():
+    unit = open(os.path.join(ROOT, "systemd", "imucald.service")).read()
+    line = next(l for l in unit.splitlines() if l.startswith("RestartPreventExitStatus="))
+    assert {int(x) for x in line.split("=", 1)[1].split()} == set(NO_RESTART) == {2, 73, 78}

@@ -16,13 +16,9 @@ def _setup_logging(level: str) -> None:
                         format="imucald: %(message)s")
 
 
-def _daemon_config(args):
-    from ..daemon.config import _lines, check_consistency, load_config, set_override
-    path = args.config
-    if path is None and os.path.exists(DEFAULT_CONFIG):
-        path = DEFAULT_CONFIG
-    cfg = load_config(path)
-    flags = {}
+def _overrides(args):
+    """(key, value, flag) of every configuration key given on the command line."""
+    out = []
     for attr, key, flag in (("board", "sensor.board", "--board"), ("rate", "sensor.rate_hz", "--rate"),
                             ("mag", "sensor.magnetometer", "--mag"),
                             ("bus", "sensor.bus", "--bus"), ("state_dir", "state.directory", "--state-dir"),
@@ -33,22 +29,26 @@ def _daemon_config(args):
                             ("log_level", "log.level", "--log-level")):
         v = getattr(args, attr, None)
         if v is not None:
-            set_override(cfg, key, v, flag)
-            flags[key] = flag
-    if flags:       # an override may contradict a key of the file (or another override)
-        lines = {}
-        if path is not None:
-            with open(path, encoding="utf-8") as fh:
-                lines = _lines(fh.read())
-        check_consistency(cfg, path or "", lines, flags)
-    return cfg, path
+            out.append((key, v, flag))
+    return out
+
+
+def _daemon_config(args, with_overrides: bool = False):
+    from ..daemon.config import apply_overrides, load_config
+    path = args.config
+    if path is None and os.path.exists(DEFAULT_CONFIG):
+        path = DEFAULT_CONFIG
+    cfg = load_config(path)
+    ov = _overrides(args)
+    apply_overrides(cfg, ov, path)      # an override may contradict a key of the file
+    return (cfg, path, ov) if with_overrides else (cfg, path)
 
 
 def cmd_run(args) -> int:
     from ..daemon.run import Daemon
     from .boards import open_board
     from .faults import faults_from_options
-    cfg, path = _daemon_config(args)
+    cfg, path, overrides = _daemon_config(args, with_overrides=True)
     _setup_logging(cfg["log"]["level"])
     s = cfg["sensor"]
     emulate = "yes" if args.emulate else ("no" if args.no_emulate else s["emulate"])
@@ -61,7 +61,8 @@ def cmd_run(args) -> int:
                                   mag=s["magnetometer"],
                                   seed=args.seed, faults=faults_from_options(args.fault),
                                   tour=dict(hold_s=(3.0, 4.0), move_s=(1.2, 1.8), lead_s=1.0), **kw)
-    d = Daemon(cfg, board, bus, desc, duration_s=args.duration, echo=args.echo, config_path=path)
+    d = Daemon(cfg, board, bus, desc, duration_s=args.duration, echo=args.echo, config_path=path,
+               overrides=overrides)
     return d.run()
 
 

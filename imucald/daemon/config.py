@@ -1,20 +1,27 @@
-"""The daemon's configuration: defaults, YAML loading, validation, overrides.
+"""The daemon's configuration: defaults, YAML loading, validation, overrides, reload.
 
 Every key has a type and an allowed range; an error names the file and line,
 the key, the bad value and what is allowed, on one line.
+
+The file is read as YAML 1.2 (core schema) scalars: only ``true``/``false`` are
+booleans, so ``emulate: yes`` is the string the documentation shows; ``0660`` is
+a decimal number, so a file mode must be quoted (``socket_mode: "0660"``) and an
+unquoted one is refused with that fix.  A key given twice is refused, as is a
+byte that is not UTF-8 (its offset named).
 """
 from __future__ import annotations
 
 import copy
-from typing import Any, Dict, Optional, Tuple
+import re
+from typing import Any, Dict, List, Optional, Tuple
 
 import yaml
 
 from ..errors import EX_CONFIG, UserError
 from ..stillness_defaults import STILLNESS_DEFAULTS as _STILL  # one set of stillness defaults
 
-__all__ = ["ConfigError", "DEFAULTS", "load_config", "validate", "set_override",
-           "check_consistency", "accel_poses_needed"]
+__all__ = ["ConfigError", "FlagError", "DEFAULTS", "load_config", "validate", "set_override",
+           "apply_overrides", "check_consistency", "accel_poses_needed", "needs_restart", "parse_yaml"]
 
 
 class ConfigError(UserError):
@@ -81,25 +88,88 @@ for _k, (_d, _, _) in SCHEMA.items():
     DEFAULTS.setdefault(_s, {})[_n] = _d
 
 
-def _lines(text: str) -> Dict[str, int]:
-    """key path -> 1-based line number, from the YAML node marks."""
-    out: Dict[str, int] = {}
+#: keys that take effect on reload (SIGHUP); the others (the sensor, the sockets, the
+#: directories, the stream's format) need a restart
+RELOADABLE_SECTIONS = ("stillness", "poses", "calibration", "log")
+RELOADABLE_KEYS = ("output.decimate", "output.client_buffer_bytes")
+
+
+def needs_restart(key: str) -> bool:
+    return key.split(".")[0] not in RELOADABLE_SECTIONS and key not in RELOADABLE_KEYS
+
+
+_BOOL, _INT, _FLOAT = "tag:yaml.org,2002:bool", "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2 core-schema scalars (booleans true/false
+    only; integers decimal, 0o octal or 0x hex; floats with an exponent)."""
+
+
+_Loader.yaml_implicit_resolvers = {
+    ch: [(tag, rx) for tag, rx in rs if tag not in (_BOOL, _INT, _FLOAT)]
+    for ch, rs in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver(_BOOL, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF"))
+_Loader.add_implicit_resolver(_INT, re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$"),
+                              list("-+0123456789"))
+_Loader.add_implicit_resolver(
+    _FLOAT, re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+                       r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"), list("-+.0123456789"))
+
+
+def _construct_int(loader, node):
+    t = loader.construct_scalar(node)
+    return int(t, 0) if t[:2] in ("0o", "0x") else int(t, 10)
+
+
+_Loader.add_constructor(_INT, _construct_int)
+
+
+def _decode(raw: bytes, path: str) -> str:
     try:
-        node = yaml.compose(text)
-    except yaml.YAMLError:
-        return out
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = raw[:e.start].count(b"\n") + 1
+        raise ConfigError(f"{path}:{line}: byte 0x{raw[e.start]:02x} at offset {e.start} is not UTF-8 "
+                          f"(a Latin-1 '\u00b0' is 0xb0): save the file as UTF-8, e.g. iconv -f latin1 "
+                          f"-t utf-8") from None
+
+
+def _scan(text: str, path: str) -> Tuple[Dict[str, int], Dict[str, str]]:
+    """(key path -> 1-based line, key path -> the scalar as written, unquoted only),
+    from the YAML nodes; a key given twice in one mapping is an error."""
+    lines: Dict[str, int] = {}
+    plain: Dict[str, str] = {}
+    node = yaml.compose(text, Loader=_Loader)
 
     def walk(n, prefix):
-        if isinstance(n, yaml.MappingNode):
-            for k, v in n.value:
-                key = f"{prefix}{k.value}"
-                out[key] = k.start_mark.line + 1
-                walk(v, key + ".")
+        if not isinstance(n, yaml.MappingNode):
+            return
+        seen: Dict[str, int] = {}
+        for k, v in n.value:
+            key = f"{prefix}{k.value}"
+            ln = k.start_mark.line + 1
+            if k.value in seen:
+                raise ConfigError(f"{path}:{ln}: {key} is given twice (first at line {seen[k.value]}): "
+                                  f"keep one")
+            seen[k.value] = ln
+            lines[key] = ln
+            if isinstance(v, yaml.ScalarNode) and not v.style:
+                plain[key] = v.value
+            walk(v, key + ".")
     walk(node, "")
-    return out
+    return lines, plain
 
 
-def _check(key: str, value: Any, where: str) -> Any:
+def _lines(text: str) -> Dict[str, int]:
+    """key path -> 1-based line number (empty when the text is not valid YAML)."""
+    try:
+        return _scan(text, "")[0]
+    except (yaml.YAMLError, ConfigError):
+        return {}
+
+
+def _check(key: str, value: Any, where: str, plain: Optional[str] = None) -> Any:
     if key not in SCHEMA:
         sec = key.split(".")[0]
         known = sorted(k for k in SCHEMA if k.startswith(sec + "."))
@@ -136,13 +206,14 @@ def _check(key: str, value: Any, where: str) -> Any:
             raise bad("is not a 7-bit I2C address (0x03..0x77)")
         return v
     if k == "mode":
-        try:
-            v = int(str(value), 8)
-        except ValueError:
-            raise bad("is not an octal file mode (e.g. '0660')") from None
-        if not 0 <= v <= 0o777:
-            raise bad("is not a file mode 0000..0777")
-        return f"{v:04o}"
+        if not isinstance(value, str):
+            text = plain if plain is not None else repr(value)
+            fix = text if re.fullmatch(r"0?[0-7]{3}", text) else "0660"
+            raise ConfigError(f"{where}{key}: {text} unquoted is a number to YAML, not a file mode; "
+                              f'write it quoted: {key.split(".")[1]}: "{fix}"')
+        if not re.fullmatch(r"0?[0-7]{3}", value.strip()):
+            raise bad("is not an octal file mode 0000..0777 (e.g. '0660')")
+        return f"{int(value, 8):04o}"
     if k == "str":
         if not isinstance(value, str) or not value:
             raise bad("is not a non-empty string")
@@ -150,10 +221,11 @@ def _check(key: str, value: Any, where: str) -> Any:
     raise AssertionError(kind)
 
 
-def validate(cfg: Dict[str, Any], path: str = "", lines: Optional[Dict[str, int]] = None
-             ) -> Dict[str, Dict[str, Any]]:
-    """Merge ``cfg`` over the defaults, checking every key."""
-    lines = lines or {}
+def validate(cfg: Dict[str, Any], path: str = "", lines: Optional[Dict[str, int]] = None,
+             plain: Optional[Dict[str, str]] = None) -> Dict[str, Dict[str, Any]]:
+    """Merge ``cfg`` over the defaults, checking every key (``plain``: key -> the unquoted
+    scalar as written, for messages)."""
+    lines, plain = lines or {}, plain or {}
     out = copy.deepcopy(DEFAULTS)
     if cfg is None:
         return out
@@ -170,7 +242,7 @@ def validate(cfg: Dict[str, Any], path: str = "", lines: Optional[Dict[str, int]
         for k, v in body.items():
             key = f"{sec}.{k}"
             w = f"{path}:{lines.get(key, '?')}: " if path else ""
-            out[sec][k] = _check(key, v, w)
+            out[sec][k] = _check(key, v, w, plain.get(key))
     check_consistency(out, path, lines)
     return out
 
@@ -230,22 +302,53 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
                           f"{floor:.2g}..0.5")
 
 
-def load_config(path: Optional[str]) -> Dict[str, Dict[str, Any]]:
-    if path is None:
-        return validate({})
+def parse_yaml(raw: bytes, path: str) -> Tuple[Any, Dict[str, int], Dict[str, str]]:
+    """(data, key lines, unquoted scalars) of a configuration file's bytes; ConfigError
+    (one line, file:line) for bytes that are not UTF-8, invalid YAML or a duplicate key."""
+    text = _decode(raw, path)
     try:
-        with open(path, encoding="utf-8") as fh:
-            text = fh.read()
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read the configuration: {e.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
+        lines, plain = _scan(text, path)
+        data = yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""
         prob = getattr(e, "problem", None) or str(e).splitlines()[0]
         raise ConfigError(f"{path}{line}: not valid YAML: {prob}") from None
-    return validate(data, path, _lines(text))
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
+    return data, lines, plain
+
+
+def load_config(path: Optional[str]) -> Dict[str, Dict[str, Any]]:
+    if path is None:
+        return validate({})
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read the configuration: {e.strerror}") from None
+    data, lines, plain = parse_yaml(raw, path)
+    return validate(data, path, lines, plain)
+
+
+def apply_overrides(cfg: Dict[str, Dict[str, Any]], overrides: List[Tuple[str, Any, str]],
+                    path: Optional[str] = None) -> None:
+    """Command-line overrides (key, value, flag) over a loaded configuration, checked
+    with it (a start and every reload apply the same ones)."""
+    if not overrides:
+        return
+    flags = {}
+    for key, value, flag in overrides:
+        set_override(cfg, key, value, flag)
+        flags[key] = flag
+    lines: Dict[str, int] = {}
+    if path is not None:
+        try:
+            with open(path, "rb") as fh:
+                lines = _lines(_decode(fh.read(), path))
+        except (OSError, ConfigError):
+            pass
+    check_consistency(cfg, path or "", lines, flags)
 
 
 def set_override(cfg: Dict[str, Dict[str, Any]], key: str, value: Any, flag: str) -> None:

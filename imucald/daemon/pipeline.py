@@ -87,6 +87,20 @@ class Pipeline:
         self._job_ready = True           #: the pending job's pose set met the readiness targets
         self._job_missing: List[str] = []
 
+    def reconfigure(self, cfg: Dict[str, Dict[str, Any]], changed) -> None:
+        """A reload: ``changed`` keys of ``cfg`` take effect from the next batch (new
+        stillness settings restart a still interval in progress)."""
+        self.cfg = cfg
+        if any(k.startswith("stillness.") for k in changed):
+            st = cfg["stillness"]
+            self.det = StillnessDetector(self.rate_hz, st["window_s"], st["k"], st["min_still_s"],
+                                         st["max_pose_s"], st["trim_s"])
+        if any(k.startswith("poses.") for k in changed):
+            self.acc.merge_cos = np.cos(np.radians(cfg["poses"]["merge_angle_deg"]))
+            self.acc.max_poses = cfg["poses"]["max_poses"]
+        self.fmt = cfg["output"]["format"]
+        self._checked = None            # readiness targets may have changed
+
     # -- the hot path -------------------------------------------------------------------
     def process(self, b) -> bytes:
         out: List[bytes] = []

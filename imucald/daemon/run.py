@@ -45,8 +45,10 @@ class Daemon:
 
     def __init__(self, cfg: Dict[str, Dict[str, Any]], board, bus, desc: str,
                  duration_s: Optional[float] = None, echo: bool = False,
-                 config_path: Optional[str] = None):
+                 config_path: Optional[str] = None, overrides=None):
         self.cfg, self.duration_s, self.echo, self.config_path = cfg, duration_s, echo, config_path
+        #: (key, value, flag) given on the command line: they outlive every reload
+        self.overrides = list(overrides or [])
         self.board, self.bus, self.desc = board, bus, desc
         self.stop = False
         self.reload = False
@@ -233,18 +235,36 @@ class Daemon:
         raise AssertionError(cmd)
 
     def _reload(self) -> None:
-        """SIGHUP / reload: re-read the config; calibration and pose settings take effect
-        at once (sensor and output settings need a restart)."""
-        from .config import load_config
+        """SIGHUP / reload: re-read the configuration with the command line's overrides;
+        every reloadable key takes effect at once, the others are named as needing a
+        restart.  A file that does not load leaves the running configuration as it is."""
+        from .config import SCHEMA, apply_overrides, load_config, needs_restart
         try:
             new = load_config(self.config_path)
+            apply_overrides(new, self.overrides, self.config_path)
         except UserError as e:
-            log.warning("reload failed, keeping the running configuration: %s", e)
+            log.error("reload failed, keeping the running configuration: %s", " ".join(str(e).split()))
             return
-        for sec in ("calibration", "poses", "stillness", "log"):
-            self.cfg[sec] = new[sec]
-        self.pipe.cfg = self.cfg
-        log.info("configuration reloaded from %s", self.config_path or "defaults")
+        except Exception as e:          # a reload must never stop the sampler
+            log.error("reload failed (%s: %s), keeping the running configuration", type(e).__name__, e)
+            return
+        get = lambda c, k: c[k.split(".")[0]][k.split(".")[1]]
+        changed = [k for k in SCHEMA if get(new, k) != get(self.cfg, k)]
+        now = [k for k in changed if not needs_restart(k)]
+        later = [k for k in changed if needs_restart(k)]
+        for k in now:
+            sec, key = k.split(".")
+            self.cfg[sec][key] = new[sec][key]
+        self.pipe.reconfigure(self.cfg, now)
+        for sk in getattr(self, "sinks", []):
+            sk.max_buffer = self.cfg["output"]["client_buffer_bytes"]
+        logging.getLogger().setLevel(self.cfg["log"]["level"].upper())
+        says = lambda ks: ", ".join(f"{k} ({get(self.cfg, k)} -> {get(new, k)})" if k in later else
+                                    f"{k} = {get(new, k)}" for k in ks)
+        log.info("configuration reloaded from %s: %s%s", self.config_path or "defaults",
+                 f"applied {says(now)}" if now else "nothing changed that a reload applies",
+                 f"; needs a restart (systemctl restart imucald): {says(later)}" if later else "")
+        log.debug("reload: log level %s in force", self.cfg["log"]["level"])
 
     # -- persistence -------------------------------------------------------------------------
     def _persist(self, kind: str, obj) -> None:

@@ -1,0 +1,146 @@
+"""The configuration reads as documented (YAML 1.2 scalars, quoted modes, no duplicate keys,
+UTF-8 with the offending byte named), and a reload keeps the command line's overrides, applies
+every reloadable key, names the ones that need a restart and survives a bad file."""
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+from imucald.daemon.config import ConfigError, load_config, needs_restart
+
+PY = sys.executable
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def cfg_file(tmp_path, text, name="c.yaml"):
+    p = tmp_path / name
+    p.write_bytes(text if isinstance(text, bytes) else text.encode())
+    return str(p)
+
+
+@pytest.mark.parametrize("word", ["yes", "no", "auto"])
+def test_emulate_yes_no_as_documented(tmp_path, word):
+    assert load_config(cfg_file(tmp_path, f"sensor:\n  emulate: {word}\n"))["sensor"]["emulate"] == word
+
+
+def test_the_shipped_configuration_loads_with_every_documented_value():
+    cfg = load_config(os.path.join(ROOT, "config", "imucald.yaml"))
+    assert cfg["output"]["socket_mode"] == "0660" and cfg["sensor"]["emulate"] == "auto"
+
+
+@pytest.mark.parametrize("text,mode", [('"0660"', "0660"), ("'0640'", "0640"), ('"660"', "0660")])
+def test_socket_mode_is_a_quoted_octal_string(tmp_path, text, mode):
+    assert load_config(cfg_file(tmp_path, f"output:\n  socket_mode: {text}\n"))["output"]["socket_mode"] == mode
+
+
+@pytest.mark.parametrize("text,fix", [("0660", '"0660"'), ("660", '"660"'), ("0o660", '"0660"'),
+                                      ("432", '"432"')])
+def test_unquoted_socket_mode_is_refused_with_the_fix(tmp_path, text, fix):
+    with pytest.raises(ConfigError) as e:
+        load_config(cfg_file(tmp_path, f"control:\n  socket_mode: {text}\n"))
+    msg = str(e.value)
+    assert msg == (f"{tmp_path}/c.yaml:2: control.socket_mode: {text} unquoted is a number to YAML, "
+                   f"not a file mode; write it quoted: socket_mode: {fix}")
+
+
+def test_a_mode_that_is_not_octal_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match=r"c.yaml:2: output.socket_mode: '0980' is not an octal file mode"):
+        load_config(cfg_file(tmp_path, 'output:\n  socket_mode: "0980"\n'))
+
+
+def test_non_utf8_byte_is_named_with_line_and_offset(tmp_path):
+    raw = "# imucald\nsensor:\n  board: mpu6050   # up to 85 °C\n".encode("latin-1")
+    off = raw.index(b"\xb0")
+    with pytest.raises(ConfigError) as e:
+        load_config(cfg_file(tmp_path, raw))
+    assert str(e.value).startswith(f"{tmp_path}/c.yaml:3: byte 0xb0 at offset {off} is not UTF-8")
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("text,msg", [
+    ("sensor:\n  board: mpu6050\n  board: 9dof\n", "c.yaml:3: sensor.board is given twice (first at line 2)"),
+    ("log:\n  level: info\nsensor: {}\nlog:\n  level: debug\n", "c.yaml:4: log is given twice (first at line 1)"),
+])
+def test_duplicate_keys_are_refused(tmp_path, text, msg):
+    with pytest.raises(ConfigError, match=re.escape(msg)):
+        load_config(cfg_file(tmp_path, text))
+
+
+def test_yaml_12_numbers(tmp_path):
+    c = load_config(cfg_file(tmp_path, "sensor:\n  address: 0x69\n  rate_hz: 2e2\n"
+                                       "calibration:\n  min_poses: 012\n"))
+    assert c["sensor"]["address"] == 0x69 and c["sensor"]["rate_hz"] == 200.0
+    assert c["calibration"]["min_poses"] == 12        # decimal, not YAML 1.1's octal 10
+
+
+def test_which_keys_need_a_restart():
+    assert needs_restart("sensor.rate_hz") and needs_restart("output.socket") and needs_restart("state.directory")
+    assert not needs_restart("log.level") and not needs_restart("calibration.min_poses")
+    assert not needs_restart("stillness.k") and not needs_restart("output.decimate")
+
+
+def _control(rt, cmd):
+    import json
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(10)
+    s.connect(str(rt / "control.sock"))
+    s.sendall((cmd + "\n").encode())
+    buf = b""
+    while not buf.endswith(b"\n"):
+        buf += s.recv(65536)
+    s.close()
+    return json.loads(buf)
+
+
+def _wait_log(proc, lines, needle, timeout=30):
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        lines.append(line)
+        if needle in line:
+            return line
+    raise AssertionError(f"{needle!r} not logged: {''.join(lines)}")
+
+
+def test_reload_keeps_overrides_applies_reloadable_keys_and_survives_a_bad_file(tmp_path):
+    conf = tmp_path / "imucald.yaml"
+    conf.write_text("calibration:\n  min_poses: 25\nlog:\n  level: info\n")
+    rt = tmp_path / "run"
+    p = subprocess.Popen([PY, "-m", "imucald.cli", "run", "--emulate", "--speed", "5", "--config", str(conf),
+                          "--state-dir", str(tmp_path / "st"), "--runtime-dir", str(rt), "--min-poses", "12"],
+                         stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=ROOT)
+    lines = []
+    try:
+        _wait_log(p, lines, "streaming ndjson")
+        assert _control(rt, "status")["poses_needed"] == 12
+        # a Latin-1 byte: the reload fails in one line, the daemon carries on unchanged
+        conf.write_bytes("# 85 °C\ncalibration:\n  min_poses: 30\n".encode("latin-1"))
+        p.send_signal(signal.SIGHUP)
+        bad = _wait_log(p, lines, "reload failed")
+        assert "keeping the running configuration" in bad and "byte 0xb0 at offset 5 is not UTF-8" in bad
+        assert p.poll() is None and _control(rt, "status")["poses_needed"] == 12
+        # a good file: the override survives, every reloadable key applies, the rest is named
+        conf.write_text("calibration:\n  min_poses: 30\n  recalibrate_every_poses: 7\nlog:\n  level: debug\n"
+                        "sensor:\n  rate_hz: 200\n")
+        p.send_signal(signal.SIGHUP)
+        ok = _wait_log(p, lines, "configuration reloaded")
+        assert "applied calibration.recalibrate_every_poses = 7, log.level = debug" in ok
+        assert "needs a restart (systemctl restart imucald): sensor.rate_hz (100.0 -> 200.0)" in ok
+        assert "calibration.min_poses" not in ok                 # --min-poses 12 still rules
+        _wait_log(p, lines, "reload: log level debug in force")  # a debug line: the level took effect
+        st = _control(rt, "status")
+        assert st["poses_needed"] == 12 and st["rate_hz"] == 100.0
+        p.send_signal(signal.SIGTERM)
+        rest = p.communicate(timeout=30)[1]
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, "".join(lines) + rest
+    assert "Traceback" not in "".join(lines) + rest

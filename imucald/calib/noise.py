@@ -22,7 +22,7 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-__all__ = ["allan_deviation", "allan_model", "colour_inflation", "colour_inflation_per_pose",
+__all__ = ["allan_deviation", "allan_model", "fit_avar_terms", "colour_inflation", "colour_inflation_per_pose",
            "pose_colour_inflation",
            "MIN_STRETCH_S", "MAX_INFLATION"]
 
@@ -30,22 +30,56 @@ MIN_STRETCH_S = 30.0        #: shortest still stretch that gives an Allan deviat
 MAX_INFLATION = 9.0         #: an inflation beyond this is a disturbance, not noise colour
 
 
-def allan_deviation(x, rate_hz: float, taus) -> np.ndarray:
-    """Non-overlapping Allan deviation of a signal x (n, d) at averaging times taus (s).
+def allan_deviation(x, rate_hz: float, taus, overlapping: bool = False) -> np.ndarray:
+    """Allan deviation of a signal x (n, d) at averaging times taus (s), one implementation
+    for the pose-noise model, the gap diagnosis and ``imucald noise``.
 
-    sigma^2(tau) = 1/2 < (mean_{k+1} - mean_k)^2 > over consecutive tau-averages.
-    Returns an array (len(taus), d); NaN where fewer than 3 averages fit.
+    sigma^2(tau) = 1/2 < (mean_{k+m} - mean_k)^2 >, over consecutive non-overlapping
+    tau-averages (default) or, with ``overlapping``, over every start k (the overlapping
+    estimator, IEEE Std 952-1997 annex C; NIST SP 1065 eq. 8: the same expectation, more
+    degrees of freedom).  Cluster size m = round(tau rate_hz).  Returns (len(taus), d);
+    NaN where fewer than 3 non-overlapping averages fit.
     """
     x = np.asarray(x, float).reshape(len(x), -1)
     out = np.full((len(taus), x.shape[1]), np.nan)
+    c = None
     for i, tau in enumerate(taus):
         m = int(round(tau * rate_hz))
         k = len(x) // max(m, 1)
         if m < 1 or k < 3:
             continue
-        a = x[:k * m].reshape(k, m, -1).mean(1)
-        out[i] = np.sqrt(0.5 * np.mean(np.diff(a, axis=0) ** 2, axis=0))
+        if overlapping:
+            if c is None:       # running sums: every m-average in O(n)
+                c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x - x.mean(0), axis=0)])
+            a = (c[m:] - c[:-m]) / m
+            out[i] = np.sqrt(0.5 * np.mean((a[m:] - a[:-m]) ** 2, axis=0))
+        else:
+            a = x[:k * m].reshape(k, m, -1).mean(1)
+            out[i] = np.sqrt(0.5 * np.mean(np.diff(a, axis=0) ** 2, axis=0))
     return out
+
+
+def fit_avar_terms(taus, avar, weights, subsets=((0, 1, 2), (0, 1), (0, 2), (0,))
+                   ) -> Tuple[np.ndarray, Tuple[int, ...]]:
+    """Non-negative coefficients [a, b, c] of AVAR(tau) = a/tau + b + c tau for one axis:
+    weighted least squares (residuals times ``weights``) over the term subsets that keep
+    the white term, the smallest weighted residual winning.  Returns (coef (3,), terms)."""
+    taus, y, w = (np.asarray(v, float) for v in (taus, avar, weights))
+    ok = np.isfinite(y) & (y > 0) & np.isfinite(w)
+    A = np.column_stack([1.0 / taus, np.ones_like(taus), taus])[ok]
+    out = np.zeros(3)
+    best = None
+    for cols in subsets:
+        Aw = A[:, cols] * w[ok][:, None]
+        sol = np.linalg.lstsq(Aw, y[ok] * w[ok], rcond=None)[0]
+        if np.all(sol >= 0):
+            cost = float(np.sum((Aw @ sol - y[ok] * w[ok]) ** 2))
+            if best is None or cost < best[0]:
+                best = (cost, cols, sol)
+    if best is None:
+        return out, ()
+    out[list(best[1])] = best[2]
+    return out, best[1]
 
 
 def allan_model(x_still: np.ndarray, rate_hz: float, points: int = 14) -> np.ndarray:
@@ -57,22 +91,9 @@ def allan_model(x_still: np.ndarray, rate_hz: float, points: int = 14) -> np.nda
     taus = np.geomspace(4.0 / rate_hz, len(x) / rate_hz / 4.0, points)
     av = allan_deviation(x - x.mean(0), rate_hz, taus) ** 2
     K = np.array([len(x) // max(int(round(t * rate_hz)), 1) for t in taus], float)
-    A = np.column_stack([1.0 / taus, np.ones_like(taus), taus])
     out = np.zeros((x.shape[1], 3))
     for d in range(x.shape[1]):
-        y = av[:, d]
-        ok = np.isfinite(y) & (y > 0)
-        w = np.sqrt(K[ok] - 1) / y[ok]
-        best = None
-        for cols in ((0, 1, 2), (0, 1), (0, 2), (0,)):
-            Aw = A[ok][:, cols] * w[:, None]
-            sol = np.linalg.lstsq(Aw, y[ok] * w, rcond=None)[0]
-            if np.all(sol >= 0):
-                cost = float(np.sum((Aw @ sol - y[ok] * w) ** 2))
-                if best is None or cost < best[0]:
-                    best = (cost, cols, sol)
-        if best is not None:
-            out[d, list(best[1])] = best[2]
+        out[d] = fit_avar_terms(taus, av[:, d], np.sqrt(K - 1) / av[:, d])[0]
     return out
 
 

@@ -177,6 +177,28 @@ def build_parser() -> argparse.ArgumentParser:
     gp.add_argument("--rate-hz", type=positive_float)
     gp.set_defaults(func=_command("gap", "cmd_gap"))
 
+    nz = sub.add_parser("noise", help="Allan deviation and noise figures of a still recording "
+                                      "(kalibr imu.yaml, ROS covariances)")
+    nz.add_argument("recording", help="recording or raw table of a still sensor")
+    nz.add_argument("--sensor", action="append", choices=["accel", "gyro", "mag"],
+                    help="sensor(s) to characterise (default: all present)")
+    nz.add_argument("-o", "--output", help="write the noise figures (YAML; the daemon's noise.file)")
+    nz.add_argument("--kalibr", help="write kalibr's imu.yaml here")
+    nz.add_argument("--plot", help="write Allan deviation plots to this directory (plots extra)")
+    nz.add_argument("--json", action="store_true", help="print one JSON object")
+    nz.add_argument("--start-s", type=float, help="use samples from this time (s after the first)")
+    nz.add_argument("--end-s", type=float, help="use samples up to this time (s after the first)")
+    nz.add_argument("--max-gap-s", type=float, default=1.0,
+                    help="a time step above this splits the recording; the longest piece is used")
+    nz.add_argument("--tau-min-s", type=float, help="shortest averaging time fitted (default 10 samples)")
+    nz.add_argument("--tau-max-s", type=float, help="longest averaging time fitted (default a tenth)")
+    nz.add_argument("--confidence", type=float, default=0.95, help="confidence of the intervals")
+    nz.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,gx,gy,gz")
+    nz.add_argument("--nominal-scale", type=float, default=1.0)
+    nz.add_argument("--nominal-offset", type=float, default=0.0)
+    nz.add_argument("--rate-hz", type=float, help="sample rate (default: the stretch's mean rate)")
+    nz.set_defaults(func=_command("noise", "cmd_noise"))
+
     d = sub.add_parser("demo", help="the calibration demo that `make run` shows")
     d.add_argument("--seed", type=int, default=1)
     d.add_argument("--poses", type=at_least(10, " (the 9-parameter fit scored by leave-one-pose-out)"), default=25)

@@ -1,0 +1,134 @@
+"""``imucald noise RECORDING``: Allan deviation and noise figures of a still stretch."""
+from __future__ import annotations
+
+import json
+import os
+
+from ..errors import UserError
+from ._common import eprint
+
+__all__ = ["cmd_noise", "still_stretch"]
+
+_AXES = {"accel": ("acc", "xyz"), "gyro": ("gyro", "xyz"), "mag": ("mag", "xyz")}
+
+
+def still_stretch(t, start_s=None, end_s=None, max_gap_s: float = 1.0):
+    """(i0, i1, rate_hz): the longest run of samples within [start_s, end_s] with no time
+    step above ``max_gap_s``; the rate is the run's mean rate (bursty timestamps, e.g.
+    reception times, average out; the Allan deviation is taken over the sample index)."""
+    import numpy as np
+    t = np.asarray(t, float)
+    lo = 0 if start_s is None else int(np.searchsorted(t, t[0] + start_s))
+    hi = len(t) if end_s is None else int(np.searchsorted(t, t[0] + end_s, side="right"))
+    if hi - lo < 2:
+        raise UserError(f"--start-s/--end-s select {max(hi - lo, 0)} samples: widen the window")
+    cut = np.flatnonzero(np.diff(t[lo:hi]) > max_gap_s) + 1
+    edges = np.concatenate([[0], cut, [hi - lo]])
+    k = int(np.argmax(np.diff(edges)))
+    i0, i1 = lo + int(edges[k]), lo + int(edges[k + 1])
+    if i1 - i0 < 2 or t[i1 - 1] <= t[i0]:
+        raise UserError("no stretch of samples without a gap: check the t column")
+    return i0, i1, (i1 - i0 - 1) / (t[i1 - 1] - t[i0])
+
+
+def cmd_noise(args) -> int:
+    import numpy as np
+    import yaml
+    from ..atomic import atomic_write_text
+    from ..calib.allan import characterise, figures_document, kalibr_text
+    from ..calib.inputs import load_input
+    columns = args.columns.split(",") if args.columns else None
+    kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
+    if kind != "recording":
+        raise UserError(f"{args.recording}: noise needs samples (a recording), not pose averages")
+    i0, i1, rate = still_stretch(rec.t, args.start_s, args.end_s, args.max_gap_s)
+    if args.rate_hz:
+        rate = float(args.rate_hz)
+    if not 0 < args.confidence < 1:
+        raise UserError(f"--confidence {args.confidence}: give a fraction, e.g. 0.95")
+    figs = {}
+    for sensor, (attr, axes) in _AXES.items():
+        x = getattr(rec, attr)
+        if x is None or (args.sensor and sensor not in args.sensor):
+            continue
+        x = np.asarray(x[i0:i1], float)
+        if not np.all(np.isfinite(x)):
+            raise UserError(f"{args.recording}: {sensor} has non-finite values in the stretch used")
+        figs[sensor] = characterise(x, rate, axes, args.confidence, args.tau_min_s, args.tau_max_s)
+    if not figs:
+        raise UserError(f"{args.recording}: no accel, gyro or mag columns to characterise")
+    dur = (i1 - i0) / rate
+    span = f"samples {i0}..{i1 - 1} ({dur:.0f} s at {rate:.2f} Hz)"
+    doc = figures_document(figs, rate, os.path.basename(args.recording), dur)
+    doc["stretch"] = {"first_sample": int(i0), "samples": int(i1 - i0),
+                      "t_start_s": float(rec.t[i0]), "t_end_s": float(rec.t[i1 - 1])}
+    if args.output:
+        atomic_write_text(args.output, "# imucald noise figures (README: Noise figures)\n" +
+                          yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=110))
+    if args.kalibr:
+        atomic_write_text(args.kalibr, kalibr_text(doc["kalibr"]))
+    if args.plot:
+        _plot(figs, args.plot, args.recording)
+    if args.json:
+        print(json.dumps({**doc, "allan": figs}))
+        return 0
+    print(summary(figs, span, args.confidence))
+    if args.output or args.kalibr:
+        eprint("imucald: wrote " + " and ".join(p for p in (args.output, args.kalibr) if p))
+    return 0
+
+
+def summary(figs, span: str, conf: float) -> str:
+    """Human summary: per axis the figures with their interval and reading tau."""
+    u = {"accel": ("ug/rtHz", 1e6, "ug", 1e6, "ug/rts", 1e6),
+         "gyro": ("deg/h/rtHz", 3600.0, "deg/h", 3600.0, "deg/h/rts", 3600.0),
+         "mag": ("mG/rtHz", 1e3, "mG", 1e3, "mG/rts", 1e3)}
+    out = [f"noise figures of {span}; {conf:.0%} intervals; fit over tau "
+           f"{figs[next(iter(figs))][0]['fit_tau_s'][0]:.3g}..{figs[next(iter(figs))][0]['fit_tau_s'][1]:.3g} s"]
+    for s, axes in figs.items():
+        un = u[s]
+        for a in axes:
+            parts = []
+            for j, key in enumerate(("white_density", "bias_instability", "rate_random_walk")):
+                name, k = un[2 * j], un[2 * j + 1]
+                lo, hi = a[key + "_ci"]
+                val = f"{a[key] * k:.3g}" if a[key + "_resolved"] else "<"
+                parts.append(f"{key.replace('_', ' ')} {val} [{lo * k:.3g}, {hi * k:.3g}] {name} "
+                             f"@{a[key + '_tau_s']:.3g} s")
+            out.append(f"  {s} {a['axis']}: " + "; ".join(parts))
+        if s == "gyro":
+            arw = [a["white_density"] * 60 for a in axes]
+            out.append("  gyro angle random walk (deg/sqrt(h)): " + ", ".join(f"{v:.3g}" for v in arw))
+        if s == "accel":
+            vrw = [a["white_density"] * 9.80665 * 60 for a in axes]
+            out.append("  accel velocity random walk ((m/s)/sqrt(h)): " + ", ".join(f"{v:.3g}" for v in vrw))
+    return "\n".join(out)
+
+
+def _plot(figs, directory: str, name: str) -> None:
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise UserError("--plot needs matplotlib: pip install 'imucald[plots]'") from None
+    import numpy as np
+    os.makedirs(directory, exist_ok=True)
+    for s, axes in figs.items():
+        fig, ax = plt.subplots(figsize=(7, 5))
+        for a in axes:
+            t = np.array(a["taus_s"])
+            y = np.array(a["adev"])
+            line = ax.loglog(t, y, label=f"{a['axis']}")[0]
+            ax.fill_between(t, a["adev_low"], a["adev_high"], color=line.get_color(), alpha=0.25)
+            c = a["avar_coef"]
+            ax.loglog(t, np.sqrt(c[0] / t + c[1] + c[2] * t), "--", color=line.get_color(), lw=0.8)
+        lo, hi = axes[0]["fit_tau_s"]
+        ax.axvspan(lo, hi, color="0.9", zorder=0, label="fit range")
+        ax.set_xlabel("tau (s)")
+        ax.set_ylabel(f"Allan deviation ({ {'accel': 'g', 'gyro': 'deg/s', 'mag': 'gauss'}[s] })")
+        ax.set_title(f"{os.path.basename(name)}: {s}")
+        ax.grid(True, which="both", lw=0.3)
+        ax.legend()
+        fig.savefig(os.path.join(directory, f"allan_{s}.png"), dpi=100)
+        plt.close(fig)

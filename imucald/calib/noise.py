@@ -22,7 +22,7 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-__all__ = ["allan_deviation", "allan_model", "fit_avar_terms", "colour_inflation", "colour_inflation_per_pose",
+__all__ = ["allan_deviation", "allan_model", "fit_avar_terms", "inflation_of", "colour_inflation", "colour_inflation_per_pose",
            "pose_colour_inflation",
            "MIN_STRETCH_S", "MAX_INFLATION"]
 
@@ -97,7 +97,9 @@ def allan_model(x_still: np.ndarray, rate_hz: float, points: int = 14) -> np.nda
     return out
 
 
-def _k_of(coef: np.ndarray, T) -> np.ndarray:
+def inflation_of(coef: np.ndarray, T) -> np.ndarray:
+    """k(T) of the module doc from per-axis coefficients [a, b, c] (d, 3): the pose-mean
+    variance over T seconds relative to white noise, mean over axes, clamped to [1, 9]."""
     a, b, c = coef[:, 0:1], coef[:, 1:2], coef[:, 2:3]
     T = np.atleast_1d(np.asarray(T, float))[None, :]
     k = 1.0 + (b * T + c * T * T) / np.where(a > 0, a, np.inf)
@@ -118,7 +120,7 @@ def colour_inflation(x_still: Optional[np.ndarray], rate_hz: float, pose_s: floa
         return 1.0, {"note": f"longest still stretch {dur:.0f} s: too short for an Allan deviation "
                              f"at the {pose_s:.0f} s pose length (need {need:.0f} s)"}
     coef = allan_model(x, rate_hz)
-    k = float(_k_of(coef, pose_s)[0])
+    k = float(inflation_of(coef, pose_s)[0])
     ad = allan_deviation(x - x.mean(0), rate_hz, [4.0 / rate_hz, pose_s])
     white = np.sqrt(coef[:, 0] / pose_s)
     return k, {"still_stretch_s": round(dur, 1), "pose_length_s": round(pose_s, 1),
@@ -136,7 +138,7 @@ def colour_inflation_per_pose(x_still: Optional[np.ndarray], rate_hz: float,
         return np.ones(len(T)), {"note": f"no still stretch of {MIN_STRETCH_S:.0f} s or more "
                                          f"(longest {dur:.0f} s): white noise assumed"}
     dur = len(x_still) / rate_hz
-    k = _k_of(allan_model(x_still, rate_hz), np.minimum(T, dur / 3.0))
+    k = inflation_of(allan_model(x_still, rate_hz), np.minimum(T, dur / 3.0))
     return k, {"still_stretch_s": round(dur, 1), "variance_inflation_median": round(float(np.median(k)), 3),
                "variance_inflation_range": [round(float(k.min()), 3), round(float(k.max()), 3)]}
 

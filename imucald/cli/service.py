@@ -87,6 +87,7 @@ def cmd_replay(args) -> int:
         chips = dict(kv.split("=", 1) for kv in meta.get("chips", "").split(",") if "=" in kv)
         pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag, chips=chips,
                         has_acc=has_acc)
+        pipe.use_noise_file(cfg["noise"]["file"])
         out = sys.stdout.buffer
         from ..daemon.outputs import banner
         out.write(banner(cfg["output"]["format"], pipe.board, chips or None))

@@ -74,9 +74,14 @@ SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
     "output.fifo": (None, "str?", None),
     "output.client_buffer_bytes": (1048576, "int", (4096, 1 << 28)),
     "output.decimate": (1, "int", (1, 1000)),
+    # per-sample variances in the NDJSON stream (acc_var_g2, gyro_var_dps2); needs noise.file
+    "output.covariance": (False, "choice", (False, True)),
     "control.socket": ("control.sock", "str", None),
     "control.socket_mode": ("0660", "mode", None),
     "control.socket_group": (None, "str?", None),
+    # noise figures written by `imucald noise REC -o FILE`: per-sample covariance and the
+    # coloured-noise inflation of pose covariances
+    "noise.file": (None, "str?", None),
     "state.directory": ("/var/lib/imucald", "str", None),
     "runtime.directory": ("/run/imucald", "str", None),
     "log.level": ("info", "choice", ("debug", "info", "warning", "error")),
@@ -282,6 +287,9 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
         raise error(key, f"sensor.rate_hz: {why}" + (f" (sensor.board is {s['board']})"
                                                        if key == "sensor.rate_hz" else
                                                        f"; sensor.rate_hz is {s['rate_hz']:g}"))
+    if cfg["output"]["covariance"] and not cfg["noise"]["file"]:
+        raise error("output.covariance", "output.covariance: true needs noise.file (the "
+                    "figures of `imucald noise STILL_RECORDING -o FILE`)")
     c = cfg["calibration"]
     need = accel_poses_needed()
     if c["min_poses"] < need:

@@ -9,6 +9,9 @@ NDJSON follows gpsd's habits: one object per line with a ``class`` field, a
   magnetometer), temp_c (omitted when unknown), still (bool), cal (calibration
   id; 0 = uncalibrated, nominally scaled data).  A value that is not known is
   left out, never written as NaN or null.
+  With ``output.covariance: true`` (and a ``noise.file``) also acc_var_g2 and
+  gyro_var_dps2 [x, y, z]: the variance of one sample on each axis (module
+  :mod:`imucald.daemon.pipeline`, README "Noise figures in the daemon").
 ``class: "GAP"``: seq (first missing), missing (count).
 ``class: "CAL"``: id, accel/gyro/mag held-out residuals before and after.
 
@@ -79,11 +82,12 @@ def _vecs(name: str, V, ok, n: int):
     return [f',"{name}":[{v[0]},{v[1]},{v[2]}]' if k else "" for v, k in zip(V, ok)]
 
 
-def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int) -> bytes:
+def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str = "") -> bytes:
     """Encode a batch of corrected samples (arrays with n rows; gyro, temp and mag may
     be None when the board or recording has none).  NDJSON omits a field whose value is
     unknown (no gyro, NaN temperature, no fresh magnetometer reading, a non-finite
-    value); CSV leaves its cells empty; binary carries NaN."""
+    value); CSV leaves its cells empty; binary carries NaN.  ``extra``: fields the same
+    for every sample of the batch (',"key":value...'), NDJSON only (the covariances)."""
     n = len(seq)
     if n == 0:
         return b""
@@ -122,7 +126,7 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int) -
         for i in range(n):
             a, g = A[i], G[i]
             out.append(f'{{"class":"IMU","seq":{Q[i]},"t":{TT[i]},"acc_g":[{a[0]},{a[1]},{a[2]}],'
-                       f'"gyro_dps":[{g[0]},{g[1]},{g[2]}]{mm[i]},"temp_c":{T[i]},'
+                       f'"gyro_dps":[{g[0]},{g[1]},{g[2]}]{mm[i]},"temp_c":{T[i]}{extra},'
                        f'"still":{"true" if S[i] else "false"},"cal":{cal_id}}}\n')
     else:
         # one comprehension per field (a value that is not known contributes "")
@@ -131,7 +135,7 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int) -
         mm = _vecs("mag_gauss", M, okM, n)
         tt = [""] * n if T is None else [f',"temp_c":{x}' if ok else "" for x, ok in zip(T, okT)]
         tail = f',"cal":{cal_id}}}\n'
-        out = [f'{{"class":"IMU","seq":{q},"t":{ts}{a}{g}{m}{tc},"still":{"true" if st else "false"}{tail}'
+        out = [f'{{"class":"IMU","seq":{q},"t":{ts}{a}{g}{m}{tc}{extra},"still":{"true" if st else "false"}{tail}'
                for q, ts, a, g, m, tc, st in zip(Q, TT, aa, gg, mm, tt, S)]
     return "".join(out).encode()
 

@@ -86,6 +86,10 @@ class Pipeline:
         self._tried_raw_at = 0           #: acc.added at the last attempt on the raw sensor
         self._job_ready = True           #: the pending job's pose set met the readiness targets
         self._job_missing: List[str] = []
+        #: noise figures (calib.allan.read_figures of noise.file), or None
+        self.noise: Optional[Dict[str, Dict[str, np.ndarray]]] = None
+        self._cov_key = None
+        self._cov_text = ""
 
     def reconfigure(self, cfg: Dict[str, Dict[str, Any]], changed) -> None:
         """A reload: ``changed`` keys of ``cfg`` take effect from the next batch (new
@@ -124,7 +128,7 @@ class Pipeline:
             gyro = None if b.gyro is None else ap.apply_gyro(b.gyro[keep], temp)
             mag = None if b.mag is None else ap.apply_mag(b.mag[keep])
             out.append(encode_samples(self.fmt, b.seq[keep], b.t[keep], ap.apply_accel(b.acc[keep]),
-                                      gyro, temp, mag, still[keep], ap.id))
+                                      gyro, temp, mag, still[keep], ap.id, self._covariance()))
         out.append(self.poll_calibration())
         self.maybe_calibrate()
         out.append(self.poll_calibration())
@@ -137,6 +141,43 @@ class Pipeline:
             self._pose(iv)
         self.maybe_calibrate()
         return self.poll_calibration()
+
+    def use_noise_file(self, path: Optional[str]) -> None:
+        """Load noise.file (``imucald noise -o``); a bad file is a configuration error."""
+        if not path:
+            return
+        from ..calib.allan import read_figures
+        from ..errors import UserError
+        from .config import ConfigError
+        try:
+            self.noise = read_figures(path)
+        except UserError as e:
+            raise ConfigError(f"noise.file: {e}") from None
+        log.info("noise figures from %s (%s)", path, ", ".join(self.noise))
+
+    def _covariance(self) -> str:
+        """',"acc_var_g2":[..],"gyro_var_dps2":[..]' for output.covariance, else "".
+
+        The variance of one sample per axis: the noise file's white density squared times
+        the sample rate (kalibr's discrete-time convention, as in its ROS export), plus for
+        the gyro the squared standard error of the applied bias.  Diagonal: the axes' noises
+        are independent; the calibration's scale and misalignment errors are not included."""
+        if not self.cfg["output"]["covariance"] or self.noise is None:
+            return ""
+        key = self.applied.id
+        if key != self._cov_key:
+            parts = []
+            for s, name in (("accel", "acc_var_g2"), ("gyro", "gyro_var_dps2")):
+                if s not in self.noise:
+                    continue
+                v = self.noise[s]["white"] ** 2 * self.rate_hz
+                g = self.applied.gyro
+                if s == "gyro" and g is not None and "bias_dps" in g.stderr:
+                    se = np.asarray(g.stderr["bias_dps"], float)
+                    v = v + np.where(np.isfinite(se), se, 0.0) ** 2
+                parts.append(f',"{name}":[{v[0]:.4g},{v[1]:.4g},{v[2]:.4g}]')
+            self._cov_key, self._cov_text = key, "".join(parts)
+        return self._cov_text
 
     # -- poses ------------------------------------------------------------------------
     def _pose(self, iv) -> None:
@@ -250,7 +291,15 @@ class Pipeline:
         mag_pts = None
         if self.reservoir is not None and self.reservoir.coverage() >= c["mag_min_coverage"]:
             mag_pts = self.reservoir.points()
-        job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "t0": ps.t0, "n": ps.n,
+        acc_cov = ps.acc_cov
+        if self.noise is not None and "accel" in self.noise and acc_cov is not None:
+            # coloured noise: a pose mean over T s varies k(T) times more than white noise
+            # says (calib/noise.py), k from the noise file's Allan coefficients
+            from ..calib.noise import inflation_of
+            k = np.array([inflation_of(self.noise["accel"]["avar_coef"], n / self.rate_hz)[0]
+                          for n in ps.n])
+            acc_cov = acc_cov * k[:, None, None]
+        job = {"acc": ps.acc, "acc_cov": acc_cov, "t0": ps.t0, "n": ps.n,
                "gyro": ps.gyro, "mag_points": mag_pts, "mag_noise": self._mag_noise(), "method": c["method"],
                "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
                "seed": int(self.acc.added),

@@ -123,6 +123,7 @@ class Daemon:
         self.pipe = Pipeline(cfg, self.board.name, self.board.rate_hz, self.board.has_mag,
                              executor=self.worker, persist=self._persist, chips=chips,
                              has_acc=self.board.has_acc)
+        self.pipe.use_noise_file(cfg["noise"]["file"])
         cal = load_calibration(sd, self.board.name, chips)
         if cal is not None:
             self.pipe.applied = cal

@@ -232,6 +232,7 @@ class Calibration:
     #: None, or {poses, poses_for_final, missing_orientations}: applied before the pose set
     #: met the readiness targets (README: provisional calibrations)
     provisional: Optional[Mapping[str, Any]] = None
+    sensor: str = ""       #: fingerprint id of the physical sensor (daemon/sensors.py); "" unknown
 
     def part(self, sensor: str) -> Optional[SensorCal]:
         return getattr(self, sensor)
@@ -250,8 +251,11 @@ class Calibration:
         return np.asarray(mag_gauss, float) if self.mag is None else self.mag.apply(mag_gauss)
 
     # -- identity ----------------------------------------------------------------------
-    def mismatch(self, board: str, chips: Optional[Mapping[str, str]] = None) -> Optional[str]:
+    def mismatch(self, board: str, chips: Optional[Mapping[str, str]] = None,
+                 sensor: str = "") -> Optional[str]:
         """Why this calibration does not belong to the running board (None: it does)."""
+        if self.sensor and sensor and self.sensor != sensor:
+            return f"made on sensor {self.sensor}, this is sensor {sensor}"
         if self.board != board:
             return f"made for board {self.board!r}, this is {board!r}"
         for k, v in (chips or {}).items():
@@ -264,6 +268,8 @@ class Calibration:
         d: Dict[str, Any] = {"format_version": FORMAT_VERSION, "id": int(self.id),
                              "created": self.created, "board": self.board, "chips": dict(self.chips),
                              "units": dict(UNITS)}
+        if self.sensor:
+            d["sensor"] = self.sensor
         if self.temperature_range_c is not None:
             d["temperature_range_c"] = [float(x) for x in self.temperature_range_c]
         for s in SENSORS:
@@ -285,13 +291,13 @@ class Calibration:
         if d.get("format_version") == 1:
             d = _from_v1(d)
         _keys(d, "", {"format_version", "id", "board", "units"},
-              {"created", "chips", "temperature_range_c", "poses_used", "provisional", *SENSORS})
+              {"created", "chips", "temperature_range_c", "poses_used", "provisional", "sensor", *SENSORS})
         if d["format_version"] != FORMAT_VERSION:
             _fail("format_version", f"{d['format_version']!r} is not supported",
                   f"this imucald reads 1 and {FORMAT_VERSION}")
         if isinstance(d["id"], bool) or not isinstance(d["id"], int) or d["id"] < 0:
             _fail("id", f"{d['id']!r} is not a non-negative integer", "e.g. id: 1")
-        for k in ("board", "created"):
+        for k in ("board", "created", "sensor"):
             if not isinstance(d.get(k, ""), str):
                 _fail(k, f"expected text, got {type(d[k]).__name__}", "quote it")
         chips = d.get("chips", {})
@@ -319,7 +325,7 @@ class Calibration:
         pv = d.get("provisional")
         return cls(d["board"], dict(chips), d["id"], d.get("created", ""), tr, parts.get("accel"),
                    parts.get("gyro"), parts.get("mag"), pu,
-                   None if pv is None else _provisional(pv, "provisional"))
+                   None if pv is None else _provisional(pv, "provisional"), d.get("sensor", ""))
 
 
 # --- files ----------------------------------------------------------------------------

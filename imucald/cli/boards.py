@@ -17,7 +17,8 @@ EMULATED_BOARDS = ("mpu6050", "mpu6500", "mpu9250", "9dof", "gy273", "9dof-qmc")
 
 
 def emulated_bus(board: str, speed: Optional[float] = None, seed: int = 0, poses: int = 30,
-                 faults=None, tour: Optional[Dict[str, Any]] = None, mag: Optional[str] = None):
+                 faults=None, tour: Optional[Dict[str, Any]] = None, mag: Optional[str] = None,
+                 addrs: Optional[Dict[str, int]] = None):
     """A :class:`Bus` over the emulated chips of ``board``, moved through ``poses`` random
     orientations (looped) by a tour drawn from ``seed``; ``tour`` overrides its hold/move times;
     ``mag`` picks the magnetometer of a 9dof or gy273 board (None: the board's usual one).
@@ -34,7 +35,7 @@ def emulated_bus(board: str, speed: Optional[float] = None, seed: int = 0, poses
     clock = VirtualClock() if speed is None else ScaledClock(speed)
     rng = np.random.default_rng(seed)
     motion = PoseTour(random_pose_set(poses, rng), rng=rng, loop=True, **(tour or {}))
-    eb = emulated_board(board, motion, rng=rng, clock=clock, faults=faults, mag=mag)
+    eb = emulated_board(board, motion, rng=rng, clock=clock, faults=faults, mag=mag, addrs=addrs)
     return Bus(eb, name=f"emulated {board}", clock=clock)
 
 
@@ -63,7 +64,8 @@ def open_board(board: str, rate_hz: float, emulate: str = "auto", bus: Optional[
     from ..drivers.bus import open_bus
     num = real_bus_number(emulate, bus)
     if num is None:
-        b = emulated_bus(board, speed, seed, poses, faults, tour, None if mag == "auto" else mag)
+        addrs = {"mpu": driver_kw["addr"]} if "addr" in driver_kw else None     # sensor.address
+        b = emulated_bus(board, speed, seed, poses, faults, tour, None if mag == "auto" else mag, addrs)
         desc = (f"emulated {board} ({'no I2C bus found' if emulate == 'auto' else 'no hardware'}), "
                 f"moved through {poses} orientations"
                 + (f" at {speed:g}x speed" if speed not in (None, 1.0) else ""))

@@ -162,6 +162,13 @@ def cmd_status(args) -> int:
     print(f"poses {r['poses']}/{r['poses_needed']}, coverage {r['coverage']:.0%}"
           + (f", next: {r['next_orientation']}" if r.get("next_orientation") else ""))
     print(f"calibration {cal}{', calibrating now' if r.get('calibrating') else ''}")
+    sn = r.get("sensor") or {}
+    if sn:
+        note = {"changed": f": a different sensor than last time (was {sn.get('previous')}); it started "
+                           f"uncalibrated, the old calibration is kept in {sn.get('kept_in')}",
+                "returned": f": swapped back in (was {sn.get('previous')}); its own calibration is back"
+                }.get(sn.get("status"), "")
+        print(f"sensor {sn.get('id')}{note}")
     bs = r["board_stats"]
     print(f"samples {bs['samples']}, gaps {bs['gaps']} ({bs['missing']} lost), bus faults {bs['bus_faults']}, "
           f"clients {r['clients']} (dropped {r['clients_dropped']})")

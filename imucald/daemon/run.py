@@ -124,7 +124,15 @@ class Daemon:
                              executor=self.worker, persist=self._persist, chips=chips,
                              has_acc=self.board.has_acc)
         self.pipe.use_noise_file(cfg["noise"]["file"])
-        cal = load_calibration(sd, self.board.name, chips)
+        from .sensors import adopt_sensor
+        self.fingerprint = self.board.fingerprint()
+        self.sensor = adopt_sensor(sd, self.fingerprint)     # a swapped board: its own files
+        sid = self.sensor["id"]
+        log.info("sensor %s (%s)", sid, _fp_text(self.fingerprint))
+        self.pipe.applied = self.pipe.applied.replace(sensor=sid)
+        cal = load_calibration(sd, self.board.name, chips, sid)
+        if cal is not None and not cal.sensor:
+            cal = cal.replace(sensor=sid)          # made before fingerprints: adopted
         if cal is not None:
             self.pipe.applied = cal
             log.info("loaded calibration #%d (%s)", cal.id, cal.created)
@@ -194,6 +202,8 @@ class Daemon:
         if ap.id and p.applied_t_s is not None:
             age = f", age {p.t_last - p.applied_t_s:.0f} s"
         cal = f"cal #{ap.id}{age}" if ap.id else "uncalibrated"
+        if getattr(self, "sensor", {}).get("status") == "changed" and not ap.id:
+            cal += f" (new sensor {self.sensor['id']}, was {self.sensor['previous']})"
         return (f"{self.board.name} {self.board.rate_hz:g} Hz, poses {len(p.acc)}/"
                 f"{self.cfg['calibration']['min_poses']}, {cal}, bus faults {self.board.stats.bus_faults}")
 
@@ -204,6 +214,7 @@ class Daemon:
             d = {"class": "STATUS", "board": self.board.name, "chips": self.board.chips(),
                  "rate_hz": self.board.rate_hz,
                  "bus": self.bus.name, **p.status(), "board_stats": self.board.stats.as_dict(),
+                 "sensor": {**self.sensor, "fingerprint": self.fingerprint},
                  "bus_stats": self.bus.stats.as_dict(),
                  "clients": len(self.sinks[0].clients), "clients_dropped": self.sinks[0].dropped}
             return d
@@ -301,6 +312,14 @@ class Daemon:
                 log.error("stopped; could not save the state in %s: %s", sd, e.strerror or e)
         for fd in getattr(self, "_lock_fds", []):
             os.close(fd)
+
+
+def _fp_text(fp: Dict[str, Any]) -> str:
+    """One line: bus, then each chip with its address and trim."""
+    parts = [fp.get("bus", "?")]
+    for name, c in fp.get("chips", {}).items():
+        parts.append(name + " " + " ".join(f"{k}={v}" for k, v in c.items()))
+    return "; ".join(parts)
 
 
 def _logged(fn):

@@ -32,13 +32,18 @@ def set_aside(path: str, why: str) -> str:
 
 
 def save_calibration(state_dir: str, cal: Calibration, history: int = 10) -> str:
-    """calibration.yaml (and history/calibration-<id>.yaml, the last ``history`` kept)."""
+    """calibration.yaml (and history/calibration-<id>-<created, UTC>.yaml, the last
+    ``history`` kept: a dated record of the sensor's calibrations)."""
     path = os.path.join(state_dir, "calibration.yaml")
     save(cal, path)
     if history:
         hd = os.path.join(state_dir, "history")
         os.makedirs(hd, exist_ok=True)
-        save(cal, os.path.join(hd, f"calibration-{int(cal.id):06d}.yaml"))
+        stamp = "".join(ch for ch in cal.created[:19] if ch.isdigit() or ch == "T")
+        for f in os.listdir(hd):          # the same id saved again (e.g. at shutdown)
+            if f.startswith(f"calibration-{int(cal.id):06d}"):
+                os.unlink(os.path.join(hd, f))
+        save(cal, os.path.join(hd, f"calibration-{int(cal.id):06d}{'-' + stamp if stamp else ''}.yaml"))
         old = sorted(f for f in os.listdir(hd) if f.startswith("calibration-"))
         for f in old[:-history]:
             os.unlink(os.path.join(hd, f))
@@ -46,7 +51,7 @@ def save_calibration(state_dir: str, cal: Calibration, history: int = 10) -> str
 
 
 def load_calibration(state_dir: str, board: Optional[str] = None,
-                     chips: Optional[Dict[str, str]] = None) -> Optional[Calibration]:
+                     chips: Optional[Dict[str, str]] = None, sensor: str = "") -> Optional[Calibration]:
     """The saved calibration, or None.  A file that fails validation, or that was made
     for another board or chip (when ``board`` is given), is set aside with the reason."""
     path = os.path.join(state_dir, "calibration.yaml")
@@ -57,7 +62,7 @@ def load_calibration(state_dir: str, board: Optional[str] = None,
     except CalibrationError as e:
         set_aside(path, f"unreadable calibration ({str(e).splitlines()[0]})")
         return None
-    why = cal.mismatch(board, chips) if board is not None else None
+    why = cal.mismatch(board, chips, sensor) if board is not None else None
     if why:
         set_aside(path, f"calibration of another sensor ({why})")
         return None

@@ -39,6 +39,7 @@ class AK8963:
         self.bus, self.addr = bus, addr
         self.clock = clock or bus.clock or RealClock()
         self.asa = np.ones(3)
+        self.asa_raw = b""           #: the fuse-ROM sensitivity adjustment bytes (factory trim)
 
     def identify(self) -> None:
         wia = self.bus.read_byte(self.addr, REGMAP.WIA.addr)
@@ -54,7 +55,8 @@ class AK8963:
         self.clock.sleep(0.01)
         b.write_byte(a, R.CNTL1.addr, R.encode("CNTL1", MODE=MODE_FUSE_ROM))
         self.clock.sleep(0.01)
-        asa = np.frombuffer(b.read_block(a, R.ASAX.addr, 3), dtype=np.uint8).astype(float)
+        self.asa_raw = bytes(b.read_block(a, R.ASAX.addr, 3))
+        asa = np.frombuffer(self.asa_raw, dtype=np.uint8).astype(float)
         # H_adj = H * ((ASA - 128) * 0.5 / 128 + 1)   (K, T)
         self.asa = (asa - 128.0) * 0.5 / 128.0 + 1.0
         b.write_byte(a, R.CNTL1.addr, R.encode("CNTL1", MODE=MODE_POWER_DOWN))

@@ -88,6 +88,14 @@ class Board:
         """Chip names by role (accel, gyro, mag), for the stream, status and recordings."""
         return {}
 
+    def fingerprint(self) -> dict:
+        """What identifies this physical sensor (after :meth:`start`): board, bus, and per chip
+        its address, ID and any factory trim it exposes (MPU self-test and accelerometer
+        offset registers, AK8963 fuse ROM).  Chips without trim (ADXL345, ITG3200, the
+        magnetometers) are told apart by bus and address only."""
+        return {"board": self.name, "bus": getattr(self.bus, "name", "?"),
+                "chips": {role: {"chip": c} for role, c in self.chips().items()}}
+
     def start(self) -> None:
         self._last_ok = self._last_check = self.clock.now()
         self._init_chips()
@@ -208,6 +216,13 @@ class MPUBoard(Board):
         c = {"accel": self.name, "gyro": self.name}
         return {**c, "mag": "ak8963"} if self.has_mag else c
 
+    def fingerprint(self):
+        ch = {"mpu": {"chip": self.mpu.chip or self.name, "address": f"0x{self.mpu.addr:02X}",
+                      **self.mpu.factory_trim()}}
+        if self.ak is not None:
+            ch["ak8963"] = {"address": f"0x{self.ak.addr:02X}", "asa": bytes(self.ak.asa_raw).hex()}
+        return {"board": self.name, "bus": getattr(self.bus, "name", "?"), "chips": ch}
+
     def _init_chips(self):
         self.mpu.chip = None
         self.mpu.identify()
@@ -258,6 +273,12 @@ class NineDofBoard(Board):
     def chips(self):
         return {"accel": "adxl345", "gyro": "itg3200",
                 "mag": mag_name(self.mag) if self.mag is not None else self.mag_choice}
+
+    def fingerprint(self):
+        ch = {"adxl345": {"address": f"0x{self.acc.addr:02X}"}, "itg3200": {"address": f"0x{self.gyr.addr:02X}"}}
+        if self.mag is not None:
+            ch[mag_name(self.mag)] = {"address": f"0x{self.mag.addr:02X}"}
+        return {"board": self.name, "bus": getattr(self.bus, "name", "?"), "chips": ch}
 
     def _init_chips(self):
         self.acc.setup(self.accel_range_g, self.rate_hz)

@@ -21,6 +21,17 @@ __all__ = ["REGMAP", "WHO_AM_I_IDS", "MPU6xxx", "ACCEL_LSB_PER_G", "GYRO_LSB_PER
 
 REGMAP = RegisterMap(
     "mpu6050",
+    # factory trim, read for the sensor's fingerprint (never written by the driver):
+    # MPU-6500/9250 SELF_TEST_X/Y/Z_GYRO 0x00-0x02 (T, registers 0-2: "the value in this register
+    # indicates the self test output generated during manufacturing tests")
+    Register("SELF_TEST_GYRO", 0x00, 0x00, read_only=True, length=3),
+    # MPU-6050 accelerometer offsets XA/YA/ZA_OFFS_H/L 0x06-0x0B, big-endian int16; factory
+    # values reload at every power-on, bit 0 of each low byte reserved (K; reference
+    # section 4.1: kriswiner/MPU6050#8, jrowberg/i2cdevlib#396)
+    Register("XA_OFFS_H", 0x06, 0x00, read_only=True, length=6),
+    # MPU-6050 SELF_TEST_X/Y/Z/A 0x0D-0x10 (D registers 13-16, A); on the MPU-6500/9250 0x0D-0x0F
+    # are SELF_TEST_X/Y/Z_ACCEL (T registers 13-15), 0x10 is not used
+    Register("SELF_TEST", 0x0D, 0x00, read_only=True, length=4),
     Register("SMPLRT_DIV", 0x19, 0x00),                                        # K; D 4.2
     Register("CONFIG", 0x1A, 0x00, {"EXT_SYNC_SET": Field(0x38),               # K; D 4.3
                                     "DLPF_CFG": Field(0x07)}),
@@ -53,6 +64,9 @@ REGMAP = RegisterMap(
     Register("FIFO_COUNTH", 0x72, 0x00, read_only=True, length=2),             # K: big-endian
     Register("FIFO_R_W", 0x74, 0x00),                                          # K
     Register("WHO_AM_I", 0x75, 0x68, read_only=True),                          # K, A
+    # MPU-6500/9250 accelerometer offsets XA_OFFSET_H/L 0x77-0x78, YA 0x7A-0x7B, ZA 0x7D-0x7E
+    # (T, registers 119-126 "Accelerometer Offset Registers"; K): factory trim as on the 6050
+    Register("XA_OFFSET_H", 0x77, 0x00, read_only=True, length=8),
 )
 
 #: WHO_AM_I values seen in the field (K; reference section 4.2; kriswiner/MPU9250 issues)
@@ -127,6 +141,20 @@ class MPU6xxx:
                                f"configured {self.expect.upper()}{extra}")
         self.chip = found
         return found
+
+    def factory_trim(self) -> dict:
+        """The chip's factory trim as hex strings (fingerprint of the physical sensor): the
+        self-test registers and the accelerometer offset registers (REGMAP comments)."""
+        R, b, a = REGMAP, self.bus, self.addr
+        chip = self.chip or self.expect
+        if chip == "mpu6050":
+            st = b.read_block(a, R.SELF_TEST.addr, 4)
+            off = b.read_block(a, R.XA_OFFS_H.addr, 6)
+        else:
+            st = b.read_block(a, R.SELF_TEST_GYRO.addr, 3) + b.read_block(a, R.SELF_TEST.addr, 3)
+            raw = b.read_block(a, R.XA_OFFSET_H.addr, 8)
+            off = bytes(raw[i] for i in (0, 1, 3, 4, 6, 7))       # 0x79, 0x7C not used
+        return {"self_test": st.hex(), "accel_offset": off.hex()}
 
     # -- setup ---------------------------------------------------------------------
     def setup(self, accel_range_g: int = 2, gyro_range_dps: int = 250, rate_hz: float = 100.0,

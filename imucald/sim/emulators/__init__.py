@@ -37,11 +37,14 @@ __all__ = ["Faults", "EmulatedBus", "EmuMPU6xxx", "EmuAK8963", "EmuADXL345", "Em
 
 def emulated_board(board: str, motion, rng: RngLike = None, clock: Optional[Clock] = None,
                    faults: Optional[Faults] = None, truth: Optional[Truth] = None,
-                   addrs: Optional[Dict[str, int]] = None, mag: Optional[str] = None) -> EmulatedBus:
+                   addrs: Optional[Dict[str, int]] = None, mag: Optional[str] = None,
+                   trim: Optional[Dict[str, bytes]] = None) -> EmulatedBus:
     """An EmulatedBus holding the chips of ``board``: mpu6050, mpu6500, mpu9250, 9dof
     (ADXL345 + ITG3200 + a magnetometer), gy273 (a magnetometer alone).  ``mag``
     picks the magnetometer of 9dof and gy273 boards: hmc5883l (9dof default) or
-    qmc5883l (gy273 default; ``9dof-qmc`` is the 9dof board with it)."""
+    qmc5883l (gy273 default; ``9dof-qmc`` is the 9dof board with it).  ``trim``: the
+    MPU's factory trim (see :class:`EmuMPU6xxx`) and, under "asa", the AK8963's fuse ROM;
+    drawn when None, so another seed is another physical sensor."""
     rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     clock = clock or VirtualClock()
     bus = EmulatedBus(clock, faults, rng)
@@ -57,9 +60,11 @@ def emulated_board(board: str, motion, rng: RngLike = None, clock: Optional[Cloc
     truth = truth or draw_truth(tb, rng)
     a = addrs or {}
     if board in ("mpu6050", "mpu6500", "mpu9250"):
-        mpu = bus.add(EmuMPU6xxx(a.get("mpu", 0x68), clock, motion, truth, rng, board))
+        t = dict(trim or {})
+        asa = t.pop("asa", None)
+        mpu = bus.add(EmuMPU6xxx(a.get("mpu", 0x68), clock, motion, truth, rng, board, trim=t or None))
         if board == "mpu9250":
-            bus.add(EmuAK8963(_ak.ADDR, clock, motion, truth, rng, host=mpu))
+            bus.add(EmuAK8963(_ak.ADDR, clock, motion, truth, rng, host=mpu, asa=asa))
     elif board in ("9dof", "gy273"):
         if board == "9dof":
             bus.add(EmuADXL345(a.get("accel", 0x53), clock, motion, truth, rng))

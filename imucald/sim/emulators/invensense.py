@@ -2,6 +2,8 @@
 and the MPU-9250's AK8963 magnetometer behind its bypass gate."""
 from __future__ import annotations
 
+from typing import Dict, Optional
+
 import numpy as np
 
 from ...drivers import ak8963 as _ak, mpu6050 as _mpu
@@ -17,8 +19,13 @@ class EmuMPU6xxx(EmuDevice):
     regmap = _mpu.REGMAP
     fifo_ports = (_mpu.REGMAP.FIFO_R_W.addr,)
 
-    def __init__(self, addr, clock, motion, truth, rng, variant: str = "mpu6050"):
+    def __init__(self, addr, clock, motion, truth, rng, variant: str = "mpu6050",
+                 trim: Optional[Dict[str, bytes]] = None):
+        """``trim``: the factory trim the chip reports ({"self_test": 4 bytes (3 gyro + 3
+        accel = 6 on the 6500/9250), "accel_offset": 6 bytes}), drawn from a child of
+        ``rng`` when None (the parent's stream is not consumed, so other draws do not move)."""
         self.variant = variant
+        self.trim = dict(trim) if trim is not None else _draw_trim(rng, variant)
         self.who = {"mpu6050": 0x68, "mpu6500": 0x70, "mpu9250": 0x71}[variant]
         self.spec_a = ACCEL["mpu6050" if variant == "mpu6050" else "mpu9250"]
         self.spec_g = GYRO["mpu6050" if variant == "mpu6050" else "mpu9250"]
@@ -26,6 +33,16 @@ class EmuMPU6xxx(EmuDevice):
         super().__init__(addr, clock, motion, truth, rng)
 
     def on_reset(self):
+        # the factory trim reloads at power-on and after DEVICE_RESET (reference 4.1)
+        R, st, off = self.regmap, self.trim["self_test"], self.trim["accel_offset"]
+        if self.variant == "mpu6050":
+            self.regs[R.SELF_TEST.addr:R.SELF_TEST.addr + 4] = st
+            self.regs[R.XA_OFFS_H.addr:R.XA_OFFS_H.addr + 6] = off
+        else:
+            self.regs[R.SELF_TEST_GYRO.addr:R.SELF_TEST_GYRO.addr + 3] = st[:3]
+            self.regs[R.SELF_TEST.addr:R.SELF_TEST.addr + 3] = st[3:]
+            for i, a in enumerate((0x77, 0x78, 0x7A, 0x7B, 0x7D, 0x7E)):
+                self.regs[a] = off[i]
         self.fifo = bytearray()
         self.latest = bytes(14)
         self.overflows = 0
@@ -133,14 +150,28 @@ class EmuMPU6xxx(EmuDevice):
                 self.overflows += 1
 
 
+def _draw_trim(rng: np.random.Generator, variant: str) -> Dict[str, bytes]:
+    """Factory trim of one emulated chip: self-test codes and accelerometer offsets of a few
+    thousand LSB, as real parts report, from a child generator of ``rng``."""
+    bg = rng.bit_generator
+    ss = getattr(bg, "seed_seq", None) or getattr(bg, "_seed_seq", None)
+    child = np.random.default_rng(ss.spawn(1)[0]) if ss is not None else np.random.default_rng()
+    n_st = 4 if variant == "mpu6050" else 6
+    st = bytes(child.integers(0, 256, n_st, dtype=np.uint8).tolist())
+    off = child.integers(-3000, 3000, 3).astype(">i2").tobytes()
+    return {"self_test": st, "accel_offset": off}
+
+
 class EmuAK8963(EmuDevice):
     """AK8963, visible at 0x0C only while the host MPU-9250 has its bypass enabled."""
 
     regmap = _ak.REGMAP
 
-    def __init__(self, addr, clock, motion, truth, rng, host: EmuMPU6xxx):
+    def __init__(self, addr, clock, motion, truth, rng, host: EmuMPU6xxx, asa: Optional[bytes] = None):
+        """``asa``: the 3 fuse-ROM sensitivity-adjustment bytes (drawn from rng when None)."""
         self.host = host
-        self.asa_raw = np.array(rng.integers(160, 190, 3), dtype=np.uint8)  # fuse ROM
+        drawn = np.array(rng.integers(160, 190, 3), dtype=np.uint8)        # fuse ROM
+        self.asa_raw = drawn if asa is None else np.frombuffer(bytes(asa), dtype=np.uint8).copy()
         super().__init__(addr, clock, motion, truth, rng)
 
     def reachable(self):

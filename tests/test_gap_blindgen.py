@@ -44,8 +44,6 @@ def test_coloured_noise_tremor_short_holds_soft_iron_nulls_are_none(nulls):
     assert len(false) <= 1, f"nulls called an effect: {false}"
 
 
-@pytest.mark.xfail(strict=True, reason="gyro pose path: false alarms rose to ~8/60 nulls (bench/gap_blind.py) "
-                                       "after the new stillness detector merged; was ~2/60; not yet understood")
 def test_gyro_nulls_are_none(nulls):
     false = [(k, s) for k, s, lab, res in nulls if res["sensors"]["gyro"]["verdict"] != "none"]
     assert len(false) <= 1, f"gyro called an effect on nulls: {false}"

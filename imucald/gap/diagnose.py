@@ -47,6 +47,7 @@ from ..calib.poses import detect_static, poses_from_slices
 from ..errors import UserError
 from ..recording import Recording
 from .candidates import ACCEL_CANDIDATES, GYRO_CANDIDATES, MAG_CANDIDATES, hat_columns
+from .gyrostill import trim_turns
 from .linear import gyro_diag
 from .norm import norm_diag
 from .saturation import saturated
@@ -166,21 +167,26 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
             r["verdict"] = "saturation" if r["verdict"] in ("none",) else f"saturation+{r['verdict']}"
         result["sensors"]["accel"] = r
     if "gyro" in sensors:
-        gv = np.einsum("nii->ni", ps.gyro_cov) if ps.gyro_cov is not None else None
-        gs2 = gv * ps.n[:, None]
+        # the gyro's own still stretch: the slow ends of turns the accelerometer-led
+        # detector keeps inside a pose are cut (gap/gyrostill.py)
+        gsl, trim = trim_turns(rec.gyro, sl, rate)
+        gm = np.array([rec.gyro[s_].mean(0) for s_ in gsl])
+        gn = np.array([s_.stop - s_.start for s_ in gsl])
+        gs2 = np.array([rec.gyro[s_].var(0, ddof=1) for s_ in gsl])
         med = np.median(gs2[keep], axis=0)
         kap_g, colour_g = colour_inflation(None if longest is None else rec.gyro[longest], rate, T_pose)
-        wp = within_pose_inflation(rec.gyro, [s_ for s_, k_ in zip(sl, keep) if k_])
+        wp = within_pose_inflation(rec.gyro, [s_ for s_, k_ in zip(gsl, keep) if k_])
         kap_g = max(kap_g, wp["inflation"])
         colour_g = dict(colour_g or {}, within_pose=wp)
-        gvar = med[None, :] / ps.n[keep, None] * kap_g
+        gvar = med[None, :] / gn[keep, None] * kap_g
         ctx = sub(ctx_all, keep)
         # specific force in g from the calibrated accelerometer (raw directions carry the
         # accelerometer's own scale and bias errors into the g-sensitivity regressor)
         t9 = Triangular9()
         th_a = lm(Problem(t9, ps.acc[keep])).theta
         ctx["acc_dir"] = t9.forward(th_a, ps.acc[keep])
-        r = gyro_diag(ps.gyro[keep], gvar, ctx, sims, rng, skip)
+        r = gyro_diag(gm[keep], gvar, ctx, sims, rng, skip)
+        r["turn_ends_trimmed_s"] = float(np.sum(trim["trimmed_s"]))
         if colour_g:
             r["noise_colour"] = colour_g
         result["sensors"]["gyro"] = r

@@ -64,7 +64,8 @@ def make_blocks(t_s: np.ndarray, x: np.ndarray, temp_c: Optional[np.ndarray], sl
     sampling are allowed; a block needs ``min_fill`` of the median sample count).
     Returns means (K, C), quarter means (K, 4, C), counts, mid times, temperatures, groups."""
     rows = []
-    for s, gk in zip(slices, group):
+    stretch = []
+    for si, (s, gk) in enumerate(zip(slices, group)):
         ts = t_s[s]
         if len(ts) < 8:
             continue
@@ -73,11 +74,13 @@ def make_blocks(t_s: np.ndarray, x: np.ndarray, temp_c: Optional[np.ndarray], sl
         for a, b in zip(idx[:-1], idx[1:]):
             if b - a >= 8:
                 rows.append((s.start + a, s.start + b, gk))
+                stretch.append(si)
     if not rows:
         return {"n": np.zeros(0)}
     n = np.array([b - a for a, b, _ in rows])
     keep = n >= min_fill * np.median(n)
     rows = [r for r, k in zip(rows, keep) if k]
+    stretch = [r for r, k in zip(stretch, keep) if k]
     C = x.shape[1]
     K = len(rows)
     m = np.zeros((K, C))
@@ -95,7 +98,7 @@ def make_blocks(t_s: np.ndarray, x: np.ndarray, temp_c: Optional[np.ndarray], sl
         if temp_c is not None:
             tc[k] = float(np.mean(temp_c[a:b]))
     return {"mean": m, "parts": q, "nparts": nq, "n": np.array([b - a for a, b, _ in rows]),
-            "t": tm, "temp": tc, "group": np.array([g for _, _, g in rows])}
+            "t": tm, "temp": tc, "group": np.array([g for _, _, g in rows]), "stretch": np.array(stretch)}
 
 
 def block_noise_var(blk: Dict[str, np.ndarray]) -> Dict[str, object]:
@@ -120,6 +123,25 @@ def block_noise_var(blk: Dict[str, np.ndarray]) -> Dict[str, object]:
     var = av_T[None, :] * rel[:, None]
     return {"var": var, "adev_eighth": np.sqrt(hv[0]), "adev_quarter": np.sqrt(hv[1]),
             "adev_block": np.sqrt(av_T), "loglog_slope": slope}
+
+
+def between_block_var(blk: Dict[str, np.ndarray], min_diffs: int = 12) -> Optional[np.ndarray]:
+    """Variance of a block mean (C,) from the block means themselves: the Hadamard variance at
+    tau = the block length (second differences of consecutive blocks of one still stretch),
+    taken robustly (median of the squared differences / 0.455, the chi-square(1) median), so
+    that a warm-up's curvature in a few early blocks does not count as noise.  This sees the
+    colour at time scales beyond a block (flicker / bias instability with time constants of
+    minutes) that the sub-block estimate cannot; a trend (linear or the smooth part of a
+    warm-up) cancels in second differences.  None with fewer than ``min_diffs`` differences."""
+    m, st, n = blk["mean"], blk.get("stretch"), blk["n"]
+    if st is None or len(m) < 3:
+        return None
+    ok = (st[2:] == st[1:-1]) & (st[1:-1] == st[:-2])
+    if ok.sum() < min_diffs:
+        return None
+    d = (m[2:] - 2 * m[1:-1] + m[:-2])[ok]
+    # white noise of per-block variance v: Var(d) = 6 v (blocks of equal counts)
+    return np.median(d * d, axis=0) / 0.455 / 6.0
 
 
 def within_pose_inflation(x: np.ndarray, slices: Sequence[slice]) -> Dict[str, object]:

@@ -6,7 +6,7 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from .series import block_noise_var, make_blocks, orientation_groups, series_diagnose
+from .series import between_block_var, block_noise_var, make_blocks, orientation_groups, series_diagnose
 
 __all__ = ["diagnose_single", "MIN_BLOCKS"]
 
@@ -37,6 +37,13 @@ def diagnose_single(t_s: np.ndarray, slices: Sequence[slice], acc_means_g: np.nd
             continue
         ut = use_temp and np.ptp(blk["temp"]) >= 0.5
         noise = block_noise_var(blk)
+        # colour beyond a block's length (flicker with time constants of minutes), from the
+        # block means themselves; the larger of the two is the twin's block noise
+        vb = between_block_var(blk)
+        if vb is not None:
+            rel = np.median(blk["n"]) / blk["n"]
+            noise["var"] = np.maximum(noise["var"], vb[None, :] * rel[:, None])
+            noise["adev_block_between"] = np.sqrt(vb)
         unit = "g" if name == "accel" else "dps"
         r = series_diagnose(blk, noise, sims, rng, unit, ut)
         r["block_s"] = round(block_s, 1)

@@ -40,12 +40,14 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from ..calib.coverage import cube_coverage
+from ..calib.fit import accel_prior
 from ..calib.models import MagModel, Triangular9
 from ..calib.noise import colour_inflation
 from ..calib.optim import Problem, lm, sphere_fit
 from ..calib.poses import detect_static, poses_from_slices
 from ..errors import UserError
 from ..recording import Recording
+from ..specs import BOARDS
 from .candidates import ACCEL_CANDIDATES, GYRO_CANDIDATES, MAG_CANDIDATES, hat_columns
 from .gyrostill import trim_turns
 from .linear import gyro_diag
@@ -148,8 +150,12 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         kap = max(kap, wp["inflation"])
         colour = dict(colour or {}, within_pose=wp)
         pv = np.median(s2[keep]) / ps.n[keep] * kap
+        # the deployed fit: triangular9 with the datasheet prior (MAP), as `calibrate` fits it
+        chip = BOARDS.get(rec.meta.get("board", ""), (None,))[0]
         r = norm_diag(ps.acc[keep], sub(ctx_all, keep), pv, Triangular9(), ACCEL_CANDIDATES, sims, rng,
-                       skip, "g")
+                       skip, "g", prior=accel_prior(Triangular9(), chip))
+        r["baseline"] = ("triangular9, MAP with the datasheet prior "
+                         + (f"({chip})" if chip else "(generic chip)") + ", as calibrate fits it")
         if colour:
             r["noise_colour"] = colour
         r["not_detectable"] = ("a local |g| different from 1 g and a rotation of the sensor frame leave no "

@@ -2,7 +2,7 @@
 baseline weighted fit, twin, score tests of the candidates, refits, verdict."""
 from __future__ import annotations
 
-from typing import Dict, List, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -23,21 +23,33 @@ MIN_DOF = 10            #: residual degrees of freedom a candidate fit must leav
 
 def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, model: NormModel,
               cands: List[Candidate], sims: int, rng, names_skip: Dict[str, str],
-              unit: str, scale: float = 1.0) -> Dict[str, object]:
+              unit: str, scale: float = 1.0,
+              prior: Optional[Tuple[np.ndarray, np.ndarray]] = None) -> Dict[str, object]:
     """Diagnose pose means ``x`` (N, 3) against ``model`` with per-pose noise variance
-    ``pose_var`` (squared units of x); ``scale`` converts residuals to ``unit``."""
+    ``pose_var`` (squared units of x); ``scale`` converts residuals to ``unit``.
+
+    ``prior``: (mean, std) over the model's parameters, the Gaussian prior the deployed
+    calibration uses (calib.fit.accel_prior, MAP): the baseline is then the same MAP fit
+    (weights 1/variance, so the prior term is sum ((theta - mean) / std)^2), and the
+    leverages, the twin and the projection of each candidate's signature hold the prior
+    precision, so what the gap sees is what the deployed fit leaves."""
     N = len(x)
     p0 = model.k
     prob = Problem(model, x)
     th = lm(prob).theta
     var = residual_variance(model, th, x, pose_var)
     w = 1.0 / var
-    th = lm(Problem(model, x, weights=w), z0=prob.reduce(th)).theta
+    pm = ps = lam = None
+    if prior is not None:
+        pm, ps = (np.asarray(a, float) for a in prior)
+        lam = np.where(np.isfinite(ps), 1.0 / np.where(np.isfinite(ps), ps, 1.0) ** 2, 0.0)
+    th = lm(Problem(model, x, weights=w, prior_mean=pm, prior_std=ps, noise_var=1.0),
+            z0=prob.reduce(th)).theta
     r, J = model.jacobian(th, x)
     chi2 = float(np.sum(w * r * r))
     p_gap, lp_gap = p_and_log10(chi2, N - p0)
-    e = heldout(r, J, w)
-    tw = twin_rms(J, var, w, sims, rng)
+    e = heldout(r, J, w, lam)
+    tw = twin_rms(J, var, w, sims, rng, lam)
     twin = float(np.median(tw))
     ratio = float(np.sqrt(np.mean(e * e)) / twin)
     ratio_q99 = float(np.quantile(tw / twin, 0.99))
@@ -45,6 +57,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         "poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp_gap, 2),
         "chi2": chi2, "dof": N - p0, "heldout_rms": float(np.sqrt(np.mean(e * e))) * scale,
         "twin_heldout_rms": twin * scale, "twin_ratio_q99": ratio_q99, "unit": unit,
+        "baseline_params": {n: float(v) for n, v in zip(model.param_names, th)},
     }
     # a gap: the chi-square test rejects the noise model, and the held-out ratio lies
     # above what the twin produces in 99 % of its re-simulations
@@ -58,7 +71,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
             continue
         f = lambda eta, c=c: 1.0 - model.norms(th, x - c.delta(eta, x, th, ctx))
         _, C = numjac(f, np.zeros(c.q), eps=np.full(c.q, 1e-5))
-        Ct, Cw = proj_sig(J, C, w)
+        Ct, Cw = proj_sig(J, C, w, lam)
         stat, q_vis, vis = score(rw, Ct, Cw)
         p, lp = p_and_log10(stat, q_vis) if q_vis else (1.0, 0.0)
         tested.append({"cand": c, "Ct": Ct, "stat": stat, "q": q_vis, "p": p, "lp": lp, "vis": vis})
@@ -76,13 +89,17 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
             for c, q in zip(cs, qs):
                 xx = xx - c.delta(z[o:o + q], x, t, ctx)
                 o += q
-            return 1.0 - model.norms(t, xx)
-        z, ra, Ja = lm_weighted(fun, z0, w)
+            r_ = 1.0 - model.norms(t, xx)
+            # the baseline's prior as pseudo-observations (weight 1: std-normalised)
+            return r_ if lam is None else np.concatenate([r_, (z[:p0] - pm) * np.sqrt(lam)])
+        z, ra, Ja = lm_weighted(fun, z0, w if lam is None else np.concatenate([w, np.ones(p0)]))
+        ra, Ja = ra[:N], Ja[:N]
+        lam_a = None if lam is None else np.concatenate([lam, np.zeros(len(z) - p0)])
         chi2a = float(np.sum(w * ra * ra))
-        ea = heldout(ra, Ja, w)
-        twl = twin_rms(Ja, var, w, sims, rng)
+        ea = heldout(ra, Ja, w, lam_a)
+        twl = twin_rms(Ja, var, w, sims, rng, lam_a)
         twa = float(np.median(twl))
-        _, Ai = hat_diag(Ja, w)
+        _, Ai = hat_diag(Ja, w, lam_a)
         # standard errors scaled by the excess scatter that remains (chi2/dof above 1)
         red = max(1.0, chi2a / max(N - len(z), 1))
         sd = np.sqrt(np.clip(np.diag(Ai), 0, None) * red)

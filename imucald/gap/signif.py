@@ -12,13 +12,16 @@ from .stats import chi2_logsf, norm_sf2
 __all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p"]
 
 
-def proj_sig(J, C, w):
-    """Candidate columns whitened and projected off the baseline Jacobian."""
+def proj_sig(J, C, w, lam=None):
+    """Candidate columns whitened and projected off the baseline Jacobian (with a prior
+    of precision ``lam``, off what the MAP fit absorbs: C - J (J'WJ + diag(lam))^-1 J'W C)."""
     sw = np.sqrt(w)[:, None]
     Jw, Cw = J * sw, C * sw
-    Q, _ = np.linalg.qr(Jw)
-    Ct = Cw - Q @ (Q.T @ Cw)
-    return Ct, Cw
+    if lam is None or not np.any(lam):
+        Q, _ = np.linalg.qr(Jw)
+        return Cw - Q @ (Q.T @ Cw), Cw
+    A = Jw.T @ Jw + np.diag(np.asarray(lam, float))
+    return Cw - Jw @ np.linalg.pinv(A, rcond=1e-12, hermitian=True) @ (Jw.T @ Cw), Cw
 
 
 def score(rw, Ct, Cw):

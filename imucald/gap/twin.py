@@ -59,21 +59,29 @@ def lm_weighted(fun, z0, w, iters=60):
     return z, r, J
 
 
-def hat_diag(J, w):
+def _normal(J, w, lam=None):
+    """J' W J plus the prior precision ``lam`` (per column; the calibration's MAP prior)."""
     A = J.T @ (J * w[:, None])
-    Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+    if lam is not None:
+        A = A + np.diag(np.asarray(lam, float))
+    return A
+
+
+def hat_diag(J, w, lam=None):
+    """Leverages and the (posterior) covariance (J'WJ + diag(lam))^+ ."""
+    Ai = np.linalg.pinv(_normal(J, w, lam), rcond=1e-12, hermitian=True)
     return np.einsum("nk,kl,nl->n", J, Ai, J) * w, Ai
 
 
-def heldout(r, J, w):
-    h, _ = hat_diag(J, w)
+def heldout(r, J, w, lam=None):
+    h, _ = hat_diag(J, w, lam)
     return r / np.maximum(1 - h, 1e-3)
 
 
-def twin_rms(J, var, w, sims, rng):
-    """Held-out RMS under the noise model for this design: M linearised re-simulations."""
-    A = J.T @ (J * w[:, None])
-    Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+def twin_rms(J, var, w, sims, rng, lam=None):
+    """Held-out RMS under the noise model for this design: M linearised re-simulations
+    (with a prior of precision ``lam`` the fit is the MAP one, the prior mean held fixed)."""
+    Ai = np.linalg.pinv(_normal(J, w, lam), rcond=1e-12, hermitian=True)
     H = J @ Ai @ (J * w[:, None]).T
     h = np.diag(H)
     n = rng.normal(size=(sims, len(var))) * np.sqrt(var)

@@ -45,47 +45,61 @@ class SphereReservoir:
     """Magnetometer samples thinned over the sphere: at most ``per_cell`` in each of
     ``cells`` direction cells (about a running centre), so no region dominates.
     Newer samples replace older ones in a full cell.  Used by the daemon (fed as
-    samples arrive) and by the offline rotation calibration (fed a whole recording)."""
+    samples arrive), by the offline rotation calibration (fed a whole recording) and by
+    the gap diagnosis, which passes ``tags`` (e.g. sample indices) to find each kept
+    point's time, temperature and orientation (:meth:`tags`)."""
 
     def __init__(self, cells: int = 200, per_cell: int = 5):
         self.P = sphere_lattice(cells)
         self.per_cell = per_cell
         self.buf = np.full((cells, per_cell, 3), np.nan)
+        self.tag = np.full((cells, per_cell), -1, np.int64)
         self.count = np.zeros(cells, int)
         self.centre: Optional[np.ndarray] = None
         self.seen = 0
         self._pending: List[np.ndarray] = []
+        self._pending_tags: List[np.ndarray] = []
 
-    def add(self, m: np.ndarray) -> None:
+    def add(self, m: np.ndarray, tags: Optional[np.ndarray] = None) -> None:
         m = np.asarray(m, float).reshape(-1, 3)
-        m = m[np.all(np.isfinite(m), axis=1)]
+        tg = np.full(len(m), -1, np.int64) if tags is None else np.asarray(tags, np.int64).reshape(-1)
+        ok = np.all(np.isfinite(m), axis=1)
+        m, tg = m[ok], tg[ok]
         if not len(m):
             return
         self.seen += len(m)
         if self.centre is None:
             self._pending.append(m)
+            self._pending_tags.append(tg)
             pts = np.vstack(self._pending)
             if len(pts) < 50 or np.ptp(pts, axis=0).min() < 1e-3:
                 return
             self.centre, _ = sphere_fit(pts)
-            self._pending = []
+            tg = np.concatenate(self._pending_tags)
+            self._pending, self._pending_tags = [], []
             m = pts
             self._next_recentre = 2 * len(pts)
-        self._bin(m)
+        self._bin(m, tg)
         if self.seen >= self._next_recentre:      # 2x, 4x, 8x ... the first centre's samples
             self._next_recentre = 2 * self.seen
             self.recentre()
 
-    def _bin(self, m: np.ndarray) -> None:
+    def _bin(self, m: np.ndarray, tags: Optional[np.ndarray] = None) -> None:
         d = m - self.centre
         cell = np.argmax(d @ self.P.T, axis=1)
-        for c, x in zip(cell, m):
+        tags = np.full(len(m), -1, np.int64) if tags is None else tags
+        for c, x, tg in zip(cell, m, tags):
             k = self.count[c] % self.per_cell
             self.buf[c, k] = x
+            self.tag[c, k] = tg
             self.count[c] += 1
 
     def points(self) -> np.ndarray:
         return self.buf[~np.isnan(self.buf[..., 0])]
+
+    def tags(self) -> np.ndarray:
+        """The tag of each point of :meth:`points`, in the same order (-1: none given)."""
+        return self.tag[~np.isnan(self.buf[..., 0])]
 
     def coverage(self) -> float:
         """Fraction of direction cells the kept points reach about *their* sphere fit (the
@@ -99,12 +113,13 @@ class SphereReservoir:
 
     def recentre(self) -> None:
         """Refit the centre to the kept points and re-bin them about it."""
-        pts = self.points()
+        pts, tg = self.points(), self.tags()
         if len(pts) >= 20:
             self.centre, _ = sphere_fit(pts)
             self.buf[:] = np.nan
+            self.tag[:] = -1
             self.count[:] = 0
-            self._bin(pts)
+            self._bin(pts, tg)
 
 
 def sample_noise(m: np.ndarray) -> np.ndarray:

@@ -41,9 +41,9 @@ import numpy as np
 
 from ..calib.coverage import cube_coverage
 from ..calib.fit import accel_prior
-from ..calib.models import MagModel, Triangular9
+from ..calib.models import Triangular9
 from ..calib.noise import colour_inflation
-from ..calib.optim import Problem, lm, sphere_fit
+from ..calib.optim import Problem, lm
 from ..calib.poses import detect_static, poses_from_slices
 from ..errors import UserError
 from ..recording import Recording
@@ -51,6 +51,7 @@ from ..specs import BOARDS
 from .candidates import ACCEL_CANDIDATES, GYRO_CANDIDATES, MAG_CANDIDATES, hat_columns
 from .gyrostill import trim_turns
 from .linear import gyro_diag
+from .magpath import diagnosable, mag_model, mag_points
 from .norm import norm_diag
 from .saturation import saturated
 from .series import orientation_groups, within_pose_inflation
@@ -88,10 +89,29 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
              f"(the pose diagnosis needs {MIN_POSES} poses in {MIN_ORIENTATIONS}+ orientations)"]
     if why:
         notes.append(why)
-    if "mag" in sensors:
-        notes.append("mag: not diagnosed: the magnetometer needs rotation or a pose set")
+    if "mag" in sensors and rec.mag is not None:
+        use_temp = rec.temp is not None and np.all(np.isfinite(rec.temp)) and np.ptp(rec.temp) >= 0.5
+        skip = {} if use_temp else {"thermal_bias": "no temperature", "thermal_scale": "no temperature"}
+        m = _mag(rec, sl, None, None, [], None, skip, sims, rng)
+        if m.get("verdict") is None:
+            notes.append(f"mag: not diagnosed: {m['error']}")
+        else:
+            ok["mag"] = m
     return {"sensors": ok, "poses_found": N, "orientations": n_orient, "mode": "time_series",
             "poses_left_out": [], "notes": notes}
+
+
+def _mag(rec, sl, pose_mag, pose_var, pose_idx, acc_theta, skip, sims, rng) -> Dict[str, object]:
+    """The magnetometer against the deployed hard + soft iron model (gap/magpath.py)."""
+    x, var, ctx, info = mag_points(rec, sl, pose_mag, pose_var, pose_idx, acc_theta, not skip)
+    why = diagnosable(x, var)
+    if why:
+        return {"verdict": None, "error": why, **info}
+    r = norm_diag(x, ctx, var, mag_model(), MAG_CANDIDATES, sims, rng, skip, "gauss", scale=info["field_gauss"])
+    r["points"] = info
+    r["baseline"] = ("the deployed hard + soft iron model (mag_sym, as the daemon and calibrate fit it) on "
+                     "the still poses' means and the rotation thinned over the sphere")
+    return r
 
 
 def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int = 200,
@@ -199,15 +219,12 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
     if "mag" in sensors:
         mv = np.einsum("nii->n", ps.mag_cov) / 3 if ps.mag_cov is not None else None
         mvar = np.median(mv[keep] * ps.n[keep]) / ps.n[keep]
-        mvar = np.maximum(mvar, (1 / 1090) ** 2 / 12 / ps.n[keep])     # quantisation floor
-        x = ps.mag[keep]
-        _, rad = sphere_fit(x)
-        model = MagModel("sym")                     # the deployed hard + soft iron model
-        ctx_m = sub(ctx_all, keep)
         t9 = Triangular9()
-        ctx_m["acc_dir"] = t9.forward(lm(Problem(t9, ps.acc[keep])).theta, ps.acc[keep])
-        r = norm_diag(x, ctx_m, mvar, model, MAG_CANDIDATES, sims, rng, skip, "gauss", scale=rad)
-        r["note"] = "still-pose means; the baseline is the deployed hard + soft iron model"
-        result["sensors"]["mag"] = r
+        th_a = lm(Problem(t9, ps.acc[keep])).theta
+        m = _mag(rec, sl, ps.mag[keep], mvar, np.flatnonzero(keep), th_a, skip, sims, rng)
+        if m.get("verdict") is None:
+            notes.append(f"mag: not diagnosed: {m['error']}")
+        else:
+            result["sensors"]["mag"] = m
     result["notes"] = notes
     return result

@@ -55,6 +55,7 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
            "twin_ratio_q99": ratio_q99}
     significant = p_gap < ALPHA and ratio > ratio_q99
     effects = []
+    e_after = {}
     bonf = ALPHA / max(len(GYRO_CANDIDATES), 1)
     tested = []
     for c in GYRO_CANDIDATES:
@@ -75,6 +76,7 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
             beta, r1, Ai = wls(X)
             chi2a = float(np.sum(w * r1 * r1))
             e1 = heldout(r1, -X, w)
+            e_after[c.name] = e1
             pn, _ = p_and_log10(max(chi2 - chi2a, 0.0), c.q)
             twl = twin_rms(-X, var, w, sims, rng)
             twa = float(np.median(twl))
@@ -94,4 +96,10 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
                        "isotropic g-sensitivity of the same size")
     rz = (r0 * np.sqrt(w)).reshape(N, 3)
     out["where"] = linear_where(rz, ctx)
+    # for --report: one point per pose and axis (stacked x, y, z per pose)
+    rep = lambda v: None if v is None else np.repeat(np.asarray(v), 3, axis=0)
+    out["_plot"] = {"e": e0, "var": var, "t": rep(ctx["t"]), "temp": rep(ctx.get("temp")),
+                    "u": rep(ctx["acc_dir"]), "axis": np.tile(np.arange(3), N),
+                    "e_after": e_after.get(chosen[0]) if chosen else None,
+                    "after_label": "+".join(chosen) if chosen else None}
     return out

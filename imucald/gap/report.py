@@ -1,6 +1,8 @@
-"""Plots for `imucald gap --report DIR` (matplotlib, the optional 'plots' extra):
-normalised residuals against temperature, time and orientation, before and after
-the chosen effects are modelled."""
+"""Plots for `imucald gap --report DIR` (matplotlib, the optional 'plots' extra): for
+every sensor diagnosed (accelerometer, gyro, magnetometer; pose path and time-series
+path), the held-out residuals over their noise standard deviation against temperature,
+time and orientation (the axis pointing up), before and after the chosen effects are
+modelled.  One PNG per sensor, ``<sensor>_residuals.png``."""
 from __future__ import annotations
 
 import os
@@ -12,6 +14,8 @@ from ..errors import UserError
 
 __all__ = ["write_report"]
 
+_REGIONS = ["+X", "-X", "+Y", "-Y", "+Z", "-Z"]
+
 
 def write_report(res: Dict[str, object], outdir: str) -> list:
     try:
@@ -20,33 +24,48 @@ def write_report(res: Dict[str, object], outdir: str) -> list:
         import matplotlib.pyplot as plt
     except ImportError:
         raise UserError("--report needs matplotlib: pip install 'imucald[plots]'") from None
-    os.makedirs(outdir, exist_ok=True)
+    try:
+        os.makedirs(outdir, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"--report {outdir}: cannot create the directory ({e.strerror}): "
+                        "give a writable path") from None
     written = []
     for sensor, r in res["sensors"].items():
         p = r.get("_plot")
         if p is None:
             continue
-        sd = np.sqrt(np.asarray(p["var"]))
-        series = [("baseline", np.asarray(p["e"]) / sd, "o", "0.6")]
+        sd = np.sqrt(np.asarray(p["var"], float))
+        series = [("baseline", np.asarray(p["e"]) / sd, "0.6")]
         if p.get("e_after") is not None:
-            series.append((f"with {p['after_label']}", np.asarray(p["e_after"]) / sd, "o", "C0"))
+            series.append((f"with {p['after_label']}", np.asarray(p["e_after"]) / sd, "C0"))
         fig, ax = plt.subplots(1, 3, figsize=(13, 4))
-        u = np.asarray(p["u"])
-        j = np.argmax(np.abs(u), axis=1)
-        region = j * 2 + (np.take_along_axis(u, j[:, None], 1)[:, 0] < 0)
-        for label, z, m, c in series:
+        u = p.get("u")
+        region = None
+        if u is not None:
+            u = np.asarray(u, float)
+            j = np.argmax(np.abs(u), axis=1)
+            region = j * 2 + (np.take_along_axis(u, j[:, None], 1)[:, 0] < 0)
+        jitter = (np.asarray(p["axis"]) - 1) * 0.15 if p.get("axis") is not None else 0.0
+        for label, z, c in series:
             if p.get("temp") is not None:
-                ax[0].plot(p["temp"], z, m, color=c, label=label)
-            ax[1].plot(p["t"], z, m, color=c, label=label)
-            ax[2].plot(region, z, m, color=c, label=label)
+                ax[0].plot(p["temp"], z, "o", ms=3, color=c, label=label)
+            ax[1].plot(p["t"], z, "o", ms=3, color=c, label=label)
+            if region is not None:
+                ax[2].plot(region + jitter, z, "o", ms=3, color=c, label=label)
         if p.get("temp") is not None:
             ax[0].set_xlabel("temperature, degC")
         else:
-            ax[0].text(0.5, 0.5, "no temperature column", ha="center", transform=ax[0].transAxes)
+            ax[0].text(0.5, 0.5, "no temperature (or too flat)", ha="center", transform=ax[0].transAxes)
         ax[1].set_xlabel("time, s")
         ax[1].legend(fontsize=8)
-        ax[2].set_xticks(range(6), ["+X", "-X", "+Y", "-Y", "+Z", "-Z"])
-        ax[2].set_xlabel("axis up")
+        if region is not None:
+            ax[2].set_xticks(range(6))
+            ax[2].set_xticklabels(_REGIONS)
+            ax[2].set_xlabel("axis up" + (" (x, y, z residuals side by side)" if p.get("axis") is not None
+                                          else ""))
+        else:
+            ax[2].text(0.5, 0.5, "one orientation (time-series diagnosis)", ha="center",
+                       transform=ax[2].transAxes)
         for a in ax:
             a.axhline(0, color="k", lw=0.5)
             a.set_ylabel("held-out residual / noise sd")

@@ -340,6 +340,11 @@ def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: 
     out["closed"] = bool(steps[-1][0]["closed"]) if steps else None
     out["confusable"] = _confusable(blk, chosen, effects, use_temp)
     out.update(verdict(gap, chosen, ratio0, float(ratio_cur), out["closed"]))
+    # for --report: one point per block and axis
+    out["_plot"] = {"e": E0.ravel(), "var": V.ravel(), "t": np.repeat(t - t.min(), C),
+                    "temp": np.repeat(blk["temp"], C) if use_temp else None, "u": None,
+                    "axis": np.tile(np.arange(C), K), "e_after": E_cur.ravel() if chosen else None,
+                    "after_label": "+".join(chosen) if chosen else None}
     rz = (R0 / np.sqrt(V))
     tot = float(np.sum(np.maximum(rz ** 2 - 1, 0))) or 1.0
     out["where"] = {"axis_share": {axis_names[c]: round(float(np.sum(np.maximum(rz[:, c] ** 2 - 1, 0))) / tot, 3)

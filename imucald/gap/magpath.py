@@ -1,0 +1,103 @@
+"""The magnetometer's gap diagnosis against the deployed model, from rotation as well as
+still poses.
+
+The daemon and ``calibrate --sensor mag`` fit hard + soft iron (``mag_sym``, no prior)
+to a rotation cloud thinned over the sphere (:class:`imucald.calib.magcal.SphereReservoir`,
+per-sample noise from second differences).  The gap takes the same points: every
+magnetometer reading outside the still poses (each held reading once), thinned by the
+same reservoir, plus the still poses' means (precise points), each with its own noise
+variance.  Every kept point carries its time, temperature and orientation (the
+calibrated accelerometer's specific force at that sample; during a turn it also holds
+the motion's acceleration, a noisier regressor but not a biased one for the norm), so
+the candidates (thermal hard iron, thermal gain, drift, orientation interference) are
+tested on all of them.
+"""
+from __future__ import annotations
+
+from typing import Dict, Optional, Sequence, Tuple
+
+import numpy as np
+
+from ..calib.magcal import SphereReservoir, flat_axis, sample_noise
+from ..calib.models import MagModel, Triangular9
+from ..calib.optim import sphere_fit
+from .candidates import hat_columns
+
+__all__ = ["mag_points", "MIN_MAG_POINTS"]
+
+MIN_MAG_POINTS = 30
+LSB_GAUSS = 1 / 1090            #: HMC5883L at its default gain (datasheet p.13): the quantisation floor
+
+
+def mag_points(rec, slices: Sequence[slice], pose_mag: Optional[np.ndarray], pose_var: Optional[np.ndarray],
+               pose_idx: Sequence[int], acc_theta: Optional[np.ndarray], use_temp: bool
+               ) -> Tuple[np.ndarray, np.ndarray, Dict[str, np.ndarray], Dict[str, object]]:
+    """Points (M, 3) gauss, their isotropic noise variances (M,), the candidates' context and
+    a summary.  ``pose_idx``: the still slices kept (their means ``pose_mag`` with variances
+    ``pose_var``); ``acc_theta``: a triangular9 accelerometer calibration for the orientation
+    regressor (None: raw accelerometer directions)."""
+    n = len(rec.t)
+    still = np.zeros(n, bool)
+    for s in slices:
+        still[s] = True
+    m = rec.mag
+    fresh = np.r_[True, np.any(np.diff(m, axis=0) != 0, axis=1)] & np.all(np.isfinite(m), axis=1)
+    # per-sample noise: second differences inside the still poses (plain mean of squares:
+    # the robust MAD of the calibration's sample_noise is lumpy on quantised readings and
+    # overstates the noise by ~10 % there); no still stretch: the calibration's estimate
+    d2 = [np.diff(m[s][fresh[s]], 2, axis=0) for s in slices if fresh[s].sum() > 10]
+    d2 = np.vstack(d2) if d2 else np.zeros((0, 3))
+    sigma = np.sqrt(np.mean(d2 ** 2, axis=0) / 6.0) if len(d2) >= 100 else sample_noise(m[fresh])
+    moving = np.flatnonzero(fresh & ~still)
+    res = SphereReservoir()
+    res.add(m[moving], tags=moving)
+    rp, ri = res.points(), res.tags()
+    floor = LSB_GAUSS ** 2 / 12
+    var_r = np.full(len(rp), max(float(np.mean(sigma ** 2)), floor)) if len(rp) else np.zeros(0)
+    t9 = Triangular9()
+
+    def acc_dir(a):
+        return t9.forward(acc_theta, a) if acc_theta is not None else a / np.linalg.norm(a, axis=1, keepdims=True)
+    parts_x, parts_v, parts_t, parts_T, parts_a = [], [], [], [], []
+    if pose_mag is not None and len(pose_idx):
+        ps_sl = [slices[i] for i in pose_idx]
+        parts_x.append(pose_mag)
+        parts_v.append(np.maximum(pose_var, floor / np.array([s.stop - s.start for s in ps_sl])))
+        parts_t.append(np.array([0.5 * (rec.t[s.start] + rec.t[s.stop - 1]) for s in ps_sl]))
+        parts_T.append(np.array([np.mean(rec.temp[s]) for s in ps_sl]) if use_temp else None)
+        parts_a.append(acc_dir(np.array([rec.acc[s].mean(0) for s in ps_sl])))
+    if len(rp):
+        parts_x.append(rp)
+        parts_v.append(var_r)
+        parts_t.append(rec.t[ri])
+        parts_T.append(rec.temp[ri] if use_temp else None)
+        parts_a.append(acc_dir(rec.acc[ri]))
+    x = np.vstack(parts_x)
+    var = np.concatenate(parts_v)
+    t = np.concatenate(parts_t)
+    ctx: Dict[str, np.ndarray] = {"t": t - t.min(), "dt": t - t.mean(), **hat_columns(t),
+                                  "acc_dir": np.vstack(parts_a)}
+    if use_temp:
+        T = np.concatenate(parts_T)
+        ctx["temp"], ctx["dT"] = T, T - T.mean()
+    _, rad = sphere_fit(x)
+    info = {"still_pose_means": int(len(pose_idx)) if pose_mag is not None else 0,
+            "rotation_points": int(len(rp)), "rotation_samples": int(len(moving)),
+            "sample_noise_gauss": np.round(sigma, 6).tolist(),
+            "rotation_flat": flat_axis(rp, sigma) is not None if len(rp) > 10 else None,
+            "field_gauss": float(rad)}
+    return x, var, ctx, info
+
+
+def diagnosable(x: np.ndarray, var: np.ndarray) -> Optional[str]:
+    """Why the points cannot determine hard + soft iron (None when they can)."""
+    if len(x) < MIN_MAG_POINTS:
+        return f"{len(x)} magnetometer points (still poses and thinned rotation); {MIN_MAG_POINTS} needed"
+    if flat_axis(x, np.full(3, np.sqrt(np.median(var)))) is not None:
+        return "the magnetometer points lie in one plane: turn the sensor through every orientation"
+    return None
+
+
+def mag_model() -> MagModel:
+    """The deployed magnetometer model (daemon and calibrate): hard + soft iron, no prior."""
+    return MagModel("sym")

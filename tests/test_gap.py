@@ -130,3 +130,35 @@ def test_report_plots_gyro_and_magnetometer_too(plain_9dof, tmp_path):
         assert f.exists()
         with Image.open(f) as im:                 # a real figure: three panels' worth of pixels
             assert im.size[0] > 800 and len(np.unique(np.asarray(im.convert("L")))) > 20
+
+
+def test_accel_baseline_is_calibrates_map_fit_with_the_datasheet_prior():
+    """14 poses on a cap around +z: the z bias and z scale trade off, so the datasheet prior
+    moves the fit.  The gap's baseline must be calibrate's MAP fit (the deployed model), not
+    the prior-free one.  They differ only in the per-pose weights (the gap uses the median
+    pose variance), a small fraction of a standard error."""
+    from imucald.calib.fit import fit_norm
+    from imucald.calib.poses import detect_static, poses_from_slices
+    from imucald.gap.diagnose import diagnose
+    from imucald.sim.effects import effect_session
+    from imucald.sim.poses import rotation_from_up
+    g = np.random.default_rng(4)
+    ups = []
+    while len(ups) < 14:
+        u = g.normal(size=3)
+        u /= np.linalg.norm(u)
+        if u[2] > np.cos(np.radians(50)) and all(np.dot(u, v) < np.cos(np.radians(12)) for v in ups):
+            ups.append(u)
+    R = np.array([rotation_from_up(u, g.uniform(0, 2 * np.pi)) for u in ups])
+    rec = effect_session("mpu6050", R, g, [], rate_hz=50.0, hold_s=(6.0, 8.0))[0].recording
+    a = diagnose(rec, ["accel"], sims=50)["sensors"]["accel"]
+    assert "datasheet prior (mpu6050)" in a["baseline"]
+    gap = np.array(list(a["baseline_params"].values()))
+    ps = poses_from_slices(rec, detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz))
+    cal = fit_norm(ps.acc, "triangular9", "lm", pose_cov=ps.acc_cov, chip="mpu6050")
+    free = fit_norm(ps.acc, "triangular9", "lm", pose_cov=ps.acc_cov, chip="mpu6050", prior=False)
+    se = np.concatenate([cal.stderr[k] for k in ("alpha", "scale", "bias_g")])
+    d_gap = (gap - cal.theta) / se
+    d_free = (free.theta - cal.theta) / se
+    assert np.all(np.abs(d_gap) < 0.1), d_gap
+    assert np.sum(d_gap ** 2) < 0.25 * np.sum(d_free ** 2), (d_gap, d_free)

@@ -54,6 +54,11 @@ ACCEL_CANDIDATES = [
 ]
 
 
+#: traceless 3x3 matrices (row-major), 8 basis vectors: the isotropic part of a
+#: g-sensitivity G reads k u, the same as Earth's vertical rate, which the baseline holds
+TRACELESS = np.linalg.svd(np.eye(9) - np.outer(np.eye(3).ravel(), np.eye(3).ravel()) / 3)[0][:, :8]
+
+
 def hat_columns(t_s: np.ndarray) -> dict:
     """ctx entries ``hat2``..``hat4``: hat functions of time at knots 1..m of m + 1."""
     sc = (t_s - t_s.min()) / max(float(np.ptp(t_s)), 1e-9)
@@ -69,9 +74,13 @@ MAG_CANDIDATES = [
     Candidate("thermal_scale", 3, lambda e, x, th, c: (x - th[-3:]) * np.outer(c["dT"], _vec(e)),
               units="1/degC"),
     Candidate("bias_drift", 3, lambda e, x, th, c: np.outer(c["dt"], _vec(e)), units="gauss/s"),
-    Candidate("orientation_interference", 9,
-              lambda e, x, th, c: c["acc_dir"] @ np.asarray(e, float).reshape(3, 3).T,
-              units="gauss/g (row-major D: offset D f with f the specific force)"),
+    # traceless: an offset c f (D = c I) only moves the sphere's centre in the world frame
+    # (|R'(h + c g)| is the same for every orientation R), so it leaves no trace; a fit
+    # would slide along it to soak up anything (e.g. a magnetometer that lags the turns)
+    Candidate("orientation_interference", 8,
+              lambda e, x, th, c: c["acc_dir"] @ (TRACELESS @ np.asarray(e, float)).reshape(3, 3).T,
+              units="gauss/g (8 coefficients of a traceless D on the TRACELESS basis: offset D f "
+                    "with f the specific force; D = c I is not identifiable)"),
 ]
 
 
@@ -83,9 +92,6 @@ def kron_cols(v):                      # (N,) -> (3N, 3): v_i * I3
     return X
 
 
-#: traceless 3x3 matrices (row-major), 8 basis vectors: the isotropic part of a
-#: g-sensitivity G reads k u, the same as Earth's vertical rate, which the baseline holds
-TRACELESS = np.linalg.svd(np.eye(9) - np.outer(np.eye(3).ravel(), np.eye(3).ravel()) / 3)[0][:, :8]
 
 
 def _gsens_cols(c):

@@ -162,3 +162,15 @@ def test_accel_baseline_is_calibrates_map_fit_with_the_datasheet_prior():
     d_free = (free.theta - cal.theta) / se
     assert np.all(np.abs(d_gap) < 0.1), d_gap
     assert np.sum(d_gap ** 2) < 0.25 * np.sum(d_free ** 2), (d_gap, d_free)
+
+
+def test_a_pose_is_cut_where_the_recording_jumps_in_time_and_orientation():
+    from imucald.gap.gyrostill import split_at_time_gaps
+    rng = np.random.default_rng(0)
+    t = np.r_[np.arange(1000) / 100.0, 15.0 + np.arange(1000) / 100.0]      # 5 s with no samples
+    acc = np.r_[np.tile([0, 0, 1.0], (1000, 1)), np.tile([0, 0.05, 1.0], (1000, 1))]
+    acc = acc + rng.normal(0, 2e-3, acc.shape)
+    assert split_at_time_gaps(t, acc, [slice(0, 2000)], 100.0) == [slice(0, 1000), slice(1000, 2000)]
+    # a logger's pause with the board unmoved stays one pose
+    acc[1000:] = acc[1000:] - [0, 0.05, 0]
+    assert split_at_time_gaps(t, acc, [slice(0, 2000)], 100.0) == [slice(0, 2000)]

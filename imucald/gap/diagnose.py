@@ -49,7 +49,7 @@ from ..errors import UserError
 from ..recording import Recording
 from ..specs import BOARDS
 from .candidates import ACCEL_CANDIDATES, GYRO_CANDIDATES, MAG_CANDIDATES, hat_columns
-from .gyrostill import trim_turns
+from .gyrostill import split_at_time_gaps, trim_turns
 from .linear import gyro_diag
 from .magpath import diagnosable, mag_model, mag_points
 from .norm import norm_diag
@@ -126,7 +126,7 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         if s not in avail:
             raise GapError(f"{name}: --sensor {s}: the recording has no {s} columns")
     rate = rec.rate_hz
-    sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rate)
+    sl = split_at_time_gaps(rec.t, rec.acc, detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rate), rate)
     ps = poses_from_slices(rec, sl)
     N = len(ps)
     notes: List[str] = []

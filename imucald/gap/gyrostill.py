@@ -24,7 +24,7 @@ from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ["trim_turns"]
+__all__ = ["trim_turns", "split_at_time_gaps"]
 
 
 def trim_turns(gyro_dps: np.ndarray, slices: Sequence[slice], rate_hz: float, k: float = 5.0,
@@ -61,3 +61,30 @@ def trim_turns(gyro_dps: np.ndarray, slices: Sequence[slice], rate_hz: float, k:
         out.append(slice(s.start + a, s.start + b))
         cut.append((n - (b - a)) / rate_hz)
     return out, {"trimmed_s": np.round(cut, 2).tolist()}
+
+
+def split_at_time_gaps(t_s: np.ndarray, acc: np.ndarray, slices: Sequence[slice], rate_hz: float,
+                       max_gap_s: float = 0.5, k: float = 6.0) -> List[slice]:
+    """Cut still slices where the time stamps jump by more than ``max_gap_s`` (and 10 sample
+    periods) and the accelerometer's mean over the half second before differs from the
+    half second after by more than ``k`` standard errors on some axis: the board moved
+    while nothing was recorded (recordings appended, samples lost during a turn).  The
+    stillness detector's windows on either side of such a jump are each quiet, so it keeps
+    one pose across it.  A logger's pauses with the board unmoved (bursty sampling) stay
+    inside the pose."""
+    lim = max(max_gap_s, 10.0 / rate_hz)
+    m = max(5, int(round(0.5 * rate_hz)))
+    out: List[slice] = []
+    for s in slices:
+        gaps = np.flatnonzero(np.diff(t_s[s]) > lim) + 1 + s.start
+        cuts = []
+        for g in gaps:
+            a, b = acc[max(s.start, g - m):g], acc[g:min(s.stop, g + m)]
+            if len(a) < 3 or len(b) < 3:
+                continue
+            se = np.sqrt(a.var(0, ddof=1) / len(a) + b.var(0, ddof=1) / len(b)) + 1e-12
+            if np.any(np.abs(a.mean(0) - b.mean(0)) > k * se):
+                cuts.append(int(g - s.start))
+        edges = [0, *cuts, s.stop - s.start]
+        out += [slice(s.start + x, s.start + y) for x, y in zip(edges[:-1], edges[1:]) if y > x]
+    return out

@@ -49,14 +49,18 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     chi2 = float(np.sum(w * r * r))
     p_gap, lp_gap = p_and_log10(chi2, N - p0)
     e = heldout(r, J, w, lam)
-    tw = twin_rms(J, var, w, sims, rng, lam)
+    # the ratio compares noise-normalised held-out residuals (the points' noise differs:
+    # pose means against single rotation samples of the magnetometer)
+    nrms = lambda ee: float(np.sqrt(np.mean(ee * ee * w)))
+    tw = twin_rms(J, var, w, sims, rng, lam, normalised=True)
     twin = float(np.median(tw))
-    ratio = float(np.sqrt(np.mean(e * e)) / twin)
+    ratio = nrms(e) / twin
+    twin_raw = float(np.median(twin_rms(J, var, w, max(sims // 4, 20), rng, lam)))
     ratio_q99 = float(np.quantile(tw / twin, 0.99))
     out: Dict[str, object] = {
         "poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp_gap, 2),
         "chi2": chi2, "dof": N - p0, "heldout_rms": float(np.sqrt(np.mean(e * e))) * scale,
-        "twin_heldout_rms": twin * scale, "twin_ratio_q99": ratio_q99, "unit": unit,
+        "twin_heldout_rms": twin_raw * scale, "twin_ratio_q99": ratio_q99, "unit": unit,
         "baseline_params": {n: float(v) for n, v in zip(model.param_names, th)},
     }
     # a gap: the chi-square test rejects the noise model, and the held-out ratio lies
@@ -97,7 +101,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         lam_a = None if lam is None else np.concatenate([lam, np.zeros(len(z) - p0)])
         chi2a = float(np.sum(w * ra * ra))
         ea = heldout(ra, Ja, w, lam_a)
-        twl = twin_rms(Ja, var, w, sims, rng, lam_a)
+        twl = twin_rms(Ja, var, w, sims, rng, lam_a, normalised=True)
         twa = float(np.median(twl))
         _, Ai = hat_diag(Ja, w, lam_a)
         # standard errors scaled by the excess scatter that remains (chi2/dof above 1)
@@ -126,12 +130,12 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         z, chi2a, ea, twa, sd, q99 = refit([c])
         dchi = chi2 - chi2a
         pn, lpn = p_and_log10(max(dchi, 0.0), c.q)
-        ra_after = float(np.sqrt(np.mean(ea * ea)) / twa)      # against the augmented model's twin
+        ra_after = nrms(ea) / twa      # against the augmented model's twin
         key = c.name + (f"_{c.units}" if c.units else "")
         entry.update({"ratio_after": ra_after, "nested_p_value": pn, "chi2_after": chi2a, "q": c.q,
                       "closed": bool(ra_after <= q99),
                       "significant": bool(significant and d["p"] < bonf and pn < bonf
-                                          and np.mean(ea * ea) < np.mean(e * e)),
+                                          and nrms(ea) < nrms(e)),
                       "params": {key: z[p0:].tolist()}, "stderr": {key: sd[p0:].tolist()}})
         if c.name in fits:                         # a second variant of the same class
             if fits[c.name][2] <= ra_after:
@@ -157,9 +161,9 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
             if p0 + q_best + other.q > N - MIN_DOF:
                 continue
             z, chi2a, ea, twa, sd, q99 = refit([cand_of[first], other])
-            rr = float(np.sqrt(np.mean(ea * ea)) / twa)
+            rr = nrms(ea) / twa
             pn, _ = p_and_log10(max(chi2_best - chi2a, 0.0), other.q)
-            if pn < bonf and np.mean(ea * ea) < np.mean(e_best * e_best) and \
+            if pn < bonf and nrms(ea) < nrms(e_best) and \
                     (best_pair is None or rr < best_pair[1]):
                 best_pair = (other.name, rr, z, sd, pn, rr <= q99)
         if best_pair is None:

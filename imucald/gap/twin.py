@@ -78,15 +78,18 @@ def heldout(r, J, w, lam=None):
     return r / np.maximum(1 - h, 1e-3)
 
 
-def twin_rms(J, var, w, sims, rng, lam=None):
+def twin_rms(J, var, w, sims, rng, lam=None, normalised=False):
     """Held-out RMS under the noise model for this design: M linearised re-simulations
-    (with a prior of precision ``lam`` the fit is the MAP one, the prior mean held fixed)."""
+    (with a prior of precision ``lam`` the fit is the MAP one, the prior mean held fixed).
+    ``normalised``: the RMS of held-out residual / noise sd (points of unequal noise)."""
     Ai = np.linalg.pinv(_normal(J, w, lam), rcond=1e-12, hermitian=True)
     H = J @ Ai @ (J * w[:, None]).T
     h = np.diag(H)
     n = rng.normal(size=(sims, len(var))) * np.sqrt(var)
     r = n - n @ H.T
     e = r / np.maximum(1 - h, 1e-3)
+    if normalised:
+        return np.sqrt(np.mean(e * e / var, axis=1))
     return np.sqrt(np.mean(e * e, axis=1))
 
 

@@ -67,3 +67,22 @@ def test_xsens_accel_wanders_and_gyro_has_g_sensitivity():
     assert a["verdict"] == "wandering_bias" and a["shrink"] > 0.5
     # the gyro's pose means depend on orientation beyond Earth's rate: g-sensitivity
     assert g["verdict"] == "g_sensitivity" and g["shrink"] > 0.9
+
+
+def test_sunsided_ten_minutes_unmoved_accel_drifts_gyro_none_mag_not_diagnosable():
+    real_path("sunsided_mpu6050_hmc5883l", "unmoved-with-x-pointing-forward-10min")
+    from real_gap import sunsided
+    from imucald.gap.diagnose import diagnose
+    res = diagnose(sunsided("unmoved-with-x-pointing-forward-10min"), sims=100)
+    assert res["mode"] == "time_series" and res["orientations"] == 1
+    a, g = res["sensors"]["accel"], res["sensors"]["gyro"]
+    # 0.22 degC of temperature: thermal effects untested; the accelerometer's y bias moves
+    # by a straight line over the 10 minutes (about -0.56 mg), which closes the gap
+    assert a["verdict"] == "bias_drift" and a["explained"] == "closed"
+    c, se = _coef(a, "bias_drift")
+    assert c[1] / se[1] < -4                         # y: clear of its standard error
+    assert abs(c[0]) / se[0] < 3                     # x: within its noise
+    # the gyro's block means scatter as its twin says (Allan colour included)
+    assert g["verdict"] == "none"
+    # the board never turned: the magnetometer cannot be fitted, and the output says why
+    assert "mag" not in res["sensors"] and any("mag: not diagnosed" in n for n in res["notes"])

@@ -65,8 +65,8 @@ def main():
             false_alarm[0] += v != "none"
             false_alarm[1] += 1
         for key, tv in lab["truth"].items():
-            sens = "gyro" if key.startswith("gyro_") else "accel"
-            k2 = key.replace("gyro_", "")
+            sens = "gyro" if key.startswith("gyro_") else "mag" if key.startswith("mag_") else "accel"
+            k2 = key.replace("gyro_", "").replace("mag_", "", 1)
             if res and sens in res["sensors"]:
                 got = coefficient(res["sensors"][sens], k2)
                 if got is not None:

@@ -13,7 +13,8 @@ other parametrisations:
 * motion: uniformly random orientations (quaternions), raised-cosine turns, optional
   hand tremor (a few-hundredths-of-a-degree wobble at 6-10 Hz) and short holds;
 * Earth's rotation in the gyro (latitude 48 deg), a tilted Earth field for the
-  magnetometer with ordinary soft iron (a few per cent) and hard iron.
+  magnetometer with ordinary soft iron (a few per cent) and hard iron, and (class
+  mag_thermal) a hard iron moving with the absolute temperature.
 
 Every case returns (Recording, label) with label = {"class", "sensor", "expect"}:
 ``expect`` is the set of verdicts that count as a hit (confusable classes merged as in
@@ -141,7 +142,7 @@ def _random_walk(rng, n, rate_hz, end_sigma):
 def make_case(kind: str, seed: int, rate_hz: float = 50.0) -> Tuple[Recording, Dict[str, object]]:
     """One blind recording.  kinds: null, null_flicker, thermal_bias, thermal_scale, quadratic,
     random_walk, cubic, triple_product, hysteresis, tremor_null, short_holds_null, mag_null,
-    single_warmup_null, single_warmup_thermal."""
+    single_warmup_null, single_warmup_thermal, mag_thermal."""
     rng = np.random.default_rng(seed)
     single = kind.startswith("single")
     tremor = kind == "tremor_null"
@@ -215,14 +216,21 @@ def make_case(kind: str, seed: int, rate_hz: float = 50.0) -> Tuple[Recording, D
         label.update(expect={"thermal_bias"}, truth={"thermal_bias_g/degC": p1.tolist(),
                                                      "gyro_thermal_bias_dps/degC": c1.tolist()})
     mag = None
-    if kind == "mag_null":
+    if kind in ("mag_null", "mag_thermal"):
         h_world = np.array([0.21, 0.0, -0.43])                 # gauss, dip ~64 deg
         W = np.eye(3) + (lambda E: (E + E.T) / 2)(rng.normal(0, 0.02, (3, 3)))
         W = W @ np.diag(1 + rng.normal(0, 0.03, 3))
-        hard = rng.normal(0, 0.15, 3)
+        hard = rng.normal(0, 0.15, 3) + np.zeros((n, 3))
+        label.update(sensor="mag")
+        if kind == "mag_thermal":
+            # hard iron that moves with the absolute temperature (a board's own magnetised
+            # parts and traces), 0.3-0.8 mG/K per axis
+            m1 = rng.choice([-1, 1], 3) * rng.uniform(0.3e-3, 0.8e-3, 3)
+            hard = hard + dTK[:, None] * m1
+            label.update(expect={"thermal_bias", "bias_drift"} if tk == "warmup" else {"thermal_bias"},
+                         truth={"mag_thermal_bias_gauss/degC": m1.tolist()})
         mag = np.einsum("nji,j->ni", R, h_world) @ W.T + hard + rng.normal(0, 2e-3, (n, 3))
         mag = np.round(mag * 1090) / 1090
-        label.update(sensor="mag")
     acc = np.round(acc * 16384) / 16384
     gyro = np.round(gyro * 131) / 131
     temp_c = np.round((TK - 273.15) * 340) / 340
@@ -233,7 +241,7 @@ def make_case(kind: str, seed: int, rate_hz: float = 50.0) -> Tuple[Recording, D
 
 CLASSES = ["null", "null_flicker", "thermal_bias", "thermal_scale", "quadratic", "random_walk", "cubic",
            "triple_product", "hysteresis", "tremor_null", "short_holds_null", "mag_null",
-           "single_warmup_null", "single_warmup_thermal"]
+           "single_warmup_null", "single_warmup_thermal", "mag_thermal"]
 
 
 def hit(verdict: str, expect) -> bool:

@@ -85,9 +85,9 @@ def cost(board, rate, seconds, fmt, tmp):
 
 def lateness(seconds):
     """Real-time 1 kHz MPU6050 emulation; a ga-paper calibration (about 1 s of CPU) is
-    started in a worker process; the delay of each batch behind its schedule is recorded."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    started in a worker process (the daemon's: one per job); the delay of each batch behind its
+    schedule is recorded."""
+    from imucald.daemon.worker import WorkerRunner
     cfg = copy.deepcopy(DEFAULTS)
     cfg["calibration"]["method"] = "ga-paper"
     cfg["calibration"]["min_poses"] = 10
@@ -96,8 +96,7 @@ def lateness(seconds):
                                             loop=True), rng=2, clock=clk)
     b = make_board("mpu6050", Bus(eb, "emu", clock=clk), clk, rate_hz=1000)
     b.start()
-    ex = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-    ex.submit(int, 0).result()                       # worker started before timing
+    ex = WorkerRunner()
     pipe = Pipeline(cfg, "mpu6050", 1000.0, False, executor=ex)
     # preload poses so a calibration can start at once, and keep forcing new ones
     from imucald.sim.sensor import draw_truth, simulate_pose_means
@@ -139,16 +138,17 @@ def rss(seconds):
         p = subprocess.Popen([sys.executable, "-m", "imucald.cli", "run", "--emulate", "--speed", "20",
                               "--min-poses", "10", "--state-dir", d, "--runtime-dir", d,
                               "--duration", str(20 * seconds)], stderr=subprocess.DEVNULL)
-        peak, peak_w = 0, 0
+        idle, busy = [], []         # daemon alone / daemon + its worker, kB, every 0.2 s
         while p.poll() is None:
             try:
-                peak = max(peak, _rss_kb(p.pid))
-                for c in _children(p.pid):
-                    peak_w = max(peak_w, _rss_kb(c))
+                d = _rss_kb(p.pid)
+                w = sum(_rss_kb(c) for c in _children(p.pid))
+                (busy if w else idle).append((d + w, d, w))
             except OSError:
                 pass
             time.sleep(0.2)
-    return peak / 1024, peak_w / 1024
+    mb = lambda xs, k: max((x[k] for x in xs), default=0) / 1024
+    return mb(idle, 0), mb(busy, 0), mb(busy, 2), len(busy)
 
 
 def _rss_kb(pid):
@@ -185,8 +185,10 @@ def main():
     idle99, cal_max, cal99, runs = lateness(20.0)
     print(f"lateness behind schedule at 1 kHz, 20 ms batches (one batch = 20 ms): idle p99 {idle99:.1f} ms; "
           f"while {runs} ga-paper calibrations ran in the worker: p99 {cal99:.1f} ms, max {cal_max:.1f} ms")
-    main_mb, worker_mb = rss(8.0)
-    print(f"resident memory: daemon {main_mb:.1f} MB (calibration worker process {worker_mb:.1f} MB)")
+    idle_mb, busy_mb, worker_mb, n = rss(8.0)
+    print(f"resident memory (ps RSS, peak): idle daemon {idle_mb:.1f} MB (no worker process between "
+          f"calibrations); while calibrating daemon + worker {busy_mb:.1f} MB (worker {worker_mb:.1f} MB, "
+          f"{n} samples)")
 
 
 if __name__ == "__main__":

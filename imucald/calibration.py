@@ -350,6 +350,10 @@ def load(path) -> Calibration:
         raise CalibrationError(f"{p}: cannot read: {e.strerror}") from None
     except yaml.YAMLError as e:
         raise CalibrationError(f"{p}: not valid YAML ({' '.join(str(e).split())})") from None
+    except UnicodeDecodeError as e:
+        raise CalibrationError(f"{p}: byte 0x{e.object[e.start]:02x} at offset {e.start} is not UTF-8") from None
+    except RecursionError:
+        raise CalibrationError(f"{p}: not valid YAML (nested too deeply)") from None
     try:
         return Calibration.from_dict(doc)
     except CalibrationError as e:

@@ -67,6 +67,8 @@ SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
     "calibration.recalibrate_every_poses": (5, "int", (1, 1000)),
     "calibration.mag_min_coverage": (0.5, "float", (0.05, 1.0)),
     "calibration.history": (10, "int", (0, 1000)),
+    # a calibration job running longer is stopped (its worker killed); the next one starts afresh
+    "calibration.timeout_s": (300.0, "float", (5.0, 3600.0)),
     "output.format": ("ndjson", "choice", ("ndjson", "csv", "binary")),
     "output.socket": ("imucald.sock", "str", None),
     "output.socket_mode": ("0660", "mode", None),

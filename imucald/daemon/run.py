@@ -1,18 +1,18 @@
 """The daemon: board -> pipeline -> sinks, with control, persistence, signals, systemd.
 
-Single-threaded sampling loop.  Calibration runs in a worker process (so the
-sampler never waits on it); state files are written by one background thread
-(an fsync on an SD card can take tens of milliseconds).
+Single-threaded sampling loop.  Calibration runs in a worker process started
+per job (daemon/worker.py: supervised, timed out, gone with the daemon; none
+while idle), so the sampler never waits on it; state files are written by one
+background thread (daemon/persist.py: an fsync on an SD card can take tens of
+milliseconds, a read-only directory is retried while the state stays in memory).
 """
 from __future__ import annotations
 
 import logging
 import math
-import multiprocessing
 import os
 import signal
 import time
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, Dict, Optional
 
 from ..errors import AlreadyRunning, CannotCreate, UserError
@@ -26,14 +26,6 @@ __all__ = ["Daemon", "LOCK_FILE"]
 LOCK_FILE = "imucald.lock"
 
 log = logging.getLogger("imucald")
-
-
-def _worker_init():
-    try:
-        os.nice(10)          # on a one-core Pi the sampler keeps priority over the fit
-    except OSError:
-        pass
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 class Daemon:
@@ -117,9 +109,10 @@ class Daemon:
         self.board.start()                                       # identifies the chips first
         chips = self.board.chips()
         log.info("found %s", ", ".join(f"{k} {v.upper()}" for k, v in self.board.chips().items()))
-        self.writer = ThreadPoolExecutor(1, thread_name_prefix="imucald-state")
-        self.worker = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                          initializer=_worker_init)
+        from .persist import StateWriter
+        from .worker import WorkerRunner
+        self.writer = StateWriter(self._save, sd)
+        self.worker = WorkerRunner(cfg["calibration"]["timeout_s"])
         self.pipe = Pipeline(cfg, self.board.name, self.board.rate_hz, self.board.has_mag,
                              executor=self.worker, persist=self._persist, chips=chips,
                              has_acc=self.board.has_acc)
@@ -216,7 +209,10 @@ class Daemon:
                  "bus": self.bus.name, **p.status(), "board_stats": self.board.stats.as_dict(),
                  "sensor": {**self.sensor, "fingerprint": self.fingerprint},
                  "bus_stats": self.bus.stats.as_dict(),
-                 "clients": len(self.sinks[0].clients), "clients_dropped": self.sinks[0].dropped}
+                 "clients": len(self.sinks[0].clients), "clients_dropped": self.sinks[0].dropped,
+                 "state": self.writer.status(), "control": self.control.stats(),
+                 "worker": {"running": self.worker.running(), "started": self.worker.started,
+                            "died": self.worker.died, "timeouts": self.worker.timeouts}}
             return d
         if cmd == "poses":
             ps = p.acc.pose_set()
@@ -270,6 +266,7 @@ class Daemon:
         self.pipe.reconfigure(self.cfg, now)
         for sk in getattr(self, "sinks", []):
             sk.max_buffer = self.cfg["output"]["client_buffer_bytes"]
+        self.worker.timeout_s = self.cfg["calibration"]["timeout_s"]
         logging.getLogger().setLevel(self.cfg["log"]["level"].upper())
         says = lambda ks: ", ".join(f"{k} ({get(self.cfg, k)} -> {get(new, k)})" if k in later else
                                     f"{k} = {get(new, k)}" for k in ks)
@@ -280,10 +277,15 @@ class Daemon:
 
     # -- persistence -------------------------------------------------------------------------
     def _persist(self, kind: str, obj) -> None:
+        self.writer.submit(kind, obj)
+
+    def _save(self, kind: str, obj) -> None:
+        """One state write (the writer's thread; OSError is retried there)."""
         sd = self.cfg["state"]["directory"]
-        hist = self.cfg["calibration"]["history"]
-        fn = (lambda: save_poses(sd, obj)) if kind == "poses" else (lambda: save_calibration(sd, obj, hist))
-        self.writer.submit(_logged, fn)
+        if kind == "poses":
+            save_poses(sd, obj)
+        else:
+            save_calibration(sd, obj, self.cfg["calibration"]["history"])
 
     def _on_stop(self, *_):
         self.stop = True
@@ -299,17 +301,18 @@ class Daemon:
         if hasattr(self, "control"):
             self.control.close()
         if hasattr(self, "worker"):
-            self.worker.shutdown(wait=False, cancel_futures=True)
+            self.worker.shutdown(wait=True)
         if hasattr(self, "writer"):
-            self.writer.shutdown(wait=True)
-        if hasattr(self, "pipe"):
-            try:
-                save_poses(sd, self.pipe.acc.pose_set())          # synchronous: nothing is lost
+            final = {}
+            if hasattr(self, "pipe"):               # synchronous: nothing is lost
+                final["poses"] = self.pipe.acc.pose_set()
                 if self.pipe.applied.id:
-                    save_calibration(sd, self.pipe.applied, self.cfg["calibration"]["history"])
+                    final["calibration"] = self.pipe.applied
+            failed = self.writer.close(final)
+            if failed:
+                log.error("stopped; the %s could not be saved in %s (see above)", " and ".join(failed), sd)
+            else:
                 log.info("stopped; state saved in %s", sd)
-            except OSError as e:
-                log.error("stopped; could not save the state in %s: %s", sd, e.strerror or e)
         for fd in getattr(self, "_lock_fds", []):
             os.close(fd)
 
@@ -320,13 +323,6 @@ def _fp_text(fp: Dict[str, Any]) -> str:
     for name, c in fp.get("chips", {}).items():
         parts.append(name + " " + " ".join(f"{k}={v}" for k, v in c.items()))
     return "; ".join(parts)
-
-
-def _logged(fn):
-    try:
-        fn()
-    except Exception as e:          # a full disk must not stop sampling; say so
-        log.error("could not save state: %s", e)
 
 
 def _pose_json(ps, i: int) -> Dict[str, Any]:

@@ -1,0 +1,383 @@
+"""The daemon survives its own parts: the calibration worker (killed, hung, orphaned), a flooding
+control client, a state directory that stops taking writes, bad state files."""
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from imucald.daemon import control as ctl
+from imucald.daemon.worker import WorkerDied, WorkerRunner, WorkerTimeout
+
+PY = sys.executable
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def alive(pid):
+    """True while ``pid`` runs (a zombie waiting for its reaper counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def children(pid):
+    out = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as fh:
+                    st = fh.read().rsplit(")", 1)[1].split()
+                if int(st[1]) == pid and st[0] != "Z":
+                    with open(f"/proc/{d}/cmdline", "rb") as fh:
+                        out.append((int(d), fh.read().replace(b"\0", b" ").decode()))
+            except OSError:
+                pass
+    return out
+
+
+def wait_until(pred, timeout=30, step=0.05):
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        v = pred()
+        if v:
+            return v
+        time.sleep(step)
+    raise AssertionError("timed out waiting")
+
+
+# --- the worker -------------------------------------------------------------------------------
+
+def test_worker_runs_a_job_in_its_own_process_and_none_stays():
+    r = WorkerRunner(timeout_s=60)
+    f = r.submit(os.getpid)
+    pid = f.result(timeout=60)
+    assert pid != os.getpid() and not alive(pid)
+    assert r.running() == 0 and r.started == 1 and r.died == 0
+
+
+def test_a_worker_that_dies_fails_its_job_in_one_line_and_the_next_job_runs():
+    r = WorkerRunner(timeout_s=60)
+    with pytest.raises(WorkerDied, match=r"the calibration worker was killed \(SIGABRT; the OOM killer "
+                                         r"sends SIGKILL\) without a result; the next calibration starts"):
+        r.submit(os.abort).result(timeout=60)
+    assert r.submit(sum, [1, 2, 3]).result(timeout=60) == 6
+    assert r.died == 1 and r.started == 2
+
+
+def test_a_job_that_raises_is_reported_not_fatal():
+    r = WorkerRunner(timeout_s=60)
+    with pytest.raises(RuntimeError, match=r"^ValueError: invalid literal for int\(\) with base 10: 'x'$"):
+        r.submit(int, "x").result(timeout=60)
+
+
+def test_a_hung_worker_is_killed_at_the_timeout():
+    r = WorkerRunner(timeout_s=1.0)
+    f = r.submit(time.sleep, 3600)
+    pid = wait_until(lambda: r.pids() and r.pids()[0])
+    with pytest.raises(WorkerTimeout, match=r"calibration took longer than 1 s \(calibration.timeout_s\)"):
+        f.result(timeout=60)
+    assert not alive(pid) and r.timeouts == 1
+
+
+def test_the_worker_goes_with_its_daemon_killed_by_sigkill():
+    code = ("import time, sys; from imucald.daemon.worker import WorkerRunner; r = WorkerRunner(600); "
+            "r.submit(time.sleep, 600); t0 = time.time()\n"
+            "while not r.pids(): time.sleep(0.02)\n"
+            "print(r.pids()[0], flush=True); time.sleep(600)")
+    parent = subprocess.Popen([PY, "-c", code], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        wpid = int(parent.stdout.readline())
+        time.sleep(0.3)                       # the worker is running its job
+        assert alive(wpid)
+        parent.kill()
+        parent.wait(timeout=10)
+        wait_until(lambda: not alive(wpid), timeout=10)
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+# --- the control socket -----------------------------------------------------------------------
+
+def test_control_flood_is_bounded_per_poll_per_client_and_in_memory(tmp_path):
+    now = [0.0]
+    calls = []
+
+    def handler(cmd):
+        calls.append(cmd)
+        return {"class": "STATUS", "pad": "x" * 2000}          # a large reply, never read
+    srv = ctl.ControlServer(str(tmp_path / "c.sock"), handler, clock=lambda: now[0])
+    flood = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    flood.connect(str(tmp_path / "c.sock"))
+    flood.setblocking(False)
+    sent = 0
+    try:
+        for i in range(400):
+            try:
+                sent += flood.send(b"status\n" * 9000)          # 63 KB writes, replies unread
+            except BlockingIOError:
+                pass
+            before = len(calls)
+            srv.poll()
+            assert len(calls) - before <= ctl.PER_POLL
+            for c in srv.conns:
+                assert len(c.inbuf) <= ctl.MAX_LINE + 256
+                assert len(c.outbuf) <= ctl.MAX_OUT + 2100
+            now[0] += 0.02                                       # a batch every 20 ms
+        # the rate limit: a burst, then RATE_PER_S over the 8 s of batches
+        assert len(calls) <= ctl.BURST + ctl.RATE_PER_S * now[0] + 1
+        assert sent > 1_000_000 or len(calls) < 400
+        # a second, polite client is still served while the flood goes on
+        c2 = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        c2.connect(str(tmp_path / "c.sock"))
+        c2.sendall(b'{"cmd": "status"}\n')
+        c2.settimeout(0.01)
+        got = b""
+        for _ in range(200):
+            srv.poll()
+            now[0] += 0.02
+            try:
+                got += c2.recv(65536)
+            except socket.timeout:
+                pass
+            if got.endswith(b"\n"):
+                break
+        assert json.loads(got)["class"] == "STATUS"
+        c2.close()
+    finally:
+        flood.close()
+        srv.close()
+    assert not os.path.exists(tmp_path / "c.sock")
+
+
+def test_control_refuses_connections_beyond_the_limit_and_overlong_lines(tmp_path):
+    srv = ctl.ControlServer(str(tmp_path / "c.sock"), lambda c: {"class": "OK"})
+    socks = []
+    try:
+        for _ in range(ctl.MAX_CLIENTS + 2):
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.connect(str(tmp_path / "c.sock"))
+            socks.append(s)
+            srv.poll()                  # accepts (the listen backlog is short)
+        assert len(srv.conns) == ctl.MAX_CLIENTS and srv.refused == 2
+        socks[-1].settimeout(5)
+        assert json.loads(socks[-1].recv(4096))["message"].startswith("too many control clients")
+        socks[0].sendall(b"x" * (ctl.MAX_LINE + 10))
+        socks[0].settimeout(5)
+        for _ in range(5):
+            srv.poll()
+        assert json.loads(socks[0].recv(4096))["message"] == f"request longer than {ctl.MAX_LINE} bytes"
+        assert srv.dropped == 1 and len(srv.conns) == ctl.MAX_CLIENTS - 1
+    finally:
+        for s in socks:
+            s.close()
+        srv.close()
+
+
+# --- the daemon end to end --------------------------------------------------------------------
+
+def start(tmp_path, *extra):
+    rt, st = tmp_path / "run", tmp_path / "state"
+    p = subprocess.Popen([PY, "-m", "imucald.cli", "run", "--emulate", "--state-dir", str(st), "--runtime-dir",
+                          str(rt), *map(str, extra)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         text=True, cwd=ROOT)
+    wait_until(lambda: (rt / "control.sock").exists() or p.poll() is not None, timeout=60)
+    assert p.poll() is None, p.stderr.read()
+    return p, rt, st
+
+
+def control(rt, cmd):
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(20)
+    s.connect(str(rt / "control.sock"))
+    s.sendall((cmd + "\n").encode())
+    buf = b""
+    while not buf.endswith(b"\n"):
+        d = s.recv(65536)
+        if not d:
+            break
+        buf += d
+    s.close()
+    return json.loads(buf)
+
+
+def stop(p):
+    if p.poll() is None:
+        p.send_signal(signal.SIGTERM)
+    try:
+        return p.communicate(timeout=60)[1]
+    finally:
+        if p.poll() is None:
+            p.kill()
+
+
+def test_control_flood_loses_no_sample_at_1khz_real_time(tmp_path):
+    p, rt, st = start(tmp_path, "--rate", "1000", "--speed", "1")
+    stop_flag = threading.Event()
+    sent = [0]
+
+    def flood():
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        s.connect(str(rt / "control.sock"))
+        s.settimeout(0.5)
+        chunk = b"status\n" * 9000                  # 63 KB, replies never read
+        while not stop_flag.is_set():
+            try:
+                sent[0] += s.send(chunk)
+            except socket.timeout:
+                pass
+            except OSError:
+                break
+        s.close()
+    try:
+        s0 = control(rt, "status")["board_stats"]
+        th = threading.Thread(target=flood, daemon=True)
+        th.start()
+        time.sleep(6.0)                              # 6000 samples at 1 kHz
+        stop_flag.set()
+        th.join(5)
+        s1 = control(rt, "status")
+    finally:
+        err = stop(p)
+    assert p.returncode == 0, err
+    bs = s1["board_stats"]
+    assert bs["samples"] - s0["samples"] > 4000
+    assert bs["missing"] == s0["missing"] == 0 and bs["gaps"] == 0, bs
+    assert sent[0] >= 63_000 and s1["control"]["throttled"] > 0
+
+
+def test_worker_killed_mid_calibration_and_the_daemon_carries_on(tmp_path):
+    p, rt, st = start(tmp_path, "--speed", "20", "--seed", "2")
+    try:
+        wait_until(lambda: control(rt, "status")["poses"] >= 10, timeout=120, step=0.2)
+        # idle: no worker process, no multiprocessing resource tracker
+        wait_until(lambda: not control(rt, "status")["calibrating"], timeout=120)
+        assert all("imucald.daemon.worker" not in c and "resource_tracker" not in c
+                   for _, c in children(p.pid)) or control(rt, "status")["calibrating"]
+        killed = 0
+        for _ in range(3):                           # kill every worker seen, as the OOM killer would
+            control(rt, "recalibrate")
+            w = [pid for pid, c in children(p.pid) if "imucald.daemon.worker" in c]
+            if w:
+                os.kill(w[0], signal.SIGKILL)
+                killed += 1
+            wait_until(lambda: not control(rt, "status")["calibrating"], timeout=120)
+        assert killed >= 1
+        s = control(rt, "status")
+        assert s["worker"]["died"] == killed and p.poll() is None
+        # a later calibration runs in a new worker and is applied or judged as usual
+        n0 = s["worker"]["started"]
+        wait_until(lambda: control(rt, "recalibrate").get("started"), timeout=60, step=0.2)
+        wait_until(lambda: not control(rt, "status")["calibrating"], timeout=120)
+        s = control(rt, "status")
+        assert s["worker"]["started"] == n0 + 1 and s["worker"]["died"] == killed
+        assert "calibration failed" not in s["last_event"]
+    finally:
+        err = stop(p)
+    assert p.returncode == 0 and "Traceback" not in err, err
+    assert "the calibration worker was killed (SIGKILL" in err
+
+
+def test_state_dir_that_stops_taking_writes_keeps_the_calibration_and_writes_it_later(tmp_path):
+    p, rt, st = start(tmp_path, "--speed", "20", "--seed", "2")
+    moved = tmp_path / "state.real"
+    try:
+        wait_until(lambda: control(rt, "status")["calibration_id"] >= 1, timeout=180, step=0.2)
+        # the state directory stops taking writes (a file where it was: ENOTDIR even for root)
+        os.rename(st, moved)
+        st.write_text("not a directory")
+        n0 = control(rt, "status")["calibration_id"]
+        wait_until(lambda: control(rt, "recalibrate").get("started") is not None, timeout=60)
+        s = wait_until(lambda: (lambda s: s if not s["state"]["ok"] else None)(control(rt, "status")),
+                       timeout=120, step=0.2)
+        assert "could not save the" in s["state"]["error"] and s["state"]["unsaved"]
+        # writable again: the newest state is written without a restart
+        os.unlink(st)
+        os.rename(moved, st)
+        s = wait_until(lambda: (lambda s: s if s["state"]["ok"] and not s["state"]["unsaved"] else None)(
+            control(rt, "status")), timeout=60, step=0.2)
+        from imucald.calibration import load
+        assert load(st / "calibration.yaml").id == s["calibration_id"] >= n0
+        # unwritable again at SIGTERM: one line, sockets removed, the process ends cleanly
+        os.rename(st, moved)
+        st.write_text("not a directory")
+    finally:
+        err = stop(p)
+    assert "Traceback" not in err, err
+    assert "could not be saved" in err and p.returncode == 0
+    assert sorted(os.listdir(rt)) == ["imucald.lock"]
+
+
+GOOD_CAL = """# imucald calibration (see README: calibration file)
+format_version: 2
+id: 3
+created: ''
+board: mpu6050
+chips: {}
+units: {accel: g, gyro: deg/s, mag: gauss, temperature: degC, time: s}
+accel:
+  model: triangular9
+  params:
+    alpha: [0.0, 0.0, 0.0]
+    scale: [1.0, 1.0, 1.0]
+    bias_g: [0.0, 0.0, 0.0]
+gyro:
+  model: bias
+  method: mean
+  params:
+    bias_dps: [0.0, 0.0, 0.0]
+"""
+
+
+def test_the_unaltered_calibration_file_loads(tmp_path):
+    from imucald.daemon.state import load_calibration
+    (tmp_path / "calibration.yaml").write_text(GOOD_CAL)
+    assert load_calibration(str(tmp_path), "mpu6050").id == 3
+
+
+@pytest.mark.parametrize("body,why", [
+    (GOOD_CAL.replace("id: 3", "id: abc"), "id"),
+    (GOOD_CAL.replace("bias_g: [0.0, 0.0, 0.0]", "bias_g: [0.0, 0.0, .nan]"), "bias_g"),
+    (GOOD_CAL.replace("bias_g: [0.0, 0.0, 0.0]", "bias_g: [0.0, 0.0, x]"), "bias_g"),
+    (GOOD_CAL.replace("scale: [1.0, 1.0, 1.0]", "scale: [1.0, 1.0]"), "scale"),
+    (GOOD_CAL.replace("    bias_dps: [0.0, 0.0, 0.0]\n", "    scale: [1.0, 1.0, 1.0]\n"), "bias_dps"),
+    (GOOD_CAL.encode().replace(b"board: mpu6050", b"board: mpu6050  # \xb0C"), "UTF-8"),
+])
+def test_bad_calibration_file_is_set_aside_in_one_line(tmp_path, caplog, body, why):
+    from imucald.daemon.state import load_calibration
+    p = tmp_path / "calibration.yaml"
+    p.write_bytes(body if isinstance(body, bytes) else body.encode())
+    with caplog.at_level("WARNING", logger="imucald"):
+        assert load_calibration(str(tmp_path), "mpu6050") is None
+    assert not p.exists() and any(f.startswith("calibration.yaml.corrupt-") for f in os.listdir(tmp_path))
+    msgs = [r.getMessage() for r in caplog.records]
+    assert len(msgs) == 1 and "\n" not in msgs[0] and why in msgs[0] and "set aside as" in msgs[0]
+
+
+def test_nan_in_poses_csv_is_set_aside_in_one_line(tmp_path, caplog):
+    from imucald.calib.poses import PoseSet, write_poses
+    from imucald.daemon.state import load_poses
+    rng = np.random.default_rng(0)
+    acc = rng.normal(size=(12, 3))
+    acc /= np.linalg.norm(acc, axis=1, keepdims=True)
+    cov = np.broadcast_to(np.eye(3) * 1e-8, (12, 3, 3)).copy()
+    ps = PoseSet(acc=acc, acc_cov=cov / 200, n=np.full(12, 200), t0=np.arange(12.0), t1=np.arange(12.0) + 2,
+                 acc_sample_cov=cov)
+    write_poses(ps, str(tmp_path / "poses.csv"))
+    assert len(load_poses(str(tmp_path))) == 12
+    lines = (tmp_path / "poses.csv").read_text().splitlines()
+    i = next(k for k, l in enumerate(lines) if l[:1].isdigit() or l[:1] == "-")
+    lines[i + 3] = ",".join(["nan"] + lines[i + 3].split(",")[1:])
+    (tmp_path / "poses.csv").write_text("\n".join(lines) + "\n")
+    with caplog.at_level("WARNING", logger="imucald"):
+        assert load_poses(str(tmp_path)) is None
+    msgs = [r.getMessage() for r in caplog.records]
+    assert len(msgs) == 1 and "unreadable poses" in msgs[0] and "set aside as" in msgs[0]

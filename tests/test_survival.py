@@ -265,7 +265,12 @@ def test_worker_killed_mid_calibration_and_the_daemon_carries_on(tmp_path):
         killed = 0
         for _ in range(3):                           # kill every worker seen, as the OOM killer would
             control(rt, "recalibrate")
-            w = [pid for pid, c in children(p.pid) if "imucald.daemon.worker" in c]
+            w = []
+            for _ in range(200):                     # the worker starts a moment after the reply
+                w = [pid for pid, c in children(p.pid) if "imucald.daemon.worker" in c]
+                if w or not control(rt, "status")["calibrating"]:
+                    break
+                time.sleep(0.01)
             if w:
                 os.kill(w[0], signal.SIGKILL)
                 killed += 1

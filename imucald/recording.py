@@ -41,7 +41,7 @@ import numpy as np
 
 from .errors import UserError
 from . import tables
-from .tables import TableSpec, decode_line, gather, iter_blocks
+from .tables import TableSpec, collect, decode_line, iter_blocks
 
 __all__ = ["Recording", "RecordingError", "RecordingReader", "open_recording", "iter_recording",
            "read_recording", "write_recording", "MAGIC", "COLUMNS", "PLAUSIBLE_LIMIT"]
@@ -257,10 +257,9 @@ class RecordingReader:
 
     def read(self, chunk_bytes: Optional[int] = None) -> Recording:
         """The whole recording; peak memory is the result plus one block."""
-        blocks = list(self._blocks(chunk_bytes))
-        if not blocks:
+        n, g = collect(self._blocks(chunk_bytes), self._groups, self._fh, self._offset)
+        if not n:
             raise self._empty()
-        g = gather(blocks, self._groups)
         return Recording(t=g["t"], acc=g.get("acc"), gyro=g.get("gyro"), mag=g.get("mag"),
                          temp=g.get("temp"), meta=self.meta)
 

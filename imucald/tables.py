@@ -16,6 +16,7 @@ column must not decrease.
 from __future__ import annotations
 
 import io
+import os
 import warnings
 from typing import BinaryIO, Iterator, List, Optional, Sequence, Tuple
 
@@ -23,7 +24,7 @@ import numpy as np
 
 from .errors import UserError
 
-__all__ = ["CHUNK_BYTES", "TableSpec", "iter_blocks", "decode_line"]
+__all__ = ["CHUNK_BYTES", "TableSpec", "iter_blocks", "decode_line", "collect"]
 
 CHUNK_BYTES = 1 << 20     #: bytes per block: ~15-25 k rows, ~2 MB of float64 at 11 columns
 
@@ -169,23 +170,37 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
     return np.array(out, dtype=np.float64).reshape(len(out), n)
 
 
-def block_rows(blocks: Sequence[np.ndarray]) -> int:
-    return sum(len(b) for b in blocks)
+def collect(blocks: Iterator[np.ndarray], groups: Sequence[Tuple[str, List[int]]], fh: BinaryIO,
+            start: int) -> Tuple[int, dict]:
+    """(rows, {group: array}): the blocks of ``fh`` (body from byte ``start``) copied into one
+    contiguous array per group as they are parsed, each block dropped once copied.
 
-
-def gather(blocks: List[np.ndarray], groups: Sequence[Tuple[str, List[int]]]) -> dict:
-    """Concatenate blocks into one contiguous array per group, freeing each block once copied.
-
-    Peak memory is the result plus one block (not twice the data).
+    Peak memory is the result plus one block: the arrays are sized from the first block's
+    bytes per row over the file's remaining bytes, with a margin whose pages are never
+    touched (so never resident), and grown by half again in the rare case that is short.
+    The arrays returned are views of the first ``rows`` rows.
     """
-    n = block_rows(blocks)
-    out = {name: np.empty((n, len(ix)) if len(ix) > 1 else n) for name, ix in groups}
-    i = 0
-    while blocks:
-        b = blocks.pop(0)
+    out: dict = {}
+    n = cap = 0
+    for b in blocks:
         k = len(b)
+        if n + k > cap:
+            if not cap:
+                try:
+                    size = os.fstat(fh.fileno()).st_size
+                    here = max(fh.tell() - start, 1)
+                    est = int(k * max(size - start, here) / here * 1.25) + 64
+                except (OSError, ValueError, AttributeError):
+                    est = 0
+                cap = max(est, n + k)
+            else:
+                cap = max(int(cap * 1.5), n + k)
+            new = {name: np.empty((cap, len(ix)) if len(ix) > 1 else cap) for name, ix in groups}
+            for name in out:
+                new[name][:n] = out[name][:n]
+            out = new
         for name, ix in groups:
-            out[name][i:i + k] = b[:, ix] if len(ix) > 1 else b[:, ix[0]]
-        i += k
+            out[name][n:n + k] = b[:, ix] if len(ix) > 1 else b[:, ix[0]]
+        n += k
         del b
-    return out
+    return n, {name: a[:n] for name, a in out.items()}

@@ -142,6 +142,23 @@ def test_chunked_read_matches_whole_and_lines_count_across_blocks(tmp_path):
                 pass
 
 
+def test_whole_read_when_later_lines_are_shorter_than_the_first_block(tmp_path):
+    """read() sizes its arrays from the first block's bytes per row; lines that are shorter
+    later (fewer digits) overrun that estimate: the arrays grow and hold every row."""
+    from imucald.recording import open_recording
+    n = 4000
+    t = np.arange(n) / 100.0
+    acc = np.where(np.arange(n)[:, None] < 200, np.pi * np.arange(1, 4), 0.0) + np.zeros((n, 3))
+    body = "".join(f"{a:.6f},{float(x)!r},{float(y)!r},{float(z)!r}\n" if i < 200 else
+                   f"{a:.2f},{x:.0f},{y:.0f},{z:.0f}\n" for i, (a, (x, y, z)) in enumerate(zip(t, acc)))
+    p = tmp_path / "grow.csv"
+    p.write_text("# imucald recording v1\n# board: mpu6050\n# rate_hz: 100\nt,ax,ay,az\n" + body)
+    with open_recording(p) as rd:
+        r = rd.read(chunk_bytes=2000)
+    assert len(r) == n and np.array_equal(r.acc, acc) and np.allclose(r.t, t)
+    assert r.acc.flags.c_contiguous
+
+
 def test_table_nan_and_1e308_named(tmp_path):
     from imucald.calib.inputs import read_table
     p = tmp_path / "raw.txt"

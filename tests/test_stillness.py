@@ -50,6 +50,20 @@ def test_batch_and_streaming_find_the_same_poses_simulated(batch_n):
     assert a == _streamed(rec, batch_n, rec.rate_hz)
 
 
+def test_whole_file_call_in_chunks_finds_what_one_update_finds(monkeypatch):
+    """detect_intervals feeds the detector in chunks (bounded memory on long files): the
+    intervals, means included, equal those of the whole file fed as one batch."""
+    from imucald.calib import poses
+    s, rec = _hand_session(5)
+    det = StillnessDetector(rec.rate_hz)
+    one = det.update(rec.t, rec.acc, rec.gyro)[1] + det.flush()
+    monkeypatch.setattr(poses, "DETECT_CHUNK", 333)
+    ivs, dropped = poses.detect_intervals(rec.t, rec.acc, rec.gyro, rec.rate_hz)
+    assert len(one) >= 8 and dropped == 0
+    assert [(i.i0, i.i1) for i in ivs] == [(i.i0, i.i1) for i in one]
+    assert all(np.array_equal(a.acc, b.acc) and np.array_equal(a.gyro, b.gyro) for a, b in zip(ivs, one))
+
+
 def test_batch_and_streaming_find_the_same_poses_on_real_xsens():
     p = real_path("imutk_xsens_mti", "xsens_acc.mat")
     a = np.loadtxt(str(p))

@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import UserError
 from ..recording import (COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, _open_binary,
                          read_recording)
-from ..tables import TableSpec, decode_line, gather, iter_blocks
+from ..tables import TableSpec, collect, decode_line, iter_blocks
 from .poses import POSES_MAGIC, read_poses
 
 __all__ = ["load_input", "read_table"]
@@ -84,14 +84,12 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
                 fh.seek(offset)
                 break
             lineno, offset = lineno + 1, offset + len(raw)
-        blocks = list(iter_blocks(fh, spec, lineno, offset))
-    idx = {name: i for i, name in enumerate(cols) if name != "-"}
-    groups = [(k, [idx[k]]) for k in ("t", "temp") if k in idx]
-    for g, ks in (("acc", ["ax", "ay", "az"]), ("gyro", ["gx", "gy", "gz"]), ("mag", ["mx", "my", "mz"])):
-        if all(k in idx for k in ks):
-            groups.append((g, [idx[k] for k in ks]))
-    n = sum(len(b) for b in blocks)
-    c = gather(blocks, groups)
+        idx = {name: i for i, name in enumerate(cols) if name != "-"}
+        groups = [(k, [idx[k]]) for k in ("t", "temp") if k in idx]
+        for g, ks in (("acc", ["ax", "ay", "az"]), ("gyro", ["gx", "gy", "gz"]), ("mag", ["mx", "my", "mz"])):
+            if all(k in idx for k in ks):
+                groups.append((g, [idx[k] for k in ks]))
+        n, c = collect(iter_blocks(fh, spec, lineno, offset), groups, fh, offset)
     for g in ("acc", "gyro", "mag"):
         if g in c:
             c[g] -= nominal_offset

@@ -23,6 +23,8 @@ __all__ = ["PoseSet", "detect_static", "detect_intervals", "poses_from_recording
            "read_poses", "write_poses", "POSES_MAGIC"]
 
 POSES_MAGIC = "# imucald poses v1"
+#: rows fed to the stillness detector at a time by the whole-file calls
+DETECT_CHUNK = 1 << 14
 
 
 @dataclass
@@ -81,7 +83,13 @@ def detect_intervals(t, acc, gyro=None, rate_hz=None, temp=None, **params):
         return [], 0
     rate = rate_hz or 1.0 / max(float(np.median(np.diff(t))), 1e-9)
     det = StillnessDetector(rate, **params)
-    _, out = det.update(t, acc, gyro, temp)
+    out = []
+    # the streaming detector over consecutive chunks: its decisions do not depend on how the
+    # stream is cut, and its working arrays (~300 bytes a row) stay those of one chunk
+    for i in range(0, len(t), DETECT_CHUNK):
+        sl = slice(i, i + DETECT_CHUNK)
+        out += det.update(t[sl], acc[sl], None if gyro is None else gyro[sl],
+                          None if temp is None else temp[sl])[1]
     out += det.flush()
     return out, det.dropped
 

@@ -81,7 +81,8 @@ class StillnessDetector:
         self._seen = 0                       # samples received
         self._last = None                    # last good row, fills bad ones for the statistics
         self._tail = None                    # last w-1 rows of [acc | gyro] (filled)
-        self._blk = None                     # partial non-overlapping window
+        self._blk: List[np.ndarray] = []      # rows of the partial non-overlapping window
+        self._blk_n = 0
         self._hist_a = deque(maxlen=FLOOR_WINDOWS)
         self._hist_g = deque(maxlen=FLOOR_WINDOWS)
         self._F: Dict[int, tuple] = {}       # windows completed -> (floor, bias)
@@ -97,9 +98,14 @@ class StillnessDetector:
 
     # -- statistics -------------------------------------------------------------------
     def _blocks(self, x: np.ndarray, gy: bool) -> None:
-        buf = x if self._blk is None else np.vstack([self._blk, x])
+        # rows wait in a list until a window is complete (no copy per small batch)
+        self._blk.append(x)
+        self._blk_n += len(x)
+        if self._blk_n < self.w:
+            return
+        buf = self._blk[0] if len(self._blk) == 1 else np.concatenate(self._blk)
         m = len(buf) // self.w
-        for b in (buf[:m * self.w].reshape(m, self.w, buf.shape[1]) if m else ()):
+        for b in buf[:m * self.w].reshape(m, self.w, buf.shape[1]):
             self._hist_a.append(float(b[:, :3].var(0, ddof=1).sum()))
             if gy:
                 self._hist_g.append(b[:, 3:].mean(0))
@@ -112,21 +118,36 @@ class StillnessDetector:
                 bias = np.median(ga[qa] if qa.any() else ga, axis=0)
             self._F[self._nblk] = (fa, bias)
             self.floor_a, self.bias_g = fa, bias
-        self._blk = buf[m * self.w:]
+        rest = buf[m * self.w:]
+        self._blk = [rest] if len(rest) else []
+        self._blk_n = len(rest)
 
     def _window_stats(self, x: np.ndarray):
-        full = x if self._tail is None else np.vstack([self._tail, x])
-        n = len(x)
+        """Trailing-window (w samples) accelerometer variance sum and mean of the other
+        columns at each row of x, from running sums about the window's first row."""
+        full = x if self._tail is None else np.concatenate([self._tail, x])
+        n, L, k = len(x), len(full), x.shape[1]
         self._tail = full[-(self.w - 1):]
         ref = full[0]
-        c1 = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), full - ref]), 0)
-        c2 = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), (full - ref) ** 2]), 0)
-        hi = np.arange(len(full) - n, len(full)) + 1
-        lo = np.maximum(hi - self.w, 0)
-        cnt = (hi - lo)[:, None]
-        s1, s2 = c1[hi] - c1[lo], c2[hi] - c2[lo]
-        var = np.maximum(s2 - s1 * s1 / cnt, 0) / np.maximum(cnt - 1, 1)
-        return var[:, :3].sum(1), s1[:, 3:] / cnt + ref[3:], cnt[:, 0] >= self.w
+        d = full - ref
+        c = np.empty((L + 1, 2 * k))       # cumulative sums of d and d**2, column by column
+        c[0] = 0.0
+        c[1:, :k] = d
+        np.multiply(d, d, out=c[1:, k:])
+        np.cumsum(c, 0, out=c)
+        if L - n + 1 >= self.w:            # every window full (after the first w-1 rows)
+            cnt = self.w
+            s = c[L - n + 1:] - c[L - n + 1 - self.w:L + 1 - self.w]
+            full_w = np.ones(n, bool)
+        else:
+            hi = np.arange(L - n, L) + 1
+            lo = np.maximum(hi - self.w, 0)
+            cnt = (hi - lo)[:, None]
+            s = c[hi] - c[lo]
+            full_w = cnt[:, 0] >= self.w
+        s1, s2 = s[:, :k], s[:, k:]
+        var = np.maximum(s2[:, :3] - s1[:, :3] * s1[:, :3] / cnt, 0) / np.maximum(cnt - 1, 1)
+        return var.sum(1), s1[:, 3:] / cnt + ref[3:], full_w
 
     # -- streaming --------------------------------------------------------------------
     def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
@@ -136,8 +157,8 @@ class StillnessDetector:
         known so far); poses are emitted up to a window after their end."""
         acc = np.asarray(acc, float)
         n = len(acc)
-        x = acc if gyro is None else np.hstack([acc, np.asarray(gyro, float)])
-        good = np.all(np.isfinite(x), 1) & np.all(np.abs(x) < ABSURD, 1)
+        x = acc if gyro is None else np.concatenate([acc, np.asarray(gyro, float)], 1)
+        good = (np.abs(x) < ABSURD).all(1)              # False for NaN and inf too
         if not good.all():
             self.dropped += int((~good).sum())
             x = x.copy()
@@ -180,7 +201,8 @@ class StillnessDetector:
         """Quiet trailing windows: accelerometer variance <= k floor, turn <= max_turn_deg."""
         q = b["good"] & (b["va"] <= self.k * fa)
         if bias is not None:
-            q &= np.linalg.norm(b["gm"] - bias, axis=1) * self.window_s <= self.max_turn_deg
+            d = b["gm"] - bias
+            q &= np.sqrt((d * d).sum(1)) * self.window_s <= self.max_turn_deg
         return q
 
     def flush(self) -> List[StaticInterval]:

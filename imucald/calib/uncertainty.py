@@ -92,7 +92,9 @@ def crlb(model: NormModel, theta: np.ndarray, raw: np.ndarray, var: np.ndarray,
     # column scaling so that rank decisions do not depend on parameter units
     colnorm = np.linalg.norm(Jw, axis=0)
     scale = np.where(colnorm > 0, colnorm, 1.0)
-    U, s, Vt = np.linalg.svd(Jw / scale, full_matrices=True)
+    # V only (U is N x N with full matrices: 48 MB at 2,500 poses); with N >= k the reduced
+    # decomposition has the same V, and with fewer poses the full one carries the null space
+    _, s, Vt = np.linalg.svd(Jw / scale, full_matrices=Jw.shape[0] < Jw.shape[1])
     smax = s.max() if s.size else 0.0
     keep = s > rtol * smax if smax > 0 else np.zeros_like(s, bool)
     rank = int(keep.sum())

@@ -18,16 +18,17 @@ def saturated(rec: Recording, slices) -> np.ndarray:
     except ValueError:
         rail = None
     out = np.zeros(len(slices), bool)
+    # only the samples inside the poses are looked at (no temporary the size of the recording)
     if rail is not None and np.isfinite(rail):
-        hit = np.abs(a) >= rail * (1 - 1e-4)
-    else:
-        hit = np.zeros_like(a, bool)
-        for j in range(3):
-            for v in (a[:, j].max(), a[:, j].min()):
-                at = a[:, j] == v
-                if at.sum() >= 5 and abs(v) > 1.2:       # a recurring extreme beyond 1.2 g
-                    hit[:, j] |= at
-    h = hit.any(axis=1)
+        lim = rail * (1 - 1e-4)
+        for i, s in enumerate(slices):
+            out[i] = bool((np.abs(a[s]) >= lim).any())
+        return out
+    rails = []                              # (axis, value) of a recurring extreme beyond 1.2 g
+    for j in range(3):
+        for v in (a[:, j].max(), a[:, j].min()):
+            if abs(v) > 1.2 and np.count_nonzero(a[:, j] == v) >= 5:
+                rails.append((j, v))
     for i, s in enumerate(slices):
-        out[i] = h[s].any()
+        out[i] = any(bool((a[s, j] == v).any()) for j, v in rails)
     return out

@@ -82,11 +82,13 @@ def twin_rms(J, var, w, sims, rng, lam=None, normalised=False):
     """Held-out RMS under the noise model for this design: M linearised re-simulations
     (with a prior of precision ``lam`` the fit is the MAP one, the prior mean held fixed).
     ``normalised``: the RMS of held-out residual / noise sd (points of unequal noise)."""
+    Jw = J * w[:, None]
     Ai = np.linalg.pinv(_normal(J, w, lam), rcond=1e-12, hermitian=True)
-    H = J @ Ai @ (J * w[:, None]).T
-    h = np.diag(H)
+    # the hat matrix H = J Ai Jw^T is applied in factored form (never N x N: 50 MB at 2,500
+    # poses); its diagonal as in hat_diag
+    h = np.einsum("nk,kl,nl->n", J, Ai, Jw)
     n = rng.normal(size=(sims, len(var))) * np.sqrt(var)
-    r = n - n @ H.T
+    r = n - ((n @ Jw) @ Ai.T) @ J.T
     e = r / np.maximum(1 - h, 1e-3)
     if normalised:
         return np.sqrt(np.mean(e * e / var, axis=1))

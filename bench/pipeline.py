@@ -11,7 +11,6 @@ import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 
 from _common import np
@@ -19,7 +18,7 @@ from _common import np
 from imucald.calibration import Calibration, SensorCal
 from imucald.daemon.config import DEFAULTS
 from imucald.daemon.outputs import SocketSink
-from imucald.daemon.pipeline import Pipeline
+from imucald.daemon.pipeline import Pipeline, batch_period_s
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, RealClock, VirtualClock
 from imucald.sim.emulators import emulated_board
@@ -35,27 +34,21 @@ def batches(board, rate, seconds):
     b = make_board(board, Bus(eb, board, clock=clk), clk, rate_hz=rate)
     b.start()
     out = []
+    period = batch_period_s(DEFAULTS["sensor"]["batch_s"], rate)     # as the daemon drains it
     while clk.now() < seconds:
-        bt = b.read_batch(batch_s=0.02)
+        bt = b.read_batch(batch_s=period)
         if len(bt):
             out.append(bt)
     return out
 
 
-def drain(path, stop):
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.connect(path)
-    s.settimeout(0.2)
-    n = 0
-    while not stop.is_set():
-        try:
-            d = s.recv(1 << 20)
-            if not d:
-                break
-            n += len(d)
-        except socket.timeout:
-            pass
-    s.close()
+#: the stream's reader, in its own process: process_time() of the bench then counts the
+#: daemon's side only (a reader thread here would add its recv calls and GIL hand-overs)
+_DRAIN = ("import socket, sys\n"
+          "s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)\n"
+          "s.connect(sys.argv[1])\n"
+          "while s.recv(1 << 20):\n"
+          "    pass\n")
 
 
 def cost(board, rate, seconds, fmt, tmp):
@@ -68,18 +61,20 @@ def cost(board, rate, seconds, fmt, tmp):
         gyro=SensorCal("gyro", "bias", {"bias_dps": np.array([1.0, -2, 0.5])}))
     path = os.path.join(tmp, f"b-{board}-{fmt}.sock")
     sink = SocketSink(path, fmt, board, max_buffer=1 << 30)
-    stop = threading.Event()
-    th = threading.Thread(target=drain, args=(path, stop), daemon=True)
-    th.start()
-    time.sleep(0.1)
-    sink.accept()
+    reader = subprocess.Popen([sys.executable, "-c", _DRAIN, path])
+    while not sink.clients:
+        time.sleep(0.01)
+        sink.accept()
     n = sum(len(b) for b in bs)
     c0 = time.process_time()
     for b in bs:
         sink.write(pipe.process(b))
     c = time.process_time() - c0
-    stop.set()
+    while sink.clients and sink.clients[0].buf:      # what the reader has not taken yet
+        time.sleep(0.01)
+        sink.write(b"")
     sink.close()
+    reader.wait()
     return c / n * 1e6, n
 
 

@@ -106,6 +106,39 @@ def _mag_only_recording(path, raw, rate_hz=50.0):
     write_recording(Recording(t=t, mag=raw, meta={"board": "gy273", "rate_hz": f"{rate_hz:g}"}), str(path))
 
 
+def test_queued_reservoir_equals_one_binned_at_every_add():
+    """The reservoir queues the daemon's 1-2 readings a batch and bins them in bulk; the
+    points, counts and samples seen equal those of binning each add at once (the first
+    centre fitted at the add that brings 50 points, the re-binning at each doubling),
+    whenever the queue is read (here, now and then) and with non-finite rows mixed in."""
+    rng = np.random.default_rng(4)
+    adds = []
+    for _ in range(1500):
+        v = rng.normal(size=(int(rng.integers(0, 4)), 3))
+        v = 0.5 * v / np.linalg.norm(v, axis=1, keepdims=True) + [0.1, -0.2, 0.05]
+        if len(v) and rng.random() < 0.1:
+            v[0, 2] = np.nan
+        adds.append(v)
+    def feed(queued):
+        r, seen = SphereReservoir(), []
+        for i, v in enumerate(adds):
+            tags = np.full(len(v), i) if i % 2 else None
+            if queued:
+                r.add(v, tags)
+            else:                        # the unqueued reference: each add binned at once
+                f = np.all(np.isfinite(v), axis=1)
+                r._add_one(v[f], np.full(int(f.sum()), -1 if tags is None else i))
+            if i % 97 == 0:
+                seen.append((r.seen, r.points().copy()))
+        return r, seen
+    a, sa = feed(False)
+    b, sb = feed(True)
+    assert a.seen == b.seen > 2000 and np.array_equal(a.count, b.count)
+    assert np.array_equal(a.points(), b.points()) and len(a.points()) > 500
+    assert np.array_equal(a.tags(), b.tags()) and (a.tags() >= 0).any() and (a.tags() < 0).any()
+    assert all(x[0] == y[0] and np.array_equal(x[1], y[1]) for x, y in zip(sa, sb))
+
+
 def test_cli_mag_only_recording(tmp_path, capsys):
     p = tmp_path / "m.csv"
     _mag_only_recording(p, _swing(np.random.default_rng(3)))

@@ -23,7 +23,7 @@ smooth hand rotation contributes little to them at 10-200 Hz).
 """
 from __future__ import annotations
 
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -39,6 +39,8 @@ __all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage",
 #: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
 #: along the plane normal is flat: the normal axis is not determined (3 sigma)
 FLAT_K = 3.0
+#: rows a SphereReservoir queues before binning them
+QUEUE_ROWS = 64
 
 
 class SphereReservoir:
@@ -56,18 +58,66 @@ class SphereReservoir:
         self.tag = np.full((cells, per_cell), -1, np.int64)
         self.count = np.zeros(cells, int)
         self.centre: Optional[np.ndarray] = None
-        self.seen = 0
+        self._seen = 0
         self._pending: List[np.ndarray] = []
         self._pending_tags: List[np.ndarray] = []
+        # add() only queues (a daemon adds one or two readings a batch); the queue is worked
+        # off in bulk, with the same result as adding each batch at once (see _flush)
+        self._queue: List[Tuple[np.ndarray, Optional[np.ndarray]]] = []
+        self._queued = 0
+
+    @property
+    def seen(self) -> int:
+        """Finite samples added so far."""
+        self._flush()
+        return self._seen
 
     def add(self, m: np.ndarray, tags: Optional[np.ndarray] = None) -> None:
         m = np.asarray(m, float).reshape(-1, 3)
-        tg = np.full(len(m), -1, np.int64) if tags is None else np.asarray(tags, np.int64).reshape(-1)
-        ok = np.all(np.isfinite(m), axis=1)
-        m, tg = m[ok], tg[ok]
+        if len(m):
+            self._queue.append((m, None if tags is None else np.asarray(tags, np.int64).reshape(-1)))
+            self._queued += len(m)
+            if self._queued >= QUEUE_ROWS:
+                self._flush()
+
+    def _flush(self) -> None:
+        """Work off the queue as if each queued batch had been added on its own: the first
+        centre is fitted at the first batch that brings 50 spread samples, and the points are
+        re-binned after the batch that doubles the samples seen; between those events the
+        centre is fixed, so binning the batches together gives the same reservoir."""
+        if not self._queue:
+            return
+        q, self._queue, self._queued = self._queue, [], 0
+        ms = [m for m, _ in q]
+        M = ms[0] if len(q) == 1 else np.concatenate(ms)
+        T = np.concatenate([np.full(len(m), -1, np.int64) if t is None else t for m, t in q])
+        ok = np.all(np.isfinite(M), axis=1)
+        ends = np.cumsum([len(m) for m in ms])
+        kept = np.cumsum(ok)[ends - 1]                      # finite rows up to each batch's end
+        i = 0
+        while i < len(q):
+            lo = ends[i - 1] if i else 0
+            if self.centre is None:                          # rare: the first samples
+                ok_i = ok[lo:ends[i]]
+                self._add_one(M[lo:ends[i]][ok_i], T[lo:ends[i]][ok_i])
+                i += 1
+                continue
+            base = self._seen - (int(kept[i - 1]) if i else 0)
+            hit = np.flatnonzero(base + kept[i:] >= self._next_recentre)
+            j = int(hit[0]) + i if len(hit) else len(q) - 1
+            hi = ends[j]
+            self._bin(M[lo:hi][ok[lo:hi]], T[lo:hi][ok[lo:hi]])
+            self._seen = int(base + kept[j])
+            if self._seen >= self._next_recentre:    # 2x, 4x, 8x ... the first centre's samples
+                self._next_recentre = 2 * self._seen
+                self.recentre()
+            i = j + 1
+
+    def _add_one(self, m: np.ndarray, tg: np.ndarray) -> None:
+        """One batch of finite samples (m, their tags), binned at once."""
         if not len(m):
             return
-        self.seen += len(m)
+        self._seen += len(m)
         if self.centre is None:
             self._pending.append(m)
             self._pending_tags.append(tg)
@@ -80,8 +130,8 @@ class SphereReservoir:
             m = pts
             self._next_recentre = 2 * len(pts)
         self._bin(m, tg)
-        if self.seen >= self._next_recentre:      # 2x, 4x, 8x ... the first centre's samples
-            self._next_recentre = 2 * self.seen
+        if self._seen >= self._next_recentre:      # 2x, 4x, 8x ... the first centre's samples
+            self._next_recentre = 2 * self._seen
             self.recentre()
 
     def _bin(self, m: np.ndarray, tags: Optional[np.ndarray] = None) -> None:
@@ -95,10 +145,12 @@ class SphereReservoir:
             self.count[c] += 1
 
     def points(self) -> np.ndarray:
+        self._flush()
         return self.buf[~np.isnan(self.buf[..., 0])]
 
     def tags(self) -> np.ndarray:
         """The tag of each point of :meth:`points`, in the same order (-1: none given)."""
+        self._flush()
         return self.tag[~np.isnan(self.buf[..., 0])]
 
     def coverage(self) -> float:

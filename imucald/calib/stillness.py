@@ -90,6 +90,7 @@ class StillnessDetector:
         self._buf: Optional[dict] = None     # samples whose still flag is not decided yet
         self._pend: List[dict] = []          # batches not yet joined (warm-up, or < w/4)
         self._pend_n = 0
+        self._pend_i0 = 0                    # stream index of the first pending row
         self._q_done = 0                     # quiet flags known for stream index < this
         self._run: List[dict] = []
         self._run_n = 0
@@ -170,14 +171,14 @@ class StillnessDetector:
             self._last = x[-1]
         self._blocks(x, gyro is not None)
         va, gm, full = self._window_stats(x)
-        new = {"t": np.asarray(t, float), "acc": acc, "gyro": None if gyro is None else x[:, 3:],
+        # stream index, quiet flag and its known mark are made for the joined pending rows
+        new = {"t": np.asarray(t, float), "acc": acc,
+               "gyro": None if gyro is None else np.asarray(gyro, float),
                "temp": None if temp is None else np.asarray(temp, float), "mag": mag,
-               "fresh": mag_fresh, "good": good & full, "ok": good, "va": va, "gm": gm,
-               "i": np.arange(self._seen, self._seen + n), "q": np.zeros(n, bool),
-               "known": np.zeros(n, bool)}
+               "fresh": mag_fresh, "good": good & full, "ok": good, "va": va, "gm": gm}
+        if not self._pend:
+            self._pend_i0 = self._seen
         self._seen += n
-        if gyro is not None:
-            new["gyro"] = np.asarray(gyro, float)
         self._pend.append(new)
         self._pend_n += n
         # the live flag: this batch against the floor known now (it does not wait)
@@ -191,11 +192,16 @@ class StillnessDetector:
         return q_batch, self._advance(final=False)
 
     def _join(self) -> None:
-        parts = ([self._buf] if self._buf is not None else []) + self._pend
+        pend, m = self._pend, self._pend_n
         self._pend, self._pend_n = [], 0
-        self._buf = parts[0] if len(parts) == 1 else {
-            k: (None if parts[0][k] is None else np.concatenate([p[k] for p in parts]))
-            for k in parts[0]}
+        new = pend[0] if len(pend) == 1 else {
+            k: (None if pend[0][k] is None else np.concatenate([p[k] for p in pend]))
+            for k in pend[0]}
+        new.update(i=np.arange(self._pend_i0, self._pend_i0 + m), q=np.zeros(m, bool),
+                   known=np.zeros(m, bool))
+        b = self._buf
+        self._buf = new if b is None else {
+            k: (None if b[k] is None else np.concatenate([b[k], new[k]])) for k in b}
 
     def _quiet(self, b, fa, bias) -> np.ndarray:
         """Quiet trailing windows: accelerometer variance <= k floor, turn <= max_turn_deg."""

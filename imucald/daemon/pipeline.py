@@ -23,7 +23,7 @@ from .config import accel_poses_needed
 from .outputs import encode_samples, event
 from .stillness import StillnessDetector
 
-__all__ = ["Pipeline", "InlineExecutor", "POSE_COLUMNS"]
+__all__ = ["Pipeline", "InlineExecutor", "POSE_COLUMNS", "batch_period_s"]
 
 log = logging.getLogger("imucald")
 #: fewest poses any accelerometer calibration uses: the 9 parameters of triangular9 and
@@ -38,6 +38,17 @@ MAG_NOISE_SAMPLES = 2000
 #: readings between calibrations
 MIN_MAG_POINTS = 30
 MAG_RECAL_S = 20.0
+#: fewest samples the daemon hands the pipeline at once: a batch costs a fixed ~60 us here
+#: (numpy calls of the stillness detector, encoder, socket write) plus ~5 us a sample
+#: (bench/pipeline.py), so a 9DOF board polled at 100 Hz with 20 ms batches (2 samples)
+#: would spend most of its time on the fixed part
+MIN_BATCH_SAMPLES = 4
+
+
+def batch_period_s(batch_s: float, rate_hz: float) -> float:
+    """How often the daemon drains the board: ``sensor.batch_s``, lengthened to hold at least
+    MIN_BATCH_SAMPLES samples (a 100 Hz board: 40 ms; 1 kHz boards keep 20 ms)."""
+    return max(float(batch_s), MIN_BATCH_SAMPLES / float(rate_hz))
 
 
 class InlineExecutor(Executor):

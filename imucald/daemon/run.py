@@ -17,7 +17,7 @@ from typing import Any, Dict, Optional
 
 from ..errors import AlreadyRunning, CannotCreate, UserError
 from .notify import notify, watchdog_period_s
-from .pipeline import Pipeline
+from .pipeline import Pipeline, batch_period_s
 from .state import load_calibration, load_poses, save_calibration, save_poses
 
 __all__ = ["Daemon", "LOCK_FILE"]
@@ -152,7 +152,7 @@ class Daemon:
     # -- the loop -------------------------------------------------------------------------
     def _loop(self) -> int:
         b, pipe = self.board, self.pipe
-        batch_s = self.cfg["sensor"]["batch_s"]
+        batch_s = batch_period_s(self.cfg["sensor"]["batch_s"], b.rate_hz)
         wd = watchdog_period_s()
         ready = False
         last_status = last_wd = -1e9

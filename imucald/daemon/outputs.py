@@ -103,7 +103,8 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, e
         rec["temp"], rec["mag"] = temp if temp is not None else np.nan, m
         return rec.tobytes()
     if fmt == "ndjson" and gyro is not None and temp is not None:
-        fast = _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id)
+        # the usual case, every value known (_ndjson_known); else one comprehension per field
+        fast = _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id, extra)
         if fast is not None:
             return fast
     fin = lambda x: None if x is None else np.all(np.isfinite(x), axis=1)
@@ -124,14 +125,6 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, e
             tc = T[i] if T is not None and okT[i] else ""
             out.append(f"{Q[i]},{TT[i]},{a[0]},{a[1]},{a[2]},{g[0]},{g[1]},{g[2]},"
                        f"{m[0]},{m[1]},{m[2]},{tc},{int(S[i])},{cal_id}\n")
-    elif G is not None and T is not None and okA.all() and okG.all() and okT.all():
-        # the usual case, every value known: one f-string per sample
-        mm = _vecs("mag_gauss", M, okM, n)
-        for i in range(n):
-            a, g = A[i], G[i]
-            out.append(f'{{"class":"IMU","seq":{Q[i]},"t":{TT[i]},"acc_g":[{a[0]},{a[1]},{a[2]}],'
-                       f'"gyro_dps":[{g[0]},{g[1]},{g[2]}]{mm[i]},"temp_c":{T[i]}{extra},'
-                       f'"still":{"true" if S[i] else "false"},"cal":{cal_id}}}\n')
     else:
         # one comprehension per field (a value that is not known contributes "")
         aa = _vecs("acc_g", A, okA, n)
@@ -150,7 +143,7 @@ _DEC = np.array([6, 6, 6, 6, 5, 5, 5, 3, 6, 6, 6])
 _POW = 10.0 ** _DEC
 
 
-def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int) -> Optional[bytes]:
+def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str = "") -> Optional[bytes]:
     """NDJSON of a batch whose t, acc, gyro and temp are all finite (the usual case; a
     magnetometer row that is not fresh or not finite is left out), with a handful of numpy
     calls per batch rather than per field; None when the general path must look."""
@@ -167,7 +160,7 @@ def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int) -> Optional[
     for i, (q, r, st) in enumerate(zip(seq.tolist(), R, still.tolist())):
         m = f',"mag_gauss":[{r[8]},{r[9]},{r[10]}]' if okM is not None and okM[i] else ""
         out.append(f'{{"class":"IMU","seq":{q},"t":{r[0]},"acc_g":[{r[1]},{r[2]},{r[3]}],'
-                   f'"gyro_dps":[{r[4]},{r[5]},{r[6]}]{m},"temp_c":{r[7]},'
+                   f'"gyro_dps":[{r[4]},{r[5]},{r[6]}]{m},"temp_c":{r[7]}{extra},'
                    f'"still":{"true" if st else "false"}{tail}')
     return "".join(out).encode()
 

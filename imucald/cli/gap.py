@@ -19,9 +19,15 @@ def gap_summary(res) -> str:
             v += f" (by {r['partially_explained_by']}: shrink {r['shrink']:.2f})"
         elif r.get("explained"):
             v += f" ({r['explained']}: shrink {r['shrink']:.2f})"
-        rms = (f"; held-out residual {r['heldout_rms'] * k:.4g} {uu} vs the twin's "
-               f"{r['twin_heldout_rms'] * k:.4g} {uu}" if "heldout_rms" in r else
-               f"; {r['blocks']} blocks of {r['block_s']} s")
+        if "points" in r:       # points of unequal noise (pose means and rotation samples)
+            rms = (f"; {r['points']['still_pose_means']} pose means and {r['points']['rotation_points']} "
+                   f"rotation points, held-out residual {r['heldout_rms_normalised']:.3g} noise sd vs "
+                   f"the twin's {r['twin_heldout_rms_normalised']:.3g}")
+        elif "heldout_rms" in r:
+            rms = (f"; held-out residual {r['heldout_rms'] * k:.4g} {uu} vs the twin's "
+                   f"{r['twin_heldout_rms'] * k:.4g} {uu}")
+        else:
+            rms = f"; {r['blocks']} blocks of {r['block_s']} s"
         lines.append(f"{s}: verdict {v}{rms}: ratio {r['ratio_before']:.2f} -> "
                      f"{r['ratio_after']:.2f}; chi-square p = {r['p_value']:.3g}"
                      + (f" (log10 p = {r['log10_p_value']})" if r['p_value'] == 0 else ""))

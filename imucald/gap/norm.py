@@ -61,6 +61,8 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         "poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp_gap, 2),
         "chi2": chi2, "dof": N - p0, "heldout_rms": float(np.sqrt(np.mean(e * e))) * scale,
         "twin_heldout_rms": twin_raw * scale, "twin_ratio_q99": ratio_q99, "unit": unit,
+        # what the ratio compares: held-out residual / noise sd, its RMS in the data and the twin
+        "heldout_rms_normalised": nrms(e), "twin_heldout_rms_normalised": twin,
         "baseline_params": {n: float(v) for n, v in zip(model.param_names, th)},
     }
     # a gap: the chi-square test rejects the noise model, and the held-out ratio lies

@@ -107,3 +107,47 @@ def _provisional(v: Any, path: str) -> Dict[str, Any]:
         _fail(f"{path}.missing_orientations", f"{m!r} is not a list of orientation names",
               "e.g. ['-Z up', '+X+Y up']")
     return {"poses": v["poses"], "poses_for_final": v["poses_for_final"], "missing_orientations": list(m)}
+
+
+#: the unit of a sensor's thermal bias polynomial (its key names carry it)
+THERMAL_UNIT = {"accel": "g", "gyro": "dps", "mag": "gauss"}
+
+
+def _thermal(v: Any, path: str, sensor: str) -> Dict[str, Any]:
+    """A part's ``thermal`` block: {order 0..3, t_ref_c, t_min_c <= t_ref_c <= t_max_c,
+    bias_poly_<unit> (order rows of 3) with bias_poly_stderr_<unit>, accel: scale_poly
+    (1 row) with scale_poly_stderr, note} (README: calibration file)."""
+    unit = THERMAL_UNIT[sensor]
+    bp, bs = f"bias_poly_{unit}", f"bias_poly_stderr_{unit}"
+    if not isinstance(v, Mapping):
+        _fail(path, f"expected a mapping, got {type(v).__name__}", "or leave it out (no thermal terms)")
+    opt = {bp, bs, "note"} | ({"scale_poly", "scale_poly_stderr"} if sensor == "accel" else set())
+    _keys(v, path, {"order", "t_ref_c", "t_min_c", "t_max_c"}, opt)
+    order = v["order"]
+    if isinstance(order, bool) or not isinstance(order, int) or not 0 <= order <= 3:
+        _fail(f"{path}.order", f"{order!r} is not an order 0..3", "e.g. order: 1")
+    out: Dict[str, Any] = {"order": order}
+    for k in ("t_min_c", "t_ref_c", "t_max_c"):
+        out[k] = float(_array(v[k], f"{path}.{k}", 0))
+    if not out["t_min_c"] <= out["t_ref_c"] <= out["t_max_c"]:
+        _fail(f"{path}.t_ref_c", f"{out['t_ref_c']} is not within [t_min_c, t_max_c] = "
+              f"[{out['t_min_c']}, {out['t_max_c']}]", "t_min_c <= t_ref_c <= t_max_c")
+    for key, se, rows in ((bp, bs, order), ("scale_poly", "scale_poly_stderr", 1)):
+        if key not in v and key == bp and order:
+            _fail(f"{path}.{bp}", "missing", f"order {order} needs {order} rows of 3 coefficients")
+        if key in v:
+            a = _array(v[key], f"{path}.{key}", (rows, 3))
+            if a.shape[0] != rows:
+                _fail(f"{path}.{key}", f"{a.shape[0]} rows for order {rows}", f"give {rows} rows of 3")
+            out[key] = a
+            if se in v:
+                out[se] = _array(v[se], f"{path}.{se}", (rows, 3), nullable=True, nonneg=True)
+                if out[se].shape[0] != rows:
+                    _fail(f"{path}.{se}", f"{out[se].shape[0]} rows", f"give {rows} rows of 3")
+        elif se in v:
+            _fail(f"{path}.{se}", f"without {key}", f"give {key} too, or neither")
+    note = v.get("note", "")
+    if not isinstance(note, str):
+        _fail(f"{path}.note", f"expected text, got {type(note).__name__}", "quote it")
+    out["note"] = note
+    return out

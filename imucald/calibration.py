@@ -18,6 +18,14 @@ Every part is an affine correction in the sensor frame, ``corrected = A raw + c`
   ``soft_iron`` (upper triangle xx yy zz xy xz yz of W, det 1) and ``field_gauss``;
   corrected = W (raw - hard_iron), so a clean field has norm ``field_gauss``.
 
+Any part may carry a ``thermal`` block (calib/thermal.py fits it): a bias polynomial
+``bias_poly_<unit>`` (rows k = 1..order of the coefficients of (T - t_ref_c)^k), for the
+accelerometer optionally ``scale_poly`` (1/degC, on the raw reading minus its bias), the
+range ``t_min_c``..``t_max_c`` it was fitted on and a ``note`` (what was chosen and why).
+The raw reading is corrected first, raw' = raw - b(T) - (raw - b0) s(T), with T clamped
+to the fitted range (held at the edge value outside it; unknown T: t_ref_c), and then
+by the part's own model; the part's parameters are those at t_ref_c.
+
 :meth:`Calibration.from_dict` checks every field (type, shape, finiteness, model
 name, units) and raises a one-line :class:`CalibrationError` naming the key path
 and the fix.  :func:`load` / :func:`save` read and write the YAML atomically.
@@ -32,7 +40,8 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 
 import numpy as np
 
-from ._calcheck import FLAGS, CalibrationError, _array, _fail, _flags, _keys, _provisional, _table
+from ._calcheck import (FLAGS, THERMAL_UNIT, CalibrationError, _array, _fail, _flags, _keys, _provisional,
+                        _table, _thermal)
 
 __all__ = ["Calibration", "SensorCal", "CalibrationError", "FORMAT_VERSION", "UNITS", "FLAGS",
            "load", "save", "apply"]
@@ -73,6 +82,9 @@ class SensorCal:
     flags: Mapping[str, Tuple[str, ...]] = field(default_factory=dict)
     method: str = ""
     quality: Mapping[str, float] = field(default_factory=dict)
+    #: None, or the temperature terms: order, t_ref_c, t_min_c, t_max_c, bias_poly_<unit>
+    #: ((order, 3) array), bias_poly_stderr_<unit>, scale_poly (accel, (1, 3)), note
+    thermal: Optional[Mapping[str, Any]] = None
 
     # -- construction ----------------------------------------------------------------
     @classmethod
@@ -127,13 +139,45 @@ class SensorCal:
             W[i, j] = W[j, i] = p["soft_iron"][k]
         return W, -W @ p["hard_iron_gauss"]
 
+    @cached_property
+    def _thermal_terms(self):
+        """(t_min, t_ref, t_max, bias rows (K, 3), scale rows (L, 3), b0 (3,)) or None."""
+        th = self.thermal
+        if not th:
+            return None
+        P = np.asarray(th.get(f"bias_poly_{THERMAL_UNIT[self.sensor]}", np.zeros((0, 3))), float)
+        S = np.asarray(th.get("scale_poly", np.zeros((0, 3))), float)
+        if not len(P) and not len(S):
+            return None
+        A, c = self.affine
+        b0 = -np.linalg.solve(A, c) if len(S) else np.zeros(3)
+        return th["t_min_c"], th["t_ref_c"], th["t_max_c"], P, S, b0
+
+    def thermal_offset(self, raw, temp_c):
+        """raw minus the thermal terms at temp_c (degC: a scalar, e.g. a batch's mean, or
+        (N,)); clamped to the fitted range, unknown (NaN/None) = t_ref_c."""
+        tt = self._thermal_terms
+        if tt is None or temp_c is None:
+            return raw
+        lo, ref, hi, P, S, b0 = tt
+        T = np.asarray(temp_c, float)
+        dT = np.where(np.isfinite(T), np.clip(T, lo, hi) - ref, 0.0)
+        K = max(len(P), len(S))
+        pw = dT[..., None] ** np.arange(1, K + 1)            # (K,) or (N, K)
+        out = raw - pw[..., :len(P)] @ P if len(P) else raw
+        if len(S):
+            out = out - (raw - b0) * (pw[..., :len(S)] @ S)
+        return out
+
     def apply(self, raw, temp_c=None) -> np.ndarray:
-        """Correct raw readings (N, 3) in this sensor's unit; temp_c (N,) degC feeds a gyro
-        thermal polynomial when there is one (unknown = NaN: the bias at temp_ref_c)."""
+        """Correct raw readings (N, 3) in this sensor's unit; temp_c (N,) or a scalar degC
+        (a batch's temperature) feeds the thermal terms (unknown = NaN: those at t_ref_c)."""
         x = np.asarray(raw, float)
         if x.ndim != 2 or x.shape[1] != 3:
             raise ValueError(f"{self.sensor}: raw readings must have shape (N, 3), got {x.shape}")
         A, c = self.affine
+        if self.thermal is not None:
+            x = self.thermal_offset(x, temp_c)
         if self.sensor == "gyro" and "bias_temp_poly_dps" in self.params:
             if temp_c is None:
                 raise ValueError("gyro: this calibration has a thermal bias term: give temp_c")
@@ -156,6 +200,9 @@ class SensorCal:
         if self.quality:
             d["quality"] = {k: (int(v) if isinstance(v, (int, np.integer)) else float(v))
                             for k, v in self.quality.items()}
+        if self.thermal is not None:
+            d["thermal"] = {k: (v if isinstance(v, str) else int(v) if k == "order"
+                                else _out(v)) for k, v in self.thermal.items()}
         return d
 
     @classmethod
@@ -163,7 +210,7 @@ class SensorCal:
         path = path or sensor
         if not isinstance(d, Mapping):
             _fail(path, f"expected a mapping, got {type(d).__name__}", "see README: calibration file")
-        _keys(d, path, {"model", "params"}, {"method", "stderr", "flags", "quality"})
+        _keys(d, path, {"model", "params"}, {"method", "stderr", "flags", "quality", "thermal"})
         model = d["model"]
         try:
             req, opt = param_shapes(sensor, model if isinstance(model, str) else "")
@@ -201,7 +248,11 @@ class SensorCal:
                     or not math.isfinite(v):
                 _fail(f"{path}.quality.{k}", f"{v!r} is not a finite number", "fix or remove it")
             quality[k] = v
-        return cls(sensor, model, params, stderr, flags, method, quality)
+        thermal = None if d.get("thermal") is None else _thermal(d["thermal"], f"{path}.thermal", sensor)
+        if thermal is not None and "bias_temp_poly_dps" in params:
+            _fail(f"{path}.thermal", "given together with params.bias_temp_poly_dps",
+                  "keep one of the two thermal terms (thermal: supersedes the older one)")
+        return cls(sensor, model, params, stderr, flags, method, quality, thermal)
 
 
 def _fit_flags(fit) -> Dict[str, Tuple[str, ...]]:
@@ -241,14 +292,14 @@ class Calibration:
         return replace(self, **kw)
 
     # -- correction (identity for a sensor without a part) ----------------------------
-    def apply_accel(self, acc_g):
-        return np.asarray(acc_g, float) if self.accel is None else self.accel.apply(acc_g)
+    def apply_accel(self, acc_g, temp_c=None):
+        return np.asarray(acc_g, float) if self.accel is None else self.accel.apply(acc_g, temp_c)
 
     def apply_gyro(self, gyro_dps, temp_c=None):
         return np.asarray(gyro_dps, float) if self.gyro is None else self.gyro.apply(gyro_dps, temp_c)
 
-    def apply_mag(self, mag_gauss):
-        return np.asarray(mag_gauss, float) if self.mag is None else self.mag.apply(mag_gauss)
+    def apply_mag(self, mag_gauss, temp_c=None):
+        return np.asarray(mag_gauss, float) if self.mag is None else self.mag.apply(mag_gauss, temp_c)
 
     # -- identity ----------------------------------------------------------------------
     def mismatch(self, board: str, chips: Optional[Mapping[str, str]] = None,
@@ -365,11 +416,11 @@ def apply(cal: Calibration, accel_g=None, gyro_dps=None, mag_gauss=None, temp_c=
     """Correct whichever arrays are given ((N, 3) each); returns them by name."""
     out = {}
     if accel_g is not None:
-        out["accel_g"] = cal.apply_accel(accel_g)
+        out["accel_g"] = cal.apply_accel(accel_g, temp_c)
     if gyro_dps is not None:
         out["gyro_dps"] = cal.apply_gyro(gyro_dps, temp_c)
     if mag_gauss is not None:
-        out["mag_gauss"] = cal.apply_mag(mag_gauss)
+        out["mag_gauss"] = cal.apply_mag(mag_gauss, temp_c)
     return out
 
 

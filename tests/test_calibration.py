@@ -25,6 +25,12 @@ def full_cal(board=BOARD, chips=CHIPS) -> Calibration:
     acc = SensorCal.accel("triangular9", [0.01, -0.02, 0.005, 1.02, 0.98, 1.01, 0.03, -0.02, 0.01],
                           np.full(9, 2e-4), "ga", {"heldout_rms_g": 1.1e-3, "poses": 24},
                           flags={"alpha": ("determined", "undetermined", "at_bound")})
+    acc = SensorCal(acc.sensor, acc.model, acc.params, acc.stderr, acc.flags, acc.method, acc.quality, {
+        "order": 2, "t_min_c": 20.0, "t_ref_c": 27.5, "t_max_c": 35.0,
+        "bias_poly_g": np.array([[6e-4, -8e-4, 5e-4], [1e-5, 0, -2e-5]]),
+        "bias_poly_stderr_g": np.array([[1e-5, 1e-5, np.nan], [1e-6, 1e-6, 1e-6]]),
+        "scale_poly": np.array([[1e-4, -2e-4, 0]]), "scale_poly_stderr": np.array([[1e-5, 1e-5, 1e-5]]),
+        "note": "order 2 + scale: chosen by held-out error"})
     gyro = SensorCal("gyro", "bias", {
         "bias_dps": np.array([0.5, -1.0, 0.25]),
         "matrix": np.array([1.01, 0.002, 0, 0, 0.99, 0, 0.001, 0, 1.0]),
@@ -34,7 +40,9 @@ def full_cal(board=BOARD, chips=CHIPS) -> Calibration:
     mag = SensorCal("mag", "mag_sym", {"hard_iron_gauss": np.array([0.1, -0.05, 0.2]),
                                        "soft_iron": np.array([1.05, 0.97, 0.98, 0.01, -0.02, 0.005]),
                                        "field_gauss": np.array(0.48)},
-                    {"field_gauss": np.array(0.002)}, quality={"heldout_rel_rms": 0.004})
+                    {"field_gauss": np.array(0.002)}, quality={"heldout_rel_rms": 0.004},
+                    thermal={"order": 1, "t_min_c": 21.5, "t_ref_c": 25.0, "t_max_c": 30.25,
+                             "bias_poly_gauss": np.array([[5e-4, 0, -1e-4]]), "note": ""})
     return Calibration(board, dict(chips), 3, "2026-01-01T00:00:00+00:00", (21.5, 30.25), acc, gyro,
                        mag, {"columns": ["ax_g", "ay_g", "az_g", "temp_c"],
                              "rows": [[0.0, 0.0, 1.0, 25.0], [1.0, 0.0, 0.0, None]]},
@@ -48,7 +56,19 @@ def test_round_trip_and_apply(tmp_path):
     assert back.to_dict() == cal.to_dict()
     rng = np.random.default_rng(0)
     raw = rng.normal(size=(50, 3))
+    # accel: thermal terms about t_ref_c = 27.5, clamped to [20, 35]; no temperature = t_ref_c
     assert np.allclose(back.apply_accel(raw), Triangular9().forward(cal.accel.theta, raw), atol=1e-12)
+    th = cal.accel.thermal
+    for T in (np.linspace(10, 45, 50), 31.0):
+        d = np.clip(np.broadcast_to(T, (50,)), 20, 35) - 27.5
+        b0 = cal.accel.theta[6:9]
+        want = (raw - np.outer(d, th["bias_poly_g"][0]) - np.outer(d ** 2, th["bias_poly_g"][1])
+                - (raw - b0) * np.outer(d, th["scale_poly"][0]))
+        assert np.allclose(back.apply_accel(raw, T), Triangular9().forward(cal.accel.theta, want), atol=1e-12)
+    assert np.allclose(back.apply_accel(raw, np.full(50, np.nan)), back.apply_accel(raw), atol=1e-15)
+    # beyond the fitted range the correction is held at the edge value
+    assert np.allclose(back.apply_accel(raw, 80.0), back.apply_accel(raw, 35.0), atol=1e-15)
+    assert not np.allclose(back.apply_accel(raw, 34.0), back.apply_accel(raw, 35.0), atol=1e-6)
     # gyro: M (raw - b - sum_k c_k (T - 25)^k); an unknown temperature gives the bias at 25 degC
     T = np.linspace(20, 40, 50)
     T[3] = np.nan
@@ -113,6 +133,8 @@ _REQUIRED = {("format_version",), ("id",), ("board",), ("units",), ("accel", "mo
              ("mag", "params")} | {("units", u) for u in _DOC["units"]} | {
     (s, "params", k) for s in ("accel", "mag") for k in _DOC[s]["params"]} | {
     ("gyro", "params", "bias_dps"), ("gyro", "params", "temp_ref_c")} | {   # temp_ref_c: with the poly
+    (s, "thermal", k) for s in ("accel", "mag") for k in ("order", "t_min_c", "t_ref_c", "t_max_c")} | {
+    ("accel", "thermal", "bias_poly_g"), ("mag", "thermal", "bias_poly_gauss")} | {  # order > 0 needs them
     ("provisional", k) for k in _DOC["provisional"]}
 #: lists whose length is free (a shorter one is no corruption)
 _FREE_LENGTH = {("provisional", "missing_orientations")}
@@ -287,3 +309,22 @@ def test_a_poses_file_with_a_nan_does_not_stop_start_up(tmp_path, caplog):
         d, lines = _run_daemon(tmp_path, None)
     assert "poses.csv" in caplog.text and "pose 12: acc is not finite" in caplog.text
     assert d.pipe.samples >= 1490 and sum(b'"IMU"' in x for x in lines) > 300
+
+
+def test_thermal_block_checks_its_range_order_and_the_older_gyro_term():
+    d = copy.deepcopy(_DOC)
+    d["accel"]["thermal"]["t_ref_c"] = 40.0
+    with pytest.raises(CalibrationError, match=r"^accel\.thermal\.t_ref_c: .*not within"):
+        Calibration.from_dict(d)
+    d = copy.deepcopy(_DOC)
+    d["mag"]["thermal"]["order"] = 2          # one row of coefficients for order 2
+    with pytest.raises(CalibrationError, match=r"^mag\.thermal\.bias_poly_gauss: 1 rows for order 2"):
+        Calibration.from_dict(d)
+    d = copy.deepcopy(_DOC)
+    d["gyro"]["thermal"] = {"order": 0, "t_min_c": 20, "t_ref_c": 25, "t_max_c": 30}
+    with pytest.raises(CalibrationError, match=r"^gyro\.thermal: given together"):
+        Calibration.from_dict(d)
+    d = copy.deepcopy(_DOC)
+    d["gyro"]["thermal"] = {"order": 0, "t_min_c": 20, "t_ref_c": 25, "t_max_c": 30, "scale_poly": [[0, 0, 0]]}
+    with pytest.raises(CalibrationError, match=r"^gyro\.thermal\.scale_poly: unknown key"):
+        Calibration.from_dict(d)

@@ -1,0 +1,320 @@
+"""Temperature terms of a calibration, and how many of them the data support.
+
+A sensor's bias is a polynomial in temperature about a reference t_ref_c,
+
+    b(T) = b0 + sum_{k=1..K} p_k (T - t_ref_c)^k,      K = 0..3,
+
+(ArduPilot's INS_TCAL and PX4's TC_* use a cubic; MPU-class parts have no common curve
+from unit to unit, so it is fitted per unit) and, for the accelerometer, optionally a
+scale change s(T) = s_1 (T - t_ref_c) per axis on the raw reading minus its bias.  Only
+the temperature range the fit saw is trusted: outside it the terms are held at the edge
+(calibration.py clamps).
+
+The order is chosen with the gap diagnosis's own test (gap/verdict.py, calib/heldout.py):
+each order's leave-one-out held-out residuals against the twin (what the noise model
+predicts for the same design); the constant has a gap when the chi-square test rejects
+the noise model *and* its held-out ratio lies above the twin's 99th percentile; then,
+among the higher orders that improve significantly (nested chi-square, Bonferroni over
+the variants) and lower the held-out error, the simplest whose held-out ratio lies within
+its twin's 99th percentile ("closed"), else the one with the lowest ratio.  Scatter in
+excess of the stated noise that even the richest variant leaves (steps, hysteresis,
+flicker between poses) inflates every variance first (as gap/linear.py does), so the
+test is against what a smooth curve can explain.  Below ``min_span_c`` of temperature
+only the constant is fitted, and the note says why.
+
+Two fitters, one rule: :func:`fit_bias_series` for direct bias observations (gyro still
+means, deg/s; any vector bias) by weighted least squares, and :func:`fit_norm_thermal`
+for a norm model (accelerometer |a| = 1 g, magnetometer hard iron), by weighted
+Levenberg-Marquardt with the model's prior.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .heldout import heldout, lm_weighted, numjac, twin_rms
+from .stats import chi2_logsf
+
+__all__ = ["ThermalFit", "fit_bias_series", "fit_norm_thermal", "MIN_SPAN_C", "MAX_ORDER", "ALPHA"]
+
+MIN_SPAN_C = 10.0       #: default thermal.min_span_c: below it only a constant
+MAX_ORDER = 3
+ALPHA = 0.01            #: the gap diagnosis's significance level (gap/verdict.py ALPHA)
+SIMS = 200              #: twin re-simulations per variant
+MIN_DOF = 6             #: residual degrees of freedom a variant must leave
+
+
+@dataclass
+class ThermalFit:
+    """The chosen temperature terms.  Polynomial rows are coefficients of (T - t_ref_c)^k,
+    k = 1..order, in the sensor's unit per degC^k; ``scale_poly`` (accelerometer) in 1/degC."""
+
+    order: int
+    t_ref_c: float
+    t_min_c: float
+    t_max_c: float
+    bias_poly: np.ndarray                       #: (order, 3)
+    bias_poly_stderr: np.ndarray                #: (order, 3)
+    note: str
+    base: np.ndarray                            #: constant part: bias (3,) or norm-model theta
+    base_stderr: np.ndarray
+    scale_poly: Optional[np.ndarray] = None     #: (1, 3) or None
+    scale_poly_stderr: Optional[np.ndarray] = None
+    variants: Dict[str, Dict[str, object]] = field(default_factory=dict)   #: the test, per variant
+    inflation: float = 1.0                      #: excess-scatter factor applied to the variances
+    cov: Optional[np.ndarray] = None            #: covariance of [base, terms] (scaled units)
+    _scale_c: float = 1.0                       #: temperature scaling of the fit (degC)
+
+    @property
+    def name(self) -> str:
+        return f"order {self.order}" + (" + scale" if self.scale_poly is not None else "")
+
+    def bias_at(self, temp_c) -> np.ndarray:
+        """The bias polynomial's change from t_ref_c at temp_c (clamped), (N, 3)."""
+        T = np.clip(np.atleast_1d(np.asarray(temp_c, float)), self.t_min_c, self.t_max_c) - self.t_ref_c
+        return sum((np.outer(T ** (k + 1), self.bias_poly[k]) for k in range(self.order)),
+                   np.zeros((len(T), 3)))
+
+    def to_thermal(self, unit: str) -> Dict[str, object]:
+        """The ``thermal`` block of a calibration part (calibration.SensorCal.thermal)."""
+        d: Dict[str, object] = {"order": int(self.order), "t_ref_c": round(float(self.t_ref_c), 3),
+                                "t_min_c": round(float(self.t_min_c), 3),
+                                "t_max_c": round(float(self.t_max_c), 3)}
+        if self.order:
+            d[f"bias_poly_{unit}"] = np.asarray(self.bias_poly, float)
+            d[f"bias_poly_stderr_{unit}"] = np.asarray(self.bias_poly_stderr, float)
+        if self.scale_poly is not None:
+            d["scale_poly"] = np.asarray(self.scale_poly, float)
+            d["scale_poly_stderr"] = np.asarray(self.scale_poly_stderr, float)
+        d["note"] = self.note
+        return d
+
+
+# --- the rule ------------------------------------------------------------------------------
+
+def _stats(r, J, w, var, lam, rng, sims):
+    """chi2, held-out residuals, ratio to the twin and its 99th percentile (normalised, as
+    gap/norm.py: points of unequal noise)."""
+    e = heldout(r, J, w, lam)
+    tw = twin_rms(J, var, w, sims, rng, lam, normalised=True)
+    med = float(np.median(tw))
+    ratio = float(np.sqrt(np.mean(e * e * w))) / med
+    return {"chi2": float(np.sum(w * r * r)), "mse": float(np.mean(e * e * w)), "ratio": ratio,
+            "q99": float(np.quantile(tw / med, 0.99))}
+
+
+def _choose(res: Dict[str, dict], n_obs: int, names: Sequence[str]) -> Tuple[str, str]:
+    """The gap's rule over the variants (res[name]: q, chi2, mse, ratio, q99, dof); returns
+    (chosen name, why)."""
+    b = res["order 0"]
+    p_gap = math.exp(chi2_logsf(b["chi2"], max(b["dof"], 1)))
+    gap = p_gap < ALPHA and b["ratio"] > b["q99"]
+    b.update(p_value=p_gap, gap=bool(gap))
+    if not gap:
+        return "order 0", (f"no temperature trend beyond the noise (held-out ratio {b['ratio']:.2f}, "
+                           f"twin 99 % {b['q99']:.2f}, p = {p_gap:.2g})")
+    bonf = ALPHA / max(len(names) - 1, 1)
+    sig = []
+    for n in names[1:]:
+        v = res[n]
+        lp = chi2_logsf(max(b["chi2"] - v["chi2"], 0.0), v["q"] - b["q"])
+        v["nested_p_value"] = math.exp(lp)
+        v["closed"] = bool(v["ratio"] <= v["q99"])
+        v["significant"] = bool(v["nested_p_value"] < bonf and v["mse"] < b["mse"])
+        if v["significant"]:
+            sig.append(n)
+    if not sig:
+        return "order 0", "a gap at the constant, but no polynomial improves it significantly"
+    closing = [n for n in sig if res[n]["closed"]]
+    best = (min(closing, key=lambda n: (res[n]["q"], res[n]["ratio"])) if closing
+            else min(sig, key=lambda n: res[n]["ratio"]))
+    v = res[best]
+    return best, (f"held-out ratio {b['ratio']:.2f} at the constant -> {v['ratio']:.2f} "
+                  f"(twin 99 % {v['q99']:.2f}{', closed' if v['closed'] else ', the lowest; not closed'}; "
+                  f"simplest that closes of {', '.join(names)})")
+
+
+def _span_note(span: float, min_span_c: float) -> str:
+    return (f"temperature span {span:.1f} degC < {min_span_c:g} degC (thermal.min_span_c): "
+            f"constant only")
+
+
+# --- direct bias observations -----------------------------------------------------------------
+
+def _design(u: np.ndarray, order: int) -> np.ndarray:
+    """(3N, 3 (order + 1)) design: per axis, powers u^0..u^order (rows x0 y0 z0 x1 ...)."""
+    N = len(u)
+    X = np.zeros((3 * N, 3 * (order + 1)))
+    for p in range(order + 1):
+        for j in range(3):
+            X[j::3, 3 * p + j] = u ** p
+    return X
+
+
+def fit_bias_series(temp_c, y, var, min_span_c: float = MIN_SPAN_C, max_order: int = MAX_ORDER,
+                    sims: int = SIMS, rng=None) -> ThermalFit:
+    """Bias polynomial from direct observations: ``y`` (N, 3) bias readings (e.g. gyro still
+    means, deg/s) at ``temp_c`` (N,) with variances ``var`` (N, 3) (or (N,))."""
+    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    T = np.asarray(temp_c, float)
+    y = np.asarray(y, float)
+    v = np.broadcast_to(np.asarray(var, float).reshape(len(y), -1), (len(y), 3)).astype(float)
+    ok = np.isfinite(T) & np.all(np.isfinite(y), 1) & np.all(v > 0, 1)
+    T, y, v = T[ok], y[ok], v[ok]
+    if len(T) == 0:
+        raise ValueError("no observation with a finite temperature")
+    lo, hi = float(T.min()), float(T.max())
+    span = hi - lo
+    t_ref = round((lo + hi) / 2, 2)
+    s = max(span / 2, 1e-6)
+    u = (T - t_ref) / s
+    yy, vv = y.reshape(-1), v.reshape(-1)
+    orders = [k for k in range(max_order + 1) if 3 * len(T) - 3 * (k + 1) >= MIN_DOF]
+    if span < min_span_c or len(orders) < 2:
+        orders = orders[:1] or [0]
+    fits = {}
+    for k in orders:
+        X = _design(u, k)
+        fits[k] = X
+    # excess scatter left by the richest order inflates every variance (steps, hysteresis)
+    infl = 1.0
+    kmax = orders[-1]
+    if kmax > 0:
+        X = fits[kmax]
+        w = 1 / vv
+        beta = np.linalg.lstsq(X * np.sqrt(w)[:, None], yy * np.sqrt(w), rcond=None)[0]
+        r = yy - X @ beta
+        infl = max(1.0, float(np.sum(w * r * r)) / (len(yy) - X.shape[1]))
+    vv = vv * infl
+    w = 1 / vv
+    res, sol = {}, {}
+    for k, X in fits.items():
+        A = X.T @ (X * w[:, None])
+        Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+        beta = Ai @ (X.T @ (w * yy))
+        r = yy - X @ beta
+        st = _stats(r, -X, w, vv, None, rng, sims)
+        st.update(q=X.shape[1], dof=len(yy) - X.shape[1])
+        res[f"order {k}"], sol[k] = st, (beta, Ai)
+    names = [f"order {k}" for k in orders]
+    if span < min_span_c:
+        chosen, why = "order 0", _span_note(span, min_span_c)
+    elif len(orders) < 2:
+        chosen, why = "order 0", f"{len(T)} observations: too few for a temperature term"
+    else:
+        chosen, why = _choose(res, len(yy), names)
+    k = int(chosen.split()[1])
+    beta, Ai = sol[k]
+    B = beta.reshape(k + 1, 3)
+    S = np.sqrt(np.diag(Ai)).reshape(k + 1, 3)
+    per = np.array([s ** p for p in range(1, k + 1)])[:, None]
+    return ThermalFit(k, t_ref, lo, hi, B[1:] / per, S[1:] / per, f"{chosen}: {why}", B[0], S[0],
+                      variants=_public(res), inflation=infl, cov=Ai, _scale_c=s)
+
+
+def _public(res):
+    return {n: {k: (round(v, 4) if isinstance(v, float) else v) for k, v in d.items()} for n, d in res.items()}
+
+
+# --- norm models (accelerometer, magnetometer hard iron) -----------------------------------------
+
+def _norm_variants(max_order: int, scale: bool) -> List[Tuple[str, int, bool]]:
+    out = [(f"order {k}", k, False) for k in range(max_order + 1)]
+    if scale:
+        out.insert(2, ("order 1 + scale", 1, True))
+    return out
+
+
+def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[np.ndarray, np.ndarray]] = None,
+                     min_span_c: float = MIN_SPAN_C, max_order: int = MAX_ORDER, scale: bool = True,
+                     sims: int = SIMS, rng=None, target: float = 1.0) -> ThermalFit:
+    """Bias polynomial (and with ``scale`` a first-order scale term) of a norm model: raw pose
+    means ``x`` (N, 3) at ``temp_c`` (N,), per-pose residual variances ``pose_var`` (N,) (of
+    target - |h|), ``theta0`` a constant fit to start from, ``prior`` (mean, std) of the
+    model's parameters (NaN/inf std: none).  The base part (``ThermalFit.base``) is the
+    model's theta at t_ref_c."""
+    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    x = np.asarray(x, float)
+    T = np.asarray(temp_c, float)
+    vv0 = np.asarray(pose_var, float)
+    ok = np.isfinite(T) & np.all(np.isfinite(x), 1) & (vv0 > 0)
+    x, T, vv0 = x[ok], T[ok], vv0[ok]
+    N, p = len(x), model.k
+    lo, hi = float(T.min()), float(T.max())
+    span = hi - lo
+    t_ref = round((lo + hi) / 2, 2)
+    s = max(span / 2, 1e-6)
+    u = (T - t_ref) / s
+    if prior is not None:
+        pm, ps = (np.asarray(a, float) for a in prior)
+        lam = np.where(np.isfinite(ps) & (ps > 0), 1.0 / np.where(np.isfinite(ps) & (ps > 0), ps, 1.0) ** 2, 0.0)
+    else:
+        pm, lam = np.zeros(p), np.zeros(p)
+    variants = [v for v in _norm_variants(max_order, scale) if N - p - 3 * (v[1] + v[2]) >= MIN_DOF]
+    if span < min_span_c or len(variants) < 2:
+        variants = variants[:1] or [("order 0", 0, False)]
+
+    def delta(z, k, sc):
+        th, eta = z[:p], z[p:]
+        d = np.zeros_like(x)
+        for j in range(k):
+            d += np.outer(u ** (j + 1), eta[3 * j:3 * j + 3])
+        if sc:
+            A, c = model.affine(th)
+            b0 = -np.linalg.solve(A, c)
+            d += (x - b0) * np.outer(u, eta[3 * k:3 * k + 3])
+        return d
+
+    def fit(k, sc, w, z0):
+        q = 3 * (k + sc)
+        lam_all = np.concatenate([lam, np.zeros(q)])
+        pri = lam > 0
+
+        def fun(z):
+            r = target - model.norms(z[:p], x - delta(z, k, sc))
+            return np.concatenate([r, (z[:p] - pm)[pri]])
+        ww = np.concatenate([w, lam[pri]])
+        z, _, _ = lm_weighted(fun, z0, ww, iters=40)
+        r, J = numjac(lambda zz: target - model.norms(zz[:p], x - delta(zz, k, sc)), z)
+        return z, r, J, lam_all
+
+    w0 = 1 / vv0
+    fitted = {}
+    for name, k, sc in variants:
+        z0 = np.concatenate([np.asarray(theta0, float), np.zeros(3 * (k + sc))])
+        fitted[name] = fit(k, sc, w0, z0)
+    infl = 1.0
+    last = variants[-1][0]
+    if len(variants) > 1:
+        _, r, J, _ = fitted[last]
+        infl = max(1.0, float(np.sum(w0 * r * r)) / max(N - J.shape[1], 1))
+    vv = vv0 * infl
+    w = 1 / vv
+    res = {}
+    for name, k, sc in variants:
+        z, r, J, la = fitted[name]
+        st = _stats(r, J, w, vv, la, rng, sims)
+        st.update(q=3 * (k + sc), dof=N - p)
+        res[name] = st
+    names = [v[0] for v in variants]
+    if span < min_span_c:
+        chosen, why = "order 0", _span_note(span, min_span_c)
+    elif len(variants) < 2:
+        chosen, why = "order 0", f"{N} poses: too few for a temperature term"
+    else:
+        chosen, why = _choose(res, N, names)
+    name, k, sc = next(v for v in variants if v[0] == chosen)
+    z, r, J, la = fitted[name]
+    Ai = np.linalg.pinv(J.T @ (J * w[:, None]) + np.diag(la), rcond=1e-12, hermitian=True)
+    sd = np.sqrt(np.diag(Ai))
+    per = np.array([s ** j for j in range(1, k + 1)])[:, None]
+    eta, seta = z[p:], sd[p:]
+    bp = eta[:3 * k].reshape(k, 3) / per if k else np.zeros((0, 3))
+    bs = seta[:3 * k].reshape(k, 3) / per if k else np.zeros((0, 3))
+    sp = eta[3 * k:].reshape(1, 3) / s if sc else None
+    ss = seta[3 * k:].reshape(1, 3) / s if sc else None
+    return ThermalFit(k, t_ref, lo, hi, bp, bs, f"{chosen}: {why}", z[:p], sd[:p], sp, ss,
+                      _public(res), infl, Ai, s)

@@ -1,0 +1,56 @@
+"""The thermal terms (calib/thermal.py): the order the gap's held-out test chooses, the
+coefficients within their stated standard errors, and only a constant below the span."""
+import numpy as np
+import pytest
+
+from imucald.calib.fit import accel_prior
+from imucald.calib.models import Triangular9
+from imucald.calib.thermal import fit_bias_series, fit_norm_thermal
+
+SD_DPS = 0.004          # a still interval's mean rate: ~0.05 dps/sqrt(Hz) over ~150 samples
+
+
+def _series(rng, T, curve):
+    y = np.array([0.5, -0.3, 0.1]) + curve(T - 25.0) + rng.normal(size=(len(T), 3)) * SD_DPS
+    return fit_bias_series(T, y, np.full((len(T), 3), SD_DPS ** 2), rng=rng)
+
+
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_gyro_bias_order_and_coefficients(order):
+    rng = np.random.default_rng(10 + order)
+    T = np.sort(rng.uniform(18, 36, 50))
+    c = np.array([[0.02, -0.015, 0.01], [8e-4, 6e-4, -1e-3]])[:order]
+    f = _series(rng, T, lambda d: sum(np.outer(d ** (k + 1), c[k]) for k in range(order)))
+    assert f.order == order, f.note
+    if order == 2:                  # the truth about the fit's reference temperature
+        c = np.array([c[0] + 2 * (f.t_ref_c - 25.0) * c[1], c[1]])
+    assert np.all(np.abs(f.bias_poly - c) <= 4 * f.bias_poly_stderr), (f.bias_poly, c, f.bias_poly_stderr)
+    assert f.t_min_c == T.min() and f.t_max_c == T.max()
+
+
+def test_a_span_below_the_minimum_gives_a_constant_and_says_why():
+    rng = np.random.default_rng(3)
+    T = np.sort(rng.uniform(25, 31, 40))           # 6 degC < 10
+    f = _series(rng, T, lambda d: np.outer(d, [0.05, 0.05, 0.05]))
+    assert f.order == 0 and "< 10 degC (thermal.min_span_c): constant only" in f.note
+    g = fit_bias_series(T, np.ones((40, 3)) + np.outer(T - 28, [0.05] * 3), np.full((40, 3), SD_DPS ** 2),
+                        min_span_c=5.0, rng=1)
+    assert g.order >= 1
+
+
+def test_accel_thermal_bias_through_the_norm_model():
+    rng = np.random.default_rng(5)
+    m = Triangular9()
+    th = np.array([0.01, -0.02, 0.005, 1.02, 0.98, 1.01, 0.03, -0.02, 0.01])
+    N, sd = 48, 2e-4
+    T = np.sort(rng.uniform(20, 35, N))
+    U = rng.normal(size=(N, 3))
+    U /= np.linalg.norm(U, axis=1, keepdims=True)
+    c = np.array([7e-4, -6e-4, 8e-4])               # g/degC
+    x = m.inverse(th, U) + np.outer(T - 20, c) + rng.normal(size=(N, 3)) * sd
+    f = fit_norm_thermal(m, x, np.full(N, sd ** 2), T, th, accel_prior(m, "mpu6050"), rng=rng)
+    assert f.order == 1 and f.scale_poly is None, f.note
+    assert np.all(np.abs(f.bias_poly[0] - c) <= 4 * f.bias_poly_stderr[0]), (f.bias_poly, f.bias_poly_stderr)
+    # the base part is the bias at t_ref_c
+    want = th[6:9] + c * (f.t_ref_c - 20)
+    assert np.all(np.abs(f.base[6:9] - want) <= 4 * f.base_stderr[6:9]), (f.base[6:9], want)

@@ -1,17 +1,25 @@
 """Start-up and end-to-end command times, as a user runs them (fresh processes).
 
-* ``imucald --help``, ``status`` and ``watch`` (no daemon running: they stop at the
-  missing socket, after loading all they need): wall time (median of 5) and
-  ``python -X importtime`` -- total import time and whether numpy was imported.
-* ``imucald calibrate`` on the IMU-TK Xsens file (raw counts, README's command): wall time
-  (median of 5) and the result's digest, to compare before/after a change.
+* ``imucald --help``, ``status`` and ``watch`` with no daemon running (they stop at the
+  missing socket, after loading all they need), and ``status`` against a running daemon
+  (``imucald run --emulate`` started here): wall time and CPU time (user + system of the
+  child) as medians over the repeats, and ``python -X importtime`` -- total import time and
+  whether numpy was imported.  CPU time is the figure to compare on a shared machine: other
+  processes stretch the wall time, hardly the CPU time.
+* ``imucald calibrate`` on the IMU-TK Xsens file (raw counts, README's command): the same
+  medians and the result's digest, to compare before/after a change.
+
+The package's byte code is compiled first (``compileall``; an installed package has it, and
+with PYTHONDONTWRITEBYTECODE set every run would otherwise compile imucald's sources anew).
 Usage: python bench/startup.py [--repeats N]
 """
 import argparse
+import compileall
 import hashlib
 import json
 import os
 import re
+import resource
 import statistics
 import subprocess
 import sys
@@ -24,14 +32,51 @@ XSENS = os.environ.get("IMUCALD_XSENS") or os.path.join(ROOT, "..", "shared", "d
 
 
 def run(argv, extra=()):
+    """(wall s, CPU s of the child, CompletedProcess) of one ``imucald argv``."""
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    p = subprocess.run([sys.executable, *extra, "-m", "imucald.cli", *argv], capture_output=True)
-    return time.perf_counter() - t, p
+    p = subprocess.run([sys.executable, *extra, "-m", "imucald.cli", *argv], capture_output=True,
+                       cwd=ROOT)
+    wall = time.perf_counter() - t
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime), p
+
+
+def medians(argv, repeats):
+    """(median wall ms, median CPU ms, last CompletedProcess) over the repeats."""
+    rs = [run(argv) for _ in range(repeats)]
+    return (statistics.median(r[0] for r in rs) * 1e3, statistics.median(r[1] for r in rs) * 1e3,
+            rs[-1][2])
+
+
+def start_daemon(d):
+    """``imucald run --emulate`` with its sockets and state under d; returns the process once
+    its control socket answers (or None if it did not come up within 20 s)."""
+    p = subprocess.Popen([sys.executable, "-m", "imucald.cli", "run", "--emulate", "--runtime-dir", d,
+                          "--state-dir", os.path.join(d, "state")], cwd=ROOT,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    sock = os.path.join(d, "control.sock")
+    t_end = time.monotonic() + 20
+    while time.monotonic() < t_end and p.poll() is None:
+        if os.path.exists(sock) and run(["status", "--runtime-dir", d])[2].returncode == 0:
+            return p
+        time.sleep(0.2)
+    stop(p)
+    return None
+
+
+def stop(p):
+    p.terminate()
+    try:
+        p.wait(10)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        p.wait()
 
 
 def importtime(argv):
     """(total import s, numpy imported?, slowest top-level packages) from -X importtime."""
-    _, p = run(argv, ("-X", "importtime"))
+    _, _, p = run(argv, ("-X", "importtime"))
     rows = [re.match(r"import time:\s+(\d+) \|\s+(\d+) \|( *)(\S+)", l)
             for l in p.stderr.decode().splitlines()]
     rows = [(int(m[1]), int(m[2]), len(m[3]), m[4]) for m in rows if m]
@@ -41,18 +86,33 @@ def importtime(argv):
     return total, any(r[3] == "numpy" for r in rows), ", ".join(f"{r[3]} {r[1] / 1e3:.0f} ms" for r in worst)
 
 
+def row(name, wall_ms, cpu_ms, argv):
+    imp, np_, worst = importtime(argv)
+    print(f"{name:<24} {wall_ms:>8.0f} {cpu_ms:>7.0f} {imp * 1e3:>10.0f} {'yes' if np_ else 'no':>6}  {worst}",
+          flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=5)
     a = ap.parse_args()
+    compileall.compile_dir(os.path.join(ROOT, "imucald"), quiet=1)
     run(["--version"])                                  # warm the file cache
+    print(f"{'command':<24} {'wall ms':>8} {'CPU ms':>7} {'imports ms':>10} {'numpy':>6}  slowest imports")
     with tempfile.TemporaryDirectory() as d:
-        print(f"{'command':<22} {'median ms':>9} {'imports ms':>10} {'numpy':>6}  slowest imports")
         for argv in (["--help"], ["status", "--runtime-dir", d], ["watch", "--runtime-dir", d]):
-            ts = [run(argv)[0] for _ in range(a.repeats)]
-            imp, np_, worst = importtime(argv)
-            print(f"{' '.join(argv[:1]):<22} {statistics.median(ts) * 1e3:>9.0f} {imp * 1e3:>10.0f} "
-                  f"{'yes' if np_ else 'no':>6}  {worst}")
+            w, c, _ = medians(argv, a.repeats)
+            row(f"{argv[0]} (no daemon)" if argv[0] != "--help" else argv[0], w, c, argv)
+        p = start_daemon(d)
+        if p is None:
+            print("status (daemon running): the emulated daemon did not come up")
+        else:
+            try:
+                argv = ["status", "--runtime-dir", d]
+                w, c, _ = medians(argv, a.repeats)
+                row("status (daemon running)", w, c, argv)
+            finally:
+                stop(p)
     if not os.path.exists(XSENS):
         print(f"calibrate: skipped, {XSENS} is absent (../shared is not beside the checkout)")
         return 0
@@ -66,18 +126,18 @@ def main():
     print(f"read Xsens table (51175 rows, in process): median {statistics.median(ts) * 1e3:.0f} ms")
     argv = ["calibrate", XSENS, "--columns", "t,ax,ay,az", "--nominal-offset", "32768",
             "--nominal-scale", "4069.76", "--json"]
-    ts, outs = [], set()
+    rs, outs = [], set()
     for _ in range(a.repeats):
-        t, p = run(argv)
-        ts.append(t)
-        doc = json.loads(p.stdout or b"{}")
-        doc.pop("wall_s", None)                        # the run's own duration
-        outs.add(hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16])
+        w, c, p = run(argv)
+        rs.append((w, c))
         if p.returncode:
             print(p.stderr.decode().strip())
             return 1
-    imp, _, worst = importtime(argv)
-    print(f"calibrate Xsens (ga)   {statistics.median(ts) * 1e3:>9.0f} {imp * 1e3:>10.0f}    yes  {worst}")
+        doc = json.loads(p.stdout or b"{}")
+        doc.pop("wall_s", None)                        # the run's own duration
+        outs.add(hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16])
+    row("calibrate Xsens (ga)", statistics.median(r[0] for r in rs) * 1e3,
+        statistics.median(r[1] for r in rs) * 1e3, argv)
     print(f"calibrate result digest: {', '.join(sorted(outs))} (the same over the {a.repeats} runs: "
           f"{len(outs) == 1}; wall_s left out)")
     return 0

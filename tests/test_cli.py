@@ -107,3 +107,19 @@ def test_help_does_not_import_numpy():
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["status"], ["watch"]])
+def test_light_commands_load_no_heavy_module(argv, tmp_path):
+    """--help, status and watch (here with no daemon: they stop at the missing socket after
+    loading all they need) load neither numpy, the YAML parser (no configuration file is
+    read), the I2C bus layer nor the calibration code (issue 15: fast start)."""
+    heavy = ("numpy", "yaml", "imucald.drivers.bus", "imucald.calib", "imucald.daemon.pipeline")
+    extra = [] if argv == ["--help"] else ["--runtime-dir", str(tmp_path)]
+    code = ("import sys, contextlib, io\nfrom imucald.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            "    try:\n        main(sys.argv[1:])\n    except SystemExit:\n        pass\n"
+            f"print(sorted(m for m in {heavy!r} if m in sys.modules))")
+    p = subprocess.run([sys.executable, "-c", code, *argv, *extra], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == "[]"

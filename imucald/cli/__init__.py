@@ -13,9 +13,18 @@ Arguments are checked (:mod:`.checks`) before anything is opened.
 """
 from __future__ import annotations
 
+import os
+import sys
 from typing import List, Optional
 
-from ..drivers.bus import BusError
+# One BLAS thread, unless the user says otherwise: imucald's linear algebra is on matrices of
+# at most a few thousand rows by 12 columns, which a BLAS thread pool does not speed up; the
+# pool's start (a thread per core, spinning while it waits) cost ~35 ms of CPU at numpy's
+# import here and doubled a command's wall time on a busy 2-core machine (bench/startup.py).
+# Set before numpy is imported by any command (the daemon's calibration worker inherits it).
+for _v in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
 from ..errors import EX_IOERR, EX_UNAVAILABLE, UserError, os_error_line
 from ._common import eprint
 from .parser import build_parser
@@ -36,9 +45,6 @@ def main(argv: Optional[List[str]] = None) -> int:
     except UserError as e:
         eprint(f"imucald: error: {_one_line(e)}")
         return e.exit_code
-    except BusError as e:           # the chip stopped answering (or never did)
-        eprint(f"imucald: error: {_one_line(e)}")
-        return EX_UNAVAILABLE
     except OSError as e:            # disk full, read-only, EIO: said in one line
         if isinstance(e, BrokenPipeError):
             return 0
@@ -46,6 +52,14 @@ def main(argv: Optional[List[str]] = None) -> int:
         return EX_IOERR
     except KeyboardInterrupt:
         return 130
+    except Exception as e:
+        # the chip stopped answering (or never did); drivers.bus is loaded only by the
+        # commands that open a bus (--help and status do not), and only then can this be one
+        bus = sys.modules.get(f"{__package__.rsplit('.', 1)[0]}.drivers.bus")
+        if bus is None or not isinstance(e, bus.BusError):
+            raise
+        eprint(f"imucald: error: {_one_line(e)}")
+        return EX_UNAVAILABLE
 
 
 def _one_line(e) -> str:

@@ -15,8 +15,6 @@ import copy
 import re
 from typing import Any, Dict, List, Optional, Tuple
 
-import yaml
-
 from ..errors import EX_CONFIG, UserError
 from ..stillness_defaults import STILLNESS_DEFAULTS as _STILL  # one set of stillness defaults
 
@@ -108,28 +106,38 @@ def needs_restart(key: str) -> bool:
 _BOOL, _INT, _FLOAT = "tag:yaml.org,2002:bool", "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
 
 
-class _Loader(yaml.SafeLoader):
+_LOADER = None
+
+
+def _loader():
     """PyYAML's safe loader with YAML 1.2 core-schema scalars (booleans true/false
-    only; integers decimal, 0o octal or 0x hex; floats with an exponent)."""
+    only; integers decimal, 0o octal or 0x hex; floats with an exponent).  Made at the
+    first file read: the schema alone (the command line's choices) does not import yaml."""
+    global _LOADER
+    if _LOADER is not None:
+        return _LOADER
+    import yaml
 
+    class _Loader(yaml.SafeLoader):
+        pass
 
-_Loader.yaml_implicit_resolvers = {
-    ch: [(tag, rx) for tag, rx in rs if tag not in (_BOOL, _INT, _FLOAT)]
-    for ch, rs in yaml.SafeLoader.yaml_implicit_resolvers.items()}
-_Loader.add_implicit_resolver(_BOOL, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF"))
-_Loader.add_implicit_resolver(_INT, re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$"),
-                              list("-+0123456789"))
-_Loader.add_implicit_resolver(
-    _FLOAT, re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
-                       r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"), list("-+.0123456789"))
+    _Loader.yaml_implicit_resolvers = {
+        ch: [(tag, rx) for tag, rx in rs if tag not in (_BOOL, _INT, _FLOAT)]
+        for ch, rs in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+    _Loader.add_implicit_resolver(_BOOL, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF"))
+    _Loader.add_implicit_resolver(_INT, re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$"),
+                                  list("-+0123456789"))
+    _Loader.add_implicit_resolver(
+        _FLOAT, re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+                           r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"), list("-+.0123456789"))
+    _Loader.add_constructor(_INT, _construct_int)
+    _LOADER = _Loader
+    return _Loader
 
 
 def _construct_int(loader, node):
     t = loader.construct_scalar(node)
     return int(t, 0) if t[:2] in ("0o", "0x") else int(t, 10)
-
-
-_Loader.add_constructor(_INT, _construct_int)
 
 
 def _decode(raw: bytes, path: str) -> str:
@@ -147,7 +155,8 @@ def _scan(text: str, path: str) -> Tuple[Dict[str, int], Dict[str, str]]:
     from the YAML nodes; a key given twice in one mapping is an error."""
     lines: Dict[str, int] = {}
     plain: Dict[str, str] = {}
-    node = yaml.compose(text, Loader=_Loader)
+    import yaml
+    node = yaml.compose(text, Loader=_loader())
 
     def walk(n, prefix):
         if not isinstance(n, yaml.MappingNode):
@@ -170,6 +179,7 @@ def _scan(text: str, path: str) -> Tuple[Dict[str, int], Dict[str, str]]:
 
 def _lines(text: str) -> Dict[str, int]:
     """key path -> 1-based line number (empty when the text is not valid YAML)."""
+    import yaml
     try:
         return _scan(text, "")[0]
     except (yaml.YAMLError, ConfigError):
@@ -315,10 +325,11 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
 def parse_yaml(raw: bytes, path: str) -> Tuple[Any, Dict[str, int], Dict[str, str]]:
     """(data, key lines, unquoted scalars) of a configuration file's bytes; ConfigError
     (one line, file:line) for bytes that are not UTF-8, invalid YAML or a duplicate key."""
+    import yaml
     text = _decode(raw, path)
     try:
         lines, plain = _scan(text, path)
-        data = yaml.load(text, Loader=_Loader)
+        data = yaml.load(text, Loader=_loader())
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""

@@ -98,6 +98,50 @@ def test_chips_read_zero_until_woken():
     assert bus.read_block(0x53, 0x32, 6) == bytes(6)        # ADXL345 in standby
 
 
+# --- noise level: the whole DLPF band aliases into each sample ----------------------------
+
+def _var_check(x, density, band_hz, lsb):
+    """Per-axis sample variance against density^2 * band + LSB^2/12 (white noise sampled
+    without anti-aliasing beyond the DLPF keeps its whole variance); tolerance 4 standard
+    errors of a variance estimate from k samples, sqrt(2/(k-1))."""
+    k = len(x)
+    want = density ** 2 * band_hz + lsb ** 2 / 12
+    got = x.var(0, ddof=1)
+    assert np.all(np.abs(got / want - 1) < 4 * np.sqrt(2 / (k - 1))), (got, want)
+
+
+def test_mpu_noise_is_the_whole_dlpf_band_at_100hz():
+    eb, bus, clk = rig("mpu6050")
+    m = mpu6050.MPU6xxx(bus)
+    m.setup(2, 250, 100)
+    R = mpu6050.REGMAP
+    dl = R.decode("CONFIG", bus.read_byte(0x68, R.CONFIG.addr), "DLPF_CFG")
+    bw_a, bw_g = mpu6050.DLPF_HZ[dl]
+    assert bw_a > 50                          # the case in point: a band wider than ODR/2
+    acc, gyr = [], []
+    for _ in range(16):
+        clk.advance(0.5)
+        fr = m.read_fifo()
+        acc.append(fr.acc_g)
+        gyr.append(fr.gyro_dps)
+    _var_check(np.concatenate(acc), ACCEL["mpu6050"].noise_density_g_rthz, bw_a, 2 / 32768)
+    _var_check(np.concatenate(gyr), GYRO["mpu6050"].noise_density_dps_rthz, bw_g, 1 / 131)
+
+
+def test_itg3200_noise_is_the_whole_dlpf_band_at_100hz():
+    eb, bus, clk = rig("9dof")
+    g = itg3200.ITG3200(bus)
+    g.setup(100)
+    band = itg3200.DLPF_HZ[bus.read_byte(0x68, itg3200.REGMAP.DLPF_FS.addr) & 0x07]
+    assert band > 50
+    clk.advance(0.2)                          # past the start-up time (zeros before it)
+    w = []
+    for _ in range(800):
+        clk.advance(0.01)
+        w.append(g.read()[0])
+    _var_check(np.array(w), GYRO["itg3200"].noise_density_dps_rthz, band, 1 / 14.375)
+
+
 # --- scaling, byte order and sign, temperature -------------------------------------------------
 
 @pytest.mark.parametrize("arange", [2, 4, 8, 16])
@@ -112,11 +156,11 @@ def test_mpu_scaling_sign_and_temperature(arange, up):
     expect = T9.inverse(truth.accel, np.array([up], float))[0]
     n = len(fr.acc_g)
     assert n >= 40
-    # noise per sample: density over the DLPF band; quantisation of the range's LSB
-    sig = np.hypot(ACCEL["mpu6050"].noise_density_g_rthz * np.sqrt(50), (arange / 32768) / np.sqrt(12))
+    # noise per sample: density over the DLPF band (94/98 Hz at 100 Hz); quantisation of the LSB
+    sig = np.hypot(ACCEL["mpu6050"].noise_density_g_rthz * np.sqrt(94), (arange / 32768) / np.sqrt(12))
     assert np.all(np.abs(fr.acc_g.mean(0) - expect) < 5 * sig / np.sqrt(n))
     gexp = truth.gyro_bias_dps
-    gsig = np.hypot(GYRO["mpu6050"].noise_density_dps_rthz * np.sqrt(50), 1 / 131 / np.sqrt(12))
+    gsig = np.hypot(GYRO["mpu6050"].noise_density_dps_rthz * np.sqrt(98), 1 / 131 / np.sqrt(12))
     assert np.all(np.abs(fr.gyro_dps.mean(0) - gexp) < 5 * gsig / np.sqrt(n))
     assert np.all(np.abs(fr.temp_c - 31.0) <= 0.5 / 340 + 1e-9)      # raw/340 + 36.53
 
@@ -135,7 +179,7 @@ def test_adxl_itg_hmc_scaling_order_and_temperature():
     assert np.all(np.abs(acc.mean(0) - expect) < 5 * sig / np.sqrt(len(acc)))
     w, temp = g.read()
     assert abs(temp - 20.0) <= 0.5 / 280 + 1e-9                  # 35 + (raw + 13200)/280
-    assert np.all(np.abs(w - tr.gyro_bias_dps) < 5 * 0.03 * np.sqrt(50) + 0.5 / 14.375)
+    assert np.all(np.abs(w - tr.gyro_bias_dps) < 5 * 0.03 * np.sqrt(98) + 0.5 / 14.375)
     mag, over = h.read()                                          # first sample after gain change:
     assert mag is None and not over                               # discarded (old gain)
     clk.advance(0.05)

@@ -12,8 +12,11 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
+from ..rng import as_rng
+
 from .metrics import path_error, rms
-from .models import MagModel, NormModel, get_model, gyro_bias_eq6_fitness, mag_report
+from .models import (MagModel, NormModel, get_model, gyro_bias_eq6_fitness, gyro_bias_mean,
+                     gyro_bias_scatter_se, mag_report)
 from .optim import OptimResult, Problem, _lm_converge, lm, run_method, sphere_fit
 from .uncertainty import Uncertainty, crlb, determination, map_covariance, residual_variance
 
@@ -358,10 +361,9 @@ def fit_gyro_bias(pose_means_dps: np.ndarray, counts: np.ndarray,
     m = np.asarray(pose_means_dps, float)
     w = np.asarray(counts, float)
     N = len(m)
-    b = (m * w[:, None]).sum(0) / w.sum()
-    # between-pose scatter includes g-sensitivity and drift: an honest error bar
+    b = gyro_bias_mean(m, w)
     if N > 1:
-        sd = np.sqrt(((m - b) ** 2 * w[:, None]).sum(0) / w.sum() / (N - 1))
+        sd = gyro_bias_scatter_se(m, w, b)
     elif pose_cov is not None:
         sd = np.sqrt(np.diag(pose_cov[0]))
     else:
@@ -382,7 +384,7 @@ def fit_gyro_bias(pose_means_dps: np.ndarray, counts: np.ndarray,
             def fitness(self, z):
                 return gyro_bias_eq6_fitness(z, s)
         lo, hi = b - 5 * s.std(0) - 1e-3, b + 5 * s.std(0) + 1e-3
-        rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        rng = as_rng(rng)
         z, f, g = _ga_core(_P(), lo, hi, 1, rng, pop=60, max_gen=80, stall_gen=20)
         b, fitness, it = z[0], float(f[0]), int(g[0])
     mk = lambda v: [float(x) for x in v]

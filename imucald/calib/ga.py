@@ -6,7 +6,9 @@ from typing import Callable, Optional, Tuple
 
 import numpy as np
 
-from .lsq import (OptimResult, Problem, RngLike, _lm_converge, _lm_steps, _result, _rng,
+from ..rng import as_rng
+
+from .lsq import (OptimResult, Problem, RngLike, _lm_converge, _lm_steps, _result,
                   _starts)
 from .normmodel import NormModel
 
@@ -116,7 +118,7 @@ def ga_paper(prob: Problem, rng: RngLike = None, runs: int = 20, iterations: int
     As the paper wrote it: the fitness is its eq. 5 alone, so a prior on ``prob`` is
     not used (``info['prior']`` says so); a parameter the poses do not determine can
     then end anywhere in the box, including on a bound (reported by ``at_bound``)."""
-    rng = _rng(rng)
+    rng = as_rng(rng)
     had_prior = prob.has_prior
     if had_prior:
         prob = prob.without_prior()
@@ -154,7 +156,7 @@ def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
        stall_gen: int = 20, progress: Optional[Callable[[int, np.ndarray], None]] = None
        ) -> OptimResult:
     """The daemon's light GA (paper 000 operators, one run) polished by LM."""
-    rng = _rng(rng)
+    rng = as_rng(rng)
     prob.nfev = 0
     z, f, g = _ga_core(prob, prob.lo, prob.hi, 1, rng, pop=pop, max_gen=max_gen,
                        stall_gen=stall_gen, mig_interval=10, progress=progress)
@@ -178,7 +180,7 @@ def hga(prob: Problem, rng: RngLike = None, pop: int = 300, max_gen: int = 200,
 
     ``polish=False`` returns the population's best as the GA left it (tests check the
     GA on its own with it)."""
-    rng = _rng(rng)
+    rng = as_rng(rng)
     prob.nfev = 0
     lo, hi = prob.lo, prob.hi
     span = hi - lo

@@ -36,6 +36,7 @@ ALPHA = 0.05
 # leave-one-pose-out up to LOO_MAX_POSES poses, KFOLDS folds beyond; poses_needed: the
 # fewest poses a fit plus its cross-validation need (numpy-free, in imucald/cv.py)
 from ..cv import KFOLDS, LOO_MAX_POSES, poses_needed  # noqa: E402
+from .models import gyro_bias_mean  # noqa: E402
 #: exact signed-rank distribution up to this many pairs, normal approximation beyond
 _EXACT_MAX = 200
 
@@ -187,7 +188,7 @@ def gate_gyro_bias(means_dps: np.ndarray, counts: np.ndarray, incumbent_dps: np.
     should read zero.  Returns (bias_dps (3,), Decision)."""
     m = np.asarray(means_dps, float)
     w = np.asarray(counts, float)
-    bias = (m * w[:, None]).sum(0) / w.sum()
+    bias = gyro_bias_mean(m, w)
     e_cv = loo_weighted_mean_residuals(m, w)
     e_inc = np.asarray(incumbent_dps, float)
     return bias, paired_gate((e_inc ** 2).sum(1), (e_cv ** 2).sum(1), alpha, against)

@@ -14,20 +14,18 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Tuple, Union
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
+
+from ..rng import RngLike
 
 from .. import _malloc
 from .models import NormModel
 
 __all__ = ["Problem", "OptimResult", "lm", "sphere_fit", "ellipsoid_fit"]
 
-RngLike = Union[int, None, np.random.Generator]
 
-
-def _rng(rng: RngLike) -> np.random.Generator:
-    return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
 
 
 @dataclass

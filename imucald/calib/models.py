@@ -54,7 +54,7 @@ from .normmodel import NormModel
 
 __all__ = [
     "NormModel", "Triangular9", "Diag6", "Full12", "Cosine", "COSINE_SUBSETS", "MagModel",
-    "get_model", "MODEL_NAMES", "gyro_bias_mean", "gyro_bias_eq6_fitness", "mag_report",
+    "get_model", "MODEL_NAMES", "gyro_bias_mean", "gyro_bias_scatter_se", "gyro_bias_eq6_fitness", "mag_report",
 ]
 
 MODEL_NAMES = ["triangular9", "diag6", "full12", "cosine", "cosine-o", "cosine-s", "cosine-os",
@@ -86,6 +86,20 @@ def gyro_bias_mean(pose_means_dps: np.ndarray, counts: Optional[np.ndarray] = No
     m = np.asarray(pose_means_dps, float)
     w = np.ones(len(m)) if counts is None else np.asarray(counts, float)
     return (m * w[:, None]).sum(0) / w.sum()
+
+
+def gyro_bias_scatter_se(pose_means_dps: np.ndarray, counts: np.ndarray,
+                         bias_dps: np.ndarray) -> np.ndarray:
+    """Standard error (3,) of :func:`gyro_bias_mean` from the between-pose scatter, deg/s.
+
+    The scatter includes g-sensitivity and drift as well as noise, so the error bar is
+    honest when those are present; NaN with fewer than 2 poses."""
+    m = np.asarray(pose_means_dps, float)
+    w = np.asarray(counts, float)
+    n = len(m)
+    if n < 2:
+        return np.full(3, np.nan)
+    return np.sqrt(((m - bias_dps) ** 2 * w[:, None]).sum(0) / w.sum() / (n - 1))
 
 
 def gyro_bias_eq6_fitness(bias_dps: np.ndarray, samples_dps: np.ndarray) -> np.ndarray:

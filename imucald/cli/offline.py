@@ -240,6 +240,7 @@ def cmd_demo(args) -> int:
 
     from .. import __version__
     from ..calib.fit import fit_norm
+    from ..calib.metrics import rms
     from ..calib.models import Triangular9
     from ..calib.optim import Problem, ga
     from ..calib.poses import poses_from_recording
@@ -284,12 +285,12 @@ def cmd_demo(args) -> int:
         rr, pr = roll_pitch_deg(raw)
         rc, pc = roll_pitch_deg(Triangular9().forward(cal.theta, raw))
         wrap = lambda d: (d + 180) % 360 - 180
-        e_raw = np.sqrt(np.mean(np.concatenate([wrap(rr - r0), pr - p0]) ** 2))
-        e_cal = np.sqrt(np.mean(np.concatenate([wrap(rc - r0), pc - p0]) ** 2))
+        e_raw = rms(np.concatenate([wrap(rr - r0), pr - p0]))
+        e_cal = rms(np.concatenate([wrap(rc - r0), pc - p0]))
         print(f"roll/pitch RMS error over the poses (paper 001's measure): raw {e_raw:.3f} deg -> "
               f"calibrated {e_cal:.4f} deg")
     un = np.linalg.norm(raw, axis=1) - 1
-    print(f"\n| |a| - 1 g | RMS over poses: raw {np.sqrt(np.mean(un ** 2)) * 1e3:.2f} mg -> calibrated "
+    print(f"\n| |a| - 1 g | RMS over poses: raw {rms(un) * 1e3:.2f} mg -> calibrated "
           f"{cal.rms * 1e3:.3f} mg in-sample, {cal.heldout_rms * 1e3:.3f} mg held-out "
           f"(pose noise {cal.noise * 1e3:.3f} mg)")
     return 0

@@ -18,11 +18,13 @@ from typing import Any, Dict, NamedTuple
 import numpy as np
 
 from ..calib.fit import fit_norm
+from ..calib.models import gyro_bias_scatter_se
 from ..calib.gate import ALPHA, Decision, gate_accel, gate_gyro_bias, paired_gate
 from ..calib.magcal import SphereReservoir as MagReservoir
 from ..calib.magcal import coverage, flat_axis
 from ..calib.models import MagModel, Triangular9
 from ..calibration import Calibration, SensorCal
+from ..calib.metrics import rms
 
 __all__ = ["calibration_job", "JobResult", "MagReservoir"]
 
@@ -77,7 +79,7 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
                              against="raw" if cur.accel is None else "current", rng=job.get("seed"))
     # predicted cross-validated residual: each pose's noise plus the uncertainty of the
     # refit without it (calib.fit.heldout_residuals)
-    pred = float(np.sqrt(np.mean(np.asarray(cal.info["heldout_predicted_std"]) ** 2)))
+    pred = rms(cal.info["heldout_predicted_std"])
     parts["accel"] = SensorCal.from_fit(cal, {
         "fitness": float(cal.fitness), "heldout_rms_g": dec.rms_cv, "heldout_rms_before_g": dec.rms_incumbent,
         "predicted_heldout_rms_g": pred, "poses": int(len(acc)), "gate_p_value": dec.p_value,
@@ -90,7 +92,7 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
         w = np.asarray(job["n"], float)
         b, gdec = gate_gyro_bias(g, w, cur.apply_gyro(g), alpha,
                                  against="raw" if cur.gyro is None else "current")
-        sd = np.sqrt(((g - b) ** 2 * w[:, None]).sum(0) / w.sum() / max(len(g) - 1, 1))
+        sd = gyro_bias_scatter_se(g, w, b)
         parts["gyro"] = SensorCal("gyro", "bias", {"bias_dps": b}, {"bias_dps": sd}, method="mean",
                                   quality={"heldout_rms_dps": gdec.rms_cv,
                                            "heldout_rms_before_dps": gdec.rms_incumbent,

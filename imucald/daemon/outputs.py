@@ -15,7 +15,7 @@ NDJSON follows gpsd's habits: one object per line with a ``class`` field, a
 ``class: "GAP"``: seq (first missing), missing (count).
 ``class: "CAL"``: id, accel/gyro/mag held-out residuals before and after.
 
-Binary record, little-endian, 64 bytes (struct ``<QdIB3x3f3f3ff3f``... see
+Binary record, little-endian, 64 bytes (struct ``<QdIB3x3f3ff3f``, see
 :data:`BINARY_FORMAT`): seq u64, t f64, cal u32, flags u8 (bit 0 still,
 bit 1 magnetometer present), 3 pad bytes, acc_g 3 x f32, gyro_dps 3 x f32,
 temp_c f32, mag_gauss 3 x f32 (NaN when absent).

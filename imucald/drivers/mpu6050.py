@@ -7,9 +7,8 @@ RM-MPU-6000A register map; T = RM-MPU-9250A-00), as collected in
 """
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Optional
 
 import numpy as np
 
@@ -242,11 +241,3 @@ class MPU6xxx:
         return FifoRead(v[:, 0:3] / ACCEL_LSB_PER_G[self.accel_range_g],
                         v[:, 4:7] / GYRO_LSB_PER_DPS[self.gyro_range_dps],
                         v[:, 3] / div + off)
-
-    def read_data(self) -> Tuple[np.ndarray, float, np.ndarray]:
-        """One 14-byte burst of the data registers (no FIFO): acc g, temp C, gyro dps."""
-        raw = self.bus.read_block(self.addr, REGMAP.ACCEL_XOUT_H.addr, 14)
-        v = struct.unpack(">7h", raw)
-        div, off = TEMP_FORMULA[self.chip or self.expect]
-        return (np.array(v[0:3]) / ACCEL_LSB_PER_G[self.accel_range_g], v[3] / div + off,
-                np.array(v[4:7]) / GYRO_LSB_PER_DPS[self.gyro_range_dps])

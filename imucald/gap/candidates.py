@@ -15,6 +15,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from ..calib import effect_forms as ef
+
 __all__ = ["Candidate", "ACCEL_CANDIDATES", "MAG_CANDIDATES", "GYRO_CANDIDATES", "SEPARATE", "TRACELESS",
            "hat_columns", "kron_cols"]
 
@@ -35,17 +37,17 @@ def _vec(eta):
 
 
 ACCEL_CANDIDATES = [
-    Candidate("thermal_bias", 3, lambda e, x, th, c: np.outer(c["dT"], _vec(e)), units="g/degC"),
-    Candidate("thermal_scale", 3, lambda e, x, th, c: (x - th[6:9]) * np.outer(c["dT"], _vec(e)),
+    Candidate("thermal_bias", 3, lambda e, x, th, c: ef.thermal_bias(_vec(e), c["dT"]), units="g/degC"),
+    Candidate("thermal_scale", 3, lambda e, x, th, c: ef.thermal_scale(_vec(e), x - th[6:9], c["dT"]),
               units="1/degC"),
-    Candidate("nonlinearity", 3, lambda e, x, th, c: _vec(e) * (x - th[6:9]) ** 2, units="g/g^2"),
+    Candidate("nonlinearity", 3, lambda e, x, th, c: ef.nonlinearity(_vec(e), x - th[6:9]), units="g/g^2"),
     # second order with cross-axis terms (reference E3 + E4): each axis also sees the
     # product of the other two; a variant of the same class, chosen by held-out error
     Candidate("nonlinearity", 6,
               lambda e, x, th, c: _vec(e) * (x - th[6:9]) ** 2 + np.asarray(e, float)[3:]
               * (x - th[6:9])[:, [1, 2, 0]] * (x - th[6:9])[:, [2, 0, 1]],
               units="g/g^2 (x^2, y^2, z^2 on their own axes; then yz on x, zx on y, xy on z)"),
-    Candidate("bias_drift", 3, lambda e, x, th, c: np.outer(c["dt"], _vec(e)), units="g/s"),
+    Candidate("bias_drift", 3, lambda e, x, th, c: ef.bias_drift(_vec(e), c["dt"]), units="g/s"),
     # a wandering bias: piecewise linear in time with m + 1 equally spaced knots (m = 2, 3, 4,
     # the count chosen by held-out error), beyond the straight line of bias_drift
     *[Candidate("wandering_bias", 3 * m, lambda e, x, th, c, m=m: c[f"hat{m}"] @ np.asarray(e).reshape(m, 3),
@@ -70,10 +72,10 @@ def hat_columns(t_s: np.ndarray) -> dict:
 #: iron is not an effect; what it misses: hard iron and gain changing with temperature,
 #: a drifting hard iron, and interference that follows the orientation (``acc_dir``)
 MAG_CANDIDATES = [
-    Candidate("thermal_bias", 3, lambda e, x, th, c: np.outer(c["dT"], _vec(e)), units="gauss/degC"),
-    Candidate("thermal_scale", 3, lambda e, x, th, c: (x - th[-3:]) * np.outer(c["dT"], _vec(e)),
+    Candidate("thermal_bias", 3, lambda e, x, th, c: ef.thermal_bias(_vec(e), c["dT"]), units="gauss/degC"),
+    Candidate("thermal_scale", 3, lambda e, x, th, c: ef.thermal_scale(_vec(e), x - th[-3:], c["dT"]),
               units="1/degC"),
-    Candidate("bias_drift", 3, lambda e, x, th, c: np.outer(c["dt"], _vec(e)), units="gauss/s"),
+    Candidate("bias_drift", 3, lambda e, x, th, c: ef.bias_drift(_vec(e), c["dt"]), units="gauss/s"),
     # traceless: an offset c f (D = c I) only moves the sphere's centre in the world frame
     # (|R'(h + c g)| is the same for every orientation R), so it leaves no trace; a fit
     # would slide along it to soak up anything (e.g. a magnetometer that lags the turns)

@@ -13,6 +13,7 @@ from .signif import p_and_log10, proj_sig, score
 from .twin import heldout, twin_rms
 from .verdict import ALPHA, decide
 from .where import linear_where
+from ..calib.metrics import rms
 
 __all__ = ["gyro_diag"]
 
@@ -46,12 +47,12 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
     e0 = heldout(r0, J0, w)
     tw = twin_rms(J0, var, w, sims, rng)
     twin = float(np.median(tw))
-    ratio = float(np.sqrt(np.mean(e0 ** 2)) / twin)
+    ratio = rms(e0) / twin
     ratio_q99 = float(np.quantile(tw / twin, 0.99))
     out = {"poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp, 2),
            "chi2": chi2, "dof": 3 * N - 4, "unit": "dps", "bias_dps": b0[:3].tolist(),
            "earth_rate_vertical_dps": float(b0[3]),
-           "heldout_rms": float(np.sqrt(np.mean(e0 ** 2))), "twin_heldout_rms": twin,
+           "heldout_rms": rms(e0), "twin_heldout_rms": twin,
            "twin_ratio_q99": ratio_q99}
     significant = p_gap < ALPHA and ratio > ratio_q99
     effects = []
@@ -80,7 +81,7 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
             pn, _ = p_and_log10(max(chi2 - chi2a, 0.0), c.q)
             twl = twin_rms(-X, var, w, sims, rng)
             twa = float(np.median(twl))
-            ra = float(np.sqrt(np.mean(e1 ** 2)) / twa)
+            ra = rms(e1) / twa
             Ai = Ai * max(1.0, chi2a / max(3 * N - X.shape[1], 1))   # remaining excess scatter
             ent.update({"ratio_after": ra, "nested_p_value": pn, "q": c.q,
                         "closed": bool(ra <= float(np.quantile(twl / twa, 0.99))),

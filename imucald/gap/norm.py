@@ -15,6 +15,7 @@ from .stats import chi2_sf
 from .twin import hat_diag, heldout, lm_weighted, numjac, twin_rms
 from .verdict import ALPHA, decide
 from .where import norm_where
+from ..calib.metrics import rms
 
 __all__ = ["norm_diag", "MIN_DOF"]
 
@@ -59,7 +60,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     ratio_q99 = float(np.quantile(tw / twin, 0.99))
     out: Dict[str, object] = {
         "poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp_gap, 2),
-        "chi2": chi2, "dof": N - p0, "heldout_rms": float(np.sqrt(np.mean(e * e))) * scale,
+        "chi2": chi2, "dof": N - p0, "heldout_rms": rms(e) * scale,
         "twin_heldout_rms": twin_raw * scale, "twin_ratio_q99": ratio_q99, "unit": unit,
         # what the ratio compares: held-out residual / noise sd, its RMS in the data and the twin
         "heldout_rms_normalised": nrms(e), "twin_heldout_rms_normalised": twin,

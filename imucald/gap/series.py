@@ -133,7 +133,7 @@ def between_block_var(blk: Dict[str, np.ndarray], min_diffs: int = 12) -> Option
     colour at time scales beyond a block (flicker / bias instability with time constants of
     minutes) that the sub-block estimate cannot; a trend (linear or the smooth part of a
     warm-up) cancels in second differences.  None with fewer than ``min_diffs`` differences."""
-    m, st, n = blk["mean"], blk.get("stretch"), blk["n"]
+    m, st = blk["mean"], blk.get("stretch")
     if st is None or len(m) < 3:
         return None
     ok = (st[2:] == st[1:-1]) & (st[1:-1] == st[:-2])

@@ -22,12 +22,24 @@ from typing import Dict, Optional
 
 import numpy as np
 
+from ..calib import effect_forms as ef
+from ..specs import ACCEL, GYRO
+
 __all__ = ["EFFECTS", "DEFAULT_MAGNITUDE", "make_effect", "parse_effect_name"]
 
+_A, _G = ACCEL["mpu6050"], GYRO["mpu6050"]
+#: default magnitude per effect: the datasheet figures of imucald.specs where a datasheet
+#: gives one (the MPU-6050's accelerometer, the ITG-3200's ZRO tempco, the MPU-6050's
+#: g-sensitivity), the error-model notes' magnitudes for the drifts and the hard iron
 DEFAULT_MAGNITUDE = {
-    "accel.thermal_bias": 0.5e-3, "accel.thermal_scale": 2e-4, "accel.nonlinearity": 2.5e-3,
-    "accel.bias_drift": 1e-3 / 600, "gyro.thermal_bias": 0.03, "gyro.g_sensitivity": 0.1,
-    "gyro.bias_drift": 0.02 / 600, "mag.thermal_bias": 0.5e-3,
+    "accel.thermal_bias": _A.bias_tempco_g_per_c[0],
+    "accel.thermal_scale": _A.scale_tempco_per_c,
+    "accel.nonlinearity": _A.nonlinearity_fs * _A.range_g / _A.range_g ** 2,
+    "accel.bias_drift": 1e-3 / 600,
+    "gyro.thermal_bias": GYRO["itg3200"].bias_tempco_dps_per_c,
+    "gyro.g_sensitivity": _G.g_sensitivity_dps_per_g,
+    "gyro.bias_drift": 0.02 / 600,
+    "mag.thermal_bias": 0.5e-3,
 }
 EFFECTS = tuple(DEFAULT_MAGNITUDE)
 _SENSOR_OF = {"g_sensitivity": "gyro"}
@@ -62,18 +74,18 @@ def make_effect(name: str, magnitude: Optional[float], rng) -> Dict[str, object]
     def apply(s: str, raw: np.ndarray, ctx: Dict[str, np.ndarray]) -> None:
         if s != sensor:
             return
-        dT = (ctx["temp"] - ctx["temp"][0])[:, None]
-        dt = (ctx["t"] - ctx["t"][0])[:, None]
+        dT = ctx["temp"] - ctx["temp"][0]
+        dt = ctx["t"] - ctx["t"][0]
         if kind == "thermal_bias":
-            raw += p["coef"] * dT
+            raw += ef.thermal_bias(p["coef"], dT)
         elif kind == "bias_drift":
-            raw += p["coef"] * dt
+            raw += ef.bias_drift(p["coef"], dt)
         elif kind == "thermal_scale":
-            raw += p["coef"] * ctx["f"] * dT          # scale (1 + d dT) on the true input
+            raw += ef.thermal_scale(p["coef"], ctx["f"], dT)   # scale (1 + d dT) on the true input
         elif kind == "nonlinearity":
-            raw += p["coef"] * ctx["f"] ** 2
+            raw += ef.nonlinearity(p["coef"], ctx["f"])
         elif kind == "g_sensitivity":
-            raw += ctx["f"] @ p["G"].T
+            raw += ef.g_sensitivity(p["G"], ctx["f"])
 
     return {"name": name, "magnitude": mag, "params": {k: np.asarray(v).tolist() for k, v in p.items()},
             "apply": apply}

@@ -11,15 +11,15 @@ magnetic field in gauss (body frame), temperature in degC, time in s.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Dict, Union
+from typing import Dict
 
 import numpy as np
+
+from ..rng import RngLike, as_rng
 
 
 __all__ = ["PoseTour", "log_so3"]
 
-RngLike = Union[int, None, np.random.Generator]
 
 
 def log_so3(R: np.ndarray) -> np.ndarray:
@@ -45,13 +45,6 @@ def _rodrigues_batch(axis: np.ndarray, ang: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * K + (1 - c) * (K @ K)
 
 
-@dataclass
-class _Leg:
-    t_hold0: float
-    t_move0: float
-    t_end: float
-
-
 class PoseTour:
     """Hold each pose, then move to the next; evaluate with :meth:`sample`."""
 
@@ -60,7 +53,7 @@ class PoseTour:
                  move_accel_g: float = 0.2, field_gauss: float = 0.5, dip_deg: float = 60.0,
                  temp0_c: float = 22.0, temp_rise_c: float = 6.0, temp_tau_s: float = 600.0,
                  loop: bool = False):
-        rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        rng = as_rng(rng)
         draw = lambda v: float(rng.uniform(*v)) if isinstance(v, tuple) else float(v)
         self.R = np.asarray(rotations, float)
         n = len(self.R)

@@ -6,20 +6,17 @@ i.e. +1 g along whichever body axis points up.
 """
 from __future__ import annotations
 
-from typing import Union
 
 import numpy as np
+
+from ..rng import RngLike, as_rng
 
 from ..calib.coverage import sphere_lattice
 
 __all__ = ["euler_pose_set", "random_pose_set", "up_vectors", "rotation_from_up",
            "axis_angle", "small_rotation"]
 
-RngLike = Union[int, None, np.random.Generator]
 
-
-def _rng(rng: RngLike) -> np.random.Generator:
-    return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
 
 
 def axis_angle(axis: np.ndarray, angle_rad: float) -> np.ndarray:
@@ -68,7 +65,7 @@ def euler_pose_set(nx: int, ny: int, nz: int, rng: RngLike = None,
     about z (nz = 0) no pose has gravity in the x-y plane, which leaves alpha_yz
     poorly determined, as the paper finds.  Returns R (nx+ny+nz, 3, 3).
     """
-    rng = _rng(rng)
+    rng = as_rng(rng)
     out = []
     for axis, n in enumerate((nx, ny, nz)):
         if n <= 0:
@@ -87,7 +84,7 @@ def euler_pose_set(nx: int, ny: int, nz: int, rng: RngLike = None,
 def random_pose_set(n: int, rng: RngLike = None, jitter_deg: float = 3.0) -> np.ndarray:
     """n well-spread orientations: a randomly rotated spherical Fibonacci lattice of
     up vectors, each with hand jitter and a random yaw.  Returns R (n, 3, 3)."""
-    rng = _rng(rng)
+    rng = as_rng(rng)
     ups = sphere_lattice(n)
     Q = small_rotation(rng, 10.0)  # large sigma: effectively a random rotation
     ups = ups @ Q.T

@@ -19,6 +19,8 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
+from ..rng import RngLike, as_rng
+
 from ..calib.models import Triangular9
 from ..recording import Recording
 from .motion import log_so3
@@ -28,12 +30,8 @@ from ..specs import ACCEL, BOARDS, GYRO, MAG
 __all__ = ["Truth", "draw_truth", "pose_sigma", "simulate_pose_means", "Session",
            "simulate_session", "temperature_profile"]
 
-RngLike = Union[int, None, np.random.Generator]
 _T9 = Triangular9()
 
-
-def _rng(rng: RngLike) -> np.random.Generator:
-    return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
 
 
 def _clipped_normal(rng, tol, size=None):
@@ -72,7 +70,7 @@ def draw_truth(board: str = "mpu6050", rng: RngLike = None) -> Truth:
     """True errors drawn within the board's datasheet tolerances (N(0, tol/2), clipped)."""
     if board not in BOARDS:
         raise ValueError(f"unknown board {board!r}: allowed {', '.join(BOARDS)}")
-    rng = _rng(rng)
+    rng = as_rng(rng)
     an, gn, mn = BOARDS[board]
     a = ACCEL[an]
     bias = _clipped_normal(rng, np.array(a.bias_tol_g))
@@ -116,7 +114,7 @@ def simulate_pose_means(theta: np.ndarray, ups: np.ndarray, sigma_pose: float,
 
     Returns (means, pose_cov) with pose_cov (N, 3, 3) the covariance of each mean.
     """
-    rng = _rng(rng)
+    rng = as_rng(rng)
     ups = np.asarray(ups, float)
     raw = model.inverse(theta, ups) + rng.normal(scale=sigma_pose, size=ups.shape)
     cov = np.broadcast_to(np.eye(3) * sigma_pose ** 2, (len(ups), 3, 3)).copy()
@@ -159,7 +157,7 @@ Effect = Callable[[str, np.ndarray, Dict[str, np.ndarray]], None]
 def hand_tremor(n: int, rate_hz: float, rms_dps: float, rng: RngLike = None):
     """Band-limited (6-12 Hz) hand tremor: (rate deg/s (n, 3), angle rad (n, 3)), body
     frame, each rate axis with RMS ``rms_dps``; the angle is the rate integrated."""
-    rng = _rng(rng)
+    rng = as_rng(rng)
     f = np.fft.rfftfreq(n, 1.0 / rate_hz)
     band = (f >= 6.0) & (f <= min(12.0, rate_hz / 2))
     spec = (rng.normal(size=(3, len(f))) + 1j * rng.normal(size=(3, len(f)))) * band
@@ -194,7 +192,7 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
     acceleration of a point ``tremor_lever_m`` from the pivot (2.5 cm gives the
     accelerometer 1.3-3x its noise variance at 1.5 deg/s, as real hand poses show).
     """
-    rng = _rng(rng)
+    rng = as_rng(rng)
     truth = truth or draw_truth(board, rng)
     an, gn, mn = BOARDS[board]
     aspec, gspec = ACCEL[an], GYRO[gn]

@@ -21,8 +21,7 @@ from __future__ import annotations
 
 from typing import Dict, Optional
 
-import numpy as np
-
+from ...rng import as_rng
 from ...drivers import ak8963 as _ak, hmc5883l as _hmc
 from ...drivers.bus import Clock, VirtualClock
 from ..sensor import Truth, draw_truth
@@ -45,7 +44,7 @@ def emulated_board(board: str, motion, rng: RngLike = None, clock: Optional[Cloc
     qmc5883l (gy273 default; ``9dof-qmc`` is the 9dof board with it).  ``trim``: the
     MPU's factory trim (see :class:`EmuMPU6xxx`) and, under "asa", the AK8963's fuse ROM;
     drawn when None, so another seed is another physical sensor."""
-    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    rng = as_rng(rng)
     clock = clock or VirtualClock()
     bus = EmulatedBus(clock, faults, rng)
     if board == "9dof-qmc":

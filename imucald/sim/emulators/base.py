@@ -10,9 +10,11 @@ from __future__ import annotations
 import ctypes
 import errno
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Set, Tuple, Union
+from typing import Dict, List, Optional, Sequence, Set, Tuple
 
 import numpy as np
+
+from ...rng import RngLike, as_rng
 
 from ...drivers.bus import BLOCK_MAX, Clock, VirtualClock
 from ...drivers.regmap import RegisterMap
@@ -20,7 +22,6 @@ from ..sensor import Truth
 
 __all__ = ["Faults", "EmuDevice", "EmulatedBus", "RngLike", "i16"]
 
-RngLike = Union[int, None, np.random.Generator]
 
 
 def _oserror(code: int) -> OSError:
@@ -137,7 +138,7 @@ class EmulatedBus:
                  rng: RngLike = None):
         self.clock = clock or VirtualClock()
         self.faults = faults or Faults()
-        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self.rng = as_rng(rng)
         self.devices: Dict[int, EmuDevice] = {}
         self.transactions = 0
         self._done_resets: Set[Tuple[int, float]] = set()

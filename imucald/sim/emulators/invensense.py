@@ -117,10 +117,12 @@ class EmuMPU6xxx(EmuDevice):
         g_lsb = [131.0, 65.5, 32.8, 16.4][fs]
         bw_a, bw_g = _mpu.DLPF_HZ.get(self._dlpf(), (260, 256))
         n = len(t)
+        # white noise over the whole DLPF band: sampling at ODR does not shrink it, a band
+        # wider than ODR/2 aliases its full variance into each sample
         acc = self.truth.accel_raw(m["f"]) + self._noise(
-            self.spec_a.noise_density_g_rthz, min(bw_a, self.odr_hz() / 2), (n, 3))
+            self.spec_a.noise_density_g_rthz, bw_a, (n, 3))
         gyr = self.truth.gyro_raw(m["w"]) + self._noise(
-            self.spec_g.noise_density_dps_rthz, min(bw_g, self.odr_hz() / 2), (n, 3))
+            self.spec_g.noise_density_dps_rthz, bw_g, (n, 3))
         div, off = _mpu.TEMP_FORMULA[self.variant]
         vals = np.empty((n, 7), np.int64)
         vals[:, 0:3] = i16(acc * a_lsb)

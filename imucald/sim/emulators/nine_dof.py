@@ -107,7 +107,7 @@ class EmuITG3200(EmuDevice):
         m = self.motion.sample(t[-1:])
         dl = self.regs[self.regmap.DLPF_FS.addr] & 0x07
         gyr = self.truth.gyro_raw(m["w"]) + self._noise(
-            spec.noise_density_dps_rthz, min(_itg.DLPF_HZ.get(dl, 256), self.odr_hz() / 2), (1, 3))
+            spec.noise_density_dps_rthz, _itg.DLPF_HZ.get(dl, 256), (1, 3))   # whole DLPF band, aliased
         fs3 = ((self.regs[self.regmap.DLPF_FS.addr] >> 3) & 3) == 3
         lsb = _itg.LSB_PER_DPS if fs3 else _itg.LSB_PER_DPS * 4   # other FS_SEL values: undocumented
         vals = np.empty(4, np.int64)

@@ -113,6 +113,7 @@ def cmd_calibrate(args) -> int:
         return _calibrate_mag_rotation(args, rec, model, progress)
     poses = poses_from_recording(rec, window_s=args.window_s, k=args.threshold_k,
                                  min_still_s=args.min_still_s) if rec is not None else obj
+    chip = infl = None
     if sensor == "accel":
         if len(poses) < 10:
             raise UserError(f"{args.input}: only {len(poses)} still poses found; the 9-parameter "
@@ -143,12 +144,24 @@ def cmd_calibrate(args) -> int:
             sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
             samples = np.concatenate([rec.gyro[s] for s in sl])
         cal = fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
+    tf = None
+    if sensor in ("accel", "gyro") and args.method != "ga-paper":
+        # the thermal terms: the order the held-out test supports (README: thermal terms)
+        from .thermal import fit_thermal
+        tf = fit_thermal(sensor, poses, cal, chip, infl, args.thermal_min_span, args.seed)
     if args.output:
-        _write_calibration(args.output, poses.meta.get("board", "unknown"), cal)
+        _write_calibration(args.output, poses.meta.get("board", "unknown"), cal, tf)
     if args.json:
-        print(json.dumps(cal.to_json()))
+        d = cal.to_json()
+        if tf is not None:
+            from .thermal import thermal_json
+            d["thermal"] = thermal_json(sensor, tf)
+        print(json.dumps(d))
         return 0
     _print_cal(sensor, cal)
+    if tf is not None:
+        from .thermal import thermal_lines
+        print("\n".join(thermal_lines(sensor, tf)))
     return 0
 
 
@@ -217,12 +230,15 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     return 0
 
 
-def _write_calibration(path: str, board: str, fit) -> None:
-    """--output: the fitted part as a calibration file (the daemon's and
-    imucald.load_calibration's format), written atomically."""
+def _write_calibration(path: str, board: str, fit, thermal=None) -> None:
+    """--output: the fitted part (with its thermal terms) as a calibration file (the
+    daemon's and imucald.load_calibration's format), written atomically."""
     from ..calibration import Calibration, SensorCal, save
+    from .thermal import thermal_part
+    part = SensorCal.from_fit(fit) if thermal is None else thermal_part(fit.sensor, fit, thermal)
+    tr = None if thermal is None else (round(thermal.t_min_c, 2), round(thermal.t_max_c, 2))
     try:
-        save(Calibration(board, id=1, **{fit.sensor: SensorCal.from_fit(fit)}), path)
+        save(Calibration(board, id=1, temperature_range_c=tr, **{fit.sensor: part}), path)
     except OSError as e:
         raise CannotCreate(f"--output {path}: cannot write: {e.strerror}") from None
 

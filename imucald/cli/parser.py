@@ -88,7 +88,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="still when the accelerometer's moving variance < k x its noise floor")
     c.add_argument("--min-still-s", type=positive_float, default=_ST["min_still_s"],
                    help="shortest still interval, s")
+    c.add_argument("--thermal-min-span", type=float, default=10.0, metavar="DEGC",
+                   help="accel and gyro: fit a bias polynomial in temperature (order 0-3 by held-out "
+                        "error) when the still poses span at least this many degC (default 10); "
+                        "below it a constant only")
     c.set_defaults(func=_command("offline", "cmd_calibrate"))
+
+    ap = sub.add_parser("apply", help="write a recording corrected by a calibration file")
+    ap.add_argument("calibration", help="calibration file (calibrate -o, or the daemon's state)")
+    ap.add_argument("recording")
+    ap.add_argument("-o", "--output", required=True, help="corrected recording to write")
+    ap.set_defaults(func=_command("thermal", "cmd_apply"))
 
     pr = sub.add_parser("probe", help="list what answers on the I2C bus and what each device is")
     pr.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1, or the first present)")

@@ -1,0 +1,116 @@
+"""The thermal terms offline: ``imucald calibrate`` fits them when the recording spans
+enough temperature (calib/thermal.py chooses the order and says why), and
+``imucald apply`` writes a recording corrected by a calibration file (so that ``gap``
+can be run on the corrected data: the loop of README "Closing the loop")."""
+from __future__ import annotations
+
+from typing import List, Optional
+
+import numpy as np
+
+from ..errors import CannotCreate, UserError
+from ._common import eprint
+
+UNIT = {"accel": ("g", "mg", 1e3), "gyro": ("dps", "deg/s", 1.0), "mag": ("gauss", "mG", 1e3)}
+
+
+def fit_thermal(sensor: str, poses, fit, chip: Optional[str], infl, min_span_c: float, seed):
+    """The thermal fit of ``sensor`` on the still poses (None: no temperatures), started
+    from the constant fit ``fit`` (calib.fit.FitResult)."""
+    from ..calib.thermal import fit_bias_series, fit_norm_thermal
+    if poses.temp is None or not np.any(np.isfinite(poses.temp)):
+        return None
+    if sensor == "gyro":
+        var = np.einsum("nii->ni", poses.gyro_cov) if poses.gyro_cov is not None else np.full((len(poses), 3), 1e-4)
+        return fit_bias_series(poses.temp, poses.gyro, np.maximum(var, 1e-12), min_span_c, rng=seed)
+    from ..calib.fit import accel_prior
+    from ..calib.models import get_model
+    from ..calib.uncertainty import residual_variance
+    m = get_model(fit.model)
+    cov = poses.acc_cov if sensor == "accel" else poses.mag_cov
+    if cov is None:
+        var = np.full(len(poses), fit.noise ** 2)
+    else:
+        k = np.ones(len(poses)) if infl is None else np.broadcast_to(np.asarray(infl, float), (len(poses),))
+        var = residual_variance(m, fit.theta, poses.acc if sensor == "accel" else poses.mag,
+                                cov * k[:, None, None])
+    prior = accel_prior(m, chip) if sensor == "accel" else None
+    x = poses.acc if sensor == "accel" else poses.mag
+    return fit_norm_thermal(m, x, var, poses.temp, fit.theta, prior, min_span_c, scale=sensor == "accel",
+                            rng=seed)
+
+
+def thermal_lines(sensor: str, tf) -> List[str]:
+    """What was chosen and why, for ``calibrate``'s text output."""
+    u, shown, k = UNIT[sensor]
+    out = [f"  thermal ({tf.t_min_c:.1f}..{tf.t_max_c:.1f} degC, about {tf.t_ref_c:.1f} degC): {tf.note}"]
+    for j in range(tf.order):
+        row = ", ".join(f"{v * k:+.4g}+-{s * k:.2g}" for v, s in zip(tf.bias_poly[j], tf.bias_poly_stderr[j]))
+        out.append(f"    bias (T - {tf.t_ref_c:.1f})^{j + 1}: [{row}] {shown}/degC^{j + 1}")
+    if tf.scale_poly is not None:
+        row = ", ".join(f"{v * 1e6:+.1f}+-{s * 1e6:.1f}" for v, s in zip(tf.scale_poly[0], tf.scale_poly_stderr[0]))
+        out.append(f"    scale (T - {tf.t_ref_c:.1f}): [{row}] ppm/degC")
+    if tf.inflation > 1.05:
+        out.append(f"    (variances inflated x{tf.inflation:.2f}: scatter the smoothest curve leaves)")
+    return out
+
+
+def thermal_json(sensor: str, tf):
+    d = tf.to_thermal(UNIT[sensor][0])
+    d = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
+    d["variants"] = tf.variants
+    d["inflation"] = tf.inflation
+    return d
+
+
+def thermal_part(sensor: str, fit, tf):
+    """The calibration part of ``fit`` with the thermal terms (its parameters then the
+    ones at t_ref_c)."""
+    from ..calibration import SensorCal
+    sc = SensorCal.from_fit(fit)
+    if tf is None:
+        return sc
+    th = tf.to_thermal(UNIT[sensor][0])
+    if tf.order == 0 and tf.scale_poly is None:
+        return SensorCal(sc.sensor, sc.model, sc.params, sc.stderr, sc.flags, sc.method, sc.quality, th)
+    if sensor == "gyro":
+        return SensorCal("gyro", "bias", {"bias_dps": np.asarray(tf.base, float)},
+                         {"bias_dps": np.asarray(tf.base_stderr, float)}, {}, sc.method, sc.quality, th)
+    if sensor == "accel":
+        a = SensorCal.accel(fit.model, tf.base, tf.base_stderr, sc.method, sc.quality, sc.flags)
+        return SensorCal(a.sensor, a.model, a.params, a.stderr, a.flags, a.method, a.quality, th)
+    return SensorCal(sc.sensor, sc.model, sc.params, sc.stderr, sc.flags, sc.method, sc.quality, th)
+
+
+# --- apply ---------------------------------------------------------------------------------
+
+def cmd_apply(args) -> int:
+    """Correct a recording with a calibration file: every sensor the file has a part for,
+    each sample at its own temperature (thermal terms)."""
+    from ..calibration import load
+    from ..recording import Recording, read_recording, write_recording
+    cal = load(args.calibration)
+    rec = read_recording(args.recording)
+    T = rec.temp
+    if T is None and any(p is not None and p.thermal for p in (cal.accel, cal.gyro, cal.mag)):
+        eprint(f"imucald: {args.recording}: no temp column: thermal terms applied at their reference "
+               f"temperature")
+    got = []
+    acc, gyro, mag = rec.acc, rec.gyro, rec.mag
+    if acc is not None and cal.accel is not None:
+        acc, _ = cal.apply_accel(acc, T), got.append("accel")
+    if gyro is not None and cal.gyro is not None:
+        gyro, _ = cal.apply_gyro(gyro, np.full(len(rec), np.nan) if T is None else T), got.append("gyro")
+    if mag is not None and cal.mag is not None:
+        mag, _ = cal.apply_mag(mag, T), got.append("mag")
+    if not got:
+        raise UserError(f"{args.calibration}: no part for a sensor of {args.recording}")
+    meta = dict(rec.meta)
+    meta["corrected"] = f"{','.join(got)} by calibration {cal.id} ({args.calibration})"
+    out = Recording(rec.t, acc, gyro, mag, rec.temp, meta)
+    try:
+        write_recording(out, args.output)
+    except OSError as e:
+        raise CannotCreate(f"-o {args.output}: cannot write: {e.strerror}") from None
+    eprint(f"imucald: wrote {args.output}: {len(rec)} samples, {', '.join(got)} corrected")
+    return 0

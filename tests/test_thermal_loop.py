@@ -1,0 +1,45 @@
+"""The loop of README "Closing the loop": gap names a thermal bias in a simulated recording,
+calibrate fits the thermal term, apply corrects the recording, gap on it says none."""
+import json
+
+import numpy as np
+import pytest
+
+from imucald.calibration import load
+from imucald.cli import main
+
+
+@pytest.fixture(scope="module")
+def warm(tmp_path_factory):
+    d = tmp_path_factory.mktemp("loop")
+    rec, truth = d / "warm.rec", d / "truth.json"
+    assert main(["simulate", "-o", str(rec), "--poses", "30", "--hold", "8", "--temp-profile", "heatcool",
+                 "--temp-rise", "15", "--effect", "accel.thermal_bias=0.0007", "--effect",
+                 "gyro.thermal_bias=0.02", "--seed", "4", "--truth", str(truth)]) == 0
+    return d, rec, json.loads(truth.read_text())
+
+
+def _verdict(capsys, *args):
+    capsys.readouterr()
+    assert main(["gap", *args, "--json", "--sims", "200"]) == 0
+    return {k: v["verdict"] for k, v in json.loads(capsys.readouterr().out)["sensors"].items()}
+
+
+@pytest.mark.parametrize("sensor", ["accel", "gyro"])
+def test_gap_names_it_calibrate_removes_it_gap_says_none(warm, capsys, sensor):
+    d, rec, truth = warm
+    assert _verdict(capsys, str(rec), "--sensor", sensor) == {sensor: "thermal_bias"}
+    cal_path, out = d / f"{sensor}.yaml", d / f"{sensor}_corrected.rec"
+    assert main(["calibrate", str(rec), "--sensor", sensor, "--method", "lm", "-o", str(cal_path)]) == 0
+    part = load(cal_path).part(sensor)
+    th = part.thermal
+    assert th["order"] == 1, th["note"]
+    unit = {"accel": "g", "gyro": "dps"}[sensor]
+    coef = np.asarray(th[f"bias_poly_{unit}"][0])
+    se = np.asarray(th[f"bias_poly_stderr_{unit}"][0])
+    want = np.asarray(next(e for e in truth["effects"] if e["name"] == f"{sensor}.thermal_bias")["params"]["coef"])
+    if sensor == "gyro":                # the simulator adds it to the true rate, before the gyro's matrix
+        want = np.asarray(truth["gyro_matrix"]) @ want
+    assert np.all(np.abs(coef - want) <= 4 * se), (coef, want, se)
+    assert main(["apply", str(cal_path), str(rec), "-o", str(out)]) == 0
+    assert _verdict(capsys, str(out), "--sensor", sensor) == {sensor: "none"}

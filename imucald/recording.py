@@ -42,6 +42,7 @@ import numpy as np
 from .errors import UserError
 from . import tables
 from .tables import TableSpec, collect, decode_line, iter_blocks
+from .npstats import median
 
 __all__ = ["Recording", "RecordingError", "RecordingReader", "open_recording", "iter_recording",
            "read_recording", "write_recording", "MAGIC", "COLUMNS", "PLAUSIBLE_LIMIT"]
@@ -74,7 +75,7 @@ class Recording:
         if "rate_hz" in self.meta:
             return float(self.meta["rate_hz"])
         dt = np.diff(self.t)
-        return float(1.0 / np.median(dt)) if len(dt) else 0.0
+        return float(1.0 / median(dt)) if len(dt) else 0.0
 
     def columns(self) -> List[str]:
         cols = ["t"]

@@ -141,3 +141,17 @@ def _pipeline_poses(rec, board="mpu6050"):
 def test_the_daemon_pipeline_and_calibrate_find_the_same_poses():
     s, rec = _hand_session(6)
     assert _pipeline_poses(rec) == detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+
+
+def test_floors_are_numpy_percentiles_value_for_value():
+    """The vectorised floors equal np.percentile over each window's history bit for bit
+    (random, quantised with zeros, and a history shorter and longer than FLOOR_WINDOWS)."""
+    from imucald.calib.stillness import FLOOR_WINDOWS, _floor, _floors
+    rng = np.random.default_rng(3)
+    for hist in (rng.gamma(2.0, 1e-6, 700), np.round(rng.gamma(1.0, 1.0, 450)) * 1e-8,
+                 np.zeros(20), rng.gamma(2.0, 1.0, 1)):
+        for m in sorted({1, min(len(hist), 7), min(len(hist), 333)}):
+            got = _floors(hist, m)
+            want = [_floor(hist[max(0, len(hist) - m + j + 1 - FLOOR_WINDOWS):len(hist) - m + j + 1])
+                    for j in range(m)]
+            assert np.array_equal(got, want), (len(hist), m)

@@ -19,6 +19,7 @@ from .models import (MagModel, NormModel, get_model, gyro_bias_eq6_fitness, gyro
                      gyro_bias_scatter_se, mag_report)
 from .optim import OptimResult, Problem, _lm_converge, lm, run_method, sphere_fit
 from .uncertainty import Uncertainty, crlb, determination, map_covariance, residual_variance
+from ..npstats import median
 
 __all__ = ["FitResult", "fit_norm", "heldout_residuals", "fit_gyro_bias",
            "select_model", "accel_prior", "AUTO_MODELS"]
@@ -299,7 +300,7 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
     if use_prior:       # ga-paper too: its data-only std is compared with the tolerance
         unc.prior_std = pstd_full
     unc.posterior_std = stderr_flat
-    unc.flags = determination(model, theta, raw, cov, pstd_full, at_bound, float(np.median(var)),
+    unc.flags = determination(model, theta, raw, cov, pstd_full, at_bound, float(median(var)),
                               target)
     hprior = (pmean, pstd, nv) if lam.any() else None
     if heldout:
@@ -318,18 +319,18 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
         "heldout_predicted_std": ho_sd}
     if noise_inflation is not None:
         k = np.broadcast_to(np.asarray(noise_inflation, float), (N,))
-        extra["noise_model"]["colour_inflation_median"] = round(float(np.median(k)), 3)
+        extra["noise_model"]["colour_inflation_median"] = round(float(median(k)), 3)
     if selection is not None:
         extra["model_selection"] = selection
     if isinstance(model, MagModel):
         params, stderr = mag_report(model, theta, cov)
         scale = params["field_gauss"]           # residuals are on the unit sphere
-        rr, hr, noise = rms(r) * scale, rms(ho) * scale, float(np.sqrt(np.median(var))) * scale
+        rr, hr, noise = rms(r) * scale, rms(ho) * scale, float(np.sqrt(median(var))) * scale
     else:
         params = model.unpack(theta)
         stderr = {g: [None if not np.isfinite(stderr_flat[i]) else float(stderr_flat[i])
                       for i in idx_g] for g, idx_g in model.groups.items()}
-        rr, hr, noise = rms(r), rms(ho), float(np.sqrt(np.median(var)))
+        rr, hr, noise = rms(r), rms(ho), float(np.sqrt(median(var)))
         # paper 000's equivalent-path error after 20 s, STD over poses (pose means held)
         _, _, sd_raw = path_error([x[None] for x in raw], 10.0, 20.0)
         _, _, sd_cal = path_error([x[None] for x in model.forward(theta, raw)], 10.0, 20.0)
@@ -390,6 +391,6 @@ def fit_gyro_bias(pose_means_dps: np.ndarray, counts: np.ndarray,
     mk = lambda v: [float(x) for x in v]
     return FitResult("gyro", "bias", method, N, b.copy(), {"bias_dps": mk(b)},
                        {"bias_dps": mk(sd)}, fitness, rms(m - b), float("nan"), sd, None,
-                       float(np.sqrt(np.median(np.einsum("nii->n", pose_cov) / 3)))
+                       float(np.sqrt(median(np.einsum("nii->n", pose_cov) / 3)))
                        if pose_cov is not None else float("nan"),
                        "poses", it, 0, time.perf_counter() - t0)

@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import UserError
 from ..recording import (COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, _open_binary,
                          read_recording)
+from ..npstats import median
 from ..tables import TableSpec, collect, decode_line, iter_blocks
 from .poses import POSES_MAGIC, read_poses
 
@@ -100,7 +101,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
         dt = dt[dt > 0]
         if not rate_hz and not len(dt):
             raise UserError(f"{path}: t never advances, so the sample rate is unknown: give --rate-hz")
-        rate = rate_hz or 1.0 / float(np.median(dt))
+        rate = rate_hz or 1.0 / float(median(dt))
     else:
         if not rate_hz:
             raise UserError(f"{path}: no t column: give --rate-hz")

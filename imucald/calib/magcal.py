@@ -32,6 +32,7 @@ from .fit import FitResult, fit_norm
 from .models import MagModel, get_model
 from .optim import sphere_fit
 from .uncertainty import residual_variance
+from ..npstats import median
 
 __all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage",
            "calibrate_rotation", "rel_std", "FLAT_K"]
@@ -182,7 +183,7 @@ def sample_noise(m: np.ndarray) -> np.ndarray:
     d2 = d2[np.all(np.isfinite(d2), axis=1)]
     if len(d2) < 10:
         return np.full(3, np.nan)
-    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    mad = median(np.abs(d2 - median(d2, axis=0)), axis=0)
     sd = 1.4826 * mad / np.sqrt(6.0)
     # noise below one count: most second differences are 0 and the MAD with them; the
     # plain standard deviation still sees the quantisation

@@ -22,6 +22,8 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
+from ..npstats import median
+
 __all__ = ["allan_deviation", "allan_model", "fit_avar_terms", "inflation_of", "colour_inflation", "colour_inflation_per_pose",
            "pose_colour_inflation",
            "MIN_STRETCH_S", "MAX_INFLATION"]
@@ -139,7 +141,7 @@ def colour_inflation_per_pose(x_still: Optional[np.ndarray], rate_hz: float,
                                          f"(longest {dur:.0f} s): white noise assumed"}
     dur = len(x_still) / rate_hz
     k = inflation_of(allan_model(x_still, rate_hz), np.minimum(T, dur / 3.0))
-    return k, {"still_stretch_s": round(dur, 1), "variance_inflation_median": round(float(np.median(k)), 3),
+    return k, {"still_stretch_s": round(dur, 1), "variance_inflation_median": round(float(median(k)), 3),
                "variance_inflation_range": [round(float(k.min()), 3), round(float(k.max()), 3)]}
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from ..errors import UserError
 from ..recording import Recording
 from .stillness import StillnessDetector
+from ..npstats import median
 
 __all__ = ["PoseSet", "detect_static", "detect_intervals", "poses_from_recording",
            "read_poses", "write_poses", "POSES_MAGIC"]
@@ -81,7 +82,7 @@ def detect_intervals(t, acc, gyro=None, rate_hz=None, temp=None, **params):
     t = np.asarray(t, float)
     if len(t) < 4:
         return [], 0
-    rate = rate_hz or 1.0 / max(float(np.median(np.diff(t))), 1e-9)
+    rate = rate_hz or 1.0 / max(float(median(np.diff(t))), 1e-9)
     det = StillnessDetector(rate, **params)
     out = []
     # the streaming detector over consecutive chunks: its decisions do not depend on how the

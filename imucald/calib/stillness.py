@@ -31,11 +31,12 @@ comes near), are never still and never averaged; they are counted in ``dropped``
 """
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 from typing import Dict, List, Optional
 
 import numpy as np
+
+from ..npstats import median
 
 __all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS"]
 
@@ -83,8 +84,8 @@ class StillnessDetector:
         self._tail = None                    # last w-1 rows of [acc | gyro] (filled)
         self._blk: List[np.ndarray] = []      # rows of the partial non-overlapping window
         self._blk_n = 0
-        self._hist_a = deque(maxlen=FLOOR_WINDOWS)
-        self._hist_g = deque(maxlen=FLOOR_WINDOWS)
+        self._hist_a = np.zeros(0)              # variances of the last FLOOR_WINDOWS windows
+        self._hist_g = np.zeros((0, 3))         # and their mean rates (with a gyro)
         self._F: Dict[int, tuple] = {}       # windows completed -> (floor, bias)
         self._nblk = 0
         self._buf: Optional[dict] = None     # samples whose still flag is not decided yet
@@ -106,19 +107,27 @@ class StillnessDetector:
             return
         buf = self._blk[0] if len(self._blk) == 1 else np.concatenate(self._blk)
         m = len(buf) // self.w
-        for b in buf[:m * self.w].reshape(m, self.w, buf.shape[1]):
-            self._hist_a.append(float(b[:, :3].var(0, ddof=1).sum()))
+        b = buf[:m * self.w].reshape(m, self.w, buf.shape[1])
+        # the m completed windows at once; each one's floor is a percentile of the variances
+        # of the FLOOR_WINDOWS windows up to it (itself included), its bias the median mean
+        # rate of the quiet ones among them
+        hist_a = np.concatenate([self._hist_a, b[:, :, :3].var(1, ddof=1).sum(1)])
+        fas = _floors(hist_a, m)
+        hist_g = np.concatenate([self._hist_g, b[:, :, 3:].mean(1)]) if gy else None
+        n0 = len(hist_a) - m
+        for j in range(m):
+            fa, bias = float(fas[j]), None
             if gy:
-                self._hist_g.append(b[:, 3:].mean(0))
+                lo = max(0, n0 + j + 1 - FLOOR_WINDOWS)
+                ha, ga = hist_a[lo:n0 + j + 1], hist_g[lo:n0 + j + 1]
+                qa = ha <= self.k * fa
+                bias = median(ga[qa] if qa.any() else ga, axis=0)
             self._nblk += 1
-            fa = _floor(np.fromiter(self._hist_a, float))
-            bias = None
-            if gy:
-                ga = np.array(self._hist_g)
-                qa = np.fromiter(self._hist_a, float) <= self.k * fa
-                bias = np.median(ga[qa] if qa.any() else ga, axis=0)
             self._F[self._nblk] = (fa, bias)
             self.floor_a, self.bias_g = fa, bias
+        self._hist_a = hist_a[-FLOOR_WINDOWS:]
+        if gy:
+            self._hist_g = hist_g[-FLOOR_WINDOWS:]
         rest = buf[m * self.w:]
         self._blk = [rest] if len(rest) else []
         self._blk_n = len(rest)
@@ -233,12 +242,16 @@ class StillnessDetector:
         j = np.maximum(b["i"] // self.w, WARMUP_WINDOWS)
         if final:
             j = np.minimum(j, self._nblk)
-        avail = todo & (j <= self._nblk)
-        for jj in np.unique(j[avail]):
-            sel = avail & (j == jj)
-            b["q"][sel] = self._quiet({k: b[k][sel] for k in ("good", "va", "gm")},
-                                      *self._F[int(jj)])
-            b["known"][sel] = True
+        idx = np.flatnonzero(todo & (j <= self._nblk))
+        if len(idx):
+            # each sample against the floor and bias of its window (j is non-decreasing)
+            jv = j[idx]
+            u = jv[np.concatenate([[True], jv[1:] != jv[:-1]])].tolist()
+            pos = np.searchsorted(u, jv)
+            fa = np.array([self._F[jj][0] for jj in u])[pos]
+            bias = None if self._F[u[0]][1] is None else np.array([self._F[jj][1] for jj in u])[pos]
+            b["q"][idx] = self._quiet({k: b[k][idx] for k in ("good", "va", "gm")}, fa, bias)
+            b["known"][idx] = True
         lo = max(int(b["i"][0]) // self.w, WARMUP_WINDOWS) if len(b["i"]) else self._nblk
         for kk in [kk for kk in self._F if kk < min(lo, self._nblk)]:
             del self._F[kk]              # no waiting sample needs these floors any more
@@ -263,11 +276,11 @@ class StillnessDetector:
     # -- intervals --------------------------------------------------------------------
     def _runs(self, still, ch) -> List[StaticInterval]:
         out: List[StaticInterval] = []
-        n, i = len(still), 0
-        while i < n:
-            j = i
-            while j < n and still[j] == still[i]:
-                j += 1
+        n = len(still)
+        if n == 0:
+            return out
+        cut = (np.flatnonzero(still[1:] != still[:-1]) + 1).tolist()    # where the value changes
+        for i, j in zip([0] + cut, cut + [n]):
             if still[i]:
                 s = i
                 while s < j:
@@ -286,7 +299,6 @@ class StillnessDetector:
                 iv = self._close(trim=True)
                 if iv is not None:
                     out.append(iv)
-            i = j
         return out
 
     def _close(self, trim: bool) -> Optional[StaticInterval]:
@@ -341,6 +353,35 @@ def _onset(acc: np.ndarray, short: int = 10) -> int:
     dev = np.abs(ma - m0) / (sd / np.sqrt(short))
     bad = np.flatnonzero(dev[half:].max(1) > 5.0)
     return n if not len(bad) else half + int(bad[0])
+
+
+def _floors(hist: np.ndarray, m: int) -> np.ndarray:
+    """The noise floor after each of the last m windows of hist: the FLOOR_PCT percentile of
+    the variances of the FLOOR_WINDOWS windows up to it, as ``numpy.percentile`` (method
+    'linear') computes it, value for value, for all m at once (np.percentile per window cost
+    ~60 us, most of a file's stillness detection); a floor of 0 (quantised, noiseless data)
+    becomes the smallest positive variance, or 1e-12."""
+    if not np.isfinite(hist).all():           # not from finite samples: numpy's own rules
+        return np.array([_floor(hist[max(0, len(hist) - m + j + 1 - FLOOR_WINDOWS):len(hist) - m + j + 1])
+                         for j in range(m)])
+    L = FLOOR_WINDOWS
+    pad = np.concatenate([np.full(L - 1, np.inf), hist])     # +inf sorts after every variance
+    rows = np.sort(np.lib.stride_tricks.sliding_window_view(pad, L)[-m:], axis=1)
+    n = np.minimum(np.arange(len(hist) - m + 1, len(hist) + 1), L)    # real values per row
+    vi = (n - 1) * (FLOOR_PCT / 100.0)                       # numpy's virtual index, 'linear'
+    prev = np.floor(vi)
+    top = vi >= n - 1
+    i0 = np.where(top, n - 1, prev).astype(np.intp)
+    i1 = np.where(top, n - 1, prev + 1).astype(np.intp)
+    a = rows[np.arange(m), i0]
+    b = rows[np.arange(m), i1]
+    g = vi - prev
+    d = b - a
+    f = np.where(g >= 0.5, b - d * (1 - g), a + d * g)       # numpy's _lerp
+    for j in np.flatnonzero(f <= 0):
+        pos = rows[j, :n[j]][rows[j, :n[j]] > 0]
+        f[j] = float(pos.min()) if pos.size else 1e-12
+    return f
 
 
 def _floor(v: np.ndarray) -> float:

@@ -37,6 +37,7 @@ import numpy as np
 
 from .heldout import heldout, lm_weighted, numjac, twin_rms
 from .stats import chi2_logsf
+from ..npstats import median
 
 __all__ = ["ThermalFit", "fit_bias_series", "fit_norm_thermal", "MIN_SPAN_C", "MAX_ORDER", "ALPHA"]
 
@@ -100,7 +101,7 @@ def _stats(r, J, w, var, lam, rng, sims):
     gap/norm.py: points of unequal noise)."""
     e = heldout(r, J, w, lam)
     tw = twin_rms(J, var, w, sims, rng, lam, normalised=True)
-    med = float(np.median(tw))
+    med = float(median(tw))
     ratio = float(np.sqrt(np.mean(e * e * w))) / med
     return {"chi2": float(np.sum(w * r * r)), "mse": float(np.mean(e * e * w)), "ratio": ratio,
             "q99": float(np.quantile(tw / med, 0.99))}

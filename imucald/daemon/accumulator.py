@@ -18,6 +18,7 @@ from ..calib.models import Triangular9
 from ..calib.poses import PoseSet
 from ..calib.uncertainty import crlb, residual_variance
 from .stillness import StaticInterval
+from ..npstats import median
 
 __all__ = ["PoseAccumulator"]
 
@@ -109,7 +110,7 @@ class PoseAccumulator:
             return None
         ps = self.pose_set()
         th = _T9.nominal if theta is None else theta
-        v = np.median(np.einsum("nii->n", ps.acc_cov) / 3)
+        v = median(np.einsum("nii->n", ps.acc_cov) / 3)
         var = residual_variance(_T9, th, ps.acc, np.full(len(ps), v))
         return crlb(_T9, th, ps.acc, var).std
 

@@ -25,6 +25,7 @@ from ..calib.magcal import coverage, flat_axis
 from ..calib.models import MagModel, Triangular9
 from ..calibration import Calibration, SensorCal
 from ..calib.metrics import rms
+from ..npstats import median
 
 __all__ = ["calibration_job", "JobResult", "MagReservoir"]
 
@@ -120,7 +121,7 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
     r_new = np.linalg.norm(_MAG.forward(mc.theta, mp[mho]), axis=1) - 1
     if cur.mag is None:
         hc = np.linalg.norm(mp[mho], axis=1)
-        r_cur = hc / np.median(np.linalg.norm(mp, axis=1)) - 1
+        r_cur = hc / median(np.linalg.norm(mp, axis=1)) - 1
     else:
         hc = np.linalg.norm(cur.apply_mag(mp[mho]), axis=1)
         r_cur = hc / float(cur.mag.params["field_gauss"]) - 1

@@ -129,6 +129,13 @@ def test_end_to_end_calibrates_and_streams_every_sample(tmp_path, board, speed, 
     cals = [o for o in objs if o["class"] == "CAL" and o.get("applied")]
     assert cals, err
     first = cals[0]
+    # the default emulated tour is hand-held (1.5-4 s holds, 1 deg/s tremor): every hold is
+    # a pose, and the first calibration comes at the 10th pose, provisional
+    log = err.splitlines()
+    i10 = next(i for i, l in enumerate(log) if "pose 10/" in l)
+    i1 = next(i for i, l in enumerate(log) if "calibrating in the background" in l)
+    assert i1 > i10 and "on 10 poses" in log[i1], err
+    assert first["provisional"] is True and first["id"] == 1
     assert first["accel_heldout_rms_g"] <= 2 * first["accel_predicted_heldout_rms_g"]
     assert first["accel_heldout_rms_g"] < first["accel_heldout_rms_before_g"]
     assert imu[0]["cal"] == 0 and imu[-1]["cal"] >= 1

@@ -11,7 +11,7 @@ import os
 
 from ..errors import CannotCreate, UserError
 
-__all__ = ["positive_float", "at_least", "check_args", "output_file", "output_dir"]
+__all__ = ["positive_float", "non_negative_float", "at_least", "check_args", "output_file", "output_dir"]
 
 
 def positive_float(text: str) -> float:
@@ -22,6 +22,17 @@ def positive_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
     if not math.isfinite(v) or v <= 0:
         raise argparse.ArgumentTypeError(f"{text} is not a number > 0")
+    return v
+
+
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f"{text} is not a number >= 0")
     return v
 
 

@@ -43,7 +43,7 @@ def cmd_record(args) -> int:
     board, bus, desc = open_board(args.board, args.rate, "yes" if args.emulate else "auto", args.bus,
                                   speed=1.0 if args.realtime else None,
                                   seed=args.seed, poses=args.poses, faults=faults_from_options(args.fault),
-                                  mag=args.mag)
+                                  mag=args.mag, tour=dict(tremor_dps=args.tremor_dps))
     board.start()
     _eprint(f"imucald: recording {args.seconds:g} s from {desc} at {board.rate_hz:g} Hz")
     parts = []

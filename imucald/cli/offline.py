@@ -48,7 +48,7 @@ def cmd_simulate(args) -> int:
                 raise UserError(f"--effect {e!r}: the magnitude after '=' is not a number") from None
         try:
             s, effects = effect_session(args.board, R, rng, spec, args.rate, hold, move,
-                                        args.temp_profile, args.temp_rise)
+                                        args.temp_profile, args.temp_rise, args.tremor_dps)
         except ValueError as ex:
             raise UserError(f"--effect: {ex}") from None
     else:

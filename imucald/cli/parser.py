@@ -16,7 +16,7 @@ from ..stillness_defaults import STILLNESS_DEFAULTS as _ST
 from ..daemon.config import SCHEMA
 from ..specs import BOARDS as SIM_BOARDS
 from .boards import EMULATED_BOARDS
-from .checks import at_least, positive_float
+from .checks import at_least, non_negative_float, positive_float
 from .offline import SENSORS
 from .service import DEFAULT_CONFIG
 
@@ -56,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--temp-profile", default="warmup", choices=["warmup", "ramp", "heatcool", "constant"])
     s.add_argument("--temp-rise", type=float, default=6.0, help="temperature change, degC")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--tremor-dps", type=float, default=0.0,
+    s.add_argument("--tremor-dps", type=non_negative_float, default=0.0,
                    help="hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
     s.add_argument("--truth", help="also write the true parameters as JSON here")
     s.add_argument("--effect", action="append", help="inject an unmodelled effect: NAME or NAME=MAGNITUDE, "
@@ -119,6 +119,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--realtime", action="store_true", help="emulator runs in wall-clock time")
     r.add_argument("--poses", type=at_least(1), default=30, help="emulator: orientations to move through")
     r.add_argument("--seed", type=int, default=0, help="emulator: seed")
+    r.add_argument("--tremor-dps", type=non_negative_float, default=0.0,
+                   help="emulator: hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
     r.add_argument("--fault", action="append", help="emulator fault, e.g. nack=0.01, reset=0x68@3 "
                                                     "(repeatable; see the README)")
     r.set_defaults(func=_command("hardware", "cmd_record"))
@@ -146,6 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--no-emulate", action="store_true", help="never fall back to the emulator")
     rn.add_argument("--speed", type=positive_float, default=1.0, help="emulator: time runs this much faster")
     rn.add_argument("--seed", type=int, default=0, help="emulator: seed")
+    rn.add_argument("--tremor-dps", type=non_negative_float, default=1.0,
+                    help="emulator: hand tremor RMS per gyro axis, deg/s (default 1: a hand-held "
+                         "tour with 1.5-4 s holds; 0: a board set down on a bench)")
     rn.add_argument("--fault", action="append", help="emulator fault (as for record)")
     rn.add_argument("--duration", type=positive_float, help="stop after this many (sensor-clock) seconds")
     rn.add_argument("--echo", action="store_true", help="print one stream line per second")

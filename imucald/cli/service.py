@@ -60,7 +60,8 @@ def cmd_run(args) -> int:
     board, bus, desc = open_board(s["board"], s["rate_hz"], emulate, s["bus"], speed=args.speed,
                                   mag=s["magnetometer"],
                                   seed=args.seed, faults=faults_from_options(args.fault),
-                                  tour=dict(hold_s=(3.0, 4.0), move_s=(1.2, 1.8), lead_s=1.0), **kw)
+                                  tour=dict(hold_s=(1.5, 4.0), move_s=(1.2, 1.8), lead_s=1.0,
+                                            tremor_dps=args.tremor_dps), **kw)
     d = Daemon(cfg, board, bus, desc, duration_s=args.duration, echo=args.echo, config_path=path,
                overrides=overrides)
     return d.run()
@@ -85,6 +86,10 @@ def cmd_replay(args) -> int:
         meta, has_mag, has_acc = reader.meta, "mx" in cols, "ax" in cols
         rate_hz = float(meta["rate_hz"])
         chips = dict(kv.split("=", 1) for kv in meta.get("chips", "").split(",") if "=" in kv)
+        if not chips:               # a simulated or converted recording: the board's usual chips
+            from ..specs import BOARDS
+            chips = {k: v for k, v in zip(("accel", "gyro", "mag"), BOARDS.get(meta.get("board"), ()))
+                     if v is not None}
         pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag, chips=chips,
                         has_acc=has_acc)
         pipe.use_noise_file(cfg["noise"]["file"])

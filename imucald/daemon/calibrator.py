@@ -77,7 +77,8 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
     alpha = job.get("alpha", ALPHA)
     # --- accelerometer: fitted on all poses, gated on their cross-validated residuals ---
     cal, _, dec = gate_accel(acc, job["acc_cov"], cur.apply_accel(acc), job["method"], alpha,
-                             against="raw" if cur.accel is None else "current", rng=job.get("seed"))
+                             against="raw" if cur.accel is None else "current", rng=job.get("seed"),
+                             chip=cur.chips.get("accel"))      # the datasheet prior of this chip
     # predicted cross-validated residual: each pose's noise plus the uncertainty of the
     # refit without it (calib.fit.heldout_residuals)
     pred = rms(cal.info["heldout_predicted_std"])

@@ -342,9 +342,13 @@ class Pipeline:
         take = {k: v for k, v in res.accept.items() if v}
         parts = []
         gates = res.notes.get("gate", {})
+        undet = _undetermined(a) if "accel" in take else None
         if a:
             parts.append(f"accel {gates['accel'].text(1e3, 'mg')} "
                          f"{'(applied)' if 'accel' in take else '(kept the current one)'}")
+            if undet:
+                parts.append("not determined by these poses, held near the datasheet prior: " +
+                             ", ".join(f"{k} ({v})" for k, v in undet.items()))
         if "gyro" in gates:
             parts.append(f"gyro bias {'applied' if 'gyro' in take else 'kept'} "
                          f"(p = {gates['gyro'].p_value:.2g})")
@@ -391,6 +395,8 @@ class Pipeline:
         self.history.append({"applied": True, "id": new.id, **_summary(cand)})
         q = a.quality if a else {}
         return event("CAL", self.fmt, id=new.id, applied=True, provisional=prov is not None,
+                     missing_orientations=list(prov["missing_orientations"]) if prov else None,
+                     undetermined=undet,
                      accel_heldout_rms_g=q.get("heldout_rms_g"),
                      accel_heldout_rms_before_g=q.get("heldout_rms_before_g"),
                      accel_predicted_heldout_rms_g=q.get("predicted_heldout_rms_g"),
@@ -422,6 +428,18 @@ def _provisional_text(prov) -> str:
     miss = prov["missing_orientations"]
     return (f" as provisional ({prov['poses']} poses of the {prov['poses_for_final']} for a final one" +
             (f"; missing orientations: {', '.join(miss)})" if miss else ")"))
+
+
+def _undetermined(part) -> Optional[Dict[str, str]]:
+    """Parameter name -> flag (undetermined, at_bound...) for the accelerometer parameters
+    the poses did not determine; None when every one is determined or none is flagged."""
+    if part is None or not part.flags:
+        return None
+    from ..calib.models import get_model
+    m = get_model(part.model)
+    out = {m.param_names[i]: f for g, idx in m.groups.items()
+           for i, f in zip(idx, part.flags.get(g, ())) if f != "determined"}
+    return out or None
 
 
 def _summary(cand: Calibration) -> Dict[str, Any]:

@@ -20,6 +20,9 @@ from ..rng import RngLike, as_rng
 
 __all__ = ["PoseTour", "log_so3"]
 
+#: cosines per axis in PoseTour's tremor (enough for a band-like, non-periodic look)
+_TREMOR_K = 12
+
 
 
 def log_so3(R: np.ndarray) -> np.ndarray:
@@ -52,7 +55,7 @@ class PoseTour:
                  hold_s=(6.0, 10.0), move_s=(2.0, 4.0), lead_s: float = 2.0,
                  move_accel_g: float = 0.2, field_gauss: float = 0.5, dip_deg: float = 60.0,
                  temp0_c: float = 22.0, temp_rise_c: float = 6.0, temp_tau_s: float = 600.0,
-                 loop: bool = False):
+                 loop: bool = False, tremor_dps: float = 0.0, tremor_lever_m: float = 0.025):
         rng = as_rng(rng)
         draw = lambda v: float(rng.uniform(*v)) if isinstance(v, tuple) else float(v)
         self.R = np.asarray(rotations, float)
@@ -87,10 +90,35 @@ class PoseTour:
         dip = np.radians(dip_deg)
         self.B_world = field_gauss * np.array([np.cos(dip), 0.0, -np.sin(dip)])
         self.temp0_c, self.temp_rise_c, self.temp_tau_s = temp0_c, temp_rise_c, temp_tau_s
+        self.tremor_dps, self.tremor_lever_m = float(tremor_dps), float(tremor_lever_m)
+        if self.tremor_dps > 0:
+            # a deterministic function of time (every chip samples the same hand at its own
+            # rate): per axis, _TREMOR_K cosines at frequencies drawn in 6-12 Hz with random
+            # phases and weights, scaled so that the rate has RMS tremor_dps per axis
+            k = _TREMOR_K
+            self._tf_hz = rng.uniform(6.0, 12.0, (3, k))
+            self._tph = rng.uniform(0.0, 2 * np.pi, (3, k))
+            c = rng.normal(size=(3, k))
+            self._tc_dps = c * (self.tremor_dps / np.sqrt((c ** 2).sum(1) / 2))[:, None]
 
     @property
     def duration_s(self) -> float:
         return self.period
+
+    def tremor(self, t: np.ndarray):
+        """Hand tremor at times t (n,): (angle rad (n, 3), rate deg/s (n, 3), angular
+        acceleration rad/s^2 (n, 3)), body frame; zeros without tremor."""
+        n = len(t)
+        if self.tremor_dps <= 0:
+            z = np.zeros((n, 3))
+            return z, z, z
+        w2 = 2 * np.pi * self._tf_hz                               # rad/s, (3, k)
+        ph = w2[None] * t[:, None, None] + self._tph[None]         # (n, 3, k)
+        cos, sin = np.cos(ph), np.sin(ph)
+        rate = (self._tc_dps[None] * cos).sum(2)
+        ang = np.radians((self._tc_dps / w2)[None] * sin).sum(2)
+        acc = -np.radians((self._tc_dps * w2)[None] * sin).sum(2)
+        return ang, rate, acc
 
     def holds(self):
         """(start, end) of every still interval in the first pass, s."""
@@ -109,6 +137,17 @@ class PoseTour:
         R = self.R[i] @ _rodrigues_batch(self.axis[i], self.angle[i] * s)
         w = np.degrees(self.axis[i] * (self.angle[i] * sdot)[:, None])
         a_world = (self.bump_amp[i] * np.sin(2 * np.pi * tau) * moving)[:, None] * self.bump_dir[i]
+        if self.tremor_dps > 0:
+            # physical tremor: the wobble rotates the board (the accelerometer sees gravity
+            # tilt), the gyro sees its rate, and a point tremor_lever_m from the wrist pivot
+            # sees the tangential acceleration alpha x r (2.5 cm: 1.3-3x the accelerometer's
+            # noise variance at 1.5 deg/s, as real hand-held poses show)
+            ang, rate, alpha = self.tremor(t)
+            a_n = np.linalg.norm(ang, axis=1)
+            R = R @ _rodrigues_batch(ang / np.maximum(a_n, 1e-300)[:, None], a_n)
+            w = w + rate
+            lever = np.cross(alpha, np.array([self.tremor_lever_m, 0.0, 0.0])) / 9.80665
+            a_world = a_world + np.einsum("nij,nj->ni", R, lever)
         up = np.array([0.0, 0.0, 1.0])
         f = np.einsum("nji,nj->ni", R, a_world + up)
         h = np.einsum("nji,j->ni", R, self.B_world)

@@ -1,0 +1,122 @@
+"""Issue 9's acceptance on hand-held sessions: short holds (1.5-3 s) with hand tremor
+(1.5 deg/s RMS per gyro axis, the accelerometer at 1.3-3x its floor), in the simulator and
+on the emulated board.  `calibrate` finds every pose and lands within 3 reported standard
+errors of the truth; a parameter these poses cannot determine is flagged and stays within
+its datasheet prior; `replay` applies a first (provisional) calibration after the 10th
+pose and names what it could not determine."""
+import json
+
+import numpy as np
+import pytest
+
+from imucald.cli import main
+from imucald.drivers.board import make_board
+from imucald.drivers.bus import Bus, VirtualClock
+from imucald.recording import Recording, write_recording
+from imucald.sim.emulators import emulated_board
+from imucald.sim.motion import PoseTour
+from imucald.sim.poses import random_pose_set, rotation_from_up
+from imucald.sim.sensor import draw_truth, simulate_session
+
+from .test_replay import _replay
+
+_C = np.cos(np.radians(45))
+#: ten hand-placed orientations: the six faces and four 45-degree tilts; no pose has large
+#: y and z components of opposite sign... and none tilts x against y: alpha_yz is left to
+#: the prior (the real MPU-6050 log of issue 9 has the same gap)
+HAND = np.array([[0, 0, 1], [0, 0, -1], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0],
+                 [_C, 0, _C], [-_C, 0, _C], [0, _C, _C], [0, -_C, -_C]], float)
+NAMES = ["alpha_yz", "alpha_zy", "alpha_zx", "scale_x", "scale_y", "scale_z",
+         "bias_x_g", "bias_y_g", "bias_z_g"]
+TREMOR_DPS = 1.5
+
+
+def _hand_rotations(rng):
+    ups = HAND + rng.normal(scale=np.radians(1.0), size=HAND.shape)   # hands are not exact
+    return np.array([rotation_from_up(u, rng.uniform(0, 2 * np.pi)) for u in ups])
+
+
+def _calibrate_json(path, capsys):
+    assert main(["calibrate", str(path), "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def _check_against_truth(d, truth9):
+    """Every determined parameter within 3 reported standard errors of the truth; a
+    flagged one within 3 of its prior's standard deviations of the prior mean (0 for the
+    non-orthogonality angles) and within 3 posterior std of the truth."""
+    theta = np.concatenate([d["params"][g] for g in ("alpha", "scale", "bias_g")])
+    se = np.concatenate([d["stderr"][g] for g in ("alpha", "scale", "bias_g")])
+    flagged = {f["name"] for f in d["flags"]}
+    for i, n in enumerate(NAMES):
+        assert abs(theta[i] - truth9[i]) < 3 * se[i], (n, theta[i], truth9[i], se[i])
+        if n in flagged:
+            prior_sd = d["determination"][n]["prior_std"]
+            centre = 1.0 if n.startswith("scale") else 0.0
+            assert abs(theta[i] - centre) < 3 * prior_sd, (n, theta[i], prior_sd)
+    return flagged
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_calibrate_finds_every_hand_held_pose_with_tremor(tmp_path, capsys, seed):
+    rng = np.random.default_rng(seed)
+    truth = draw_truth("mpu6050", rng)
+    s = simulate_session("mpu6050", _hand_rotations(rng), rng, hold_s=(1.5, 3.0),
+                         move_s=(1.5, 3.0), lead_s=0.0, tremor_dps=TREMOR_DPS, truth=truth)
+    path = tmp_path / "hand.csv"
+    write_recording(s.recording, str(path))
+    d = _calibrate_json(path, capsys)
+    assert d["poses"] == 10
+    flagged = _check_against_truth(d, truth.accel)
+    assert "alpha_yz" in flagged                      # nothing tilts y against z here
+    assert all(f["name"] != "bias_x_g" for f in d["flags"])
+
+
+def test_calibrate_on_the_emulated_boards_tremor_tour(tmp_path, capsys):
+    """The emulated MPU-6050 read through its driver while a trembling hand carries it
+    through ten well-spread orientations with 1.5-3 s holds."""
+    rng = np.random.default_rng(7)
+    tour = PoseTour(random_pose_set(10, rng), rng=rng, hold_s=(1.5, 3.0), move_s=(1.5, 3.0),
+                    lead_s=1.0, tremor_dps=TREMOR_DPS)
+    clock = VirtualClock()
+    eb = emulated_board("mpu6050", tour, rng=rng, clock=clock)
+    board = make_board("mpu6050", Bus(eb, "emulated", clock=clock), rate_hz=100.0)
+    board.start()
+    parts = []
+    while not parts or parts[-1].t.size == 0 or parts[-1].t[-1] < tour.duration_s:
+        b = board.read_batch()
+        if len(b):
+            parts.append(b)
+    cat = lambda k: np.concatenate([getattr(p, k) for p in parts])
+    keep = cat("t") < tour.duration_s
+    rec = Recording(t=cat("t")[keep], acc=cat("acc")[keep], gyro=cat("gyro")[keep],
+                    temp=cat("temp")[keep], meta={"board": "mpu6050", "rate_hz": "100"})
+    still_gyro = np.concatenate([rec.gyro[(rec.t > h0 + 0.3) & (rec.t < h1 - 0.3)] for h0, h1 in tour.holds()])
+    assert np.median(still_gyro.std(0)) > 0.8 * TREMOR_DPS      # the tremor is really there
+    path = tmp_path / "emu.csv"
+    write_recording(rec, str(path))
+    d = _calibrate_json(path, capsys)
+    assert d["poses"] == 10
+    _check_against_truth(d, eb.truth.accel)
+
+
+def test_replay_of_a_hand_held_session_applies_a_provisional_calibration_naming_the_undetermined(
+        tmp_path, capsys):
+    rng = np.random.default_rng(1)      # a session whose jitter leaves alpha_yz undetermined
+    truth = draw_truth("mpu6050", rng)
+    s = simulate_session("mpu6050", _hand_rotations(rng), rng, hold_s=(1.5, 3.0),
+                         move_s=(1.5, 3.0), lead_s=0.0, tremor_dps=TREMOR_DPS, truth=truth)
+    rec = tmp_path / "hand.csv"
+    write_recording(s.recording, str(rec))
+    d = _calibrate_json(rec, capsys)
+    assert {f["name"]: f["reason"] for f in d["flags"]} == {"alpha_yz": "undetermined"}
+    lines, err = _replay(rec, "--log-level", "info", "--state-dir", str(tmp_path / "st"))
+    log = err.splitlines()
+    i10 = next(i for i, l in enumerate(log) if "pose 10/" in l)
+    applied = [i for i, l in enumerate(log) if "calibration #1 applied as provisional" in l]
+    assert applied and applied[0] > i10, err
+    assert "alpha_yz (undetermined)" in log[applied[0]], log[applied[0]]
+    cal = [json.loads(l) for l in lines if '"CAL"' in l]
+    assert cal[0]["applied"] and cal[0]["provisional"] is True
+    assert cal[0]["undetermined"].get("alpha_yz") == "undetermined"
+    assert cal[0]["missing_orientations"]

@@ -32,7 +32,7 @@ def test_a_span_below_the_minimum_gives_a_constant_and_says_why():
     rng = np.random.default_rng(3)
     T = np.sort(rng.uniform(25, 31, 40))           # 6 degC < 10
     f = _series(rng, T, lambda d: np.outer(d, [0.05, 0.05, 0.05]))
-    assert f.order == 0 and "< 10 degC (thermal.min_span_c): constant only" in f.note
+    assert f.order == 0 and "< 10 degC (calibration.thermal_min_span_c): constant only" in f.note
     g = fit_bias_series(T, np.ones((40, 3)) + np.outer(T - 28, [0.05] * 3), np.full((40, 3), SD_DPS ** 2),
                         min_span_c=5.0, rng=1)
     assert g.order >= 1

@@ -35,13 +35,14 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from ..rng import as_rng
 from .heldout import heldout, lm_weighted, numjac, twin_rms
 from .stats import chi2_logsf
 from ..npstats import median
 
 __all__ = ["ThermalFit", "fit_bias_series", "fit_norm_thermal", "MIN_SPAN_C", "MAX_ORDER", "ALPHA"]
 
-MIN_SPAN_C = 10.0       #: default thermal.min_span_c: below it only a constant
+MIN_SPAN_C = 10.0       #: default calibration.thermal_min_span_c: below it only a constant
 MAX_ORDER = 3
 ALPHA = 0.01            #: the gap diagnosis's significance level (gap/verdict.py ALPHA)
 SIMS = 200              #: twin re-simulations per variant
@@ -68,6 +69,9 @@ class ThermalFit:
     inflation: float = 1.0                      #: excess-scatter factor applied to the variances
     cov: Optional[np.ndarray] = None            #: covariance of [base, terms] (scaled units)
     _scale_c: float = 1.0                       #: temperature scaling of the fit (degC)
+    #: what a refit of the chosen variant needs (calib/thermal_gate.py): z (norm fits), the
+    #: inflated variances, the prior's precision and mean
+    state: Dict[str, object] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -139,7 +143,7 @@ def _choose(res: Dict[str, dict], n_obs: int, names: Sequence[str]) -> Tuple[str
 
 
 def _span_note(span: float, min_span_c: float) -> str:
-    return (f"temperature span {span:.1f} degC < {min_span_c:g} degC (thermal.min_span_c): "
+    return (f"temperature span {span:.1f} degC < {min_span_c:g} degC (calibration.thermal_min_span_c): "
             f"constant only")
 
 
@@ -159,7 +163,7 @@ def fit_bias_series(temp_c, y, var, min_span_c: float = MIN_SPAN_C, max_order: i
                     sims: int = SIMS, rng=None) -> ThermalFit:
     """Bias polynomial from direct observations: ``y`` (N, 3) bias readings (e.g. gyro still
     means, deg/s) at ``temp_c`` (N,) with variances ``var`` (N, 3) (or (N,))."""
-    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    rng = as_rng(rng)
     T = np.asarray(temp_c, float)
     y = np.asarray(y, float)
     v = np.broadcast_to(np.asarray(var, float).reshape(len(y), -1), (len(y), 3)).astype(float)
@@ -213,7 +217,8 @@ def fit_bias_series(temp_c, y, var, min_span_c: float = MIN_SPAN_C, max_order: i
     S = np.sqrt(np.diag(Ai)).reshape(k + 1, 3)
     per = np.array([s ** p for p in range(1, k + 1)])[:, None]
     return ThermalFit(k, t_ref, lo, hi, B[1:] / per, S[1:] / per, f"{chosen}: {why}", B[0], S[0],
-                      variants=_public(res), inflation=infl, cov=Ai, _scale_c=s)
+                      variants=_public(res), inflation=infl, cov=Ai, _scale_c=s,
+                      state={"var": vv.reshape(-1, 3), "ok": ok})
 
 
 def _public(res):
@@ -229,6 +234,38 @@ def _norm_variants(max_order: int, scale: bool) -> List[Tuple[str, int, bool]]:
     return out
 
 
+def _delta(model, z, x, u, k: int, sc: bool) -> np.ndarray:
+    """The raw-frame thermal offset of parameters z = [theta, bias rows, scale row] at scaled
+    temperatures u = (T - t_ref) / s: sum_j eta_j u^j (+ (x - b0) s u)."""
+    p = model.k
+    th, eta = z[:p], z[p:]
+    d = np.zeros_like(x)
+    for j in range(k):
+        d += np.outer(u ** (j + 1), eta[3 * j:3 * j + 3])
+    if sc:
+        A, c = model.affine(th)
+        d += (x - (-np.linalg.solve(A, c))) * np.outer(u, eta[3 * k:3 * k + 3])
+    return d
+
+
+def refit_norm(model, x, w, u, k: int, sc: bool, z0, pm, lam, target: float = 1.0) -> np.ndarray:
+    """One variant's weighted LM fit (the MAP one with prior precision ``lam`` about ``pm``)
+    on pose means x at scaled temperatures u; returns z = [theta, terms] (scaled units)."""
+    p = model.k
+    pri = lam > 0
+
+    def fun(z):
+        r = target - model.norms(z[:p], x - _delta(model, z, x, u, k, sc))
+        return np.concatenate([r, (z[:p] - pm)[pri]])
+    z, _, _ = lm_weighted(fun, z0, np.concatenate([w, lam[pri]]), iters=40)
+    return z
+
+
+def norm_residuals(model, z, x, u, k: int, sc: bool, target: float = 1.0) -> np.ndarray:
+    """target - |corrected| of pose means x at scaled temperatures u."""
+    return target - model.norms(z[:model.k], x - _delta(model, z, x, u, k, sc))
+
+
 def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[np.ndarray, np.ndarray]] = None,
                      min_span_c: float = MIN_SPAN_C, max_order: int = MAX_ORDER, scale: bool = True,
                      sims: int = SIMS, rng=None, target: float = 1.0) -> ThermalFit:
@@ -237,7 +274,7 @@ def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[n
     target - |h|), ``theta0`` a constant fit to start from, ``prior`` (mean, std) of the
     model's parameters (NaN/inf std: none).  The base part (``ThermalFit.base``) is the
     model's theta at t_ref_c."""
-    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    rng = as_rng(rng)
     x = np.asarray(x, float)
     T = np.asarray(temp_c, float)
     vv0 = np.asarray(pose_var, float)
@@ -258,29 +295,10 @@ def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[n
     if span < min_span_c or len(variants) < 2:
         variants = variants[:1] or [("order 0", 0, False)]
 
-    def delta(z, k, sc):
-        th, eta = z[:p], z[p:]
-        d = np.zeros_like(x)
-        for j in range(k):
-            d += np.outer(u ** (j + 1), eta[3 * j:3 * j + 3])
-        if sc:
-            A, c = model.affine(th)
-            b0 = -np.linalg.solve(A, c)
-            d += (x - b0) * np.outer(u, eta[3 * k:3 * k + 3])
-        return d
-
     def fit(k, sc, w, z0):
-        q = 3 * (k + sc)
-        lam_all = np.concatenate([lam, np.zeros(q)])
-        pri = lam > 0
-
-        def fun(z):
-            r = target - model.norms(z[:p], x - delta(z, k, sc))
-            return np.concatenate([r, (z[:p] - pm)[pri]])
-        ww = np.concatenate([w, lam[pri]])
-        z, _, _ = lm_weighted(fun, z0, ww, iters=40)
-        r, J = numjac(lambda zz: target - model.norms(zz[:p], x - delta(zz, k, sc)), z)
-        return z, r, J, lam_all
+        z = refit_norm(model, x, w, u, k, sc, z0, pm, lam, target)
+        r, J = numjac(lambda zz: target - model.norms(zz[:p], x - _delta(model, zz, x, u, k, sc)), z)
+        return z, r, J, np.concatenate([lam, np.zeros(3 * (k + sc))])
 
     w0 = 1 / vv0
     fitted = {}
@@ -317,5 +335,7 @@ def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[n
     bs = seta[:3 * k].reshape(k, 3) / per if k else np.zeros((0, 3))
     sp = eta[3 * k:].reshape(1, 3) / s if sc else None
     ss = seta[3 * k:].reshape(1, 3) / s if sc else None
-    return ThermalFit(k, t_ref, lo, hi, bp, bs, f"{chosen}: {why}", z[:p], sd[:p], sp, ss,
-                      _public(res), infl, Ai, s)
+    out = ThermalFit(k, t_ref, lo, hi, bp, bs, f"{chosen}: {why}", z[:p], sd[:p], sp, ss,
+                     _public(res), infl, Ai, s)
+    out.state = {"z": z, "var": vv, "lam": lam, "pm": pm, "scale": sc}
+    return out

@@ -177,6 +177,15 @@ def cmd_status(args) -> int:
     bs = r["board_stats"]
     print(f"samples {bs['samples']}, gaps {bs['gaps']} ({bs['missing']} lost), bus faults {bs['bus_faults']}, "
           f"clients {r['clients']} (dropped {r['clients_dropped']})")
+    th = r.get("thermal")
+    if th:
+        print(f"thermal: {th['intervals']} still intervals over {th['span_c']:.1f} degC"
+              + (f"; {th['why']}" if th.get("why") else ""))
+        for s in ("accel", "gyro", "mag"):
+            if s in th:
+                e = th[s]
+                rng = f" over {e['t_min_c']:.1f}..{e['t_max_c']:.1f} degC" if "t_min_c" in e else ""
+                print(f"  {s}: order {e['order']}{rng}: {e['note']}")
     if r.get("last_event"):
         print(f"last: {r['last_event']}")
     return 0

@@ -53,9 +53,10 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     """Fit, validate and decide.  Pure: no I/O, no globals.
 
     job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3), t0 (N,),
-    n (N,), gyro (N,3) or None, mag_points (M,3) or None, mag_noise (3,) per-sample noise or
-    None, current (the Calibration in force), method, holdout_fraction (magnetometer points),
-    alpha (the gate's false-accept rate), seed.
+    n (N,), gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
+    per-sample noise or None, current (the Calibration in force), method, holdout_fraction
+    (magnetometer points), alpha (the gate's false-accept rate), seed; thermal (the thermal
+    log's arrays, daemon/thermallog.py) or None and thermal_min_span_c (daemon/thermaljob.py).
     """
     t_start = time.perf_counter()
     cur: Calibration = job.get("current") or Calibration()
@@ -63,7 +64,7 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     accept: Dict[str, bool] = {}
     notes: Dict[str, Any] = {"gate": {}}
     if job.get("acc") is not None:
-        _accel_gyro(job, cur, parts, accept, notes["gate"])
+        _accel_gyro(job, cur, parts, accept, notes["gate"], notes)
     mp = job.get("mag_points")
     if mp is not None and len(mp) >= 30:
         _mag(np.asarray(mp, float), job, cur, parts, accept, notes)
@@ -72,11 +73,16 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
 
 
 def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict[str, bool],
-                gates: Dict[str, Decision]) -> None:
+                gates: Dict[str, Decision], notes: Dict[str, Any]) -> None:
     acc = np.asarray(job["acc"], float)
     alpha = job.get("alpha", ALPHA)
+    temp = job.get("temp")
+    # thermal terms in force: the constant part is refitted on the poses with them removed
+    # (each at its own temperature) and the candidate keeps them
+    ta = cur.accel.thermal if cur.accel is not None and temp is not None else None
+    acc_fit = cur.accel.thermal_offset(acc, temp) if ta else acc
     # --- accelerometer: fitted on all poses, gated on their cross-validated residuals ---
-    cal, _, dec = gate_accel(acc, job["acc_cov"], cur.apply_accel(acc), job["method"], alpha,
+    cal, _, dec = gate_accel(acc_fit, job["acc_cov"], cur.apply_accel(acc, temp), job["method"], alpha,
                              against="raw" if cur.accel is None else "current", rng=job.get("seed"),
                              chip=cur.chips.get("accel"))      # the datasheet prior of this chip
     # predicted cross-validated residual: each pose's noise plus the uncertainty of the
@@ -86,20 +92,30 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
         "fitness": float(cal.fitness), "heldout_rms_g": dec.rms_cv, "heldout_rms_before_g": dec.rms_incumbent,
         "predicted_heldout_rms_g": pred, "poses": int(len(acc)), "gate_p_value": dec.p_value,
         "false_accept_rate": dec.alpha})
+    if ta:
+        p = parts["accel"]
+        parts["accel"] = SensorCal(p.sensor, p.model, p.params, p.stderr, p.flags, p.method, p.quality, ta)
     accept["accel"], gates["accel"] = dec.accept, dec
     # --- gyro bias: count-weighted mean of the still poses, gated the same way ---
     g = job.get("gyro")
     if g is not None:
         g = np.asarray(g, float)
         w = np.asarray(job["n"], float)
-        b, gdec = gate_gyro_bias(g, w, cur.apply_gyro(g), alpha,
-                                 against="raw" if cur.gyro is None else "current")
+        tg = cur.gyro.thermal if cur.gyro is not None and temp is not None else None
+        g_inc = cur.apply_gyro(g, temp if temp is not None else np.full(len(g), np.nan))
+        g = cur.gyro.thermal_offset(g, temp) if tg else g
+        b, gdec = gate_gyro_bias(g, w, g_inc, alpha, against="raw" if cur.gyro is None else "current")
         sd = gyro_bias_scatter_se(g, w, b)
         parts["gyro"] = SensorCal("gyro", "bias", {"bias_dps": b}, {"bias_dps": sd}, method="mean",
                                   quality={"heldout_rms_dps": gdec.rms_cv,
                                            "heldout_rms_before_dps": gdec.rms_incumbent,
-                                           "poses": int(len(g)), "gate_p_value": gdec.p_value})
+                                           "poses": int(len(g)), "gate_p_value": gdec.p_value},
+                                  thermal=tg)
         accept["gyro"], gates["gyro"] = gdec.accept, gdec
+    # --- thermal terms from the thermal log (daemon/thermaljob.py) ---
+    if job.get("thermal"):
+        from .thermaljob import thermal_parts
+        thermal_parts(job, cur, parts, accept, gates, notes)
 
 
 def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:

@@ -67,6 +67,8 @@ SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
     "calibration.history": (10, "int", (0, 1000)),
     # a calibration job running longer is stopped (its worker killed); the next one starts afresh
     "calibration.timeout_s": (300.0, "float", (5.0, 3600.0)),
+    # thermal terms: fitted once the still intervals span this many degC (below: a constant only)
+    "calibration.thermal_min_span_c": (10.0, "float", (1.0, 200.0)),
     "output.format": ("ndjson", "choice", ("ndjson", "csv", "binary")),
     "output.socket": ("imucald.sock", "str", None),
     "output.socket_mode": ("0660", "mode", None),

@@ -22,6 +22,7 @@ from .calibrator import JobResult, MagReservoir, calibration_job
 from .config import accel_poses_needed
 from .outputs import encode_samples, event
 from .stillness import StillnessDetector
+from .thermallog import ThermalLog, thermal_status
 
 __all__ = ["Pipeline", "InlineExecutor", "POSE_COLUMNS", "batch_period_s"]
 
@@ -43,6 +44,9 @@ MAG_RECAL_S = 20.0
 #: (bench/pipeline.py), so a 9DOF board polled at 100 Hz with 20 ms batches (2 samples)
 #: would spend most of its time on the fixed part
 MIN_BATCH_SAMPLES = 4
+#: the thermal terms are refitted each time the thermal log's temperature span has grown by
+#: this much since the last thermal fit (and first when it reaches thermal_min_span_c)
+THERMAL_REFIT_GROWTH_C = 1.0
 
 
 def batch_period_s(batch_s: float, rate_hz: float) -> float:
@@ -77,6 +81,10 @@ class Pipeline:
         self.det = StillnessDetector(rate_hz, st["window_s"], st["k"], st["min_still_s"],
                                      st["max_pose_s"], st["trim_s"])
         self.acc = PoseAccumulator(cfg["poses"]["merge_angle_deg"], cfg["poses"]["max_poses"])
+        #: every still interval with its temperature, for the thermal terms (daemon/thermallog.py)
+        self.thermal_log = ThermalLog()
+        self._thermal_span_at = -np.inf        #: the log's span when thermal terms were last fitted
+        self.thermal_notes: Dict[str, Dict[str, Any]] = {}   #: the last thermal fit, per sensor
         #: the calibration in force (id 0, no parts: uncalibrated)
         self.applied = Calibration(board, dict(chips or {}))
         self.applied_t_s: Optional[float] = None      #: stream time it was applied at
@@ -136,9 +144,11 @@ class Pipeline:
             dec = self.cfg["output"]["decimate"]
             keep = (b.seq % dec) == 0 if dec > 1 else slice(None)
             temp = None if b.temp is None else b.temp[keep]
-            gyro = None if b.gyro is None else ap.apply_gyro(b.gyro[keep], temp)
-            mag = None if b.mag is None else ap.apply_mag(b.mag[keep])
-            out.append(encode_samples(self.fmt, b.seq[keep], b.t[keep], ap.apply_accel(b.acc[keep]),
+            # thermal terms: evaluated once per batch, at its mean temperature (NaN: t_ref)
+            tb = None if temp is None or not len(temp) else float(temp.mean())
+            gyro = None if b.gyro is None else ap.apply_gyro(b.gyro[keep], tb)
+            mag = None if b.mag is None else ap.apply_mag(b.mag[keep], tb)
+            out.append(encode_samples(self.fmt, b.seq[keep], b.t[keep], ap.apply_accel(b.acc[keep], tb),
                                       gyro, temp, mag, still[keep], ap.id, self._covariance()))
         out.append(self.poll_calibration())
         self.maybe_calibrate()
@@ -192,6 +202,7 @@ class Pipeline:
 
     # -- poses ------------------------------------------------------------------------
     def _pose(self, iv) -> None:
+        self.thermal_log.add(iv)
         what = self.acc.add(iv)
         if what == "rejected":
             return
@@ -276,15 +287,19 @@ class Pipeline:
                 self._maybe_calibrate_mag_only()
             return
         # the readiness check (a CRLB) only changes when the pose set does
+        c = self.cfg["calibration"]
+        span = self.thermal_log.span_c()
+        thermal_due = (self.applied.accel is not None and span >= c["thermal_min_span_c"]
+                       and span >= self._thermal_span_at + THERMAL_REFIT_GROWTH_C)
         key = (self.acc.added, len(self.acc), self.applied.id)
-        if not self.force and key == getattr(self, "_checked", None):
+        if not self.force and not thermal_due and key == getattr(self, "_checked", None):
             return
         self._checked = key
         r = self.ready_to_calibrate()
         ready = r["poses"] and r["uncertainty"]
         if len(self.acc) < MIN_FIT_POSES:
             return
-        if self.force:                      # asked for (control socket): any fit-able pose set
+        if self.force or thermal_due:       # asked for (control socket), or the span grew
             pass
         elif self.applied.accel is None:
             # raw sensor: try at every new pose until a calibration beats the raw readings
@@ -310,15 +325,21 @@ class Pipeline:
             k = np.array([inflation_of(self.noise["accel"]["avar_coef"], n / self.rate_hz)[0]
                           for n in ps.n])
             acc_cov = acc_cov * k[:, None, None]
-        job = {"acc": ps.acc, "acc_cov": acc_cov, "t0": ps.t0, "n": ps.n,
+        job = {"acc": ps.acc, "acc_cov": acc_cov, "t0": ps.t0, "n": ps.n, "temp": _temps(ps.temp),
                "gyro": ps.gyro, "mag_points": mag_pts, "mag_noise": self._mag_noise(), "method": c["method"],
                "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
                "seed": int(self.acc.added),
-               "current": self.applied}
+               "current": self.applied,
+               "thermal": self.thermal_log.arrays() if thermal_due else None,
+               "thermal_min_span_c": c["thermal_min_span_c"]}
+        if thermal_due:
+            self._thermal_span_at = span
         self.force = False
         self.next_cal_added = self.acc.added + c["recalibrate_every_poses"]
         self._job_poses = ps
-        msg = f"calibrating in the background on {len(ps)} poses ({c['method']})"
+        msg = f"calibrating in the background on {len(ps)} poses ({c['method']})" + (
+            f"; thermal terms on {len(self.thermal_log)} still intervals over {span:.1f} degC"
+            if thermal_due else "")
         log.info(msg)
         self.events.append(msg)
         self.pending = self.executor.submit(calibration_job, job)
@@ -352,6 +373,11 @@ class Pipeline:
         if "gyro" in gates:
             parts.append(f"gyro bias {'applied' if 'gyro' in take else 'kept'} "
                          f"(p = {gates['gyro'].p_value:.2g})")
+        for s, ent in res.notes.get("thermal", {}).items():
+            self.thermal_notes[s] = ent
+            parts.append(f"{s} thermal {ent['note'].split(':')[0]}" + (
+                f" {'applied' if ent['accepted'] else 'kept the current one'} (p = {ent['p_value']:.2g})"
+                if "p_value" in ent else ""))
         if "mag_flat" in res.notes:
             from ..calib.magcal import flat_message
             parts.append("mag not determined: " + flat_message({"flat": res.notes["mag_flat"]}))
@@ -403,6 +429,10 @@ class Pipeline:
                      mag_heldout_rel_rms=m.quality.get("heldout_rel_rms") if m else None)
 
     # -- status ---------------------------------------------------------------------------
+    def thermal_status(self) -> Dict[str, Any]:
+        return thermal_status(self.thermal_log, self.applied, self.thermal_notes,
+                              self.cfg["calibration"]["thermal_min_span_c"])
+
     def status(self) -> Dict[str, Any]:
         cov = self.acc.coverage()
         ap = self.applied
@@ -417,9 +447,15 @@ class Pipeline:
                 d["missing_orientations"] = list(ap.provisional["missing_orientations"])
         if self.reservoir is not None:
             d["mag_coverage"] = self.reservoir.coverage()
+        d["thermal"] = self.thermal_status()
         if self.events:
             d["last_event"] = self.events[-1]
         return d
+
+
+def _temps(t):
+    """Pose temperatures, or None when any is unknown."""
+    return None if t is None or not np.all(np.isfinite(t)) else t
 
 
 def _provisional_text(prov) -> str:

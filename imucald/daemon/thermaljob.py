@@ -1,0 +1,86 @@
+"""The thermal part of a calibration job (pure, run in the worker like the rest).
+
+With the still intervals of the thermal log (daemon/thermallog.py) spanning at least
+``calibration.thermal_min_span_c``: the accelerometer's bias polynomial (and scale term)
+through the norm model, the gyro's from its still means, each order chosen by
+calib/thermal.py's held-out test and then gated (calib/thermal_gate.py) against the
+calibration in force, applied at each interval's own temperature.  A candidate that
+passes replaces the constant one of the same job.  Below the span nothing is fitted and
+the note says why; with the terms in force, the constant refits of later jobs keep them
+(calibrator.py fits on the thermally corrected poses).
+"""
+from __future__ import annotations
+
+from typing import Any, Dict
+
+import numpy as np
+
+from ..calib.fit import accel_prior
+from ..calib.gate import ALPHA
+from ..calib.models import Triangular9
+from ..calib.thermal import fit_bias_series, fit_norm_thermal
+from ..calib.thermal_gate import gate_bias_thermal, gate_norm_thermal
+from ..calib.uncertainty import residual_variance
+from ..calibration import Calibration, SensorCal
+
+__all__ = ["thermal_parts"]
+
+_T9 = Triangular9()
+
+
+def _with(part: SensorCal, thermal) -> SensorCal:
+    return SensorCal(part.sensor, part.model, part.params, part.stderr, part.flags, part.method,
+                     part.quality, thermal)
+
+
+def thermal_parts(job: Dict[str, Any], cur: Calibration, parts: Dict[str, SensorCal],
+                  accept: Dict[str, bool], gates: Dict[str, Any], notes: Dict[str, Any]) -> None:
+    """Fit, choose and gate the thermal terms; write notes["thermal"][sensor] =
+    {order, note, accepted, p_value?} and, when accepted, the part and its decision."""
+    th = job.get("thermal")
+    if not th:
+        return
+    min_span = float(job.get("thermal_min_span_c", 10.0))
+    alpha = job.get("alpha", ALPHA)
+    T = np.asarray(th["temp"], float)
+    out = notes.setdefault("thermal", {})
+    seed = job.get("seed")
+    a = parts.get("accel")
+    if a is not None and a.model == "triangular9" and len(T) >= 12:
+        acc = np.asarray(th["acc"], float)
+        var = residual_variance(_T9, a.theta, acc, np.asarray(th["acc_cov"], float))
+        tf = fit_norm_thermal(_T9, acc, var, T, a.theta, accel_prior(_T9, cur.chips.get("accel")), min_span, rng=seed)
+        ent = {"order": tf.order, "note": tf.note, "accepted": False, "span_c": round(tf.t_max_c - tf.t_min_c, 2)}
+        if tf.order or tf.scale_poly is not None:
+            _, dec = gate_norm_thermal(_T9, tf, acc, T, cur.apply_accel(acc, T), alpha,
+                                       "raw" if cur.accel is None else "current",
+                                       current=cur.accel.thermal if cur.accel is not None else None)
+            ent.update(accepted=dec.accept, p_value=dec.p_value, rms_cv_g=dec.rms_cv,
+                       rms_before_g=dec.rms_incumbent)
+            if dec.accept:
+                cand = SensorCal.accel("triangular9", tf.base, tf.base_stderr, a.method,
+                                       {**a.quality, "thermal_heldout_rms_g": dec.rms_cv,
+                                        "thermal_heldout_rms_before_g": dec.rms_incumbent,
+                                        "thermal_gate_p_value": dec.p_value})
+                parts["accel"], accept["accel"], gates["accel"] = _with(cand, tf.to_thermal("g")), True, dec
+        out["accel"] = ent
+    g = parts.get("gyro")
+    if g is not None and th.get("gyro") is not None and len(T) >= 4:
+        y = np.asarray(th["gyro"], float)
+        var = np.maximum(np.asarray(th["gyro_var"], float), 1e-12)
+        tf = fit_bias_series(T, y, var, min_span, rng=seed)
+        ent = {"order": tf.order, "note": tf.note, "accepted": False, "span_c": round(tf.t_max_c - tf.t_min_c, 2)}
+        if tf.order:
+            _, dec = gate_bias_thermal(tf, T, y, cur.apply_gyro(y, T), alpha,
+                                       "raw" if cur.gyro is None else "current",
+                                       current=cur.gyro.thermal if cur.gyro is not None else None)
+            ent.update(accepted=dec.accept, p_value=dec.p_value, rms_cv_dps=dec.rms_cv,
+                       rms_before_dps=dec.rms_incumbent)
+            if dec.accept:
+                cand = SensorCal("gyro", "bias", {"bias_dps": np.asarray(tf.base, float)},
+                                 {"bias_dps": np.asarray(tf.base_stderr, float)}, {}, "thermal",
+                                 {**g.quality, "thermal_heldout_rms_dps": dec.rms_cv,
+                                  "thermal_heldout_rms_before_dps": dec.rms_incumbent,
+                                  "thermal_gate_p_value": dec.p_value}, tf.to_thermal("dps"))
+                parts["gyro"], accept["gyro"], gates["gyro"] = cand, True, dec
+        out["gyro"] = ent

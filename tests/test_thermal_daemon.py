@@ -1,0 +1,49 @@
+"""Thermal terms learnt passively by the daemon's pipeline from a replayed recording:
+learnt once the still intervals span thermal_min_span_c, the stream's still |a| error and
+gyro rate shrink against the constant-only daemon, and below the span only a constant is
+applied and the status says why (bench/thermal.py measures the same over seeds)."""
+import importlib.util
+import os
+
+import numpy as np
+import pytest
+
+BENCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "bench")
+
+
+@pytest.fixture(scope="module")
+def bt():
+    import sys
+    sys.path.insert(0, BENCH)
+    spec = importlib.util.spec_from_file_location("bench_thermal", os.path.join(BENCH, "thermal.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_learnt_in_the_field_and_the_stream_corrected(bt):
+    rec = bt.session(0, 15.0, 0.75, 0.02, poses=40, rate_hz=50.0)
+    pipe, lines, first = bt.replay(rec, 10.0)
+    assert first is not None, pipe.thermal_status()
+    a, g = pipe.applied.accel.thermal, pipe.applied.gyro.thermal
+    assert a["order"] >= 1 and g["order"] >= 1, (a["note"], g["note"])
+    assert a["t_max_c"] - a["t_min_c"] >= 10.0
+    _, lines0, _ = bt.replay(rec, 1e3)          # the constant-only daemon on the same recording
+    t_first = next(d["t"] for d in lines if d["cal"] >= first)
+    th = bt.still_runs(lines, first)
+    c0 = bt.still_runs([d for d in lines0 if d["t"] >= t_first], 0)
+    assert len(th) >= 10 and len(c0) == len(th)
+    # the acceptance figure: the still |a| error and gyro rate shrink >= 5x once learnt
+    assert bt.rms(c0, 0) >= 5 * bt.rms(th, 0), (bt.rms(c0, 0), bt.rms(th, 0))
+    assert bt.rms(c0, 1) >= 5 * bt.rms(th, 1), (bt.rms(c0, 1), bt.rms(th, 1))
+    st = pipe.status()["thermal"]
+    assert "why" not in st and st["accel"]["order"] == a["order"]
+
+
+def test_below_the_minimum_span_only_a_constant_and_the_status_says_why(bt):
+    rec = bt.session(100, 7.0, 0.75, 0.02, poses=30, rate_hz=50.0)
+    pipe, lines, first = bt.replay(rec, 10.0)
+    assert first is None and pipe.applied.accel is not None
+    assert not pipe.applied.accel.thermal and not (pipe.applied.gyro and pipe.applied.gyro.thermal)
+    st = pipe.status()["thermal"]
+    assert st["span_c"] < 10 and "(calibration.thermal_min_span_c): constant only" in st["why"]

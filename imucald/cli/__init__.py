@@ -27,14 +27,19 @@ for _v in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 from ..errors import EX_IOERR, EX_UNAVAILABLE, UserError, os_error_line
 from ._common import eprint
-from .parser import build_parser
+from .parser import COMMANDS, build_parser
+
+COMMAND_NAMES = frozenset(c[0] for c in COMMANDS)
 
 __all__ = ["main", "build_parser"]
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    # only the subcommand given gets its arguments built (--help and a typo: none)
+    cmd = next((w for w in words if not w.startswith("-")), "")
+    parser = build_parser(cmd if cmd in COMMAND_NAMES else "")
+    args = parser.parse_args(words)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -5,23 +5,23 @@ levels from the daemon's configuration schema, simulated boards from the
 datasheet table, emulated boards from the board factory.  Each subcommand names
 its command function as (module, function); the module is imported only when
 that command runs, so ``imucald --help`` loads neither numpy nor the simulator.
+
+``build_parser(command)`` fills in the arguments of that one subcommand only (the
+others are listed with their help line): building all of them, and importing the
+modules that own their choices, was a tenth of ``imucald status``'s start.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+from typing import Optional
 
 from .. import __version__
-from ..stillness_defaults import STILLNESS_DEFAULTS as _ST
-from ..daemon.config import SCHEMA
-from ..specs import BOARDS as SIM_BOARDS
-from .boards import EMULATED_BOARDS
 from .checks import at_least, non_negative_float, positive_float
-from .offline import SENSORS
-from .service import DEFAULT_CONFIG
 
 
 def _choices(key: str):
+    from ..daemon.config import SCHEMA
     return list(SCHEMA[key][2])
 
 
@@ -40,12 +40,8 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = OneLineParser(prog="imucald", description="Field calibration of MEMS IMUs.")
-    p.add_argument("--version", action="version", version=f"imucald {__version__}")
-    sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
-
-    s = sub.add_parser("simulate", help="write a simulated recording")
+def _add_simulate(s) -> None:
+    from ..specs import BOARDS as SIM_BOARDS
     s.add_argument("-o", "--output", required=True, help="recording file to write")
     s.add_argument("--board", default="mpu6050", choices=list(SIM_BOARDS))
     s.add_argument("--poses", type=at_least(1), default=30, help="number of well-spread orientations")
@@ -65,7 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--magnitude", type=float, help="magnitude of the single --effect (default: datasheet)")
     s.set_defaults(func=_command("offline", "cmd_simulate"))
 
-    c = sub.add_parser("calibrate", help="calibrate from a recording or pose file")
+
+def _add_calibrate(c) -> None:
+    from ..stillness_defaults import STILLNESS_DEFAULTS as _ST
+    from .offline import SENSORS
     c.add_argument("input", help="recording, pose file, or raw table (with --columns)")
     c.add_argument("--sensor", choices=SENSORS, help="default accel; mag for a recording with "
                    "magnetometer columns only")
@@ -94,19 +93,23 @@ def build_parser() -> argparse.ArgumentParser:
                         "below it a constant only")
     c.set_defaults(func=_command("offline", "cmd_calibrate"))
 
-    ap = sub.add_parser("apply", help="write a recording corrected by a calibration file")
+
+def _add_apply(ap) -> None:
     ap.add_argument("calibration", help="calibration file (calibrate -o, or the daemon's state)")
     ap.add_argument("recording")
     ap.add_argument("-o", "--output", required=True, help="corrected recording to write")
     ap.set_defaults(func=_command("thermal", "cmd_apply"))
 
-    pr = sub.add_parser("probe", help="list what answers on the I2C bus and what each device is")
+
+def _add_probe(pr) -> None:
+    from .boards import EMULATED_BOARDS
     pr.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1, or the first present)")
     pr.add_argument("--emulate", choices=EMULATED_BOARDS,
                     help="probe an emulated board instead of hardware")
     pr.set_defaults(func=_command("hardware", "cmd_probe"))
 
-    r = sub.add_parser("record", help="record samples to a recording file")
+
+def _add_record(r) -> None:
     r.add_argument("-o", "--output", required=True)
     r.add_argument("--board", default="mpu6050", choices=_choices("sensor.board"))
     r.add_argument("--mag", default="auto", choices=_choices("sensor.magnetometer"),
@@ -125,14 +128,17 @@ def build_parser() -> argparse.ArgumentParser:
                                                     "(repeatable; see the README)")
     r.set_defaults(func=_command("hardware", "cmd_record"))
 
-    def daemon_opts(q, state=True):
-        q.add_argument("--config", help=f"configuration file (default {DEFAULT_CONFIG} if present)")
-        q.add_argument("--runtime-dir", help="directory of the sockets (overrides runtime.directory)")
-        if state:
-            q.add_argument("--state-dir", help="overrides state.directory")
-        q.add_argument("--log-level", choices=_choices("log.level"))
 
-    rn = sub.add_parser("run", help="run the daemon (real I2C when a bus exists, else emulated)")
+def daemon_opts(q, state=True) -> None:
+    from .service import DEFAULT_CONFIG
+    q.add_argument("--config", help=f"configuration file (default {DEFAULT_CONFIG} if present)")
+    q.add_argument("--runtime-dir", help="directory of the sockets (overrides runtime.directory)")
+    if state:
+        q.add_argument("--state-dir", help="overrides state.directory")
+    q.add_argument("--log-level", choices=_choices("log.level"))
+
+
+def _add_run(rn) -> None:
     daemon_opts(rn)
     rn.add_argument("--board", choices=_choices("sensor.board"))
     rn.add_argument("--mag", choices=_choices("sensor.magnetometer"),
@@ -156,7 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
     rn.add_argument("--echo", action="store_true", help="print one stream line per second")
     rn.set_defaults(func=_command("service", "cmd_run"))
 
-    rp = sub.add_parser("replay", help="feed a recording through the pipeline; NDJSON to stdout")
+
+def _add_replay(rp) -> None:
     rp.add_argument("recording")
     rp.add_argument("--state-dir", help="save the calibration reached as DIR/calibration.yaml")
     rp.add_argument("--config")
@@ -166,19 +173,26 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--log-level", choices=_choices("log.level"))
     rp.set_defaults(func=_command("service", "cmd_replay"))
 
-    for name, fn, hlp in (("status", _command("service", "cmd_status"), "the running daemon's state"),
-                          ("recalibrate", _command("service", "cmd_recalibrate"), "ask the daemon to calibrate now")):
-        q = sub.add_parser(name, help=hlp)
-        daemon_opts(q, state=False)
-        if name == "status":
-            q.add_argument("--json", action="store_true")
-        q.set_defaults(func=fn)
-    w = sub.add_parser("watch", help="print the daemon's stream")
+
+def _add_status(q) -> None:
+    daemon_opts(q, state=False)
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=_command("service", "cmd_status"))
+
+
+def _add_recalibrate(q) -> None:
+    daemon_opts(q, state=False)
+    q.set_defaults(func=_command("service", "cmd_recalibrate"))
+
+
+def _add_watch(w) -> None:
     daemon_opts(w, state=False)
     w.add_argument("-n", "--count", type=at_least(1), help="stop after N lines")
     w.set_defaults(func=_command("service", "cmd_watch"))
 
-    gp = sub.add_parser("gap", help="diagnose the sim-to-real gap of a recording")
+
+def _add_gap(gp) -> None:
+    from .offline import SENSORS
     gp.add_argument("recording")
     gp.add_argument("--sensor", action="append", choices=SENSORS,
                     help="sensor(s) to diagnose (default: all present)")
@@ -192,8 +206,8 @@ def build_parser() -> argparse.ArgumentParser:
     gp.add_argument("--rate-hz", type=positive_float)
     gp.set_defaults(func=_command("gap", "cmd_gap"))
 
-    nz = sub.add_parser("noise", help="Allan deviation and noise figures of a still recording "
-                                      "(kalibr imu.yaml, ROS covariances)")
+
+def _add_noise(nz) -> None:
     nz.add_argument("recording", help="recording or raw table of a still sensor")
     nz.add_argument("--sensor", action="append", choices=["accel", "gyro", "mag"],
                     help="sensor(s) to characterise (default: all present)")
@@ -214,9 +228,38 @@ def build_parser() -> argparse.ArgumentParser:
     nz.add_argument("--rate-hz", type=float, help="sample rate (default: the stretch's mean rate)")
     nz.set_defaults(func=_command("noise", "cmd_noise"))
 
-    d = sub.add_parser("demo", help="the calibration demo that `make run` shows")
+
+def _add_demo(d) -> None:
     d.add_argument("--seed", type=int, default=1)
     d.add_argument("--poses", type=at_least(10, " (the 9-parameter fit scored by leave-one-pose-out)"), default=25)
     d.set_defaults(func=_command("offline", "cmd_demo"))
-    return p
 
+
+#: (name, help line, the function that adds its arguments), in the order --help lists them
+COMMANDS = (
+    ("simulate", "write a simulated recording", _add_simulate),
+    ("calibrate", "calibrate from a recording or pose file", _add_calibrate),
+    ("apply", "write a recording corrected by a calibration file", _add_apply),
+    ("probe", "list what answers on the I2C bus and what each device is", _add_probe),
+    ("record", "record samples to a recording file", _add_record),
+    ("run", "run the daemon (real I2C when a bus exists, else emulated)", _add_run),
+    ("replay", "feed a recording through the pipeline; NDJSON to stdout", _add_replay),
+    ("status", "the running daemon's state", _add_status),
+    ("recalibrate", "ask the daemon to calibrate now", _add_recalibrate),
+    ("watch", "print the daemon's stream", _add_watch),
+    ("gap", "diagnose the sim-to-real gap of a recording", _add_gap),
+    ("noise", "Allan deviation and noise figures of a still recording (kalibr imu.yaml, ROS covariances)", _add_noise),
+    ("demo", "the calibration demo that `make run` shows", _add_demo),
+)
+
+
+def build_parser(command: Optional[str] = None) -> argparse.ArgumentParser:
+    """The parser; with ``command``, only that subcommand's arguments are filled in."""
+    p = OneLineParser(prog="imucald", description="Field calibration of MEMS IMUs.")
+    p.add_argument("--version", action="version", version=f"imucald {__version__}")
+    sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
+    for name, hlp, add in COMMANDS:
+        q = sub.add_parser(name, help=hlp)
+        if command is None or command == name:
+            add(q)
+    return p

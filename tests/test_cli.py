@@ -114,7 +114,8 @@ def test_light_commands_load_no_heavy_module(argv, tmp_path):
     """--help, status and watch (here with no daemon: they stop at the missing socket after
     loading all they need) load neither numpy, the YAML parser (no configuration file is
     read), the I2C bus layer nor the calibration code (issue 15: fast start)."""
-    heavy = ("numpy", "yaml", "imucald.drivers.bus", "imucald.calib", "imucald.daemon.pipeline")
+    heavy = ("numpy", "yaml", "imucald.drivers.bus", "imucald.calib", "imucald.daemon.pipeline",
+             "imucald.specs", "dataclasses")
     extra = [] if argv == ["--help"] else ["--runtime-dir", str(tmp_path)]
     code = ("import sys, contextlib, io\nfrom imucald.cli import main\n"
             "with contextlib.redirect_stdout(io.StringIO()):\n"

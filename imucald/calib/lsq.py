@@ -253,17 +253,27 @@ def _starts(prob: Problem) -> List[np.ndarray]:
 
 # --- Levenberg-Marquardt ----------------------------------------------------------------
 
-def _lm_steps(prob: Problem, Z: np.ndarray, f: np.ndarray, mu: np.ndarray, n: int
-              ) -> Tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """n projected LM iterations on a batch Z (B, kf).  Returns Z, f, mu, iterations."""
+def _lm_steps(prob: Problem, Z: np.ndarray, f: np.ndarray, mu: np.ndarray, n: int,
+              cache: Optional[dict] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """n projected LM iterations on a batch Z (B, kf).  Returns Z, f, mu, iterations.
+
+    A rejected step leaves Z as it was (the same array), and the gradient and Gauss-Newton
+    matrix at Z are then reused rather than computed again (the same numbers: over half of
+    the steps of a leave-one-pose-out refit are rejected ones); ``cache`` carries them from
+    one call to the next."""
     kf = Z.shape[-1]
     eye = np.eye(kf)
     it = 0
+    cache = {} if cache is None else cache
     for it in range(1, n + 1):
-        r, J = prob.rj(Z)                                   # (B, N), (B, N, kf)
-        g = np.einsum("bnk,bn->bk", J, r)
-        H = np.einsum("bnk,bnl->bkl", J, J)
-        d = np.einsum("bkk->bk", H)
+        if cache.get("Z") is Z:
+            g, H, d = cache["gHd"]
+        else:
+            r, J = prob.rj(Z)                                   # (B, N), (B, N, kf)
+            g = np.einsum("bnk,bn->bk", J, r)
+            H = np.einsum("bnk,bnl->bkl", J, J)
+            d = np.einsum("bkk->bk", H)
+            cache["Z"], cache["gHd"] = Z, (g, H, d)
         Hd = H + mu[:, None, None] * (d[:, :, None] * eye + 1e-12 * eye * d.max(1)[:, None, None])
         try:
             step = -np.linalg.solve(Hd, g[..., None])[..., 0]
@@ -272,8 +282,9 @@ def _lm_steps(prob: Problem, Z: np.ndarray, f: np.ndarray, mu: np.ndarray, n: in
         Zc = prob.clip(Z + step)
         fc = prob.fitness(Zc)
         ok = fc < f
-        Z = np.where(ok[:, None], Zc, Z)
-        f = np.where(ok, fc, f)
+        if ok.any():                      # else Z and f stay (the same arrays, the same values)
+            Z = np.where(ok[:, None], Zc, Z)
+            f = np.where(ok, fc, f)
         mu = np.where(ok, np.maximum(mu / 3.0, 1e-12), mu * 4.0)
     return Z, f, mu, it
 
@@ -285,9 +296,10 @@ def _lm_converge(prob: Problem, z0: np.ndarray, max_iter: int = 200, ftol: float
     mu = np.array([1e-3])
     it_total = 0
     stall = 0
+    cache: dict = {}
     while it_total < max_iter:
         f_old = f[0]
-        Z, f, mu, it = _lm_steps(prob, Z, f, mu, 1)
+        Z, f, mu, it = _lm_steps(prob, Z, f, mu, 1, cache)
         it_total += it
         rel = (f_old - f[0]) / max(f_old, 1e-300)
         if rel <= ftol:

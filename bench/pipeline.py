@@ -51,14 +51,21 @@ _DRAIN = ("import socket, sys\n"
           "    pass\n")
 
 
-def cost(board, rate, seconds, fmt, tmp):
+#: the heaviest thermal terms a calibration holds (order 3, accelerometer scale term too)
+THERMAL = {"order": 3, "t_min_c": 15.0, "t_ref_c": 30.0, "t_max_c": 45.0, "note": "bench"}
+
+
+def cost(board, rate, seconds, fmt, tmp, thermal=False):
     cfg = copy.deepcopy(DEFAULTS)
     cfg["output"]["format"] = fmt
     bs = batches(board, rate, seconds)
     pipe = Pipeline(cfg, board, rate, board in ("9dof", "mpu9250"))
-    pipe.applied = Calibration(board, id=1, accel=SensorCal.accel(
-        "triangular9", [0.01, 0, 0, 1.01, 0.99, 1, 0.02, -0.01, 0.03]),
-        gyro=SensorCal("gyro", "bias", {"bias_dps": np.array([1.0, -2, 0.5])}))
+    poly = np.array([[5e-4, -4e-4, 3e-4], [1e-5, 2e-6, -3e-6], [1e-7, -1e-7, 2e-7]])
+    ta = dict(THERMAL, bias_poly_g=poly, scale_poly=np.array([[1e-4, -1e-4, 5e-5]])) if thermal else None
+    tg = dict(THERMAL, bias_poly_dps=poly * 40) if thermal else None
+    acc = SensorCal.accel("triangular9", [0.01, 0, 0, 1.01, 0.99, 1, 0.02, -0.01, 0.03])
+    pipe.applied = Calibration(board, id=1, accel=SensorCal("accel", acc.model, acc.params, thermal=ta),
+                               gyro=SensorCal("gyro", "bias", {"bias_dps": np.array([1.0, -2, 0.5])}, thermal=tg))
     path = os.path.join(tmp, f"b-{board}-{fmt}.sock")
     sink = SocketSink(path, fmt, board, max_buffer=1 << 30)
     reader = subprocess.Popen([sys.executable, "-c", _DRAIN, path])
@@ -166,6 +173,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--cost-only", action="store_true", help="only the per-sample cost rows")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         print("pipeline CPU per sample (stillness + poses + correction + encoding + socket write),"
@@ -177,6 +185,13 @@ def main():
                 us = float(np.median([c for c, _ in cs]))
                 print(f"  {board:<8} {rate:5d} Hz {fmt:<7} {us:6.1f} us/sample -> highest sustained "
                       f"rate {1e6 / us:8.0f} Hz ({cs[0][1]} samples)")
+        # with thermal terms applied (order 3 accelerometer bias + scale, order 3 gyro bias)
+        for fmt in ("ndjson", "binary"):
+            us = float(np.median([cost("mpu6050", 1000, args.seconds, fmt, tmp, thermal=True)[0]
+                                  for _ in range(args.repeats)]))
+            print(f"  mpu6050   1000 Hz {fmt:<7} {us:6.1f} us/sample with thermal terms (order 3 + scale)")
+    if args.cost_only:
+        return
     idle99, cal_max, cal99, runs = lateness(20.0)
     print(f"lateness behind schedule at 1 kHz, 20 ms batches (one batch = 20 ms): idle p99 {idle99:.1f} ms; "
           f"while {runs} ga-paper calibrations ran in the worker: p99 {cal99:.1f} ms, max {cal_max:.1f} ms")

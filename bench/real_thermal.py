@@ -1,0 +1,93 @@
+"""The gyro bias-vs-temperature model on a real warm-up (issue 11, acceptance).
+
+../shared/data/real/freeimu_mpu6050_tempsweep: an MPU-6050 lying still, z up, warming
+from 10 to 29 degC over 36 minutes (SOURCE.md; gyro at +-2000 deg/s, 16.4 counts per
+deg/s).  The record is cut into blocks of --block samples (contiguous, no gap > 0.1 s);
+blocks whose die temperature falls in every other 2 degC bin (10-12, 14-16, ...) train
+calib/thermal.py's fit_bias_series (order by the held-out test, variances inflated by the
+scatter the richest order leaves); each bin in between (12-14, 16-18, ...) is predicted at
+its blocks' mean temperature.  The bin's observed mean has the standard error of its block
+means (their scatter, so slow wander is counted); the prediction, the fit's covariance.
+z = (observed - predicted) / sqrt(se_obs^2 + se_pred^2) per axis; |z| <= 2 passes.
+A bin beyond the training range (28-30: training ends at 28 degC) is predicted with the
+terms held at the edge value, as the daemon applies them, and reported apart.
+Usage: python bench/real_thermal.py [--block 40]
+"""
+import argparse
+import os
+
+from _common import np
+
+from imucald.calib.thermal import _design, fit_bias_series
+
+REAL = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "data", "real")
+PATH = os.path.join(REAL, "freeimu_mpu6050_tempsweep", "Tempdata01-02-14.csv")
+
+
+def blocks(block):
+    d = np.genfromtxt(PATH, delimiter=",", skip_header=1)
+    t = d[:, 12] / 1000.0
+    g = d[:, 3:6] / 16.4
+    T = d[:, 9] / 340 + 36.53
+    cut = np.flatnonzero(np.diff(t) > 0.1) + 1
+    out = []
+    for seg in np.split(np.arange(len(t)), cut):
+        for i in range(0, len(seg) - block + 1, block):
+            s = seg[i:i + block]
+            out.append((T[s].mean(), g[s].mean(0), g[s].var(0, ddof=1) / len(s)))
+    Tb = np.array([o[0] for o in out])
+    return Tb, np.array([o[1] for o in out]), np.maximum(np.array([o[2] for o in out]), 1e-10)
+
+
+def predict(tf, T):
+    """Bias and its standard error at temperatures T (N,) -> (N, 3), (N, 3)."""
+    u = (np.clip(T, tf.t_min_c, tf.t_max_c) - tf.t_ref_c) / tf._scale_c
+    X = _design(u, tf.order)
+    y = X @ np.concatenate([tf.base, (tf.bias_poly * np.array([tf._scale_c ** (k + 1)
+                                                                for k in range(tf.order)])[:, None]).ravel()])
+    var = np.einsum("ij,jk,ik->i", X, tf.cov, X)
+    return y.reshape(-1, 3), np.sqrt(var).reshape(-1, 3)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--block", type=int, default=40)
+    a = ap.parse_args()
+    if not os.path.exists(PATH):
+        print(f"skipped: {PATH} is absent")
+        return
+    T, g, v = blocks(a.block)
+    b = np.floor((T - 10.0) / 2.0).astype(int)          # 2 degC bins from 10 degC
+    train = b % 2 == 0
+    tf = fit_bias_series(T[train], g[train], v[train], rng=0)
+    print(f"{len(T)} blocks of {a.block} samples; trained on {train.sum()} blocks in the bins from "
+          + ", ".join(str(10 + 2 * int(k)) for k in sorted(set(b[train]))) + " degC")
+    print(f"fit: {tf.note}; inflation x{tf.inflation:.1f}")
+    for k in range(tf.order):
+        print(f"  (T - {tf.t_ref_c:.1f})^{k + 1}: " + ", ".join(
+            f"{c * 1e3:+.3f}+-{s * 1e3:.3f}" for c, s in zip(tf.bias_poly[k], tf.bias_poly_stderr[k])) + f" mdps/degC^{k + 1}")
+    zs, beyond = [], []
+    print(" bin degC  blocks   observed (mdps)                 predicted (mdps)                 z")
+    for k in sorted(set(b[~train])):
+        m = b == k
+        if m.sum() < 3:
+            continue
+        obs = g[m].mean(0)
+        se_obs = g[m].std(0, ddof=1) / np.sqrt(m.sum())
+        pred, se_pred = predict(tf, np.array([T[m].mean()]))
+        z = (obs - pred[0]) / np.sqrt(se_obs ** 2 + se_pred[0] ** 2)
+        out = T[m].mean() > tf.t_max_c or T[m].mean() < tf.t_min_c
+        (beyond if out else zs).append(z)
+        f = lambda x, s: "[" + ", ".join(f"{xi * 1e3:+7.1f}+-{si * 1e3:4.1f}" for xi, si in zip(x, s)) + "]"
+        print(f" {10 + 2 * k:2d}-{12 + 2 * k:2d}  {m.sum():5d}   {f(obs, se_obs)}  {f(pred[0], se_pred[0])}  "
+              + " ".join(f"{zi:+5.1f}" for zi in z) + ("  (beyond the fitted range: held)" if out else ""))
+    zs = np.array(zs)
+    print(f"inside the fitted range: |z| <= 2 in {int((np.abs(zs) <= 2).sum())} of {zs.size} (bin, axis) "
+          f"predictions; per axis RMS z " + ", ".join(f"{a} {np.sqrt(np.mean(zs[:, i] ** 2)):.2f}"
+                                                     for i, a in enumerate("xyz")))
+    if beyond:
+        print("beyond it: z " + "; ".join(" ".join(f"{zi:+.1f}" for zi in z) for z in beyond))
+
+
+if __name__ == "__main__":
+    main()

@@ -54,3 +54,20 @@ def test_accel_thermal_bias_through_the_norm_model():
     # the base part is the bias at t_ref_c
     want = th[6:9] + c * (f.t_ref_c - 20)
     assert np.all(np.abs(f.base[6:9] - want) <= 4 * f.base_stderr[6:9]), (f.base[6:9], want)
+
+
+def test_accel_thermal_scale_is_chosen_when_the_data_support_it():
+    rng = np.random.default_rng(8)
+    m = Triangular9()
+    th = np.array([0, 0, 0, 1.02, 0.98, 1.01, 0.03, -0.02, 0.01])
+    N, sd = 60, 2e-4
+    T = np.sort(rng.uniform(20, 40, N))
+    U = rng.normal(size=(N, 3))
+    U /= np.linalg.norm(U, axis=1, keepdims=True)
+    c = np.array([3e-4, -4.5e-4, 4e-4])             # 1/degC on the true input
+    x = m.inverse(th, U * (1 + np.outer(T - 20, c))) + rng.normal(size=(N, 3)) * sd
+    f = fit_norm_thermal(m, x, np.full(N, sd ** 2), T, th, accel_prior(m, "mpu6050"), rng=rng)
+    assert f.order == 1 and f.scale_poly is not None, f.note
+    assert np.all(np.abs(f.scale_poly[0] - c) <= 4 * f.scale_poly_stderr[0]), (f.scale_poly, f.scale_poly_stderr)
+    assert np.all(np.abs(f.bias_poly[0]) <= 4 * f.bias_poly_stderr[0])
+    assert f.inflation < 1.5                        # the scale variant leaves only the noise

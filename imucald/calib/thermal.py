@@ -17,9 +17,10 @@ the noise model *and* its held-out ratio lies above the twin's 99th percentile; 
 among the higher orders that improve significantly (nested chi-square, Bonferroni over
 the variants) and lower the held-out error, the simplest whose held-out ratio lies within
 its twin's 99th percentile ("closed"), else the one with the lowest ratio.  Scatter in
-excess of the stated noise that even the richest variant leaves (steps, hysteresis,
-flicker between poses) inflates every variance first (as gap/linear.py does), so the
-test is against what a smooth curve can explain.  Below ``min_span_c`` of temperature
+excess of the stated noise that even the richest variant (of the norm fit's variants, the
+best-fitting one) leaves (steps, hysteresis, flicker between poses) inflates every
+variance first (as gap/linear.py does), so the test is against what a smooth curve can
+explain.  Below ``min_span_c`` of temperature
 only the constant is fitted, and the note says why.
 
 Two fitters, one rule: :func:`fit_bias_series` for direct bias observations (gyro still
@@ -305,11 +306,12 @@ def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[n
     for name, k, sc in variants:
         z0 = np.concatenate([np.asarray(theta0, float), np.zeros(3 * (k + sc))])
         fitted[name] = fit(k, sc, w0, z0)
+    # the excess scatter the best of the temperature variants leaves (they are not nested:
+    # a scale term is no part of the cubic bias)
     infl = 1.0
-    last = variants[-1][0]
     if len(variants) > 1:
-        _, r, J, _ = fitted[last]
-        infl = max(1.0, float(np.sum(w0 * r * r)) / max(N - J.shape[1], 1))
+        infl = max(1.0, min(float(np.sum(w0 * fitted[v[0]][1] ** 2)) / max(N - fitted[v[0]][2].shape[1], 1)
+                            for v in variants[1:]))
     vv = vv0 * infl
     w = 1 / vv
     res = {}

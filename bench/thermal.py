@@ -31,13 +31,17 @@ def session(seed, rise, acc_mg, gyro_dps, poses=60, rate_hz=100.0):
     return s.recording
 
 
-def replay(rec, min_span_c):
+def replay(rec, min_span_c, applied=None):
     """The pipeline as `imucald replay` runs it; returns (pipeline, IMU lines, the first
-    calibration id carrying thermal terms or None)."""
+    calibration id carrying thermal terms or None).  ``applied``: start with this
+    calibration and calibrate no more (the next day's stream)."""
     cfg = copy.deepcopy(DEFAULTS)
     cfg["calibration"]["method"] = "lm"
     cfg["calibration"]["thermal_min_span_c"] = float(min_span_c)
     pipe = Pipeline(cfg, "mpu6050", rec.rate_hz, False)
+    if applied is not None:
+        cfg["calibration"]["min_poses"] = 500          # never ready: no job is started
+        pipe.applied = applied
     step = max(1, int(round(cfg["sensor"]["batch_s"] * rec.rate_hz)))
     out, first = [], None
     for i in range(0, len(rec), step):
@@ -97,14 +101,14 @@ def main():
     ap.add_argument("--acc-mg", type=float, default=0.75)
     ap.add_argument("--gyro-dps", type=float, default=0.02)
     a = ap.parse_args()
-    ra, rg = [], []
+    ra, rg, sa, sg = [], [], [], []
     for seed in range(a.seeds):
         rec = session(seed, a.rise, a.acc_mg, a.gyro_dps)
         pipe, lines, first = replay(rec, 10.0)
         if first is None:
             print(f"seed {seed}: thermal terms not learnt: {pipe.thermal_status()}")
             continue
-        _, lines0, _ = replay(rec, 1e3)
+        p0, lines0, _ = replay(rec, 1e3)
         t_first = next(d["t"] for d in lines if d["cal"] >= first)
         th = still_runs(lines, first)
         c0 = still_runs([d for d in lines0 if d["t"] >= t_first], 0)
@@ -123,9 +127,19 @@ def main():
             f"{e:.0f}: {x * 1e3:.2f}->{y * 1e3:.2f}" for (e, x), (_, y) in zip(binned(c0, 0), binned(th, 0))))
         print("  per 2 degC bin, gyro rate deg/s (constant -> thermal): " + ", ".join(
             f"{e:.0f}: {x:.4f}->{y:.4f}" for (e, x), (_, y) in zip(binned(c0, 1), binned(th, 1))))
+        # once learnt: the same session streamed again with each daemon's final calibration
+        th2 = still_runs(replay(rec, 1e3, pipe.applied)[1], 0)
+        c02 = still_runs(replay(rec, 1e3, p0.applied)[1], 0)
+        acc2, gyr2 = (rms(c02, 0) * 1e3, rms(th2, 0) * 1e3), (rms(c02, 1), rms(th2, 1))
+        sa.append(acc2[0] / acc2[1])
+        sg.append(gyr2[0] / gyr2[1])
+        print(f"  the whole session again with the final calibrations: |a| {acc2[0]:.3f} -> {acc2[1]:.3f} mg "
+              f"({sa[-1]:.1f}x), gyro {gyr2[0]:.4f} -> {gyr2[1]:.4f} deg/s ({sg[-1]:.1f}x)")
     if ra:
         print(f"shrink over {len(ra)} seeds: accel |a| error median {np.median(ra):.1f}x (min {min(ra):.1f}x), "
               f"gyro rate median {np.median(rg):.1f}x (min {min(rg):.1f}x); target >= 5x")
+        print(f"with the final calibrations over the whole session: accel median {np.median(sa):.1f}x "
+              f"(min {min(sa):.1f}x), gyro median {np.median(sg):.1f}x (min {min(sg):.1f}x)")
     # a span below the minimum: only a constant
     for seed in range(min(a.seeds, 3)):
         rec = session(100 + seed, a.rise_small, a.acc_mg, a.gyro_dps)

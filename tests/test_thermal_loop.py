@@ -9,14 +9,23 @@ from imucald.calibration import load
 from imucald.cli import main
 
 
+def _simulate(d, name, *args):
+    rec, truth = d / f"{name}.rec", d / f"{name}.json"
+    assert main(["simulate", "-o", str(rec), "--poses", "30", "--hold", "8", "--temp-profile", "heatcool",
+                 "--temp-rise", "15", *args, "--truth", str(truth)]) == 0
+    return d, rec, json.loads(truth.read_text())
+
+
 @pytest.fixture(scope="module")
 def warm(tmp_path_factory):
-    d = tmp_path_factory.mktemp("loop")
-    rec, truth = d / "warm.rec", d / "truth.json"
-    assert main(["simulate", "-o", str(rec), "--poses", "30", "--hold", "8", "--temp-profile", "heatcool",
-                 "--temp-rise", "15", "--effect", "accel.thermal_bias=0.0007", "--effect",
-                 "gyro.thermal_bias=0.02", "--seed", "4", "--truth", str(truth)]) == 0
-    return d, rec, json.loads(truth.read_text())
+    return _simulate(tmp_path_factory.mktemp("loop"), "warm", "--effect", "accel.thermal_bias=0.0007",
+                     "--effect", "gyro.thermal_bias=0.02", "--seed", "4")
+
+
+@pytest.fixture(scope="module")
+def warm9(tmp_path_factory):
+    return _simulate(tmp_path_factory.mktemp("loop9"), "warm9", "--board", "9dof", "--effect",
+                     "mag.thermal_bias=0.001", "--seed", "2")
 
 
 def _verdict(capsys, *args):
@@ -25,16 +34,17 @@ def _verdict(capsys, *args):
     return {k: v["verdict"] for k, v in json.loads(capsys.readouterr().out)["sensors"].items()}
 
 
-@pytest.mark.parametrize("sensor", ["accel", "gyro"])
-def test_gap_names_it_calibrate_removes_it_gap_says_none(warm, capsys, sensor):
-    d, rec, truth = warm
+@pytest.mark.parametrize("sensor", ["accel", "gyro", "mag"])
+def test_gap_names_it_calibrate_removes_it_gap_says_none(request, capsys, sensor):
+    d, rec, truth = request.getfixturevalue("warm9" if sensor == "mag" else "warm")
     assert _verdict(capsys, str(rec), "--sensor", sensor) == {sensor: "thermal_bias"}
     cal_path, out = d / f"{sensor}.yaml", d / f"{sensor}_corrected.rec"
     assert main(["calibrate", str(rec), "--sensor", sensor, "--method", "lm", "-o", str(cal_path)]) == 0
+    capsys.readouterr()
     part = load(cal_path).part(sensor)
     th = part.thermal
     assert th["order"] == 1, th["note"]
-    unit = {"accel": "g", "gyro": "dps"}[sensor]
+    unit = {"accel": "g", "gyro": "dps", "mag": "gauss"}[sensor]
     coef = np.asarray(th[f"bias_poly_{unit}"][0])
     se = np.asarray(th[f"bias_poly_stderr_{unit}"][0])
     want = np.asarray(next(e for e in truth["effects"] if e["name"] == f"{sensor}.thermal_bias")["params"]["coef"])

@@ -255,7 +255,8 @@ def _fit(model, points, noise, method, rng, heldout=True) -> FitResult:
 
 def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "lm",
                        holdout_fraction: float = 0.3, rng=None, noise: Optional[np.ndarray] = None,
-                       cells: int = 200, per_cell: int = 5) -> Dict[str, Any]:
+                       cells: int = 200, per_cell: int = 5, temp_c: Optional[np.ndarray] = None,
+                       thermal_min_span_c: float = 10.0) -> Dict[str, Any]:
     """Hard + soft iron from a rotation time series ``mag`` (N, 3), in time order.
 
     Returns a dict: ``determined`` (False for a one-plane swing, with ``flat``
@@ -264,20 +265,25 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     ``norm_rel_std`` (corrected norm over every sample), ``predicted_rel_std``
     (what the noise alone would give), and ``heldout``: the calibration fitted on
     the first ``1 - holdout_fraction`` of the samples in time and tested on the
-    rest (relative std of the corrected norm there).
+    rest (relative std of the corrected norm there).  With ``temp_c`` (N,) degC: also
+    ``thermal``, the hard iron's temperature polynomial (calib/thermal.py) on the thinned
+    cloud, each point at its own temperature (order 0 below ``thermal_min_span_c``).
     """
     mag = np.asarray(mag, float)
-    mag = mag[np.all(np.isfinite(mag), axis=1)]
+    keep = np.all(np.isfinite(mag), axis=1)
     # a board that samples faster than its magnetometer holds the last reading: keep
     # each reading once (repeats would fake a zero noise and weigh one direction more)
-    if len(mag) > 1:
-        mag = mag[np.r_[True, np.any(np.diff(mag, axis=0) != 0, axis=1)]]
+    if keep.sum() > 1:
+        ix = np.flatnonzero(keep)
+        keep[ix[1:]] &= np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
+    mag = mag[keep]
+    temp = None if temp_c is None else np.asarray(temp_c, float)[keep]
     mdl = get_model(model)
     if not isinstance(mdl, MagModel):
         raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")
     sigma = sample_noise(mag) if noise is None else np.asarray(noise, float)
     res = SphereReservoir(cells, per_cell)
-    res.add(mag)
+    res.add(mag, np.arange(len(mag)))
     pts = res.points()
     out: Dict[str, Any] = {"samples": int(len(mag)), "points": int(len(pts)),
                            "noise": sigma.tolist()}
@@ -296,8 +302,12 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     out["coverage"] = coverage(mdl, cal.theta, pts, cells)
     hn = np.linalg.norm(mdl.forward(cal.theta, mag), axis=1)
     out["norm_rel_std"] = rel_std(hn)
-    out["predicted_rel_std"] = float(np.sqrt(np.mean(residual_variance(
-        mdl, cal.theta, pts, np.broadcast_to(np.diag(sigma ** 2), (len(pts), 3, 3))))))
+    var = residual_variance(mdl, cal.theta, pts, np.broadcast_to(np.diag(sigma ** 2), (len(pts), 3, 3)))
+    out["predicted_rel_std"] = float(np.sqrt(np.mean(var)))
+    if temp is not None and np.all(np.isfinite(temp[res.tags()])):
+        from .thermal import fit_norm_thermal
+        out["thermal"] = fit_norm_thermal(mdl, pts, var, temp[res.tags()], cal.theta, None,
+                                          thermal_min_span_c, scale=False, rng=rng)
     k = int(round(len(mag) * (1 - holdout_fraction)))
     if 0 < k < len(mag):
         r_tr = SphereReservoir(cells, per_cell)

@@ -216,17 +216,26 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     if progress:
         progress(f"imucald: {len(rec)} magnetometer samples; thinning over the sphere and fitting "
                  f"{model} with {args.method}")
-    res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed)
+    res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed, temp_c=rec.temp,
+                             thermal_min_span_c=args.thermal_min_span)
+    tf = res.get("thermal")
     if args.output and res["determined"]:
-        _write_calibration(args.output, rec.meta.get("board", "unknown"), res["calibration"])
+        _write_calibration(args.output, rec.meta.get("board", "unknown"), res["calibration"], tf)
     if args.json:
-        print(json.dumps(rotation_json(res)))
+        d = rotation_json(res)
+        if tf is not None:
+            from .thermal import thermal_json
+            d["thermal"] = thermal_json("mag", tf)
+        print(json.dumps(d))
         return 0 if res["determined"] else 3
     if not res["determined"]:
         _eprint(f"imucald: {args.input}: {flat_message(res)}")
         return 3
     _print_cal("mag", res["calibration"])
     print("\n".join(rotation_lines(res)))
+    if tf is not None:
+        from .thermal import thermal_lines
+        print("\n".join(thermal_lines("mag", tf)))
     return 0
 
 

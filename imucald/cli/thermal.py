@@ -23,6 +23,8 @@ def fit_thermal(sensor: str, poses, fit, chip: Optional[str], infl, min_span_c: 
     if sensor == "gyro":
         var = np.einsum("nii->ni", poses.gyro_cov) if poses.gyro_cov is not None else np.full((len(poses), 3), 1e-4)
         return fit_bias_series(poses.temp, poses.gyro, np.maximum(var, 1e-12), min_span_c, rng=seed)
+    if sensor == "mag":             # a pose file's magnetometer means (recordings: calib/magcal.py)
+        return None
     from ..calib.fit import accel_prior
     from ..calib.models import get_model
     from ..calib.uncertainty import residual_variance
@@ -79,7 +81,11 @@ def thermal_part(sensor: str, fit, tf):
     if sensor == "accel":
         a = SensorCal.accel(fit.model, tf.base, tf.base_stderr, sc.method, sc.quality, sc.flags)
         return SensorCal(a.sensor, a.model, a.params, a.stderr, a.flags, a.method, a.quality, th)
-    return SensorCal(sc.sensor, sc.model, sc.params, sc.stderr, sc.flags, sc.method, sc.quality, th)
+    from ..calib.models import get_model, mag_report
+    m = get_model(fit.model)
+    p, se = mag_report(m, tf.base, tf.cov[:m.k, :m.k])
+    arr = lambda d: {k: np.asarray(v, float) for k, v in d.items()}
+    return SensorCal("mag", fit.model, arr(p), arr(se), {}, sc.method, sc.quality, th)
 
 
 # --- apply ---------------------------------------------------------------------------------

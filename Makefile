@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 TSTAMP := $(VENV)/.installed-test
 
-.PHONY: run test bench clean
+.PHONY: run test bench clean test-deps
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 9))' || \
@@ -33,8 +33,19 @@ run: $(STAMP)
 	$(BIN)/imucald run --state-dir .imucald/state --runtime-dir .imucald/run --echo --duration 200
 
 # pytest exits 5 when it collected no test: that is a failure too (make stops on any non-zero exit).
-test: $(TSTAMP)
+test: $(TSTAMP) test-deps
 	$(BIN)/python -m pytest -q
+
+# The MQTT tests run a real broker, Debian's mosquitto: installed here where we may (root
+# with apt-get), else those tests skip and say why.
+test-deps:
+	@if ! command -v mosquitto >/dev/null 2>&1 && [ ! -x /usr/sbin/mosquitto ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing mosquitto (apt-get) for the MQTT tests"; \
+	    { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends mosquitto; } >/dev/null 2>&1 \
+	      || echo "could not install mosquitto: the MQTT tests will skip"; \
+	  else echo "mosquitto is missing (sudo apt-get install mosquitto): the MQTT tests will skip"; fi; \
+	fi
 
 bench: $(TSTAMP)
 	$(BIN)/python bench/speed.py

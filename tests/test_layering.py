@@ -2,7 +2,8 @@
 
 Allowed direction (an arrow: "may import"):
 
-    cli -> daemon, gap, sim, drivers, calib      (the top: it builds and wires everything)
+    cli -> daemon, gap, sim, drivers, calib, mqtt (the top: it builds and wires everything)
+    mqtt -> daemon                               (the bridge reads the daemon's config and control socket)
     gap -> sim, calib                            (diagnosis re-simulates and refits)
     daemon -> drivers, calib                     (the production path: never sim or gap)
     sim -> drivers, calib                        (the emulated chips share the drivers' register maps)
@@ -20,9 +21,10 @@ import os
 import pytest
 
 ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "imucald")
-PACKAGES = ("calib", "sim", "drivers", "daemon", "gap", "cli")
+PACKAGES = ("calib", "sim", "drivers", "daemon", "gap", "cli", "mqtt")
 ALLOWED = {
-    "cli": {"daemon", "gap", "sim", "drivers", "calib"},
+    "cli": {"daemon", "gap", "sim", "drivers", "calib", "mqtt"},
+    "mqtt": {"daemon"},
     "gap": {"sim", "calib"},
     "daemon": {"drivers", "calib"},
     "sim": {"drivers", "calib"},

@@ -229,6 +229,12 @@ def _add_noise(nz) -> None:
     nz.set_defaults(func=_command("noise", "cmd_noise"))
 
 
+def _add_mqtt(mq) -> None:
+    daemon_opts(mq, state=False)
+    mq.add_argument("--duration", type=positive_float, help="stop after this many seconds")
+    mq.set_defaults(func=_command("mqtt", "cmd_mqtt"))
+
+
 def _add_demo(d) -> None:
     d.add_argument("--seed", type=int, default=1)
     d.add_argument("--poses", type=at_least(10, " (the 9-parameter fit scored by leave-one-pose-out)"), default=25)
@@ -249,6 +255,8 @@ COMMANDS = (
     ("watch", "print the daemon's stream", _add_watch),
     ("gap", "diagnose the sim-to-real gap of a recording", _add_gap),
     ("noise", "Allan deviation and noise figures of a still recording (kalibr imu.yaml, ROS covariances)", _add_noise),
+    ("mqtt", "bridge the daemon's stream and status to an MQTT broker (the mqtt extra; "
+             "the mqtt section of the configuration)", _add_mqtt),
     ("demo", "the calibration demo that `make run` shows", _add_demo),
 )
 

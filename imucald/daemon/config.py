@@ -87,6 +87,22 @@ SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
     "state.directory": ("/var/lib/imucald", "str", None),
     "runtime.directory": ("/run/imucald", "str", None),
     "log.level": ("info", "choice", ("debug", "info", "warning", "error")),
+    # the MQTT bridge (`imucald mqtt`, its own process and unit; the daemon ignores these)
+    "mqtt.host": ("localhost", "str", None),
+    "mqtt.port": (None, "int?", (1, 65535)),        # null: 1883, or 8883 with tls
+    "mqtt.tls": (False, "choice", (False, True)),
+    "mqtt.ca_file": (None, "str?", None),             # null: the system's CA store
+    "mqtt.username": (None, "str?", None),
+    "mqtt.password_file": (None, "str?", None),       # first line is the password; never on the command line
+    "mqtt.client_id": (None, "str?", None),           # null: imucald-<sensor id>
+    "mqtt.topic_prefix": ("imucald", "str", None),
+    "mqtt.qos": (1, "choice", (0, 1, 2)),
+    "mqtt.sample_rate_hz": (10.0, "float", (0.01, 1000.0)),
+    "mqtt.status_interval_s": (5.0, "float", (0.2, 3600.0)),
+    "mqtt.buffer": (1000, "int", (1, 1000000)),     # messages held while the broker is away; oldest dropped
+    "mqtt.keepalive_s": (30, "int", (5, 3600)),
+    "mqtt.discovery": (False, "choice", (False, True)),
+    "mqtt.discovery_prefix": ("homeassistant", "str", None),
 }
 
 DEFAULTS: Dict[str, Dict[str, Any]] = {}
@@ -97,7 +113,8 @@ for _k, (_d, _, _) in SCHEMA.items():
 
 #: keys that take effect on reload (SIGHUP); the others (the sensor, the sockets, the
 #: directories, the stream's format) need a restart
-RELOADABLE_SECTIONS = ("stillness", "poses", "calibration", "log")
+RELOADABLE_SECTIONS = ("stillness", "poses", "calibration", "log",
+                       "mqtt")     # read by the bridge only: never a reason to restart the daemon
 RELOADABLE_KEYS = ("output.decimate", "output.client_buffer_bytes")
 
 
@@ -304,6 +321,15 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
     if cfg["output"]["covariance"] and not cfg["noise"]["file"]:
         raise error("output.covariance", "output.covariance: true needs noise.file (the "
                     "figures of `imucald noise STILL_RECORDING -o FILE`)")
+    m = cfg["mqtt"]
+    if m["ca_file"] and not m["tls"]:
+        raise error("mqtt.ca_file", "mqtt.ca_file is set but mqtt.tls is false: set tls: true "
+                    "(or remove ca_file)")
+    if m["password_file"] and not m["username"]:
+        raise error("mqtt.password_file", "mqtt.password_file needs mqtt.username")
+    if any(c in m["topic_prefix"] for c in "+#\0"):
+        raise error("mqtt.topic_prefix", f"mqtt.topic_prefix: {m['topic_prefix']!r} holds an MQTT "
+                    f"wildcard (+ or #): use plain words, e.g. imucald or site/lab")
     c = cfg["calibration"]
     need = accel_poses_needed()
     if c["min_poses"] < need:

@@ -2,7 +2,7 @@
 
 Requests are one line each, a bare command or a JSON object
 (``status`` or ``{"cmd": "status"}``); each reply is one JSON line with a
-``class`` field.  Commands: status, poses, coverage, recalibrate, reset, reload.
+``class`` field.  Commands: status, calibration, poses, coverage, recalibrate, reset, reload.
 
 The sampler calls :meth:`ControlServer.poll` once per batch and it never waits:
 sockets are non-blocking, and what one poll does is bounded -- at most
@@ -25,7 +25,7 @@ from typing import Callable, Dict, List, Optional
 __all__ = ["ControlServer", "request", "COMMANDS", "MAX_CLIENTS", "MAX_LINE", "MAX_OUT",
            "PER_POLL", "RATE_PER_S", "BURST"]
 
-COMMANDS = ("status", "poses", "coverage", "recalibrate", "reset", "reload")
+COMMANDS = ("status", "calibration", "poses", "coverage", "recalibrate", "reset", "reload")
 MAX_CLIENTS = 16          #: control connections at once; more are refused with one line
 MAX_LINE = 1024           #: bytes of one request line
 MAX_OUT = 64 * 1024       #: reply bytes waiting for one client before its requests wait

@@ -214,6 +214,12 @@ class Daemon:
                  "worker": {"running": self.worker.running(), "started": self.worker.started,
                             "died": self.worker.died, "timeouts": self.worker.timeouts}}
             return d
+        if cmd == "calibration":
+            # the calibration in force with its standard errors and quality figures (what the
+            # calibration file holds, less the poses it was fitted on)
+            d = p.applied.to_dict()
+            d.pop("poses_used", None)
+            return {"class": "CALIBRATION", **d}
         if cmd == "poses":
             ps = p.acc.pose_set()
             return {"class": "POSES", "count": len(ps),

@@ -1,0 +1,103 @@
+"""A throwaway Mosquitto broker on loopback for the MQTT tests and bench/mqtt.py.
+
+The broker is Debian's ``mosquitto`` package: ``make test`` (.ci/run) installs it when it
+runs as root with apt; elsewhere the tests skip, saying so."""
+import os
+import shutil
+import socket
+import subprocess
+import time
+
+__all__ = ["find_mosquitto", "free_port", "Broker", "make_tls_files"]
+
+
+def find_mosquitto():
+    """(path, None) or (None, why not)."""
+    for p in (shutil.which("mosquitto"), "/usr/sbin/mosquitto", "/usr/local/sbin/mosquitto"):
+        if p and os.access(p, os.X_OK):
+            return p, None
+    return None, ("mosquitto not found (Debian package 'mosquitto'; `make test` installs it when "
+                  "run as root with apt-get)")
+
+
+def free_port():
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+class Broker:
+    """``mosquitto -c conf`` on 127.0.0.1:port; ``extra`` lines go into the listener's
+    config (TLS, password file).  Persistence (on by default) keeps the subscriber's
+    session and its queued QoS 1 messages across a restart."""
+
+    def __init__(self, workdir, port=None, extra="", persistence=True):
+        self.exe, why = find_mosquitto()
+        if self.exe is None:
+            raise RuntimeError(why)
+        self.dir = str(workdir)
+        os.makedirs(self.dir, exist_ok=True)
+        self.port = port or free_port()
+        self.conf = os.path.join(self.dir, "mosquitto.conf")
+        anon = "false" if "password_file" in extra else "true"
+        with open(self.conf, "w") as fh:
+            fh.write(f"per_listener_settings false\nallow_anonymous {anon}\n"
+                     f"persistence {'true' if persistence else 'false'}\n"
+                     f"persistence_location {self.dir}/\nautosave_interval 0\n"
+                     f"log_dest file {self.dir}/mosquitto.log\nlog_type all\n"
+                     + ("user root\n" if os.geteuid() == 0 else "")
+                     + f"listener {self.port} 127.0.0.1\n{extra}\n")
+        self.proc = None
+
+    def start(self, timeout_s=10.0):
+        self.proc = subprocess.Popen([self.exe, "-c", self.conf], stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.PIPE)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout_s:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"mosquitto exited: {self.proc.stderr.read().decode()[-500:]} "
+                                   f"{self.log()[-500:]}")
+            try:
+                socket.create_connection(("127.0.0.1", self.port), 0.2).close()
+                return self
+            except OSError:
+                time.sleep(0.02)
+        raise RuntimeError(f"mosquitto did not listen on {self.port}")
+
+    def stop(self):
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.proc = None
+
+    def log(self):
+        try:
+            with open(os.path.join(self.dir, "mosquitto.log")) as fh:
+                return fh.read()
+        except OSError:
+            return ""
+
+
+def make_tls_files(d):
+    """A throwaway CA and a server certificate for 127.0.0.1/localhost with the openssl CLI:
+    (ca.crt, server.crt, server.key) or None when openssl is missing."""
+    ossl = shutil.which("openssl")
+    if ossl is None:
+        return None
+    d = str(d)
+    run = lambda *a: subprocess.run([ossl, *a], cwd=d, check=True, capture_output=True)
+    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj", "/CN=imucald test CA",
+        "-keyout", "ca.key", "-out", "ca.crt")
+    run("req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=localhost", "-keyout", "server.key",
+        "-out", "server.csr")
+    with open(os.path.join(d, "san.ext"), "w") as fh:
+        fh.write("subjectAltName=DNS:localhost,IP:127.0.0.1\n")
+    run("x509", "-req", "-in", "server.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
+        "-days", "2", "-extfile", "san.ext", "-out", "server.crt")
+    return tuple(os.path.join(d, f) for f in ("ca.crt", "server.crt", "server.key"))

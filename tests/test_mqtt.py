@@ -176,6 +176,7 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
         bridge = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True)
         got_cal = sub.wait(lambda: any(c.get("applied") for c in sub.of(f"{sid}/event/cal")), 60)
         sub.wait(lambda: any(h["calibration_id"] for h in sub.of(f"{sid}/health")), 5)
+        sub.wait(lambda: sum(m["cal"] >= 1 and m["still"] for m in sub.of(f"{sid}/imu")) >= 20, 10)
         bridge.send_signal(signal.SIGTERM)
         assert bridge.wait(10) == 0
         err = bridge.stderr.read()
@@ -187,9 +188,16 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
     imu = sub.of(f"imucald/{sid}/imu")
     assert len(imu) > 100
     seq = np.array([m["seq"] for m in imu])
-    # 100 Hz decimated to 20 Hz on the stream's clock: the first sample of each 50 ms (the
-    # bridge's first one may fall inside an interval), none twice, none skipped
-    assert np.all(seq[1:] % 5 == 0) and np.all(np.diff(seq[1:]) == 5), np.unique(np.diff(seq))
+    # 100 Hz decimated to 20 Hz on the stream's clock: the first sample of each 50 ms, never
+    # two in one interval; a sample inside an interval only right after samples the bridge
+    # did not see (its first, or after the daemon dropped a slow reader on a loaded machine)
+    t = np.array([m["t"] for m in imu])
+    k = np.floor(t / 0.05 + 1e-9)
+    assert np.all(np.diff(k) >= 1), "two samples in one interval, or out of order"
+    d = np.diff(seq)
+    inside = np.flatnonzero(seq[1:] % 5 != 0)
+    assert np.all(d[inside] != 5), "a sample inside an interval although its predecessor was published"
+    assert np.mean(d == 5) > 0.9, np.unique(d, return_counts=True)
     assert all({"acc_g", "gyro_dps", "temp_c", "t", "time", "cal"} <= set(m) for m in imu)
     cal = [c for c in sub.of(f"{sid}/event/cal") if c.get("applied")][0]
     assert cal["accel_heldout_rms_g"] < cal["accel_heldout_rms_before_g"]
@@ -199,7 +207,7 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
     assert full["id"] == cal["id"] and full["accel"]["params"]["bias_g"]
     # after that calibration the published samples are corrected: |a| = 1 g when still
     still = np.array([m["acc_g"] for m in imu if m["still"] and m["cal"] >= cal["id"]])
-    assert len(still) > 5 and abs(np.median(np.linalg.norm(still, axis=1)) - 1) < 0.01
+    assert len(still) >= 20 and abs(np.median(np.linalg.norm(still, axis=1)) - 1) < 0.01
     health = sub.of(f"{sid}/health")
     assert health and health[-1]["rate_hz"] == 100.0 and health[-1]["calibration_id"] >= 1
     assert health[-1]["calibration_age_s"] is not None and health[-1]["faults"]["bus_faults"] == 0
@@ -219,9 +227,9 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
         late = Sub(broker.port, topics=(f"imucald/{sid}/status", f"imucald/{sid2}/status",
                                         f"imucald/{sid}/health", "homeassistant/#"))
         assert late.wait(lambda: late.of(f"{sid}/status") == ["offline"], 5)
-        retained = {t for t, _, r, _ in late.msgs if r}
-        assert {f"imucald/{sid}/health", f"imucald/{sid}/status"} <= retained
-        assert sum(t.startswith(f"homeassistant/sensor/imucald_{sid}/") for t in retained) >= 8
+        retained = lambda: {t for t, _, r, _ in list(late.msgs) if r}
+        assert late.wait(lambda: f"imucald/{sid}/health" in retained() and sum(
+            t.startswith(f"homeassistant/sensor/imucald_{sid}/") for t in retained()) >= 8, 5), retained()
         b2 = subprocess.Popen([PY, "-m", "imucald.cli", "mqtt", "--config", str(cfg), "--runtime-dir",
                                str(rt2)], cwd=ROOT, stderr=subprocess.DEVNULL)
         assert late.wait(lambda: "online" in late.of(f"{sid2}/status"), 20)
@@ -250,6 +258,7 @@ def test_broker_restart_mid_stream_reconnects_drops_oldest_and_counts(tmp_path):
         assert sub.wait(lambda: b.stats["connects"] >= 2, 10), broker.log()[-2000:]
         fake.extra.append({"class": "GAP", "seq": fake.seq + 1, "missing": 3})
         time.sleep(0.5)
+        outages = b.stats["disconnects"]
     finally:
         stop.set()
         t.join(10)
@@ -267,13 +276,16 @@ def test_broker_restart_mid_stream_reconnects_drops_oldest_and_counts(tmp_path):
     assert b.stats["disconnects"] >= 1 and b.stats["connects"] >= 2
     dropped = b.buf.dropped_by.get("imu", 0)
     assert dropped > 0, "the outage should have overflowed a 20-message buffer"
+    one_outage = outages == 1
     assert b.stats["dropped"] == b.buf.dropped
     # every sample the bridge decimated in was either delivered or counted as dropped
     assert b.stats["unsent_at_stop"] == 0 and b.stats["lost_in_flight"] == 0
     assert len(seqs) + dropped == b.stats["samples_out"]
     # the dropped ones are the oldest of the outage: one contiguous hole in the sequence
     missing = sorted(set(range(min(seqs), max(seqs) + 1)) - set(seqs))
-    assert len(missing) == dropped and missing[-1] - missing[0] == dropped - 1
+    assert len(missing) == dropped
+    if one_outage:      # (a loaded machine may see a second one)
+        assert missing[-1] - missing[0] == dropped - 1
     gaps = sub.of("/event/gap")
     assert gaps and gaps[0]["missing"] == 3 and b.stats["gaps"] == 1 and b.stats["missing_samples"] == 3
 

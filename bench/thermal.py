@@ -38,16 +38,19 @@ def replay(rec, min_span_c, applied=None):
     cfg = copy.deepcopy(DEFAULTS)
     cfg["calibration"]["method"] = "lm"
     cfg["calibration"]["thermal_min_span_c"] = float(min_span_c)
-    pipe = Pipeline(cfg, "mpu6050", rec.rate_hz, False)
+    has_mag = rec.mag is not None
+    pipe = Pipeline(cfg, rec.meta.get("board", "mpu6050"), rec.rate_hz, has_mag)
     if applied is not None:
         cfg["calibration"]["min_poses"] = 500          # never ready: no job is started
         pipe.applied = applied
     step = max(1, int(round(cfg["sensor"]["batch_s"] * rec.rate_hz)))
     out, first = [], None
+    # a new magnetometer reading differs from the one before it (as `imucald replay` tells)
+    fresh = None if not has_mag else np.r_[True, np.any(np.diff(rec.mag, axis=0) != 0, axis=1)]
     for i in range(0, len(rec), step):
         sl = slice(i, i + step)
         b = SampleBatch(rec.t[sl], np.arange(i, min(i + step, len(rec))), rec.acc[sl], rec.gyro[sl],
-                        rec.temp[sl], None, None)
+                        rec.temp[sl], None if not has_mag else rec.mag[sl], None if not has_mag else fresh[sl])
         out.append(pipe.process(b))
         a = pipe.applied
         if first is None and a.accel is not None and a.accel.thermal and a.accel.thermal["order"]:

@@ -47,3 +47,18 @@ def test_below_the_minimum_span_only_a_constant_and_the_status_says_why(bt):
     assert not pipe.applied.accel.thermal and not (pipe.applied.gyro and pipe.applied.gyro.thermal)
     st = pipe.status()["thermal"]
     assert st["span_c"] < 10 and "(calibration.thermal_min_span_c): constant only" in st["why"]
+
+
+def test_the_magnetometer_hard_iron_learnt_in_the_field(bt):
+    from imucald.sim.effects import effect_session
+    from imucald.sim.poses import random_pose_set
+    rng = np.random.default_rng(3)
+    s, eff = effect_session("9dof", random_pose_set(36, rng), rng, [("mag.thermal_bias", 1e-3)], 100.0,
+                            (6.4, 9.6), (2.1, 3.9), "heatcool", 15.0)
+    pipe, _, _ = bt.replay(s.recording, 10.0)
+    th = pipe.applied.mag.thermal
+    assert th and th["order"] == 1, pipe.thermal_status()
+    # the simulator adds the coefficient to the raw reading, as the terms remove it
+    want = np.asarray(eff[0]["params"]["coef"])
+    assert np.all(np.abs(th["bias_poly_gauss"][0] - want) <= 4 * th["bias_poly_stderr_gauss"][0]), (th, want)
+    assert pipe.status()["thermal"]["mag"]["order"] == 1

@@ -131,6 +131,11 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
             notes["mag_flat"] = flat
             return
         cov = np.diag(np.asarray(noise, float) ** 2)
+    mt = job.get("mag_temp")
+    tm = cur.mag.thermal if cur.mag is not None and mt is not None else None
+    raw = mp
+    if tm:      # thermal terms in force: the constant part is refitted without them, and keeps them
+        mp = cur.mag.thermal_offset(mp, mt)
     mho = _holdout(len(mp), job["holdout_fraction"])
     pc = lambda n: None if cov is None else np.broadcast_to(cov, (n, 3, 3))
     mc = fit_norm(mp[~mho], "mag_sym", "lm", rng=job.get("seed"), heldout=False,
@@ -140,7 +145,7 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
         hc = np.linalg.norm(mp[mho], axis=1)
         r_cur = hc / median(np.linalg.norm(mp, axis=1)) - 1
     else:
-        hc = np.linalg.norm(cur.apply_mag(mp[mho]), axis=1)
+        hc = np.linalg.norm(cur.apply_mag(raw[mho], None if mt is None else mt[mho]), axis=1)
         r_cur = hc / float(cur.mag.params["field_gauss"]) - 1
     # the same paired test on the withheld points; the applied fit then uses every point
     dec = paired_gate(r_cur ** 2, r_new ** 2, job.get("alpha", ALPHA),
@@ -151,4 +156,10 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
         "points": int(len(mp)), "heldout_rel_rms": dec.rms_cv, "heldout_rel_rms_before": dec.rms_incumbent,
         "gate_p_value": dec.p_value,
         "coverage_fraction": cv["fraction"], "coverage_min_eigenvalue": cv["direction_eigenvalues"][-1]})
+    if tm:
+        q = parts["mag"]
+        parts["mag"] = SensorCal(q.sensor, q.model, q.params, q.stderr, q.flags, q.method, q.quality, tm)
     accept["mag"], notes["gate"]["mag"] = dec.accept, dec
+    if job.get("thermal") and mt is not None:
+        from .thermaljob import mag_thermal
+        mag_thermal(job, cur, raw, mt, cov, mc.theta, parts, accept, notes)

@@ -138,7 +138,10 @@ class Pipeline:
             for iv in intervals:
                 self._pose(iv)
             if self.reservoir is not None and b.mag_fresh is not None and b.mag_fresh.any():
-                self.reservoir.add(b.mag[b.mag_fresh])
+                # each point's tag: its temperature in centi-kelvin (-1 unknown), for the hard
+                # iron's thermal terms (daemon/thermaljob.py)
+                self.reservoir.add(b.mag[b.mag_fresh], None if b.temp is None else np.where(
+                    np.isfinite(b.temp[b.mag_fresh]), np.round((b.temp[b.mag_fresh] + 273.15) * 100), -1))
                 self.mag_recent.extend(b.mag[b.mag_fresh])
             ap = self.applied
             dec = self.cfg["output"]["decimate"]
@@ -314,9 +317,11 @@ class Pipeline:
         self._job_missing = self.acc.coverage()["missing"]
         c = self.cfg["calibration"]
         ps = self.acc.pose_set()
-        mag_pts = None
+        mag_pts = mag_temp = None
         if self.reservoir is not None and self.reservoir.coverage() >= c["mag_min_coverage"]:
             mag_pts = self.reservoir.points()
+            tg = self.reservoir.tags()
+            mag_temp = None if np.any(tg < 0) else tg / 100.0 - 273.15
         acc_cov = ps.acc_cov
         if self.noise is not None and "accel" in self.noise and acc_cov is not None:
             # coloured noise: a pose mean over T s varies k(T) times more than white noise
@@ -326,7 +331,8 @@ class Pipeline:
                           for n in ps.n])
             acc_cov = acc_cov * k[:, None, None]
         job = {"acc": ps.acc, "acc_cov": acc_cov, "t0": ps.t0, "n": ps.n, "temp": _temps(ps.temp),
-               "gyro": ps.gyro, "mag_points": mag_pts, "mag_noise": self._mag_noise(), "method": c["method"],
+               "gyro": ps.gyro, "mag_points": mag_pts, "mag_temp": mag_temp, "mag_noise": self._mag_noise(),
+               "method": c["method"],
                "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
                "seed": int(self.acc.added),
                "current": self.applied,

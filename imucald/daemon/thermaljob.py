@@ -17,13 +17,13 @@ import numpy as np
 
 from ..calib.fit import accel_prior
 from ..calib.gate import ALPHA
-from ..calib.models import Triangular9
+from ..calib.models import MagModel, Triangular9, mag_report
 from ..calib.thermal import fit_bias_series, fit_norm_thermal
 from ..calib.thermal_gate import gate_bias_thermal, gate_norm_thermal
 from ..calib.uncertainty import residual_variance
 from ..calibration import Calibration, SensorCal
 
-__all__ = ["thermal_parts"]
+__all__ = ["thermal_parts", "mag_thermal"]
 
 _T9 = Triangular9()
 
@@ -84,3 +84,37 @@ def thermal_parts(job: Dict[str, Any], cur: Calibration, parts: Dict[str, Sensor
                                   "thermal_gate_p_value": dec.p_value}, tf.to_thermal("dps"))
                 parts["gyro"], accept["gyro"], gates["gyro"] = cand, True, dec
         out["gyro"] = ent
+
+
+def mag_thermal(job: Dict[str, Any], cur: Calibration, mp: np.ndarray, temp: np.ndarray, cov,
+                theta0: np.ndarray, parts: Dict[str, SensorCal], accept: Dict[str, bool],
+                notes: Dict[str, Any]) -> None:
+    """The hard iron's thermal terms on the magnetometer cloud (raw points ``mp`` at
+    ``temp``), started from the constant fit ``theta0`` (unit sphere), gated like the
+    accelerometer's on the points (10 folds) against the calibration in force."""
+    mdl = MagModel("sym")
+    min_span = float(job.get("thermal_min_span_c", 10.0))
+    c = np.eye(3) * np.median(np.var(np.diff(mp, axis=0), axis=0)) / 2 if cov is None else cov
+    var = residual_variance(mdl, theta0, mp, np.broadcast_to(c, (len(mp), 3, 3)))
+    tf = fit_norm_thermal(mdl, mp, var, temp, theta0, None, min_span, scale=False, rng=job.get("seed"))
+    ent = {"order": tf.order, "note": tf.note, "accepted": False, "span_c": round(tf.t_max_c - tf.t_min_c, 2)}
+    if tf.order:
+        if cur.mag is None:
+            inc = mp / np.median(np.linalg.norm(mp, axis=1))
+        else:
+            inc = cur.apply_mag(mp, temp) / float(cur.mag.params["field_gauss"])
+        _, dec = gate_norm_thermal(mdl, tf, mp, temp, inc, job.get("alpha", ALPHA),
+                                   "raw" if cur.mag is None else "current",
+                                   current=cur.mag.thermal if cur.mag is not None else None)
+        ent.update(accepted=dec.accept, p_value=dec.p_value)
+        if dec.accept:
+            p, se = mag_report(mdl, tf.base, tf.cov[:mdl.k, :mdl.k])
+            arr = lambda d: {k: np.asarray(v, float) for k, v in d.items()}
+            q = parts["mag"].quality if "mag" in parts else {}
+            parts["mag"] = SensorCal("mag", "mag_sym", arr(p), arr(se), {}, "thermal",
+                                     {**q, "thermal_heldout_rel_rms": dec.rms_cv,
+                                      "thermal_heldout_rel_rms_before": dec.rms_incumbent,
+                                      "thermal_gate_p_value": dec.p_value}, tf.to_thermal("gauss"))
+            accept["mag"] = True
+            notes["gate"]["mag"] = dec
+    notes.setdefault("thermal", {})["mag"] = ent

@@ -12,7 +12,10 @@ import numpy as np
 
 __all__ = ["RngLike", "as_rng"]
 
-RngLike = Union[int, None, np.random.Generator]
+#: the Generator named as a string: evaluating np.random here would import numpy.random
+#: (~7 MB resident with the hashlib it pulls in) into every process that only names the type,
+#: the daemon among them (its random numbers are all drawn in the calibration worker)
+RngLike = Union[int, None, "np.random.Generator"]
 
 
 def as_rng(rng: RngLike) -> np.random.Generator:

@@ -63,6 +63,22 @@ def test_worker_runs_a_job_in_its_own_process_and_none_stays():
     assert r.running() == 0 and r.started == 1 and r.died == 0
 
 
+def test_without_openssl_keeps_libcrypto_out_and_hashes_the_same():
+    """The daemon and its worker leave OpenSSL unloaded (numpy.random would load it through
+    hashlib: ~3.5 MB resident each); SHA-256 (the sensor fingerprint) gives the same digest."""
+    import hashlib
+    code = ("import sys\n"
+            "from imucald.daemon.worker import without_openssl\n"
+            "ok = without_openssl()\n"
+            "import numpy.random, hashlib\n"
+            "numpy.random.default_rng(1).random()\n"
+            "maps = open('/proc/self/maps').read()\n"
+            "print(ok, 'libcrypto' in maps, hashlib.sha256(b'imucald').hexdigest())\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.split() == ["True", "False", hashlib.sha256(b"imucald").hexdigest()]
+
+
 def test_a_worker_that_dies_fails_its_job_in_one_line_and_the_next_job_runs():
     r = WorkerRunner(timeout_s=60)
     with pytest.raises(WorkerDied, match=r"the calibration worker was killed \(SIGABRT; the OOM killer "

@@ -45,6 +45,8 @@ def _daemon_config(args, with_overrides: bool = False):
 
 
 def cmd_run(args) -> int:
+    from ..daemon.worker import without_openssl
+    without_openssl()                   # before numpy: the daemon's resident set (issue 15)
     from ..daemon.run import Daemon
     from .boards import open_board
     from .faults import faults_from_options

@@ -26,7 +26,23 @@ import sys
 import threading
 from concurrent.futures import Executor, Future
 
-__all__ = ["WorkerRunner", "WorkerDied", "WorkerTimeout", "main"]
+__all__ = ["WorkerRunner", "WorkerDied", "WorkerTimeout", "main", "without_openssl"]
+
+
+def without_openssl() -> bool:
+    """Keep OpenSSL's libcrypto out of this process, before anything imports hashlib:
+    numpy.random loads it (through secrets and hmac) though nothing here uses it, and it
+    costs ~3.5 MB resident in the daemon and again in each worker.  hashlib then serves
+    SHA-256 (the sensor fingerprint) from Python's built-in module: the same digests.
+    Only where that built-in module exists (some builds leave it out); returns True if
+    applied."""
+    import importlib.util
+    if "hashlib" in sys.modules or "_hashlib" in sys.modules:
+        return False
+    if not any(importlib.util.find_spec(m) for m in ("_sha256", "_sha2")):
+        return False
+    sys.modules["_hashlib"] = None       # import _hashlib raises ImportError: the fallback
+    return True
 
 
 class WorkerDied(RuntimeError):
@@ -161,6 +177,7 @@ def main(argv=None) -> int:
     except OSError:
         pass
     out = sys.stdout.buffer
+    without_openssl()
     try:
         mod, name, args, kwargs = pickle.loads(sys.stdin.buffer.read())
         import importlib

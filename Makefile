@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 TSTAMP := $(VENV)/.installed-test
 
-.PHONY: run test bench clean test-deps
+.PHONY: run test bench clean test-deps install uninstall
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 9))' || \
@@ -49,6 +49,22 @@ test-deps:
 
 bench: $(TSTAMP)
 	$(BIN)/python bench/speed.py
+
+# As a system service (README "Run as a service"): the venv in PREFIX (/opt/imucald) with the
+# mqtt extra, /etc/imucald/imucald.yaml where there is none, the units in /etc/systemd/system,
+# an i2c udev rule where none exists.  DESTDIR=DIR stages into DIR and changes nothing else;
+# NO_VENV=1 lays out the files only; `make uninstall` keeps the configuration and the
+# calibrations unless PURGE=1.  packaging/install.sh does the work.
+INSTALL_VARS = DESTDIR="$(DESTDIR)" PREFIX="$(or $(PREFIX),/opt/imucald)" PYTHON="$(PYTHON)" \
+	SYSCONFDIR="$(or $(SYSCONFDIR),/etc/imucald)" UNITDIR="$(or $(UNITDIR),/etc/systemd/system)" \
+	UDEVDIR="$(or $(UDEVDIR),/etc/udev/rules.d)" DOCDIR="$(or $(DOCDIR),/usr/share/doc/imucald)" \
+	EXTRAS="$(if $(filter undefined,$(origin EXTRAS)),mqtt,$(EXTRAS))" NO_VENV="$(NO_VENV)" PURGE="$(PURGE)"
+
+install:
+	@$(INSTALL_VARS) sh packaging/install.sh install
+
+uninstall:
+	@$(INSTALL_VARS) sh packaging/install.sh uninstall
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -12,8 +12,8 @@ The Pi factor (how many times longer a Pi core takes for the same work) is the r
 single-thread 7-Zip benchmark ratings (``7z b -mmt1``, the "Tot:" MIPS per unit of CPU use,
 R/U, so that other load on this machine does not lower it):
 
-* here: measured by this script (``7z b -mmt1 -md23``, the dictionaries the Pi runs used),
-  or --mips N;
+* here: measured by this script (``7z b -mmt1 -md23``, the dictionaries the Pi runs used;
+  median of 3), or --mips N;
 * Raspberry Pi Zero 2 W (RP3A0, 4 x Cortex-A53 at 1000 MHz, Raspberry Pi OS Buster): 838;
 * Raspberry Pi 4 B (BCM2711, 4 x Cortex-A72 at 1800 MHz, Raspberry Pi OS Bullseye arm64): 1769;
 
@@ -46,14 +46,18 @@ RUNS = (("mpu6050", 100), ("mpu6050", 1000), ("mpu9250", 100), ("mpu9250", 1000)
         ("9dof", 100), ("9dof", 400))
 
 
-def mips_here():
-    """Single-thread 7-Zip rating here (Tot: R/U MIPS), or None without 7z."""
+def mips_here(runs=3):
+    """Single-thread 7-Zip rating here (Tot: R/U MIPS, median of ``runs``), or None without 7z."""
     exe = next((e for e in ("7z", "7za", "7zz") if shutil.which(e)), None)
     if exe is None:
         return None
-    p = subprocess.run([exe, "b", "-mmt1", "-md23"], capture_output=True, text=True)
-    m = re.search(r"^Tot:\s+\d+\s+(\d+)\s+(\d+)", p.stdout, re.M)
-    return float(m.group(1)) if m else None
+    out = []
+    for _ in range(runs):
+        p = subprocess.run([exe, "b", "-mmt1", "-md23"], capture_output=True, text=True)
+        m = re.search(r"^Tot:\s+\d+\s+(\d+)\s+(\d+)", p.stdout, re.M)
+        if m:
+            out.append(float(m.group(1)))
+    return float(np.median(out)) if out else None
 
 
 def main():

@@ -126,11 +126,16 @@ def _nan(x):
     return float("nan") if x is None else x
 
 
+def _nanmax(*xs):
+    xs = [x for x in xs if x == x]
+    return max(xs) if xs else float("nan")
+
+
 def watch_job(pid, start, timeout_s=120.0):
     """Over one job, from ``start()`` (it asks for the job, or does nothing to wait for the
     daemon's own) until a worker has come and gone: peak (daemon VmRSS + workers' VmHWM) MB,
-    peak (daemon + workers) PSS MB and peak distinct physical MB (every 5th poll)."""
-    seen, peak, ppss, puni, k = set(), 0.0, 0.0, None, 0
+    peak (daemon + workers) PSS MB and peak distinct physical MB."""
+    seen, peak, ppss, puni = set(), 0.0, 0.0, None
     t_end = time.monotonic() + timeout_s
     start()
     while time.monotonic() < t_end:
@@ -139,10 +144,9 @@ def watch_job(pid, start, timeout_s=120.0):
             seen.update(ws)
             peak = max(peak, (_status_kb(pid, "VmRSS") + sum(_status_kb(w, "VmHWM") for w in ws)) / 1024)
             ppss = max(ppss, sum(pss_kb(q) for q in [pid] + ws) / 1024)
-            if k % 5 == 0:
-                u = union_mb([pid] + ws)
-                puni = u if puni is None or u is None else max(puni, u)
-            k += 1
+            u = union_mb([pid] + ws)              # None when a worker ended mid-read
+            if u is not None:
+                puni = u if puni is None else max(puni, u)
         elif seen:
             return peak, ppss, _nan(puni)
         time.sleep(0.005)
@@ -201,7 +205,7 @@ def main():
     print(f"  idle before any calibration  {med(lambda r: r[0][0]):5.1f} MB RSS  {med(lambda r: r[0][1]):5.1f} MB PSS")
     print(f"  while calibrating (peak)     {med(lambda r: max(r[1][0], r[2][0])):5.1f} MB RSS  "
           f"{med(lambda r: max(r[1][1], r[2][1])):5.1f} MB PSS  "
-          f"{med(lambda r: max(r[1][2], r[2][2])):5.1f} MB distinct physical pages")
+          f"{med(lambda r: _nanmax(r[1][2], r[2][2])):5.1f} MB distinct physical pages")
     print(f"  idle after calibrating       {med(lambda r: r[3][0]):5.1f} MB RSS  {med(lambda r: r[3][1]):5.1f} MB PSS")
     print(f"  daemon's own peak (VmHWM)    {med(lambda r: r[4]):5.1f} MB")
     return 0

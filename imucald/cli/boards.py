@@ -39,6 +39,11 @@ def emulated_bus(board: str, speed: Optional[float] = None, seed: int = 0, poses
     return Bus(eb, name=f"emulated {board}", clock=clock)
 
 
+#: the emulated board's tour under `imucald run` (and `make run`): hand-held, short holds;
+#: the tremor comes from --tremor-dps
+RUN_TOUR = dict(hold_s=(1.5, 4.0), move_s=(1.2, 1.8), lead_s=1.0)
+
+
 def real_bus_number(emulate: str, bus: Optional[int]) -> Optional[int]:
     """The /dev/i2c-N number to open, or None to emulate.  ``emulate``: yes, no or auto
     (auto emulates only when no bus is given and none exists)."""

@@ -48,7 +48,7 @@ def cmd_run(args) -> int:
     from ..daemon.worker import without_openssl
     without_openssl()                   # before numpy: the daemon's resident set (issue 15)
     from ..daemon.run import Daemon
-    from .boards import open_board
+    from .boards import RUN_TOUR, open_board
     from .faults import faults_from_options
     cfg, path, overrides = _daemon_config(args, with_overrides=True)
     _setup_logging(cfg["log"]["level"])
@@ -62,8 +62,7 @@ def cmd_run(args) -> int:
     board, bus, desc = open_board(s["board"], s["rate_hz"], emulate, s["bus"], speed=args.speed,
                                   mag=s["magnetometer"],
                                   seed=args.seed, faults=faults_from_options(args.fault),
-                                  tour=dict(hold_s=(1.5, 4.0), move_s=(1.2, 1.8), lead_s=1.0,
-                                            tremor_dps=args.tremor_dps), **kw)
+                                  tour=dict(RUN_TOUR, tremor_dps=args.tremor_dps), **kw)
     d = Daemon(cfg, board, bus, desc, duration_s=args.duration, echo=args.echo, config_path=path,
                overrides=overrides)
     return d.run()

@@ -36,6 +36,17 @@ def _hand_rotations(rng):
     return np.array([rotation_from_up(u, rng.uniform(0, 2 * np.pi)) for u in ups])
 
 
+def _hand_recording(tmp_path, seed):
+    """A simulated 10-pose hand-held session (1.5-3 s holds, tremor) written to a file."""
+    rng = np.random.default_rng(seed)
+    truth = draw_truth("mpu6050", rng)
+    s = simulate_session("mpu6050", _hand_rotations(rng), rng, hold_s=(1.5, 3.0),
+                         move_s=(1.5, 3.0), lead_s=0.0, tremor_dps=TREMOR_DPS, truth=truth)
+    path = tmp_path / "hand.csv"
+    write_recording(s.recording, str(path))
+    return path, truth
+
+
 def _calibrate_json(path, capsys):
     assert main(["calibrate", str(path), "--json"]) == 0
     return json.loads(capsys.readouterr().out)
@@ -59,12 +70,7 @@ def _check_against_truth(d, truth9):
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_calibrate_finds_every_hand_held_pose_with_tremor(tmp_path, capsys, seed):
-    rng = np.random.default_rng(seed)
-    truth = draw_truth("mpu6050", rng)
-    s = simulate_session("mpu6050", _hand_rotations(rng), rng, hold_s=(1.5, 3.0),
-                         move_s=(1.5, 3.0), lead_s=0.0, tremor_dps=TREMOR_DPS, truth=truth)
-    path = tmp_path / "hand.csv"
-    write_recording(s.recording, str(path))
+    path, truth = _hand_recording(tmp_path, seed)
     d = _calibrate_json(path, capsys)
     assert d["poses"] == 10
     flagged = _check_against_truth(d, truth.accel)
@@ -102,12 +108,7 @@ def test_calibrate_on_the_emulated_boards_tremor_tour(tmp_path, capsys):
 
 def test_replay_of_a_hand_held_session_applies_a_provisional_calibration_naming_the_undetermined(
         tmp_path, capsys):
-    rng = np.random.default_rng(1)      # a session whose jitter leaves alpha_yz undetermined
-    truth = draw_truth("mpu6050", rng)
-    s = simulate_session("mpu6050", _hand_rotations(rng), rng, hold_s=(1.5, 3.0),
-                         move_s=(1.5, 3.0), lead_s=0.0, tremor_dps=TREMOR_DPS, truth=truth)
-    rec = tmp_path / "hand.csv"
-    write_recording(s.recording, str(rec))
+    rec, _ = _hand_recording(tmp_path, 1)   # a session whose jitter leaves alpha_yz undetermined
     d = _calibrate_json(rec, capsys)
     assert {f["name"]: f["reason"] for f in d["flags"]} == {"alpha_yz": "undetermined"}
     lines, err = _replay(rec, "--log-level", "info", "--state-dir", str(tmp_path / "st"))

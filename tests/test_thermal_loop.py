@@ -53,3 +53,16 @@ def test_gap_names_it_calibrate_removes_it_gap_says_none(request, capsys, sensor
     assert np.all(np.abs(coef - want) <= 4 * se), (coef, want, se)
     assert main(["apply", str(cal_path), str(rec), "-o", str(out)]) == 0
     assert _verdict(capsys, str(out), "--sensor", sensor) == {sensor: "none"}
+
+
+def test_apply_refuses_a_calibration_of_another_board_in_one_line(warm, warm9, capsys):
+    d, rec, _ = warm
+    _, rec9, _ = warm9
+    cal = d / "g.yaml"
+    assert main(["calibrate", str(rec), "--sensor", "gyro", "-o", str(cal)]) == 0
+    capsys.readouterr()
+    assert main(["apply", str(cal), str(rec9), "-o", str(d / "x.rec")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "made for board 'mpu6050', this is '9dof'" in err
+    assert not (d / "x.rec").exists()
+    assert main(["apply", str(cal), str(rec), "-o", str(d / "no" / "x.rec")]) == 73

@@ -93,7 +93,7 @@ def check_args(args) -> None:
     """Per command: output paths, and the rate against the board (record; run checks it
     with its configuration)."""
     cmd = getattr(args, "cmd", None)
-    if cmd in ("simulate", "record"):
+    if cmd in ("simulate", "record", "apply"):
         output_file(args.output, "-o")
     if cmd == "simulate" and args.truth:
         output_file(args.truth, "--truth")

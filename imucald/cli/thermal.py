@@ -97,6 +97,10 @@ def cmd_apply(args) -> int:
     from ..recording import Recording, read_recording, write_recording
     cal = load(args.calibration)
     rec = read_recording(args.recording)
+    board = rec.meta.get("board", "unknown")
+    why = None if "unknown" in (board, cal.board) else cal.mismatch(board)
+    if why:
+        raise UserError(f"{args.calibration}: {why} ({args.recording}); use a calibration made on this board")
     T = rec.temp
     if T is None and any(p is not None and p.thermal for p in (cal.accel, cal.gyro, cal.mag)):
         eprint(f"imucald: {args.recording}: no temp column: thermal terms applied at their reference "

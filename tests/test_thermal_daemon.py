@@ -62,3 +62,28 @@ def test_the_magnetometer_hard_iron_learnt_in_the_field(bt):
     want = np.asarray(eff[0]["params"]["coef"])
     assert np.all(np.abs(th["bias_poly_gauss"][0] - want) <= 4 * th["bias_poly_stderr_gauss"][0]), (th, want)
     assert pipe.status()["thermal"]["mag"]["order"] == 1
+
+
+def test_the_thermal_log_survives_a_restart(tmp_path):
+    """The log is saved as thermal.csv (a pose file with the gyro's deviations) and resumed:
+    a daemon that reboots every day keeps learning over the days."""
+    from imucald.daemon.stillness import StaticInterval
+    from imucald.daemon.state import load_poses, save_poses
+    from imucald.daemon.thermallog import ThermalLog
+    rng = np.random.default_rng(1)
+    log = ThermalLog()
+    for i in range(20):
+        a = rng.normal(size=3)
+        a /= np.linalg.norm(a)
+        gc = np.diag(rng.uniform(1e-6, 4e-6, 3))
+        sc = np.diag(rng.uniform(1e-6, 2e-6, 3))
+        assert log.add(StaticInterval(a, sc / 500, sc, 500, 10.0 * i, 10.0 * i + 5, 20 + 0.7 * i,
+                                      rng.normal(size=3), gc))
+    assert not log.add(StaticInterval(np.ones(3), np.eye(3), np.eye(3), 5, 0, 1, np.nan))
+    save_poses(str(tmp_path), log.pose_set(), "thermal.csv")
+    back = ThermalLog()
+    back.load(load_poses(str(tmp_path), "thermal.csv"))
+    a, b = log.arrays(), back.arrays()
+    assert len(back) == 20 and back.span_c() == pytest.approx(log.span_c())
+    for k in ("acc", "temp", "gyro", "gyro_var", "n"):
+        assert np.allclose(a[k], b[k], rtol=1e-7, atol=0), k

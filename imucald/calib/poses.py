@@ -151,7 +151,8 @@ _POSE_COLS = ["t0", "t1", "n", "ax", "ay", "az", "sax", "say", "saz"]
 
 def write_poses(ps: PoseSet, path: str) -> None:
     """CSV: magic line, '# key: value' header, columns t0,t1,n,ax,ay,az,sax,say,saz
-    [,gx,gy,gz][,mx,my,mz][,temp]; s* are within-pose sample standard deviations (g)."""
+    [,gx,gy,gz[,sgx,sgy,sgz]][,mx,my,mz][,temp]; s* are within-pose sample standard
+    deviations (g; sg*: deg/s, written when the gyro means carry their covariance)."""
     from ..atomic import atomic_write_text
     cols = list(_POSE_COLS)
     sd = np.sqrt(np.einsum("nii->ni", ps.acc_sample_cov)) if ps.acc_sample_cov is not None \
@@ -160,6 +161,9 @@ def write_poses(ps: PoseSet, path: str) -> None:
     if ps.gyro is not None:
         cols += ["gx", "gy", "gz"]
         parts.append(ps.gyro)
+        if ps.gyro_cov is not None:
+            cols += ["sgx", "sgy", "sgz"]
+            parts.append(np.sqrt(np.einsum("nii->ni", ps.gyro_cov) * ps.n[:, None]))
     if ps.mag is not None:
         cols += ["mx", "my", "mz"]
         parts.append(ps.mag)
@@ -223,7 +227,10 @@ def read_poses(path: str) -> PoseSet:
         scov = None
         acov = np.full((N, 3, 3), np.nan)
     g3 = lambda ks: np.column_stack([c[k] for k in ks]) if all(k in c for k in ks) else None
+    gy, sg = g3(["gx", "gy", "gz"]), g3(["sgx", "sgy", "sgz"])
+    gcov = None if gy is None or sg is None else \
+        np.einsum("ni,ij->nij", sg ** 2 / np.maximum(n, 1)[:, None], np.eye(3))
     return PoseSet(acc, acov, n, c.get("t0", np.arange(N, dtype=float)),
                    c.get("t1", np.arange(N, dtype=float)), scov,
-                   g3(["gx", "gy", "gz"]), None, g3(["mx", "my", "mz"]), None,
+                   gy, gcov, g3(["mx", "my", "mz"]), None,
                    c.get("temp"), meta)

@@ -22,7 +22,7 @@ RETRY_S = (1.0, 2.0, 5.0, 10.0, 30.0)
 
 
 class StateWriter:
-    """``save(kind, obj)`` writes one object (kinds: "calibration", "poses"); ``where``
+    """``save(kind, obj)`` writes one object (kinds: "calibration", "poses", "thermal"); ``where``
     names the directory for messages."""
 
     def __init__(self, save: Callable[[str, Any], None], where: str, retry_s=RETRY_S):
@@ -104,7 +104,7 @@ class StateWriter:
             todo.update(final or {})
             self._pending.clear()
         failed = []
-        for kind in ("poses", "calibration"):
+        for kind in ("poses", "thermal", "calibration"):
             if kind in todo and not self._attempt(kind, todo[kind]):
                 failed.append(kind)
         return failed

@@ -205,7 +205,8 @@ class Pipeline:
 
     # -- poses ------------------------------------------------------------------------
     def _pose(self, iv) -> None:
-        self.thermal_log.add(iv)
+        if self.thermal_log.add(iv):
+            self.persist("thermal", self.thermal_log.pose_set())
         what = self.acc.add(iv)
         if what == "rejected":
             return

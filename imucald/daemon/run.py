@@ -134,6 +134,11 @@ class Daemon:
             self.pipe.acc.load(ps)
             self.pipe.next_cal_added = 0
             log.info("resumed %d poses from %s", len(ps), os.path.join(sd, "poses.csv"))
+        tl = load_poses(sd, "thermal.csv")
+        if tl is not None and len(tl):
+            self.pipe.thermal_log.load(tl)
+            log.info("resumed %d still intervals over %.1f degC for the thermal terms from %s",
+                     len(self.pipe.thermal_log), self.pipe.thermal_log.span_c(), os.path.join(sd, "thermal.csv"))
         o, c = cfg["output"], cfg["control"]
         self.sinks: list = []
         self.sinks += [SocketSink(self._path(rd, o["socket"]), o["format"], self.board.name,
@@ -290,6 +295,8 @@ class Daemon:
         sd = self.cfg["state"]["directory"]
         if kind == "poses":
             save_poses(sd, obj)
+        elif kind == "thermal":
+            save_poses(sd, obj, "thermal.csv")
         else:
             save_calibration(sd, obj, self.cfg["calibration"]["history"])
 
@@ -312,6 +319,8 @@ class Daemon:
             final = {}
             if hasattr(self, "pipe"):               # synchronous: nothing is lost
                 final["poses"] = self.pipe.acc.pose_set()
+                if len(self.pipe.thermal_log):
+                    final["thermal"] = self.pipe.thermal_log.pose_set()
                 if self.pipe.applied.id:
                     final["calibration"] = self.pipe.applied
             failed = self.writer.close(final)

@@ -7,7 +7,7 @@ the files of the sensor the daemon last ran with; every other sensor seen there 
 its own under ``sensors/<id>/``::
 
     STATE/sensor.yaml                       id, fingerprint, first_seen, last_seen
-    STATE/calibration.yaml, poses.csv, history/   that sensor's calibration and poses
+    STATE/calibration.yaml, poses.csv, thermal.csv, history/   that sensor's calibration, poses, thermal log
     STATE/sensors/<id>/...                  the same files of a sensor seen before
 
 At start :func:`adopt_sensor` compares the running sensor with ``sensor.yaml``.  A
@@ -32,7 +32,7 @@ __all__ = ["fingerprint_id", "adopt_sensor", "SENSOR_FILE", "SENSOR_FILES"]
 log = logging.getLogger("imucald")
 SENSOR_FILE = "sensor.yaml"
 #: the per-sensor files of the state directory
-SENSOR_FILES = ("calibration.yaml", "poses.csv", "history")
+SENSOR_FILES = ("calibration.yaml", "poses.csv", "thermal.csv", "history")
 
 
 def fingerprint_id(fp: Dict[str, Any]) -> str:

@@ -69,12 +69,14 @@ def load_calibration(state_dir: str, board: Optional[str] = None,
     return cal
 
 
-def save_poses(state_dir: str, ps: PoseSet) -> None:
-    write_poses(ps, os.path.join(state_dir, "poses.csv"))
+def save_poses(state_dir: str, ps: PoseSet, name: str = "poses.csv") -> None:
+    write_poses(ps, os.path.join(state_dir, name))
 
 
-def load_poses(state_dir: str) -> Optional[PoseSet]:
-    path = os.path.join(state_dir, "poses.csv")
+def load_poses(state_dir: str, name: str = "poses.csv") -> Optional[PoseSet]:
+    """The saved poses (``name``: poses.csv, or thermal.csv: the thermal log), or None; an
+    unreadable file is set aside."""
+    path = os.path.join(state_dir, name)
     if not os.path.exists(path):
         return None
     try:

@@ -14,6 +14,7 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
+from ..calib.poses import PoseSet
 from .stillness import StaticInterval
 
 __all__ = ["ThermalLog", "MAX_INTERVALS", "thermal_status"]
@@ -57,6 +58,32 @@ class ThermalLog:
             return 0.0
         t = [p.temp for p in self.items]
         return float(max(t) - min(t))
+
+    def pose_set(self) -> PoseSet:
+        """The log as a pose set (the state directory's thermal.csv)."""
+        P = self.items
+        N = len(P)
+        has_g = N > 0 and all(p.gyro is not None and p.gyro_cov is not None for p in P)
+        return PoseSet(acc=np.array([p.acc for p in P]).reshape(N, 3),
+                       acc_cov=np.array([p.acc_cov for p in P]).reshape(N, 3, 3),
+                       n=np.array([p.n for p in P], int), t0=np.array([p.t0 for p in P], float),
+                       t1=np.array([p.t1 for p in P], float),
+                       acc_sample_cov=np.array([p.acc_sample_cov for p in P]).reshape(N, 3, 3),
+                       gyro=np.array([p.gyro for p in P]) if has_g else None,
+                       gyro_cov=np.array([p.gyro_cov for p in P]) if has_g else None,
+                       temp=np.array([p.temp for p in P], float))
+
+    def load(self, ps: PoseSet) -> None:
+        """Resume from a saved log (the poses whose temperature is known)."""
+        self.items = []
+        for i in range(len(ps)):
+            if ps.temp is None or not np.isfinite(ps.temp[i]):
+                continue
+            self.items.append(StaticInterval(
+                ps.acc[i], ps.acc_cov[i], ps.acc_sample_cov[i], int(ps.n[i]), float(ps.t0[i]),
+                float(ps.t1[i]), float(ps.temp[i]), None if ps.gyro is None else ps.gyro[i],
+                None if ps.gyro_cov is None else ps.gyro_cov[i]))
+        self.items = self.items[-self.max:]
 
     def arrays(self) -> Optional[Dict[str, np.ndarray]]:
         """The job's ``thermal`` data: acc (N, 3) g, acc_cov (N, 3, 3), gyro (N, 3) deg/s or

@@ -87,3 +87,17 @@ def test_the_thermal_log_survives_a_restart(tmp_path):
     assert len(back) == 20 and back.span_c() == pytest.approx(log.span_c())
     for k in ("acc", "temp", "gyro", "gyro_var", "n"):
         assert np.allclose(a[k], b[k], rtol=1e-7, atol=0), k
+
+
+def test_the_log_is_bounded_and_a_long_still_spell_does_not_push_out_the_range():
+    from imucald.daemon.stillness import StaticInterval
+    from imucald.daemon.thermallog import ThermalLog
+    log = ThermalLog(max_intervals=50)
+    c = np.eye(3) * 1e-8
+    up = np.array([0.0, 0.0, 1.0])
+    for T in np.arange(10.0, 30.0, 1.0):                 # one pose per degC, 20 in all
+        log.add(StaticInterval(up, c, c, 100, 0, 1, T))
+    for i in range(500):                                  # hours still at 30 degC
+        log.add(StaticInterval(up, c, c, 100, 0, 1, 30.0 + 0.001 * i))
+    assert len(log) == 50 and log.span_c() >= 20.0
+    assert sorted(p.temp for p in log.items)[:20] == list(np.arange(10.0, 30.0, 1.0))

@@ -101,3 +101,24 @@ def test_the_log_is_bounded_and_a_long_still_spell_does_not_push_out_the_range()
         log.add(StaticInterval(up, c, c, 100, 0, 1, 30.0 + 0.001 * i))
     assert len(log) == 50 and log.span_c() >= 20.0
     assert sorted(p.temp for p in log.items)[:20] == list(np.arange(10.0, 30.0, 1.0))
+
+
+def test_imucald_status_prints_the_thermal_terms_and_why_there_are_none(bt, tmp_path, monkeypatch, capsys):
+    """`imucald status` text: the span against the minimum and, per sensor, the terms in force."""
+    import imucald.daemon.control as control
+    from imucald.cli import main
+    rec = bt.session(100, 7.0, 0.75, 0.02, poses=30, rate_hz=50.0)
+    pipe, _, _ = bt.replay(rec, 10.0)
+    st = pipe.status()
+    st.update(board="mpu6050", rate_hz=50.0, bus="emulated", clients=0, clients_dropped=0,
+              board_stats={"samples": 1, "gaps": 0, "missing": 0, "bus_faults": 0})
+    monkeypatch.setattr(control, "request", lambda path, cmd: st)
+    assert main(["status", "--runtime-dir", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert f"thermal: {st['thermal']['intervals']} still intervals over " in out
+    assert "(calibration.thermal_min_span_c): constant only" in out
+    st["thermal"] = {"intervals": 40, "span_c": 14.1, "min_span_c": 10.0,
+                     "accel": {"order": 1, "t_min_c": 22.3, "t_max_c": 35.2, "note": "order 1: why"}}
+    assert main(["status", "--runtime-dir", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "thermal: 40 still intervals over 14.1 degC\n  accel: order 1 over 22.3..35.2 degC: order 1: why" in out

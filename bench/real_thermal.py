@@ -49,25 +49,14 @@ def predict(tf, T):
     return y.reshape(-1, 3), np.sqrt(var).reshape(-1, 3)
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--block", type=int, default=40)
-    a = ap.parse_args()
-    if not os.path.exists(PATH):
-        print(f"skipped: {PATH} is absent")
-        return
-    T, g, v = blocks(a.block)
+def held_out_bins(block=40):
+    """The fit on every other 2 degC bin and, per bin in between, (bin start degC, blocks,
+    observed, se_obs, predicted, se_pred, z, beyond the fitted range)."""
+    T, g, v = blocks(block)
     b = np.floor((T - 10.0) / 2.0).astype(int)          # 2 degC bins from 10 degC
     train = b % 2 == 0
     tf = fit_bias_series(T[train], g[train], v[train], rng=0)
-    print(f"{len(T)} blocks of {a.block} samples; trained on {train.sum()} blocks in the bins from "
-          + ", ".join(str(10 + 2 * int(k)) for k in sorted(set(b[train]))) + " degC")
-    print(f"fit: {tf.note}; inflation x{tf.inflation:.1f}")
-    for k in range(tf.order):
-        print(f"  (T - {tf.t_ref_c:.1f})^{k + 1}: " + ", ".join(
-            f"{c * 1e3:+.3f}+-{s * 1e3:.3f}" for c, s in zip(tf.bias_poly[k], tf.bias_poly_stderr[k])) + f" mdps/degC^{k + 1}")
-    zs, beyond = [], []
-    print(" bin degC  blocks   observed (mdps)                 predicted (mdps)                 z")
+    rows = []
     for k in sorted(set(b[~train])):
         m = b == k
         if m.sum() < 3:
@@ -77,11 +66,31 @@ def main():
         pred, se_pred = predict(tf, np.array([T[m].mean()]))
         z = (obs - pred[0]) / np.sqrt(se_obs ** 2 + se_pred[0] ** 2)
         out = T[m].mean() > tf.t_max_c or T[m].mean() < tf.t_min_c
-        (beyond if out else zs).append(z)
-        f = lambda x, s: "[" + ", ".join(f"{xi * 1e3:+7.1f}+-{si * 1e3:4.1f}" for xi, si in zip(x, s)) + "]"
-        print(f" {10 + 2 * k:2d}-{12 + 2 * k:2d}  {m.sum():5d}   {f(obs, se_obs)}  {f(pred[0], se_pred[0])}  "
+        rows.append((10 + 2 * int(k), int(m.sum()), obs, se_obs, pred[0], se_pred[0], z, bool(out)))
+    return tf, rows, sorted({10 + 2 * int(k) for k in set(b[train])}), int(train.sum()), len(T)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--block", type=int, default=40)
+    a = ap.parse_args()
+    if not os.path.exists(PATH):
+        print(f"skipped: {PATH} is absent")
+        return
+    tf, rows, bins, ntrain, nblocks = held_out_bins(a.block)
+    print(f"{nblocks} blocks of {a.block} samples; trained on {ntrain} blocks in the bins from "
+          + ", ".join(str(x) for x in bins) + " degC")
+    print(f"fit: {tf.note}; inflation x{tf.inflation:.1f}")
+    for k in range(tf.order):
+        print(f"  (T - {tf.t_ref_c:.1f})^{k + 1}: " + ", ".join(
+            f"{c * 1e3:+.3f}+-{s * 1e3:.3f}" for c, s in zip(tf.bias_poly[k], tf.bias_poly_stderr[k])) + f" mdps/degC^{k + 1}")
+    print(" bin degC  blocks   observed (mdps)                 predicted (mdps)                 z")
+    f = lambda x, s: "[" + ", ".join(f"{xi * 1e3:+7.1f}+-{si * 1e3:4.1f}" for xi, si in zip(x, s)) + "]"
+    for b0, n, obs, se_obs, pred, se_pred, z, out in rows:
+        print(f" {b0:2d}-{b0 + 2:2d}  {n:5d}   {f(obs, se_obs)}  {f(pred, se_pred)}  "
               + " ".join(f"{zi:+5.1f}" for zi in z) + ("  (beyond the fitted range: held)" if out else ""))
-    zs = np.array(zs)
+    zs = np.array([r[6] for r in rows if not r[7]])
+    beyond = [r[6] for r in rows if r[7]]
     print(f"inside the fitted range: |z| <= 2 in {int((np.abs(zs) <= 2).sum())} of {zs.size} (bin, axis) "
           f"predictions; per axis RMS z " + ", ".join(f"{a} {np.sqrt(np.mean(zs[:, i] ** 2)):.2f}"
                                                      for i, a in enumerate("xyz")))

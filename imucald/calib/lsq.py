@@ -13,6 +13,7 @@ information on then stays near its prior instead of running to a search bound.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
@@ -104,7 +105,7 @@ class Problem:
     def fitness(self, z: np.ndarray) -> np.ndarray:
         """The objective: data sum of squares plus the prior term (module doc)."""
         z = np.asarray(z, float)
-        self.nfev += int(np.prod(z.shape[:-1])) if z.ndim > 1 else 1
+        self.nfev += math.prod(z.shape[:-1]) if z.ndim > 1 else 1
         f = self.model.fitness(self.expand(z), self.raw, self.target, self.weights)
         if self._pw is not None:
             p = (z - self.prior_mean) * self._pw

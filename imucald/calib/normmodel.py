@@ -6,6 +6,7 @@ fitness once for every model.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -82,7 +83,7 @@ class NormModel:
         raw = np.asarray(raw, float)
         # [A | c] rows grouped by output axis, (3*P, 4) @ [x, 1]^T (4, N): one BLAS call
         # for the whole population, giving h as three contiguous (P, N) blocks
-        P = int(np.prod(lead)) if lead else 1
+        P = math.prod(lead) if lead else 1
         Ac = self.affine_rows(theta.reshape(P, -1)).reshape(3 * P, 4)
         xh = np.concatenate([raw, np.ones((len(raw), 1))], axis=1)
         h = (Ac @ xh.T).reshape(3, P, len(raw))

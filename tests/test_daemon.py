@@ -136,7 +136,10 @@ def test_end_to_end_calibrates_and_streams_every_sample(tmp_path, board, speed, 
     i1 = next(i for i, l in enumerate(log) if "calibrating in the background" in l)
     assert i1 > i10 and "on 10 poses" in log[i1], err
     assert first["provisional"] is True and first["id"] == 1
-    assert first["accel_heldout_rms_g"] <= 2 * first["accel_predicted_heldout_rms_g"]
+    # 10 poses and 9 parameters leave one residual degree of freedom: every leave-one-out
+    # residual is then the same standard normal z times its predicted std, so the ratio of
+    # the RMSs is |z| (P(|z| > 4) = 6e-5; a bound of 2 failed 1 run in 20)
+    assert first["accel_heldout_rms_g"] <= 4 * first["accel_predicted_heldout_rms_g"]
     assert first["accel_heldout_rms_g"] < first["accel_heldout_rms_before_g"]
     assert imu[0]["cal"] == 0 and imu[-1]["cal"] >= 1
     still = np.array([o["acc_g"] for o in imu if o["still"] and o["cal"] >= 1])

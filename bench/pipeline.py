@@ -140,7 +140,7 @@ def rss(seconds):
         p = subprocess.Popen([sys.executable, "-m", "imucald.cli", "run", "--emulate", "--speed", "20",
                               "--min-poses", "10", "--state-dir", d, "--runtime-dir", d,
                               "--duration", str(20 * seconds)], stderr=subprocess.DEVNULL)
-        idle, busy = [], []         # daemon alone / daemon + its worker, kB, every 0.2 s
+        idle, busy = [], []         # daemon alone / daemon + its worker, kB, every 20 ms
         while p.poll() is None:
             try:
                 d = _rss_kb(p.pid)
@@ -148,7 +148,7 @@ def rss(seconds):
                 (busy if w else idle).append((d + w, d, w))
             except OSError:
                 pass
-            time.sleep(0.2)
+            time.sleep(0.02)        # a ga job's worker lives ~0.1 s: poll often enough to see it
     mb = lambda xs, k: max((x[k] for x in xs), default=0) / 1024
     return mb(idle, 0), mb(busy, 0), mb(busy, 2), len(busy)
 
@@ -196,9 +196,10 @@ def main():
     print(f"lateness behind schedule at 1 kHz, 20 ms batches (one batch = 20 ms): idle p99 {idle99:.1f} ms; "
           f"while {runs} ga-paper calibrations ran in the worker: p99 {cal99:.1f} ms, max {cal_max:.1f} ms")
     idle_mb, busy_mb, worker_mb, n = rss(8.0)
+    busy = (f"while calibrating daemon + worker {busy_mb:.1f} MB (worker {worker_mb:.1f} MB, {n} samples)"
+            if n else "no calibration worker was seen running (see bench/daemon_rss.py)")
     print(f"resident memory (ps RSS, peak): idle daemon {idle_mb:.1f} MB (no worker process between "
-          f"calibrations); while calibrating daemon + worker {busy_mb:.1f} MB (worker {worker_mb:.1f} MB, "
-          f"{n} samples)")
+          f"calibrations); {busy}")
 
 
 if __name__ == "__main__":

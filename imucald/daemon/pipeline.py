@@ -215,7 +215,9 @@ class Pipeline:
         cov = self.acc.coverage()
         need = self.cfg["calibration"]["min_poses"]
         nxt = f"; next: try {cov['missing'][0]}" if cov["missing"] else ""
-        msg = (f"pose {len(self.acc)}/{need} ({what}, {iv.t1 - iv.t0:.1f} s still): coverage "
+        n = len(self.acc)
+        count = f"{n}/{need}" if n <= need else f"{n} ({need} needed, reached)"
+        msg = (f"pose {count} ({what}, {iv.t1 - iv.t0:.1f} s still): coverage "
                f"{cov['covered']}/{cov['targets']}{nxt}")
         log.info(msg)
         self.events.append(msg)

@@ -37,6 +37,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..rng import as_rng
+from . import effect_forms
 from .heldout import heldout, lm_weighted, numjac, twin_rms
 from .stats import chi2_logsf
 from ..npstats import median
@@ -241,11 +242,11 @@ def _delta(model, z, x, u, k: int, sc: bool) -> np.ndarray:
     p = model.k
     th, eta = z[:p], z[p:]
     d = np.zeros_like(x)
-    for j in range(k):
-        d += np.outer(u ** (j + 1), eta[3 * j:3 * j + 3])
+    for j in range(k):          # the declared effect forms (calib/effect_forms.py), per power
+        d += effect_forms.thermal_bias(eta[3 * j:3 * j + 3], u ** (j + 1))
     if sc:
         A, c = model.affine(th)
-        d += (x - (-np.linalg.solve(A, c))) * np.outer(u, eta[3 * k:3 * k + 3])
+        d += effect_forms.thermal_scale(eta[3 * k:3 * k + 3], x - (-np.linalg.solve(A, c)), u)
     return d
 
 

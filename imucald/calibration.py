@@ -11,7 +11,9 @@ Every part is an affine correction in the sensor frame, ``corrected = A raw + c`
 - accel (``g``): a norm model of :mod:`imucald.calib.models` (``triangular9``,
   ``full12``, ``cosine*``), parameters as that model reports them;
 - gyro (``deg/s``): ``bias``: ``bias_dps`` (3), optionally ``matrix`` (9, row-major
-  scale/misalignment M: corrected = M (raw - bias(T))) and a thermal bias
+  scale/misalignment M: corrected = M (raw - bias(T) - G a), calib/gyrorot.py fits it from
+  the rotations between poses; each entry of M - I within +-0.5), ``g_sens_dps_per_g``
+  (9, row-major G, deg/s per g of calibrated specific force a; within +-10) and a thermal bias
   polynomial ``bias_temp_poly_dps`` (K rows of 3, coefficient of (T - temp_ref_c)^k,
   k = 1..K) with ``temp_ref_c``;
 - mag (``gauss``): ``mag_sym``/``mag_diag``/``mag_sphere``: ``hard_iron_gauss`` (3),
@@ -51,7 +53,9 @@ UNITS = {"accel": "g", "gyro": "deg/s", "mag": "gauss", "temperature": "degC", "
 SENSORS = ("accel", "gyro", "mag")
 _MAG_PARAMS = {"hard_iron_gauss": 3, "soft_iron": 6, "field_gauss": 0}
 _GYRO_REQUIRED = {"bias_dps": 3}
-_GYRO_OPTIONAL = {"matrix": 9, "bias_temp_poly_dps": -3, "temp_ref_c": 0}   # -3: (K, 3)
+_GYRO_OPTIONAL = {"matrix": 9, "g_sens_dps_per_g": 9, "bias_temp_poly_dps": -3, "temp_ref_c": 0}  # -3: (K, 3)
+#: plausible bounds: |M - I| (a gyro scale/misalignment matrix), |G| deg/s per g
+_GYRO_BOUNDS = {"matrix": (0.5, "scale and misalignment within 50 %"), "g_sens_dps_per_g": (10.0, "|G| <= 10 deg/s per g")}
 _SYM = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
 
 
@@ -169,9 +173,11 @@ class SensorCal:
             out = out - (raw - b0) * (pw[..., :len(S)] @ S)
         return out
 
-    def apply(self, raw, temp_c=None) -> np.ndarray:
+    def apply(self, raw, temp_c=None, acc_g=None) -> np.ndarray:
         """Correct raw readings (N, 3) in this sensor's unit; temp_c (N,) or a scalar degC
-        (a batch's temperature) feeds the thermal terms (unknown = NaN: those at t_ref_c)."""
+        (a batch's temperature) feeds the thermal terms (unknown = NaN: those at t_ref_c);
+        acc_g (N, 3) calibrated specific force feeds the gyro's g-sensitivity term (None:
+        that term is left out)."""
         x = np.asarray(raw, float)
         if x.ndim != 2 or x.shape[1] != 3:
             raise ValueError(f"{self.sensor}: raw readings must have shape (N, 3), got {x.shape}")
@@ -185,6 +191,8 @@ class SensorCal:
             poly = self.params["bias_temp_poly_dps"].reshape(-1, 3)
             drift = sum(np.outer(dt ** (k + 1), poly[k]) for k in range(len(poly)))
             x = x - drift
+        if acc_g is not None and "g_sens_dps_per_g" in self.params:
+            x = x - np.asarray(acc_g, float) @ self.params["g_sens_dps_per_g"].reshape(3, 3).T
         return x @ A.T + c
 
     # -- serialisation ---------------------------------------------------------------
@@ -225,6 +233,10 @@ class SensorCal:
                   "give " + ", ".join(req))
         _keys(pd, f"{path}.params", set(req), set(opt))
         params = {k: _array(pd[k], f"{path}.params.{k}", {**req, **opt}[k]) for k in pd}
+        for k, (lim, what) in (_GYRO_BOUNDS.items() if sensor == "gyro" else ()):
+            if k in params and np.max(np.abs(params[k] - (np.eye(3).ravel() if k == "matrix" else 0))) > lim:
+                _fail(f"{path}.params.{k}", f"{params[k].tolist()} is not plausible ({what})",
+                      "check the row-major order and units, or remove it")
         if ("bias_temp_poly_dps" in params) != ("temp_ref_c" in params):
             _fail(f"{path}.params.temp_ref_c", "bias_temp_poly_dps and temp_ref_c go together",
                   "give both or neither")
@@ -295,8 +307,9 @@ class Calibration:
     def apply_accel(self, acc_g, temp_c=None):
         return np.asarray(acc_g, float) if self.accel is None else self.accel.apply(acc_g, temp_c)
 
-    def apply_gyro(self, gyro_dps, temp_c=None):
-        return np.asarray(gyro_dps, float) if self.gyro is None else self.gyro.apply(gyro_dps, temp_c)
+    def apply_gyro(self, gyro_dps, temp_c=None, acc_g=None):
+        """acc_g: the calibrated specific force, for a g-sensitivity term (None: left out)."""
+        return np.asarray(gyro_dps, float) if self.gyro is None else self.gyro.apply(gyro_dps, temp_c, acc_g)
 
     def apply_mag(self, mag_gauss, temp_c=None):
         return np.asarray(mag_gauss, float) if self.mag is None else self.mag.apply(mag_gauss, temp_c)
@@ -418,7 +431,7 @@ def apply(cal: Calibration, accel_g=None, gyro_dps=None, mag_gauss=None, temp_c=
     if accel_g is not None:
         out["accel_g"] = cal.apply_accel(accel_g, temp_c)
     if gyro_dps is not None:
-        out["gyro_dps"] = cal.apply_gyro(gyro_dps, temp_c)
+        out["gyro_dps"] = cal.apply_gyro(gyro_dps, temp_c, out.get("accel_g"))
     if mag_gauss is not None:
         out["mag_gauss"] = cal.apply_mag(mag_gauss, temp_c)
     return out

@@ -149,9 +149,10 @@ class Pipeline:
             temp = None if b.temp is None else b.temp[keep]
             # thermal terms: evaluated once per batch, at its mean temperature (NaN: t_ref)
             tb = None if temp is None or not len(temp) else float(temp.mean())
-            gyro = None if b.gyro is None else ap.apply_gyro(b.gyro[keep], tb)
+            acc = ap.apply_accel(b.acc[keep], tb)
+            gyro = None if b.gyro is None else ap.apply_gyro(b.gyro[keep], tb, acc)
             mag = None if b.mag is None else ap.apply_mag(b.mag[keep], tb)
-            out.append(encode_samples(self.fmt, b.seq[keep], b.t[keep], ap.apply_accel(b.acc[keep], tb),
+            out.append(encode_samples(self.fmt, b.seq[keep], b.t[keep], acc,
                                       gyro, temp, mag, still[keep], ap.id, self._covariance()))
         out.append(self.poll_calibration())
         self.maybe_calibrate()

@@ -1,0 +1,393 @@
+"""Gyro scale, misalignment and g-sensitivity from the rotations between still poses.
+
+Method (Tedaldi, Pretto & Menegatti, "A robust and easy to implement method for IMU
+calibration without external equipments", ICRA 2014, sec. IV-C): the gyro is integrated
+between two consecutive still poses and the rotation it gives must carry the first
+pose's gravity direction (calibrated accelerometer, body frame) onto the second's.
+Gravity fixes 2 of the 3 degrees of freedom of each rotation; a calibrated magnetometer's
+field direction, when given, adds the rotation about gravity.
+
+Model (body frame = the calibrated accelerometer's frame), rates in deg/s::
+
+    w = K (raw - b(t) - G a),   K = I + E
+
+* ``E`` (3x3, row-major): scale errors on the diagonal, the 6 misalignment terms off it
+  (relative to the accelerometer frame, all 6 observable); stored as ``matrix`` = K.
+* ``G`` (3x3, deg/s per g, raw frame): g-sensitivity.  It is fitted, with the bias
+  intercept b, from the still poses' gyro means against their calibrated specific force
+  (error-models.md E12: the static gyro mean moves linearly with a).  Earth rate's vertical
+  part is parallel to g and lands in G's isotropic part (~0.003 deg/s/g at 45 deg).
+* During each rotation the bias is the straight line between the two poses' offsets
+  (gyro mean - G a), so slow drift (warm-up) between poses does not enter E.
+
+Integration: trapezoid increments theta_k = (w_{k-1} + w_k)/2 dt_k from the last sample
+of one pose to the first of the next, composed as quaternions at the sample rate (an
+associative prefix scan, vectorised over samples and rotations).  The residual of a
+rotation is the predicted end direction, Delta^T u_start, in a tangent basis of the
+measured one (radians, 2 per reference vector).  Its covariance: both poses' direction
+noise (covariance of the mean / |a|^2), the gyro angle random walk (per-sample gyro
+variance x dt^2 x samples) and the two poses' gyro-mean noise x rotation time.  The
+Jacobian in E is analytic: d phi = Delta^T sum_k R_k dK v_k dt_k (R_k the prefix
+rotation).  MAP Gauss-Newton with the datasheet prior (scale_tol on the diagonal,
+cross_axis_tol off it); the covariance is scaled by chi^2/dof when the residuals reject
+the noise model (above its 99 % point), as the accelerometer fit does.  A parameter is
+``undetermined`` when its posterior std exceeds half its prior std.
+
+Rotations are left out when a gyro sample sits at the rail (|x| within 4 LSB of a 16-bit
+converter's full scale) or when samples were lost (a time step > 1.5 median steps).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+
+from ..npstats import median
+from .uncertainty import UNDETERMINED_RATIO
+
+__all__ = ["GyroRotFit", "fit_gyro_rotations", "rotation_windows", "predict_directions",
+           "gyro_prior", "fit_g_sensitivity", "RAIL_FRACTION", "GAP_FACTOR"]
+
+#: a sample within 4 LSB of a 16-bit converter's full scale is at the rail
+RAIL_FRACTION = 1.0 - 4.0 / 32768.0
+#: a time step longer than this many median steps means samples were lost
+GAP_FACTOR = 1.5
+_D2R = np.pi / 180.0
+
+
+@dataclass
+class GyroRotFit:
+    """What :func:`fit_gyro_rotations` found.  Matrices are (3, 3), rates deg/s."""
+
+    matrix: np.ndarray                  #: K, w = K (raw - b - G a)
+    matrix_se: np.ndarray
+    matrix_flags: List[str]             #: 9, row-major: determined / undetermined
+    bias_dps: np.ndarray                #: intercept b of the pose gyro means
+    bias_se_dps: np.ndarray
+    g_sens: np.ndarray                  #: G, deg/s per g (zeros when not fitted)
+    g_sens_se: np.ndarray
+    g_sens_flags: List[str]
+    rotations: int                      #: rotations used
+    left_out: Dict[str, int]            #: saturated, gap
+    excess_scatter: float               #: chi^2/dof scaling applied (1 = noise model held)
+    chi2_dof: float                     #: whitened residuals' chi^2 per degree of freedom (fit)
+    rms_deg: float                      #: in-sample direction error RMS
+    heldout: Dict[str, float] = field(default_factory=dict)
+    reference: str = "gravity"          #: gravity, or gravity+field
+
+    @property
+    def g_sens_used(self) -> bool:
+        return any(f == "determined" for f in self.g_sens_flags)
+
+
+def gyro_prior(chip: Optional[str]):
+    """(std of K's diagonal, off-diagonal, G entries): the datasheet's scale and cross-axis
+    tolerances and g-sensitivity; unknown chips 5 %, 3 %, 0.2 deg/s/g."""
+    from ..specs import GYRO
+    s = GYRO.get(chip or "")
+    if s is None:
+        return 0.05, 0.03, 0.2
+    return s.scale_tol, s.cross_axis_tol, s.g_sensitivity_dps_per_g
+
+
+def _white_var(chip, rate_hz):
+    """Per-sample white-noise variance, (deg/s)^2, of the chip's gyro: noise density^2 x
+    rate/2 (datasheet); None for an unknown chip."""
+    from ..specs import GYRO
+    s = GYRO.get(chip or "")
+    return None if s is None else s.noise_density_dps_rthz ** 2 * rate_hz / 2
+
+
+def fit_g_sensitivity(gyro_means, gyro_cov, acc_means, g_std, fit: bool = True):
+    """Bias intercept and G from still-pose means: gyro_p = b + G a_p (per axis, weighted by
+    the pose means' variances, flat prior on b, N(0, g_std^2) on G; variances scaled by
+    chi^2/dof when it exceeds its 99 % point).  Returns (b, b_se, G, G_se, flags)."""
+    m = np.asarray(gyro_means, float)
+    a = np.asarray(acc_means, float)
+    N = len(m)
+    var = np.einsum("nii->ni", gyro_cov) if gyro_cov is not None else np.full((N, 3), np.nan)
+    X = np.column_stack([np.ones(N), a]) if fit else np.ones((N, 1))
+    lam = np.r_[0.0, np.full(3, 1.0 / g_std ** 2)] if fit else np.zeros(1)
+    b, bse = np.zeros(3), np.zeros(3)
+    G, Gse = np.zeros((3, 3)), np.full((3, 3), g_std)
+    for i in range(3):
+        v = var[:, i]
+        if not np.all(np.isfinite(v) & (v > 0)):
+            v = np.full(N, max(float(np.var(m[:, i], ddof=1)) if N > 1 else 1.0, 1e-12))
+        for _ in range(2):
+            Xw = X / v[:, None]
+            H = X.T @ Xw + np.diag(lam)
+            beta = np.linalg.solve(H, Xw.T @ m[:, i])
+            r = m[:, i] - X @ beta
+            dof = max(N - np.trace(np.linalg.solve(H, X.T @ Xw)), 1.0)
+            chi2 = float(np.sum(r * r / v))
+            q99 = dof * (1 - 2 / (9 * dof) + 2.326 * np.sqrt(2 / (9 * dof))) ** 3
+            if chi2 <= q99:
+                break
+            v = v * chi2 / dof
+        cov = np.linalg.inv(H)
+        se = np.sqrt(np.diag(cov))
+        b[i], bse[i] = beta[0], se[0]
+        if fit:
+            G[i], Gse[i] = beta[1:], se[1:]
+    flags = ["determined" if fit and s <= UNDETERMINED_RATIO * g_std else "undetermined"
+             for s in Gse.ravel()]
+    return b, bse, G, Gse, flags
+
+
+def rotation_windows(t_s, gyro_dps, slices: Sequence[slice], range_dps: Optional[float] = None):
+    """(windows, left_out): for each consecutive pair of still intervals p, p+1 whose samples
+    and the motion between are clean, (p, s, a, b, e): pose p's first and last sample, pose
+    p+1's first and last; left_out counts the pairs dropped as ``saturated`` or ``gap``."""
+    t = np.asarray(t_s, float)
+    g = np.asarray(gyro_dps, float)
+    step = float(median(np.diff(t))) if len(t) > 1 else 0.0
+    rail = None if not range_dps else RAIL_FRACTION * float(range_dps)
+    out, left = [], {"saturated": 0, "gap": 0}
+    for p in range(len(slices) - 1):
+        s, a = slices[p].start, slices[p].stop - 1
+        b, e = slices[p + 1].start, slices[p + 1].stop - 1
+        if b <= a:
+            continue
+        if np.any(np.diff(t[s:e + 1]) > GAP_FACTOR * step):
+            left["gap"] += 1
+            continue
+        if rail is not None and np.any(np.abs(g[s:e + 1]) >= rail):
+            left["saturated"] += 1
+            continue
+        out.append((p, s, a, b, e))
+    return out, left
+
+
+def _qmul(p, q):
+    pw, px, py, pz = np.moveaxis(p, -1, 0)
+    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
+    return np.stack([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw], -1)
+
+
+def _qmat(q):
+    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
+    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def _prefix_rotations(theta_rad):
+    """theta (R, L, 3) body-frame increments -> prefix rotation matrices (R, L, 3, 3):
+    P_k = exp(theta_1) ... exp(theta_k) (Hillis-Steele scan of quaternion products)."""
+    ang = np.linalg.norm(theta_rad, axis=-1, keepdims=True)
+    half = 0.5 * ang
+    sinc = np.where(ang > 1e-12, np.sin(half) / np.where(ang > 1e-12, ang, 1.0), 0.5)
+    q = np.concatenate([np.cos(half), theta_rad * sinc], -1)
+    L = q.shape[1]
+    d = 1
+    while d < L:
+        q = np.concatenate([q[:, :d], _qmul(q[:, :-d], q[:, d:])], 1)
+        d *= 2
+    return _qmat(q)
+
+
+class _Windows:
+    """The rotations' increments, padded to one length (zeros): weight x (raw - b(t) - G a) x
+    dt (deg, trapezoid).  A window runs from the
+    first sample of pose p to the last of pose p+1; inside the poses the increments are
+    ramp-weighted, so that the composed rotation runs from pose p's mean orientation to pose
+    p+1's (the orientations their mean directions belong to, to first order in the small
+    in-pose angles: tremor, a slow start of the motion).  b(t): each pose's offset inside it,
+    the straight line between the two offsets during the motion."""
+
+    def __init__(self, t, gyro, acc, wins, offsets, G):
+        L = max(b - a for _, _, a, b, _ in wins) + 2
+        R = len(wins)
+        self.vd = np.zeros((R, L, 3))       # increments, deg (before K)
+        self.wdt2 = np.zeros(R)             # sum of (weight dt)^2, s^2: the angle random walk's
+        self.T = np.zeros(R)                # motion time, s
+        for r, (p, s, a, b, e) in enumerate(wins):
+            tt = t[s:e + 1]
+            f = np.clip((tt - t[a]) / max(t[b] - t[a], 1e-12), 0.0, 1.0)
+            bias = (1 - f)[:, None] * offsets[p] + f[:, None] * offsets[p + 1]
+            w = gyro[s:e + 1] - bias - acc[s:e + 1] @ G.T
+            k = np.arange(s + 1, e + 1)            # increment k: samples k-1 .. k
+            wt = np.ones(len(k))
+            pre, post = k <= a, k > b
+            wt[pre] = (k[pre] - s) / (a - s + 1)
+            wt[post] = (e - k[post] + 1) / (e - b + 1)
+            d = 0.5 * (w[1:] + w[:-1]) * (wt * np.diff(tt))[:, None]
+            # the in-pose parts (angles well under a degree) each compose as one increment
+            n = b - a
+            self.vd[r, 0] = d[pre].sum(0)
+            self.vd[r, 1:n + 1] = d[~pre & ~post]
+            self.vd[r, n + 1] = d[post].sum(0)
+            self.wdt2[r] = float(np.sum((wt * np.diff(tt)) ** 2))
+            self.T[r] = t[b] - t[a]
+
+    def integrate(self, K):
+        """(Delta (R, 3, 3), S (R, 3, 3, 3)): the rotation over each window and
+        S[:, :, a, b] = sum_k P_k[:, a] vd_k[b] (rad)."""
+        vd = self.vd * _D2R
+        P = _prefix_rotations(np.einsum("ij,rlj->rli", K, vd))
+        S = np.einsum("rlia,rlb->riab", P, vd)
+        return P[:, -1], S
+
+
+def _tangent(u):
+    """Two unit vectors perpendicular to each row of u (R, 3): (R, 3, 2)."""
+    ref = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    e1 = np.cross(u, ref)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return np.stack([e1, np.cross(u, e1)], -1)
+
+
+def predict_directions(Delta, start):
+    """The start directions (R, 3) carried through the rotations: Delta^T u."""
+    return np.einsum("rji,rj->ri", Delta, start)
+
+
+def _angle_deg(x, y):
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(x, y), axis=1), np.einsum("ri,ri->r", x, y)))
+
+
+class _Problem:
+    """Residuals and Jacobian in E of a set of rotations, whitened."""
+
+    def __init__(self, W, refs, var_ang):
+        self.W = W
+        self.refs = refs        # list of (start (R,3), end (R,3), start cov, end cov): unit vectors
+        self.var_ang = var_ang  # (R,) rad^2, isotropic angle noise from the gyro
+        self.B = [_tangent(e) for _, e, _, _ in refs]
+
+    def cov(self, Delta):
+        blocks = []
+        for (s, e, Cs, Ce), B in zip(self.refs, self.B):
+            Cs_r = np.einsum("rji,rjk,rkl->ril", Delta, Cs, Delta)
+            C = Cs_r + Ce + self.var_ang[:, None, None] * (np.eye(3) - np.einsum("ri,rj->rij", e, e))
+            blocks.append(np.einsum("ria,rij,rjb->rab", B, C, B))
+        return blocks
+
+    def residual_jacobian(self, K):
+        Delta, S = self.W.integrate(K)
+        dphi = np.einsum("rji,rjab->riab", Delta, S).reshape(len(Delta), 3, 9)
+        rs, Js = [], []
+        for ((s, e, _, _), B, C) in zip(self.refs, self.B, self.cov(Delta)):
+            u = predict_directions(Delta, s)
+            Lc = np.linalg.cholesky(C)
+            r = np.einsum("ria,ri->ra", B, u)
+            J = np.einsum("ria,rik->rak", B, np.cross(u[:, :, None], dphi, axis=1))
+            rs.append(np.linalg.solve(Lc, r[..., None])[..., 0])
+            Js.append(np.linalg.solve(Lc, J))
+        return np.concatenate(rs, 1).reshape(-1), np.concatenate(Js, 1).reshape(-1, 9), Delta
+
+
+def _solve(prob, lam, phi=1.0, E0=None, iters=20):
+    """MAP Gauss-Newton on E (9), prior precision lam (9,), noise scale phi."""
+    E = np.zeros(9) if E0 is None else E0.copy()
+    for _ in range(iters):
+        r, J, _ = prob.residual_jacobian(np.eye(3) + E.reshape(3, 3))
+        H = J.T @ J / phi + np.diag(lam)
+        step = -np.linalg.solve(H, J.T @ r / phi + lam * E)
+        E = E + step
+        if np.max(np.abs(step)) < 1e-9:
+            break
+    r, J, Delta = prob.residual_jacobian(np.eye(3) + E.reshape(3, 3))
+    return E, r, J, H
+
+
+def _build(t, gyro, acc, mag, slices, wins, offsets, G, acc_cov, mag_cov, sample_var, offset_var):
+    """The problem over windows ``wins``."""
+    W = _Windows(t, gyro, acc, wins, offsets, G)
+    p0 = np.array([w[0] for w in wins])
+    refs = []
+    for means, covs in ((acc, acc_cov), (mag, mag_cov)):
+        if means is None:
+            continue
+        mu = np.array([means[s].mean(0) for s in slices])
+        nrm = np.linalg.norm(mu, axis=1)
+        u = mu / nrm[:, None]
+        P = np.eye(3) - np.einsum("ni,nj->nij", u, u)
+        C = np.einsum("nij,njk,nkl->nil", P, covs, P) / nrm[:, None, None] ** 2
+        refs.append((u[p0], u[p0 + 1], C[p0], C[p0 + 1]))
+    var_ang = (sample_var * W.wdt2 + (offset_var[p0] + offset_var[p0 + 1]) / 2 * W.T ** 2) * _D2R ** 2
+    return _Problem(W, refs, var_ang)
+
+
+def fit_gyro_rotations(t_s, gyro_dps, acc_g, slices: Sequence[slice], mag=None, chip: Optional[str] = None,
+                       range_dps: Optional[float] = None, g_sens: bool = True, folds: int = 5
+                       ) -> Optional[GyroRotFit]:
+    """Fit K (and G) from a recording: samples t_s (n,), gyro_dps (n, 3) raw, acc_g (n, 3)
+    calibrated, optional mag (n, 3) calibrated (any unit; its direction is used), the still
+    intervals ``slices`` (sample index ranges, e.g. calib.poses.detect_static).  range_dps:
+    the gyro's full scale (saturation check; None: no check).  Held-out figures from
+    ``folds``-fold cross-validation over rotations.  None when fewer than 3 rotations are
+    usable."""
+    t = np.asarray(t_s, float)
+    gyro = np.asarray(gyro_dps, float)
+    acc = np.asarray(acc_g, float)
+    mg = None if mag is None else np.asarray(mag, float)
+    slices = [s for s in slices if s.stop - s.start >= 2]
+    wins, left = rotation_windows(t, gyro, slices, range_dps)
+    if len(wins) < 3:
+        return None
+    sd_k, sd_off, sd_g = gyro_prior(chip)
+    n = np.array([s.stop - s.start for s in slices])
+    gm = np.array([gyro[s].mean(0) for s in slices])
+    gsc = np.array([np.cov(gyro[s].T) for s in slices])
+    am = np.array([acc[s].mean(0) for s in slices])
+    b, bse, G, Gse, gflags = fit_g_sensitivity(gm, gsc / n[:, None, None], am, sd_g, g_sens)
+    if not any(f == "determined" for f in gflags):       # not supported by these poses: leave G out
+        b, bse, G, Gse, gflags = fit_g_sensitivity(gm, gsc / n[:, None, None], am, sd_g, False)
+    offsets = gm - am @ G.T
+    # white gyro noise per sample: the still samples' variance, capped at the datasheet's
+    # density over the Nyquist band when the chip is known (hand tremor is a real rotation:
+    # it integrates exactly and the ramp weighting takes it out; it is not angle noise)
+    var_n = np.einsum("nii->n", gsc) / 3
+    spec = _white_var(chip, 1.0 / float(median(np.diff(t))))
+    if spec is not None:
+        var_n = np.minimum(var_n, spec)
+    sample_var = float(median(var_n))
+    offset_var = var_n / n
+    acc_cov = np.array([np.cov(acc[s].T) for s in slices]) / n[:, None, None]
+    mag_cov = None if mg is None else np.array([np.cov(mg[s].T) for s in slices]) / n[:, None, None]
+    build = lambda w: _build(t, gyro, acc, mg, slices, w, offsets, G, acc_cov, mag_cov, sample_var, offset_var)
+    lam = 1.0 / np.where(np.eye(3, dtype=bool), sd_k, sd_off).ravel() ** 2
+    prob = build(wins)
+    E, r, J, H = _solve(prob, lam)
+    dof = max(len(r) - float(np.trace(np.linalg.solve(H, J.T @ J))), 1.0)
+    chi2 = float(r @ r)
+    q99 = dof * (1 - 2 / (9 * dof) + 2.326 * np.sqrt(2 / (9 * dof))) ** 3
+    phi = chi2 / dof if chi2 > q99 else 1.0
+    if phi != 1.0:
+        E, r, J, H = _solve(prob, lam, phi, E)
+    cov = np.linalg.inv(H)
+    se = np.sqrt(np.diag(cov))
+    flags = ["determined" if s <= UNDETERMINED_RATIO / np.sqrt(l) else "undetermined"
+             for s, l in zip(se, lam)]
+    K = np.eye(3) + E.reshape(3, 3)
+    ho = _heldout(build, wins, lam, phi, folds, K)
+    nref = len(prob.refs)
+    rms = float(np.sqrt(np.mean(np.sum(
+        [_angle_deg(predict_directions(prob.W.integrate(K)[0], s), e) ** 2 for s, e, _, _ in prob.refs], 0)
+        / nref)))
+    return GyroRotFit(K, se.reshape(3, 3), flags, b, bse, G, Gse, gflags, len(wins), left, float(phi),
+                      chi2 / dof, rms, ho, "gravity" if mg is None else "gravity+field")
+
+
+def _heldout(build, wins, lam, phi, folds, K_all):
+    """Gravity-direction prediction error (deg) on held-out rotations: bias only (K = I)
+    and calibrated (K fitted on the other folds)."""
+    R = len(wins)
+    k = max(2, min(folds, R))
+    raw, cal = np.zeros(R), np.zeros(R)
+    for f in range(k):
+        test = np.arange(f, R, k)
+        train = np.setdiff1d(np.arange(R), test)
+        if len(train) < 3:
+            continue
+        Ef, _, _, _ = _solve(build([wins[i] for i in train]), lam, phi, (K_all - np.eye(3)).ravel())
+        pt = build([wins[i] for i in test])
+        s, e = pt.refs[0][:2]
+        raw[test] = _angle_deg(predict_directions(pt.W.integrate(np.eye(3))[0], s), e)
+        cal[test] = _angle_deg(predict_directions(pt.W.integrate(np.eye(3) + Ef.reshape(3, 3))[0], s), e)
+    return {"folds": k, "raw_mean_deg": float(raw.mean()), "raw_max_deg": float(raw.max()),
+            "cal_mean_deg": float(cal.mean()), "cal_max_deg": float(cal.max())}

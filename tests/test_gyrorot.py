@@ -1,0 +1,139 @@
+"""Gyro scale, misalignment and g-sensitivity from the rotations between still poses
+(calib/gyrorot.py) and their place in the calibration type."""
+import numpy as np
+import pytest
+
+from imucald.calib.fit import fit_norm
+from imucald.calib.gyrorot import fit_gyro_rotations
+from imucald.calib.models import get_model
+from imucald.calib.poses import detect_static, poses_from_slices
+from imucald.calibration import Calibration, CalibrationError, SensorCal
+from imucald.sim.poses import random_pose_set
+from imucald.sim.sensor import simulate_session
+
+
+def _session(seed, effects=(), n=30):
+    rng = np.random.default_rng(seed)
+    return simulate_session("mpu6050", random_pose_set(n, rng), rng, rate_hz=100, hold_s=(6, 8),
+                            move_s=(2, 3), effects=effects)
+
+
+def _fit(rec, **kw):
+    sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
+    ps = poses_from_slices(rec, sl)
+    cal = fit_norm(ps.acc, "triangular9", "lm", pose_cov=ps.acc_cov, chip="mpu6050")
+    A, c = get_model("triangular9").affine(cal.theta)
+    acc = rec.acc @ np.asarray(A).T + c
+    return fit_gyro_rotations(rec.t, rec.gyro, acc, sl, chip="mpu6050", range_dps=250, **kw), sl
+
+
+@pytest.fixture(scope="module")
+def plain():
+    s = _session(11)
+    return s, _fit(s.recording)[0]
+
+
+def test_scale_and_misalignment_recovered_within_3_reported_se(plain):
+    s, f = plain
+    K_true = np.linalg.inv(s.truth.gyro_matrix)      # raw = M w + b  ->  w = M^-1 (raw - b)
+    z = (f.matrix - K_true) / f.matrix_se
+    assert np.all(np.abs(z) < 3), z
+    # the errors are small, not hidden behind a large standard error: MPU-6050 noise over
+    # 30 poses gives ~5e-5 (0.005 % scale, 0.003 deg misalignment)
+    assert np.all(f.matrix_se < 2e-4), f.matrix_se
+    assert f.matrix_flags == ["determined"] * 9
+    assert f.left_out == {"saturated": 0, "gap": 0} and f.rotations == 29
+    # the noise model holds on clean simulated data: chi^2/dof within 3 sd (sqrt(2/49)) of 1
+    assert f.excess_scatter == 1.0 and abs(f.chi2_dof - 1) < 3 * np.sqrt(2 / 49), f.chi2_dof
+
+
+def test_heldout_gravity_prediction_improves_on_bias_only(plain):
+    _, f = plain
+    h = f.heldout
+    # the drawn truth has ~1 % scale / cross-axis errors: degrees over 100-deg turns; the
+    # calibrated prediction is at the direction noise (~0.01-0.02 deg)
+    assert h["raw_mean_deg"] > 0.5
+    assert h["cal_mean_deg"] < 0.05 and h["cal_max_deg"] < 0.15
+
+
+def test_g_sensitivity_recovered_from_the_poses():
+    G = np.array([[0.08, -0.05, 0.03], [0.02, -0.09, 0.06], [-0.04, 0.05, 0.07]])   # deg/s per g
+
+    def gsens(sensor, raw, ctx):
+        if sensor == "gyro":
+            raw += ctx["f"] @ G.T
+
+    s = _session(12, effects=[gsens])
+    f, _ = _fit(s.recording)
+    # G a is taken out of the rate during the motion too (else ~0.1 deg errors per turn)
+    assert abs(f.chi2_dof - 1) < 3 * np.sqrt(2 / 49), f.chi2_dof
+    assert f.g_sens_used and f.g_sens_flags == ["determined"] * 9
+    # Earth rate's vertical part (0.0031 deg/s at the simulator's 48 deg) adds to G's
+    # isotropic part (error-models.md E12)
+    lat = np.radians(48.0)
+    G_seen = G + np.eye(3) * np.degrees(7.2921e-5) * np.sin(lat)
+    z = (f.g_sens - G_seen) / f.g_sens_se
+    assert np.all(np.abs(z) < 3), z
+    z = (f.matrix - np.linalg.inv(s.truth.gyro_matrix)) / f.matrix_se
+    assert np.all(np.abs(z) < 3), z
+
+
+def test_saturated_and_gap_rotations_are_left_out():
+    s = _session(13, n=12)
+    rec = s.recording
+    sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
+    # one motion hits the rail, another loses 5 samples
+    m1 = (sl[2].stop + sl[3].start) // 2
+    rec.gyro[m1, 1] = -250.0
+    m2 = (sl[6].stop + sl[7].start) // 2
+    keep = np.ones(len(rec), bool)
+    keep[m2:m2 + 5] = False
+    for k in ("t", "acc", "gyro", "temp"):
+        setattr(rec, k, getattr(rec, k)[keep])
+    f, sl2 = _fit(rec)
+    assert len(sl2) == len(sl)
+    assert f.left_out == {"saturated": 1, "gap": 1}
+    assert f.rotations == len(sl) - 3
+
+
+def test_too_few_rotations_give_none():
+    rec = _session(14, n=3).recording
+    sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
+    assert len(sl) == 3
+    assert fit_gyro_rotations(rec.t, rec.gyro, rec.acc, sl) is None
+    assert fit_gyro_rotations(rec.t, rec.gyro, rec.acc, sl + sl[-1:]) is None   # repeated: no motion
+
+
+# --- the calibration type ------------------------------------------------------------------
+
+def _gyro_part(K, G=None):
+    p = {"bias_dps": np.array([0.5, -1.0, 0.2]), "matrix": np.asarray(K, float).ravel()}
+    if G is not None:
+        p["g_sens_dps_per_g"] = np.asarray(G, float).ravel()
+    return SensorCal("gyro", "bias", p, {k: np.full(v.shape, 1e-4) for k, v in p.items()})
+
+
+def test_calibration_applies_matrix_and_g_sensitivity_and_round_trips():
+    rng = np.random.default_rng(0)
+    K = np.eye(3) + rng.normal(scale=0.01, size=(3, 3))
+    G = rng.normal(scale=0.1, size=(3, 3))
+    cal = Calibration("mpu6050", id=1, gyro=_gyro_part(K, G))
+    raw = rng.normal(scale=50, size=(20, 3))
+    a = rng.normal(size=(20, 3))
+    want = (raw - [0.5, -1.0, 0.2] - a @ G.T) @ K.T
+    assert np.allclose(cal.apply_gyro(raw, None, a), want, atol=1e-12)
+    assert np.allclose(cal.apply_gyro(raw), (raw - [0.5, -1.0, 0.2]) @ K.T, atol=1e-12)
+    back = Calibration.from_dict(cal.to_dict())
+    assert np.allclose(back.apply_gyro(raw, None, a), want, atol=1e-12)
+    assert np.allclose(back.gyro.stderr["g_sens_dps_per_g"], 1e-4)
+
+
+@pytest.mark.parametrize("key,value", [("matrix", [2.0, 0, 0, 0, 1, 0, 0, 0, 1]),
+                                       ("g_sens_dps_per_g", [0, 0, 0, 0, 50.0, 0, 0, 0, 0]),
+                                       ("matrix", [1.0, 0, 0, 0, 1, 0, 0, 0])])
+def test_implausible_gyro_matrix_is_refused_on_load(key, value):
+    d = Calibration("mpu6050", id=1, gyro=_gyro_part(np.eye(3), np.zeros((3, 3)))).to_dict()
+    d["gyro"]["params"][key] = value
+    d["gyro"].pop("stderr")
+    with pytest.raises(CalibrationError, match=f"gyro.params.{key}"):
+        Calibration.from_dict(d)

@@ -99,6 +99,21 @@ def _white_var(chip, rate_hz):
     return None if s is None else s.noise_density_dps_rthz ** 2 * rate_hz / 2
 
 
+def _wobble(t, gyro, slices, white_var):
+    """Per pose, the variance (deg^2, mean over axes) of the in-pose angle about its mean
+    beyond white noise: hand tremor.  The pose's mean rate, the bias used, carries its
+    end-to-start angle / T, and the ramp-weighted in-pose part half of it; so each pose adds
+    2 x this x (1/2 + T_motion / (2 T_pose))^2 to a rotation's angle noise.  White noise
+    alone gives the Brownian bridge's white_var dt^2 n / 6, which is taken off."""
+    dt = float(median(np.diff(t)))
+    out = np.zeros(len(slices))
+    for i, s in enumerate(slices):
+        g = gyro[s]
+        th = np.cumsum(g - g.mean(0), 0) * dt
+        out[i] = max(float(th.var(0).mean()) - white_var * dt * dt * len(g) / 6, 0.0)
+    return out
+
+
 def fit_g_sensitivity(gyro_means, gyro_cov, acc_means, g_std, fit: bool = True):
     """Bias intercept and G from still-pose means: gyro_p = b + G a_p (per axis, weighted by
     the pose means' variances, flat prior on b, N(0, g_std^2) on G; variances scaled by
@@ -294,7 +309,7 @@ def _solve(prob, lam, phi=1.0, E0=None, iters=20):
     return E, r, J, H
 
 
-def _build(t, gyro, acc, mag, slices, wins, offsets, G, acc_cov, mag_cov, sample_var, offset_var):
+def _build(t, gyro, acc, mag, slices, wins, offsets, G, acc_cov, mag_cov, sample_var, offset_var, wobble):
     """The problem over windows ``wins``."""
     W = _Windows(t, gyro, acc, wins, offsets, G)
     p0 = np.array([w[0] for w in wins])
@@ -308,7 +323,11 @@ def _build(t, gyro, acc, mag, slices, wins, offsets, G, acc_cov, mag_cov, sample
         P = np.eye(3) - np.einsum("ni,nj->nij", u, u)
         C = np.einsum("nij,njk,nkl->nil", P, covs, P) / nrm[:, None, None] ** 2
         refs.append((u[p0], u[p0 + 1], C[p0], C[p0 + 1]))
-    var_ang = (sample_var * W.wdt2 + (offset_var[p0] + offset_var[p0 + 1]) / 2 * W.T ** 2) * _D2R ** 2
+    var_ang = sample_var * W.wdt2 + (offset_var[p0] + offset_var[p0 + 1]) / 2 * W.T ** 2
+    for q in (p0, p0 + 1):      # the wobble's share: (end - start angle) x (1/2 + T_motion / 2 T_pose)
+        Tq = np.array([t[slices[i].stop - 1] - t[slices[i].start] for i in q])
+        var_ang = var_ang + 2 * wobble[q] * (0.5 + W.T / (2 * np.maximum(Tq, 1e-9))) ** 2
+    var_ang = var_ang * _D2R ** 2
     return _Problem(W, refs, var_ang)
 
 
@@ -347,9 +366,11 @@ def fit_gyro_rotations(t_s, gyro_dps, acc_g, slices: Sequence[slice], mag=None, 
         var_n = np.minimum(var_n, spec)
     sample_var = float(median(var_n))
     offset_var = var_n / n
+    wobble = _wobble(t, gyro, slices, sample_var)
     acc_cov = np.array([np.cov(acc[s].T) for s in slices]) / n[:, None, None]
     mag_cov = None if mg is None else np.array([np.cov(mg[s].T) for s in slices]) / n[:, None, None]
-    build = lambda w: _build(t, gyro, acc, mg, slices, w, offsets, G, acc_cov, mag_cov, sample_var, offset_var)
+    build = lambda w: _build(t, gyro, acc, mg, slices, w, offsets, G, acc_cov, mag_cov, sample_var, offset_var,
+                             wobble)
     lam = 1.0 / np.where(np.eye(3, dtype=bool), sd_k, sd_off).ravel() ** 2
     prob = build(wins)
     E, r, J, H = _solve(prob, lam)

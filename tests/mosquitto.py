@@ -2,13 +2,17 @@
 
 The broker is Debian's ``mosquitto`` package: ``make test`` (.ci/run) installs it when it
 runs as root with apt; elsewhere the tests skip, saying so."""
+import json
 import os
 import shutil
 import socket
 import subprocess
+import threading
 import time
 
-__all__ = ["find_mosquitto", "free_port", "Broker", "make_tls_files"]
+__all__ = ["find_mosquitto", "free_port", "Broker", "make_tls_files", "FakeDaemon", "SID"]
+
+SID = "0123456789ab"
 
 
 def find_mosquitto():
@@ -33,7 +37,7 @@ class Broker:
     config (TLS, password file).  Persistence (on by default) keeps the subscriber's
     session and its queued QoS 1 messages across a restart."""
 
-    def __init__(self, workdir, port=None, extra="", persistence=True):
+    def __init__(self, workdir, port=None, extra="", persistence=True, log_all=True, global_extra=""):
         self.exe, why = find_mosquitto()
         if self.exe is None:
             raise RuntimeError(why)
@@ -43,11 +47,11 @@ class Broker:
         self.conf = os.path.join(self.dir, "mosquitto.conf")
         anon = "false" if "password_file" in extra else "true"
         with open(self.conf, "w") as fh:
-            fh.write(f"per_listener_settings false\nallow_anonymous {anon}\n"
+            fh.write(f"{global_extra}\nper_listener_settings false\nallow_anonymous {anon}\n"
                      f"persistence {'true' if persistence else 'false'}\n"
                      f"persistence_location {self.dir}/\nautosave_interval 0\n"
-                     f"log_dest file {self.dir}/mosquitto.log\nlog_type all\n"
-                     + ("user root\n" if os.geteuid() == 0 else "")
+                     f"log_dest file {self.dir}/mosquitto.log\nlog_type {'all' if log_all else 'error'}\n"
+                     + ("user root\n" if os.geteuid() == 0 else "") 
                      + f"listener {self.port} 127.0.0.1\n{extra}\n")
         self.proc = None
 
@@ -101,3 +105,84 @@ def make_tls_files(d):
     run("x509", "-req", "-in", "server.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
         "-days", "2", "-extfile", "san.ext", "-out", "server.crt")
     return tuple(os.path.join(d, f) for f in ("ca.crt", "server.crt", "server.key"))
+
+
+class FakeDaemon:
+    """The daemon's two sockets, served from threads: a stream of IMU records (t = seq /
+    rate_hz; sent at that rate when paced, else as fast as the reader takes them; ``count``
+    of them, else until close), each carrying ``wall``, the Unix time it was written; and a
+    control socket answering status."""
+
+    def __init__(self, d, rate_hz=200.0, paced=True, count=None):
+        self.rt = str(d)
+        self.rate_hz, self.seq, self.stop, self.extra = rate_hz, 0, threading.Event(), []
+        self.paced, self.count = paced, count
+        self.srv = self._listen("imucald.sock")
+        self.ctl = self._listen("control.sock")
+        for f in (self._stream, self._control):
+            threading.Thread(target=f, daemon=True).start()
+
+    def _listen(self, name):
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        s.bind(os.path.join(self.rt, name))
+        s.listen(4)
+        s.settimeout(0.2)
+        return s
+
+    def _accept(self, srv):
+        while not self.stop.is_set():
+            try:
+                return srv.accept()[0]
+            except socket.timeout:
+                continue
+            except OSError:         # closed by close()
+                return None
+        return None
+
+    def _stream(self):
+        while True:
+            c = self._accept(self.srv)
+            if c is None:
+                return
+            c.sendall(b'{"class":"VERSION","release":"0.1.0","proto_major":1,"proto_minor":0,'
+                      b'"format":"ndjson","board":"mpu6050"}\n')
+            t_next = time.monotonic()
+            try:
+                while not self.stop.is_set() and (self.count is None or self.seq < self.count):
+                    while self.extra:
+                        c.sendall((json.dumps(self.extra.pop(0)) + "\n").encode())
+                    rec = {"class": "IMU", "seq": self.seq, "t": self.seq / self.rate_hz,
+                           "acc_g": [0.0, 0.0, 1.0], "gyro_dps": [0.0, 0.0, 0.0], "still": True, "cal": 0,
+                           "wall": time.time()}
+                    c.sendall((json.dumps(rec) + "\n").encode())
+                    self.seq += 1
+                    if self.paced:
+                        t_next += 1.0 / self.rate_hz
+                        time.sleep(max(0.0, t_next - time.monotonic()))
+                while not self.stop.is_set():       # all sent: stay connected
+                    time.sleep(0.05)
+            except OSError:
+                pass
+            c.close()
+
+    def _control(self):
+        while True:
+            c = self._accept(self.ctl)
+            if c is None:
+                return
+            with c:
+                cmd = c.makefile("rb").readline().decode().strip()
+                if cmd == "status":
+                    r = {"class": "STATUS", "board": "mpu6050", "chips": {"accel": "mpu6050"},
+                         "rate_hz": self.rate_hz, "bus": "fake", "poses": 3, "poses_needed": 25,
+                         "coverage": 0.1, "calibration_id": 0, "samples": self.seq,
+                         "board_stats": {"samples": self.seq, "gaps": 1, "missing": 7, "bus_faults": 2},
+                         "sensor": {"id": SID, "status": "first"}}
+                else:
+                    r = {"class": "ERROR", "message": "unknown"}
+                c.sendall((json.dumps(r) + "\n").encode())
+
+    def close(self):
+        self.stop.set()
+        self.srv.close()
+        self.ctl.close()

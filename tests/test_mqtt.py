@@ -14,15 +14,12 @@ import numpy as np
 import pytest
 
 from imucald.daemon.config import load_config
-from tests.mosquitto import Broker, find_mosquitto, make_tls_files
+from tests.mosquitto import SID, Broker, FakeDaemon, find_mosquitto, make_tls_files
 from tests.test_daemon import PY, ROOT, control, start_daemon, wait_for
 
 mqtt = pytest.importorskip("paho.mqtt.client", reason="paho-mqtt is not installed (pip install '.[test]')")
 MOSQ, WHY = find_mosquitto()
 pytestmark = pytest.mark.skipif(MOSQ is None, reason=WHY or "")
-
-SID = "0123456789ab"
-
 
 class Sub:
     """A subscriber that keeps every message (topic, payload, retain, dup)."""
@@ -64,81 +61,6 @@ class Sub:
     def close(self):
         self.c.disconnect()
         self.c.loop_stop()
-
-
-class FakeDaemon:
-    """The daemon's two sockets, served from a thread: a stream of IMU records at rate_hz
-    (t = seq / rate_hz), and a control socket answering status and calibration."""
-
-    def __init__(self, d, rate_hz=200.0):
-        self.rt = str(d)
-        self.rate_hz, self.seq, self.stop, self.extra = rate_hz, 0, threading.Event(), []
-        self.srv = self._listen("imucald.sock")
-        self.ctl = self._listen("control.sock")
-        for f in (self._stream, self._control):
-            threading.Thread(target=f, daemon=True).start()
-
-    def _listen(self, name):
-        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        s.bind(os.path.join(self.rt, name))
-        s.listen(4)
-        s.settimeout(0.2)
-        return s
-
-    def _accept(self, srv):
-        while not self.stop.is_set():
-            try:
-                return srv.accept()[0]
-            except socket.timeout:
-                continue
-            except OSError:         # closed by close()
-                return None
-        return None
-
-    def _stream(self):
-        while True:
-            c = self._accept(self.srv)
-            if c is None:
-                return
-            c.sendall(b'{"class":"VERSION","release":"0.1.0","proto_major":1,"proto_minor":0,'
-                      b'"format":"ndjson","board":"mpu6050"}\n')
-            t_next = time.monotonic()
-            try:
-                while not self.stop.is_set():
-                    while self.extra:
-                        c.sendall((json.dumps(self.extra.pop(0)) + "\n").encode())
-                    rec = {"class": "IMU", "seq": self.seq, "t": self.seq / self.rate_hz,
-                           "acc_g": [0.0, 0.0, 1.0], "gyro_dps": [0.0, 0.0, 0.0], "still": True, "cal": 0,
-                           "wall": time.time()}
-                    c.sendall((json.dumps(rec) + "\n").encode())
-                    self.seq += 1
-                    t_next += 1.0 / self.rate_hz
-                    time.sleep(max(0.0, t_next - time.monotonic()))
-            except OSError:
-                pass
-            c.close()
-
-    def _control(self):
-        while True:
-            c = self._accept(self.ctl)
-            if c is None:
-                return
-            with c:
-                cmd = c.makefile("rb").readline().decode().strip()
-                if cmd == "status":
-                    r = {"class": "STATUS", "board": "mpu6050", "chips": {"accel": "mpu6050"},
-                         "rate_hz": self.rate_hz, "bus": "fake", "poses": 3, "poses_needed": 25,
-                         "coverage": 0.1, "calibration_id": 0, "samples": self.seq,
-                         "board_stats": {"samples": self.seq, "gaps": 1, "missing": 7, "bus_faults": 2},
-                         "sensor": {"id": SID, "status": "first"}}
-                else:
-                    r = {"class": "ERROR", "message": "unknown"}
-                c.sendall((json.dumps(r) + "\n").encode())
-
-    def close(self):
-        self.stop.set()
-        self.srv.close()
-        self.ctl.close()
 
 
 def _cfg(tmp_path, port, **mq):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import os
+import select
 import socket
 import ssl
 import threading
@@ -97,6 +98,9 @@ class Bridge:
                       "disconnects": 0, "buffered": 0, "stream_reconnects": 0, "samples_read": 0,
                       "samples_out": 0, "gaps": 0, "missing_samples": 0, "unsent_at_stop": 0}
         self._stream = None
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
         self.version: Optional[Dict[str, Any]] = None
         self.last_connect_error: Optional[str] = None
 
@@ -158,6 +162,7 @@ class Bridge:
             self.buf.put((topic, payload, self.m["qos"], retain))
             self.stats["dropped"] = self.buf.dropped
             self.cv.notify_all()
+        self._wake()
 
     def _net(self, client, end: threading.Event, topics: Topics) -> None:
         """The one thread that calls paho: connects, reconnects (0.1 s doubling to 5 s),
@@ -181,7 +186,7 @@ class Bridge:
                     end.wait(delay)
                     delay = min(5.0, delay * 2)
                     continue
-            rc = client.loop(timeout=0.02)
+            rc = self._loop_once(client)
             if rc != mqtt.MQTT_ERR_SUCCESS:
                 up = False
                 end.wait(delay)
@@ -198,6 +203,37 @@ class Bridge:
             client.disconnect()
             client.loop(timeout=0.02)
         self.connected = False
+
+    def _loop_once(self, client) -> int:
+        """paho's loop, woken at once by put() (a byte on a pipe) instead of polling: a
+        sample waits for no timeout before it is handed over."""
+        mqtt = self.mqtt
+        sock = client.socket()
+        if sock is None:
+            return mqtt.MQTT_ERR_NO_CONN
+        try:
+            r, w, _ = select.select([sock, self._wake_r], [sock] if client.want_write() else [], [], 1.0)
+        except (OSError, ValueError):
+            return mqtt.MQTT_ERR_CONN_LOST
+        if self._wake_r in r:
+            try:
+                os.read(self._wake_r, 4096)
+            except BlockingIOError:
+                pass
+        rc = mqtt.MQTT_ERR_SUCCESS
+        if sock in r:
+            rc = client.loop_read()
+        if rc == mqtt.MQTT_ERR_SUCCESS and (sock in w or client.want_write()):
+            rc = client.loop_write()
+        if rc == mqtt.MQTT_ERR_SUCCESS:
+            rc = client.loop_misc()
+        return rc
+
+    def _wake(self) -> None:
+        try:
+            os.write(self._wake_w, b"x")
+        except (BlockingIOError, OSError):
+            pass                # already awake (the pipe is full) or closing
 
     def _hand_over(self, client) -> None:
         mqtt = self.mqtt
@@ -253,7 +289,7 @@ class Bridge:
         while not stop.is_set():
             try:
                 s = self._stream = StreamClient(self.stream_path, timeout_s=5.0)
-            except UserError as e:
+            except (UserError, OSError) as e:      # not there yet, or no banner within 5 s
                 log.debug("stream: %s", e)
                 stop.wait(0.5)
                 continue
@@ -316,11 +352,16 @@ class Bridge:
     # -- the whole -----------------------------------------------------------------------
     def run(self, stop: threading.Event) -> int:
         """Bridge until ``stop`` is set; 0 on a clean stop."""
-        while not stop.is_set():
-            st = self._wait_for_daemon(stop)
-            if st is None:
-                break
-            self._session(st, stop)
+        try:
+            while not stop.is_set():
+                st = self._wait_for_daemon(stop)
+                if st is None:
+                    break
+                self._session(st, stop)
+        finally:
+            for fd in (self._wake_r, self._wake_w):
+                os.close(fd)
+            self._wake_r = self._wake_w = -1
         return 0
 
     def _session(self, st: Dict[str, Any], stop: threading.Event) -> None:

@@ -169,3 +169,28 @@ def test_implausible_gyro_matrix_is_refused_on_load(key, value):
     d["gyro"].pop("stderr")
     with pytest.raises(CalibrationError, match=f"gyro.params.{key}"):
         Calibration.from_dict(d)
+
+
+# --- the offline command ---------------------------------------------------------------------
+
+def test_calibrate_gyro_fits_the_matrix_prints_it_and_writes_it(tmp_path, capsys):
+    import json
+    from imucald.calibration import load
+    from imucald.cli import main
+    rec, truth, out = tmp_path / "r.csv", tmp_path / "t.json", tmp_path / "c.yaml"
+    assert main(["simulate", "-o", str(rec), "--board", "mpu6050", "--poses", "24", "--hold", "6",
+                 "--seed", "5", "--truth", str(truth)]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", str(rec), "--sensor", "gyro", "--json", "-o", str(out)]) == 0
+    d = json.loads(capsys.readouterr().out)["rotations"]
+    K_true = np.linalg.inv(np.array(json.loads(truth.read_text())["gyro_matrix"]))
+    assert d["fitted"] and d["rotations"] == 23 and d["left_out"] == {"saturated": 0, "gap": 0}
+    assert np.all(np.abs(np.array(d["matrix"]) - K_true) < 3 * np.array(d["matrix_stderr"]))
+    assert d["heldout"]["cal_mean_deg"] < d["heldout"]["raw_mean_deg"] / 10
+    cal = load(out)
+    assert np.allclose(cal.gyro.params["matrix"].reshape(3, 3), d["matrix"])
+    assert cal.gyro.flags["matrix"] == tuple(d["matrix_flags"])
+    assert cal.gyro.quality["rotations"] == 23
+    assert main(["calibrate", str(rec), "--sensor", "gyro"]) == 0
+    text = capsys.readouterr().out
+    assert "from 23 rotations between still poses" in text and "held-out rotations" in text

@@ -144,21 +144,31 @@ def cmd_calibrate(args) -> int:
             sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
             samples = np.concatenate([rec.gyro[s] for s in sl])
         cal = fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
+    rot = why = None
+    if sensor == "gyro" and rec is not None:    # scale/misalignment from the rotations between poses
+        from .gyrorot import fit_rotations
+        rot, why = fit_rotations(rec, poses, args)
     tf = None
     if sensor in ("accel", "gyro") and args.method != "ga-paper":
         # the thermal terms: the order the held-out test supports (README: thermal terms)
         from .thermal import fit_thermal
         tf = fit_thermal(sensor, poses, cal, chip, infl, args.thermal_min_span, args.seed)
     if args.output:
-        _write_calibration(args.output, poses.meta.get("board", "unknown"), cal, tf)
+        _write_calibration(args.output, poses.meta.get("board", "unknown"), cal, tf, rot)
     if args.json:
         d = cal.to_json()
+        if rec is not None and sensor == "gyro":
+            from .gyrorot import rotation_json
+            d["rotations"] = rotation_json(rot, why)
         if tf is not None:
             from .thermal import thermal_json
             d["thermal"] = thermal_json(sensor, tf)
         print(json.dumps(d))
         return 0
     _print_cal(sensor, cal)
+    if rec is not None and sensor == "gyro":
+        from .gyrorot import rotation_lines
+        print("\n".join(rotation_lines(rot, why)))
     if tf is not None:
         from .thermal import thermal_lines
         print("\n".join(thermal_lines(sensor, tf)))
@@ -239,12 +249,16 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     return 0
 
 
-def _write_calibration(path: str, board: str, fit, thermal=None) -> None:
-    """--output: the fitted part (with its thermal terms) as a calibration file (the
-    daemon's and imucald.load_calibration's format), written atomically."""
+def _write_calibration(path: str, board: str, fit, thermal=None, rotations=None) -> None:
+    """--output: the fitted part (with its thermal terms and, for the gyro, the scale/
+    misalignment from the rotations) as a calibration file (the daemon's and
+    imucald.load_calibration's format), written atomically."""
     from ..calibration import Calibration, SensorCal, save
     from .thermal import thermal_part
     part = SensorCal.from_fit(fit) if thermal is None else thermal_part(fit.sensor, fit, thermal)
+    if rotations is not None:
+        from .gyrorot import with_rotations
+        part = with_rotations(part, rotations)
     tr = None if thermal is None else (round(thermal.t_min_c, 2), round(thermal.t_max_c, 2))
     try:
         save(Calibration(board, id=1, temperature_range_c=tr, **{fit.sensor: part}), path)

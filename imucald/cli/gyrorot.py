@@ -1,0 +1,104 @@
+"""``calibrate --sensor gyro`` on a recording: scale, misalignment and g-sensitivity from
+the rotations between the still poses (calib/gyrorot.py), printed, as JSON, and in the
+calibration file."""
+from __future__ import annotations
+
+from typing import Dict, List, Optional
+
+import numpy as np
+
+_AX = "xyz"
+
+
+def fit_rotations(rec, poses, args):
+    """(GyroRotFit or None, why none): the accelerometer calibrated on ``poses`` (triangular9,
+    MAP with the datasheet prior), then the rotations between the recording's still intervals
+    (found with the same detector settings)."""
+    from ..calib.fit import fit_norm
+    from ..calib.gyrorot import fit_gyro_rotations
+    from ..calib.models import get_model
+    from ..calib.poses import detect_static
+    from ..specs import BOARDS, GYRO
+    if rec is None or rec.acc is None or rec.gyro is None:
+        return None, "needs a recording with accelerometer and gyro columns"
+    if len(poses) < 10:
+        return None, f"{len(poses)} still poses: the accelerometer needs 10 to give gravity directions"
+    chips = BOARDS.get(rec.meta.get("board", ""), (None, None, None))
+    acc_cal = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, chip=chips[0])
+    A, c = get_model("triangular9").affine(acc_cal.theta)
+    acc = rec.acc @ np.asarray(A, float).T + np.asarray(c, float)
+    slices = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz, window_s=args.window_s,
+                           k=args.threshold_k, min_still_s=args.min_still_s)
+    rng = rec.meta.get("gyro_range_dps")
+    try:
+        rng = float(rng) if rng is not None else (GYRO[chips[1]].range_dps if chips[1] in GYRO else None)
+    except ValueError:
+        rng = None
+    fit = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, chip=chips[1], range_dps=rng)
+    if fit is None:
+        return None, "fewer than 3 clean rotations between consecutive still poses"
+    return fit, ""
+
+
+def _row(v, fmt):
+    return "[" + ", ".join(fmt.format(x) for x in v) + "]"
+
+
+def rotation_lines(fit, why: str = "") -> List[str]:
+    if fit is None:
+        return [f"gyro scale/misalignment: not fitted ({why})"]
+    K, se = fit.matrix, fit.matrix_se
+    out = [f"gyro scale/misalignment from {fit.rotations} rotations between still poses "
+           f"({fit.reference} directions; left out: {fit.left_out['saturated']} saturated, "
+           f"{fit.left_out['gap']} with lost samples)",
+           "  matrix K, corrected = K (raw - bias - G a), row by row:"]
+    out += [f"    {_row(K[i], '{:+.6f}')}  +- {_row(se[i], '{:.1e}')}" for i in range(3)]
+    out.append("  scale error %: " + ", ".join(
+        f"{a} {(K[i, i] - 1) * 100:+.3f} +- {se[i, i] * 100:.3f}" for i, a in enumerate(_AX)))
+    und = [f"K{_AX[k // 3]}{_AX[k % 3]}" for k, f in enumerate(fit.matrix_flags) if f != "determined"]
+    if und:
+        out.append(f"  not determined by these rotations (prior kept): {', '.join(und)}")
+    if fit.g_sens_used:
+        out.append("  g-sensitivity G, deg/s per g (from the still poses), row by row:")
+        out += [f"    {_row(fit.g_sens[i], '{:+.4f}')}  +- {_row(fit.g_sens_se[i], '{:.1e}')}" for i in range(3)]
+    else:
+        out.append("  g-sensitivity: not determined by these poses (left out)")
+    h = fit.heldout
+    out.append(f"  noise model: chi2/dof {fit.chi2_dof:.2f}, excess scatter x{fit.excess_scatter:.2f}; "
+               f"in-sample gravity-direction RMS {fit.rms_deg:.3f} deg")
+    out.append(f"  gravity direction at the next pose, held-out rotations ({h['folds']}-fold): bias only "
+               f"mean {h['raw_mean_deg']:.3f} max {h['raw_max_deg']:.3f} deg; calibrated mean "
+               f"{h['cal_mean_deg']:.3f} max {h['cal_max_deg']:.3f} deg")
+    return out
+
+
+def rotation_json(fit, why: str = "") -> Dict[str, object]:
+    if fit is None:
+        return {"fitted": False, "reason": why}
+    return {"fitted": True, "rotations": fit.rotations, "left_out": dict(fit.left_out),
+            "reference": fit.reference, "matrix": fit.matrix.tolist(), "matrix_stderr": fit.matrix_se.tolist(),
+            "matrix_flags": list(fit.matrix_flags), "g_sens_dps_per_g": fit.g_sens.tolist() if fit.g_sens_used
+            else None, "g_sens_stderr": fit.g_sens_se.tolist() if fit.g_sens_used else None,
+            "g_sens_flags": list(fit.g_sens_flags), "bias_dps": fit.bias_dps.tolist(),
+            "chi2_dof": fit.chi2_dof, "excess_scatter": fit.excess_scatter, "rms_deg": fit.rms_deg,
+            "heldout": dict(fit.heldout)}
+
+
+def with_rotations(part, fit):
+    """The gyro part with K (and G, with the bias intercept that goes with it) added.  G is
+    left out when the part carries a thermal bias polynomial (fitted without G)."""
+    from ..calibration import SensorCal
+    if fit is None:
+        return part
+    p, se, fl = dict(part.params), dict(part.stderr), dict(part.flags)
+    p["matrix"], se["matrix"], fl["matrix"] = fit.matrix.ravel(), fit.matrix_se.ravel(), tuple(fit.matrix_flags)
+    th = part.thermal
+    poly = None if not th else th.get("bias_poly_dps")
+    if fit.g_sens_used and (poly is None or not len(np.asarray(poly))):
+        p["g_sens_dps_per_g"], se["g_sens_dps_per_g"] = fit.g_sens.ravel(), fit.g_sens_se.ravel()
+        fl["g_sens_dps_per_g"] = tuple(fit.g_sens_flags)
+        p["bias_dps"], se["bias_dps"] = fit.bias_dps.copy(), fit.bias_se_dps.copy()
+    q = {**part.quality, "rotations": int(fit.rotations),
+         "heldout_gravity_mean_deg": fit.heldout["cal_mean_deg"],
+         "heldout_gravity_max_deg": fit.heldout["cal_max_deg"]}
+    return SensorCal(part.sensor, part.model, p, se, fl, part.method, q, th)

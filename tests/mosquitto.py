@@ -117,6 +117,7 @@ class FakeDaemon:
         self.rt = str(d)
         self.rate_hz, self.seq, self.stop, self.extra = rate_hz, 0, threading.Event(), []
         self.paced, self.count = paced, count
+        self.sid = SID
         self.srv = self._listen("imucald.sock")
         self.ctl = self._listen("control.sock")
         for f in (self._stream, self._control):
@@ -177,7 +178,7 @@ class FakeDaemon:
                          "rate_hz": self.rate_hz, "bus": "fake", "poses": 3, "poses_needed": 25,
                          "coverage": 0.1, "calibration_id": 0, "samples": self.seq,
                          "board_stats": {"samples": self.seq, "gaps": 1, "missing": 7, "bus_faults": 2},
-                         "sensor": {"id": SID, "status": "first"}}
+                         "sensor": {"id": self.sid, "status": "first"}}
                 else:
                     r = {"class": "ERROR", "message": "unknown"}
                 c.sendall((json.dumps(r) + "\n").encode())

@@ -288,3 +288,43 @@ def test_configuration_errors_are_one_line(tmp_path):
         r = subprocess.run([PY, "-m", "imucald.cli", "mqtt", "--config", str(p), "--runtime-dir",
                             str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=30)
         assert r.returncode == 78 and want in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_a_swapped_sensor_gets_its_own_topics(tmp_path):
+    """The daemon now reads another sensor (a swapped board): the old id's status turns
+    offline (retained) and the samples go on under the new id."""
+    broker = Broker(tmp_path / "broker").start()
+    fake = FakeDaemon(tmp_path)
+    sub = Sub(broker.port, topics=("imucald/#",))
+    b, stop, t = _bridge_thread(_cfg(tmp_path, broker.port, sample_rate_hz=50), tmp_path)
+    new = "fedcba987654"
+    try:
+        assert sub.wait(lambda: len(sub.of(f"{SID}/imu")) > 5, 10)
+        fake.sid = new
+        assert sub.wait(lambda: len(sub.of(f"{new}/imu")) > 5 and "online" in sub.of(f"{new}/status"), 10)
+    finally:
+        stop.set()
+        t.join(10)
+        fake.close()
+    assert sub.of(f"{SID}/status")[-1] == "offline"
+    n_old = len(sub.of(f"{SID}/imu"))
+    time.sleep(0.3)
+    assert len(sub.of(f"{SID}/imu")) == n_old
+    sub.close()
+    broker.stop()
+
+
+def test_the_base_install_never_imports_paho(tmp_path):
+    """Without paho-mqtt the daemon and the other commands work, and `imucald mqtt` says
+    what to install in one line (exit 69)."""
+    block = ("import sys; sys.modules['paho'] = None; sys.modules['paho.mqtt'] = None; "
+             "sys.modules['paho.mqtt.client'] = None; from imucald.cli import main; ")
+    r = subprocess.run([PY, "-c", block + "import imucald.daemon.run, imucald.mqtt.topics; "
+                        "sys.exit(main(['run', '--emulate', '--duration', '1', '--speed', '10', "
+                        f"'--state-dir', '{tmp_path}/s', '--runtime-dir', '{tmp_path}/r']))"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([PY, "-c", block + f"sys.exit(main(['mqtt', '--runtime-dir', '{tmp_path}']))"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 69 and "pip install 'imucald[mqtt]'" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1

@@ -170,11 +170,14 @@ class Bridge:
         paho's own loop thread, a publish from another thread racing the resend of a
         reconnect lost messages: here nothing calls paho concurrently.)"""
         mqtt = self.mqtt
-        delay, said, up = 0.1, False, False
+        delay, said, up, tried = 0.1, False, False, False
         while not end.is_set():
             if not up:
                 try:
-                    client.reconnect() if self.stats["connects"] or said else \
+                    if tried:
+                        client.reconnect()
+                    else:
+                        tried = True
                         client.connect(self.m["host"], self.port, keepalive=self.m["keepalive_s"])
                     up, delay = True, 0.1
                 except (OSError, ssl.SSLError, ValueError) as e:

@@ -55,7 +55,12 @@ _DRAIN = ("import socket, sys\n"
 THERMAL = {"order": 3, "t_min_c": 15.0, "t_ref_c": 30.0, "t_max_c": 45.0, "note": "bench"}
 
 
-def cost(board, rate, seconds, fmt, tmp, thermal=False):
+#: a gyro scale/misalignment matrix and g-sensitivity (calib/gyrorot.py's terms)
+GYRO_ROT = {"matrix": np.array([1.01, 0.004, -0.003, 0.002, 0.995, 0.006, -0.005, 0.001, 1.003]),
+            "g_sens_dps_per_g": np.array([0.05, -0.02, 0.01, 0.03, -0.06, 0.02, -0.01, 0.04, 0.05])}
+
+
+def cost(board, rate, seconds, fmt, tmp, thermal=False, gyro_rot=False):
     cfg = copy.deepcopy(DEFAULTS)
     cfg["output"]["format"] = fmt
     bs = batches(board, rate, seconds)
@@ -65,7 +70,8 @@ def cost(board, rate, seconds, fmt, tmp, thermal=False):
     tg = dict(THERMAL, bias_poly_dps=poly * 40) if thermal else None
     acc = SensorCal.accel("triangular9", [0.01, 0, 0, 1.01, 0.99, 1, 0.02, -0.01, 0.03])
     pipe.applied = Calibration(board, id=1, accel=SensorCal("accel", acc.model, acc.params, thermal=ta),
-                               gyro=SensorCal("gyro", "bias", {"bias_dps": np.array([1.0, -2, 0.5])}, thermal=tg))
+                               gyro=SensorCal("gyro", "bias", {"bias_dps": np.array([1.0, -2, 0.5]),
+                                                               **(GYRO_ROT if gyro_rot else {})}, thermal=tg))
     path = os.path.join(tmp, f"b-{board}-{fmt}.sock")
     sink = SocketSink(path, fmt, board, max_buffer=1 << 30)
     reader = subprocess.Popen([sys.executable, "-c", _DRAIN, path])
@@ -190,6 +196,12 @@ def main():
             us = float(np.median([cost("mpu6050", 1000, args.seconds, fmt, tmp, thermal=True)[0]
                                   for _ in range(args.repeats)]))
             print(f"  mpu6050   1000 Hz {fmt:<7} {us:6.1f} us/sample with thermal terms (order 3 + scale)")
+        # and the gyro's scale/misalignment matrix and g-sensitivity on top
+        for fmt in ("ndjson", "binary"):
+            us = float(np.median([cost("mpu6050", 1000, args.seconds, fmt, tmp, thermal=True, gyro_rot=True)[0]
+                                  for _ in range(args.repeats)]))
+            print(f"  mpu6050   1000 Hz {fmt:<7} {us:6.1f} us/sample with thermal terms and the gyro matrix + "
+                  f"g-sensitivity")
     if args.cost_only:
         return
     idle99, cal_max, cal99, runs = lateness(20.0)

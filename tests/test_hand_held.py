@@ -121,3 +121,38 @@ def test_replay_of_a_hand_held_session_applies_a_provisional_calibration_naming_
     assert cal[0]["applied"] and cal[0]["provisional"] is True
     assert cal[0]["undetermined"].get("alpha_yz") == "undetermined"
     assert cal[0]["missing_orientations"]
+
+
+def test_a_ready_fit_that_only_improves_the_gyro_still_confirms_the_provisional_accel():
+    """The job on a ready pose set does no significantly better for the accelerometer but
+    does for the gyro bias: the gyro is applied and the provisional accelerometer part is
+    confirmed as final at the same time (it stayed provisional for ever before)."""
+    from imucald.calib.gate import Decision
+    from imucald.calibration import Calibration, SensorCal
+    from imucald.daemon.calibrator import JobResult
+    from imucald.daemon.config import load_config
+    from imucald.daemon.pipeline import Pipeline
+    from imucald.calib.poses import PoseSet
+    pipe = Pipeline(load_config(None), "mpu6050", 100.0, has_mag=False, chips={"accel": "mpu6050"})
+    pipe.persist = lambda *a: None
+    theta = np.array([0, 0, 0, 1, 1, 1, 0.01, 0, 0], float)
+    prov = {"poses": 10, "poses_for_final": 25, "missing_orientations": ["-Z up"]}
+    pipe.applied = Calibration("mpu6050", {"accel": "mpu6050"}, id=1, provisional=prov,
+                               accel=SensorCal.accel("triangular9", theta))
+    cand = Calibration("mpu6050", {"accel": "mpu6050"}, accel=SensorCal.accel("triangular9", theta),
+                       gyro=SensorCal("gyro", "bias", {"bias_dps": np.array([0.1, 0.2, 0.3])}))
+    gates = {"accel": Decision(False, 0.6, 0.05, 26, 3e-4, 3.1e-4, "current"),
+             "gyro": Decision(True, 0.01, 0.05, 26, 0.01, 0.2, "current")}
+    res = JobResult(cand, {"accel": False, "gyro": True}, 0.1, {"gate": gates})
+    empty = PoseSet(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, int), np.zeros(0), np.zeros(0),
+                    np.zeros((0, 3, 3)))
+    pipe._job_ready = True
+    line = pipe._apply(res, empty)
+    assert pipe.applied.id == 2 and pipe.applied.gyro is not None
+    assert pipe.applied.provisional is None
+    cal = json.loads(line)
+    assert cal["applied"] and cal["provisional"] is False
+    pipe._job_ready = False                      # a pose set short of the targets: stays provisional
+    pipe.applied = pipe.applied.replace(provisional=prov)
+    pipe._apply(res, empty)
+    assert pipe.applied.provisional == prov

@@ -419,6 +419,12 @@ class Pipeline:
             prov = None if self._job_ready else {
                 "poses": len(ps), "poses_for_final": self.cfg["calibration"]["min_poses"],
                 "missing_orientations": list(self._job_missing)}
+        elif a and self._job_ready and prov is not None:
+            # as below when nothing is taken: a fit on a ready pose set did no significantly
+            # better, so the provisional accelerometer part stays, as final (the gyro or the
+            # magnetometer part taken with it does not change that)
+            prov = None
+            parts.append(f"accel #{ap.id} is no longer provisional")
         new = ap.replace(id=ap.id + 1, created=now, provisional=prov,
                          temperature_range_c=(round(lo, 2), round(hi, 2)) if np.isfinite(lo) else None,
                          poses_used={"columns": POSE_COLUMNS, "rows": rows} if len(ps) else None,

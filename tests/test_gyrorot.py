@@ -194,3 +194,34 @@ def test_calibrate_gyro_fits_the_matrix_prints_it_and_writes_it(tmp_path, capsys
     assert main(["calibrate", str(rec), "--sensor", "gyro"]) == 0
     text = capsys.readouterr().out
     assert "from 23 rotations between still poses" in text and "held-out rotations" in text
+
+
+def test_daemon_bias_refit_keeps_the_matrix_and_g_sensitivity():
+    """The daemon's bias refit (daemon/calibrator.py) keeps K and G in force and refits the
+    bias on the pose means without G a (else it is off by G times the mean specific force)."""
+    from imucald.daemon.calibrator import calibration_job
+    G = np.array([[0.08, -0.05, 0.03], [0.02, -0.09, 0.06], [-0.04, 0.05, 0.07]])
+
+    def gsens(sensor, raw, ctx):
+        if sensor == "gyro":
+            raw += ctx["f"] @ G.T
+
+    s = _session(17, effects=[gsens], n=16)
+    f, sl = _fit(s.recording)
+    ps = poses_from_slices(s.recording, sl)
+    acc = SensorCal.accel("triangular9", s.truth.accel)
+    gyro = SensorCal("gyro", "bias", {"bias_dps": f.bias_dps, "matrix": f.matrix.ravel(),
+                                      "g_sens_dps_per_g": f.g_sens.ravel()},
+                     {"matrix": f.matrix_se.ravel()}, {"matrix": tuple(f.matrix_flags)})
+    cur = Calibration("mpu6050", {"accel": "mpu6050", "gyro": "mpu6050"}, id=1, accel=acc, gyro=gyro)
+    job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "t0": ps.t0, "n": ps.n, "gyro": ps.gyro, "temp": None,
+           "current": cur, "method": "lm", "holdout_fraction": 0.2, "seed": 0}
+    g = calibration_job(job).candidate.gyro
+    assert np.array_equal(g.params["matrix"], f.matrix.ravel())
+    assert np.array_equal(g.params["g_sens_dps_per_g"], f.g_sens.ravel())
+    assert g.flags["matrix"] == tuple(f.matrix_flags)
+    # with G a taken out the pose means scatter by Earth rate's horizontal part (0.0028 deg/s)
+    # and noise, not by G a (~0.1 deg/s)
+    assert np.all(g.stderr["bias_dps"] < 0.002), g.stderr["bias_dps"]
+    # 5 SE plus Earth rate's horizontal part
+    assert np.all(np.abs(g.params["bias_dps"] - s.truth.gyro_bias_dps) < 5 * g.stderr["bias_dps"] + 0.003)

@@ -104,9 +104,17 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
         tg = cur.gyro.thermal if cur.gyro is not None and temp is not None else None
         g_inc = cur.apply_gyro(g, temp if temp is not None else np.full(len(g), np.nan))
         g = cur.gyro.thermal_offset(g, temp) if tg else g
+        # the scale/misalignment matrix and g-sensitivity in force (calibrate --sensor gyro,
+        # calib/gyrorot.py) are kept; the bias is refitted on the means without G a
+        kept = [k for k in ("matrix", "g_sens_dps_per_g") if cur.gyro is not None and k in cur.gyro.params]
+        if "g_sens_dps_per_g" in kept:
+            g = g - cur.apply_accel(acc, temp) @ cur.gyro.params["g_sens_dps_per_g"].reshape(3, 3).T
         b, gdec = gate_gyro_bias(g, w, g_inc, alpha, against="raw" if cur.gyro is None else "current")
         sd = gyro_bias_scatter_se(g, w, b)
-        parts["gyro"] = SensorCal("gyro", "bias", {"bias_dps": b}, {"bias_dps": sd}, method="mean",
+        carry = lambda d: {k: d[k] for k in kept if k in d}
+        parts["gyro"] = SensorCal("gyro", "bias", {"bias_dps": b, **carry(cur.gyro.params if kept else {})},
+                                  {"bias_dps": sd, **carry(cur.gyro.stderr if kept else {})},
+                                  carry(cur.gyro.flags if kept else {}), method="mean",
                                   quality={"heldout_rms_dps": gdec.rms_cv,
                                            "heldout_rms_before_dps": gdec.rms_incumbent,
                                            "poses": int(len(g)), "gate_p_value": gdec.p_value},

@@ -101,7 +101,7 @@ def xsens():
     for i in range(3):
         print(f"    {'xyz'[i]}: {K[i, i]:.5f} +- {se[i, i]:.5f} | {imutk_scale[i]:.5f}")
     print("  misalignment, off-diagonal K (ours; calibrate.m prints [[1, -0.01, -0.02], [0, 1, 0.04], "
-          "[-0.01, 0.01, 1]] for the raw-from-true direction, i.e. about minus these):")
+          "[-0.01, 0.01, 1]] as the 'datasheet' misalignment, in its own convention, to 0.01):")
     for i in range(3):
         print("    [" + ", ".join(f"{K[i, j]:+.4f}+-{se[i, j]:.4f}" if i != j else "     --      "
                                   for j in range(3)) + "]")

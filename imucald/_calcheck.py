@@ -32,8 +32,16 @@ def _keys(d: Mapping, path: str, required: set, optional: set) -> None:
             _fail(f"{pre}{k}", "missing", "see README: calibration file")
 
 
-def _array(v: Any, path: str, shape, nullable: bool = False, nonneg: bool = False) -> np.ndarray:
-    """A finite float array of the given length (0 scalar, -3 rows of 3, tuple exact)."""
+#: largest magnitude of a correction parameter: no sensor's scale, bias, hard iron or
+#: thermal coefficient comes near it, and products of such values stay finite (1e308 loaded
+#: before, and the correction gave inf and NaN)
+PARAM_LIMIT = 1e6
+
+
+def _array(v: Any, path: str, shape, nullable: bool = False, nonneg: bool = False,
+           limit: float = math.inf) -> np.ndarray:
+    """A finite float array of the given length (0 scalar, -3 rows of 3, tuple exact),
+    each |value| <= ``limit``."""
     def num(x):
         if x is None and nullable:
             return math.nan
@@ -41,6 +49,8 @@ def _array(v: Any, path: str, shape, nullable: bool = False, nonneg: bool = Fals
             _fail(path, f"{x!r} is not a number", "write plain numbers")
         if not math.isfinite(x):
             _fail(path, f"{x!r} is not finite", "write a finite number" + (" or null" if nullable else ""))
+        if abs(x) > limit:
+            _fail(path, f"{x!r} is beyond {limit:g}", "no calibration holds such a value: recalibrate")
         if nonneg and x < 0:
             _fail(path, f"{x!r} is negative", "a standard error is >= 0")
         return float(x)

@@ -42,8 +42,8 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 
 import numpy as np
 
-from ._calcheck import (FLAGS, THERMAL_UNIT, CalibrationError, _array, _fail, _flags, _keys, _provisional,
-                        _table, _thermal)
+from ._calcheck import (FLAGS, PARAM_LIMIT, THERMAL_UNIT, CalibrationError, _array, _fail, _flags, _keys,
+                        _provisional, _table, _thermal)
 
 __all__ = ["Calibration", "SensorCal", "CalibrationError", "FORMAT_VERSION", "UNITS", "FLAGS",
            "load", "save", "apply"]
@@ -232,7 +232,7 @@ class SensorCal:
             _fail(f"{path}.params", f"expected a mapping, got {type(pd).__name__}",
                   "give " + ", ".join(req))
         _keys(pd, f"{path}.params", set(req), set(opt))
-        params = {k: _array(pd[k], f"{path}.params.{k}", {**req, **opt}[k]) for k in pd}
+        params = {k: _array(pd[k], f"{path}.params.{k}", {**req, **opt}[k], limit=PARAM_LIMIT) for k in pd}
         for k, (lim, what) in (_GYRO_BOUNDS.items() if sensor == "gyro" else ()):
             if k in params and np.max(np.abs(params[k] - (np.eye(3).ravel() if k == "matrix" else 0))) > lim:
                 _fail(f"{path}.params.{k}", f"{params[k].tolist()} is not plausible ({what})",

@@ -307,7 +307,7 @@ def test_a_poses_file_with_a_nan_does_not_stop_start_up(tmp_path, caplog):
                                   + "20,21,100,nan,0,1,0.001,0.001,0.001,25\n")
     with caplog.at_level(logging.INFO, logger="imucald"):
         d, lines = _run_daemon(tmp_path, None)
-    assert "poses.csv" in caplog.text and "pose 12: acc is not finite" in caplog.text
+    assert "poses.csv:14: column ax: nan is not a finite number" in caplog.text
     assert d.pipe.samples >= 1490 and sum(b'"IMU"' in x for x in lines) > 300
 
 
@@ -328,3 +328,21 @@ def test_thermal_block_checks_its_range_order_and_the_older_gyro_term():
     d["gyro"]["thermal"] = {"order": 0, "t_min_c": 20, "t_ref_c": 25, "t_max_c": 30, "scale_poly": [[0, 0, 0]]}
     with pytest.raises(CalibrationError, match=r"^gyro\.thermal\.scale_poly: unknown key"):
         Calibration.from_dict(d)
+
+
+@pytest.mark.parametrize("key,value", [("gyro.params.bias_temp_poly_dps", [[1e308, 0.0, 0.0]]),
+                                       ("accel.params.scale", [1e300, 1.0, 1.0]),
+                                       ("mag.params.soft_iron", [1.0, 1.0, 1.0, -1e200, 0.0, 0.0])])
+def test_an_absurd_parameter_is_refused_not_turned_into_inf(key, value):
+    # found by tests/test_input_fuzz.py: 1e308 loaded, and the correction gave inf/NaN
+    d = copy.deepcopy(_DOC)
+    d["gyro"]["params"]["temp_ref_c"] = 25.0
+    d["gyro"]["params"]["bias_temp_poly_dps"] = [[0.0, 0.0, 0.0]]
+    Calibration.from_dict(d)
+    node = d
+    for k in key.split(".")[:-1]:
+        node = node[k]
+    node[key.split(".")[-1]] = value
+    with pytest.raises(CalibrationError) as e:
+        Calibration.from_dict(d)
+    assert "\n" not in str(e.value) and str(e.value).startswith(key) and "beyond" in str(e.value)

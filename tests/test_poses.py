@@ -42,3 +42,29 @@ def test_pose_file_errors(tmp_path):
     p.write_text("# imucald poses v1\nt0,t1,n,ax,ay,az\n0,1,10,0,0,1\n0,1,10,0,x,1\n")
     with pytest.raises(UserError, match=r"p.csv:4: a value is not a number"):
         read_poses(str(p))
+
+
+@pytest.mark.parametrize("body,where,what", [
+    (b"t0,t1,n,ax,ay,az\n0,1,10,0,0,1\n0,1,10,nan,0,1\n", 4, "ax"),        # NaN: calibrate's SVD failed
+    (b"t0,t1,n,ax,ay,az\n0,1,10,0,0,1\n0,1,10,1e300,0,1\n", 4, "ax"),      # calibrate hung
+    (b"t0,t1,n,ax,ay,az\n0,1,10,0,0,1\n0,1,1e400,0,0,1\n", 4, "n"),        # n became -2**63
+    (b"t0,t1,n,ax,ay,az\n0,1,-5,0,0,1\n", 3, "n"),
+    (b"t0,t1,n,ax,ay,az\n0,1,2.5,0,0,1\n", 3, "n"),
+    (b"t0,t1,n,ax,ay,az,sax,say,saz\n0,1,10,0,0,1,-1,0,0\n", 3, "sax"),
+    (b"ax,ay,az,ax\n1,0,0,1\n", 2, "ax"),                                  # a column given twice
+    (b"# board: x \xb0C\nax,ay,az\n1,0,0\n", 2, "UTF-8"),                  # was UnicodeDecodeError
+])
+def test_pose_file_faults_are_one_line_errors_naming_the_line(tmp_path, body, where, what):
+    p = tmp_path / "p.csv"
+    p.write_bytes(b"# imucald poses v1\n" + body)
+    with pytest.raises(UserError) as e:
+        read_poses(str(p))
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(f"{p}:{where}:") and what in msg, msg
+
+
+def test_pose_file_unknown_temperature_stays_allowed(tmp_path):
+    p = tmp_path / "p.csv"
+    p.write_text("# imucald poses v1\nt0,t1,n,ax,ay,az,temp\n0,1,10,0,0,1,nan\n")
+    ps = read_poses(str(p))
+    assert np.isnan(ps.temp[0]) and ps.n[0] == 10

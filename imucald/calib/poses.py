@@ -177,12 +177,19 @@ def write_poses(ps: PoseSet, path: str) -> None:
 
 
 def read_poses(path: str) -> PoseSet:
-    """Read a pose file written by :func:`write_poses`.  Errors name file and line."""
+    """Read a pose file written by :func:`write_poses`.  Errors name file and line.
+
+    Every value must be a finite number within :data:`imucald.recording.PLAUSIBLE_LIMIT`
+    (``temp`` may be ``nan``: unknown), ``n`` a positive integer and the deviations
+    ``s*`` >= 0."""
+    from ..recording import PLAUSIBLE_LIMIT
+    from ..tables import decode_line
     try:
-        with open(path, encoding="utf-8") as fh:
-            lines = fh.read().splitlines()
+        with open(path, "rb") as fh:
+            raw = fh.read()
     except OSError as e:
         raise UserError(f"{path}: cannot open: {e.strerror}") from None
+    lines = decode_line(path, raw, 1, 0).splitlines()
     if not lines or lines[0].strip() != POSES_MAGIC:
         raise UserError(f"{path}:1: not an imucald pose file (expected {POSES_MAGIC!r})")
     meta = {}
@@ -199,6 +206,9 @@ def read_poses(path: str) -> PoseSet:
     need = ["ax", "ay", "az"]
     if not all(c in cols for c in need):
         raise UserError(f"{path}:{i + 1}: the column header must include ax, ay, az")
+    dup = next((c for c in cols if cols.count(c) > 1), None)
+    if dup is not None:
+        raise UserError(f"{path}:{i + 1}: column {dup} is given twice; keep one")
     rows = []
     for j in range(i + 1, len(lines)):
         s = lines[j].strip()
@@ -208,16 +218,19 @@ def read_poses(path: str) -> PoseSet:
         if len(parts) != len(cols):
             raise UserError(f"{path}:{j + 1}: expected {len(cols)} values, found {len(parts)}")
         try:
-            rows.append([float(p) for p in parts])
+            row = [float(p) for p in parts]
         except ValueError:
             raise UserError(f"{path}:{j + 1}: a value is not a number") from None
+        for name, v in zip(cols, row):
+            _check_pose_value(path, j + 1, name, v, PLAUSIBLE_LIMIT)
+        rows.append(row)
     if not rows:
         raise UserError(f"{path}: no poses")
     d = np.array(rows)
     c = {k: d[:, cols.index(k)] for k in cols}
     N = len(d)
     acc = np.column_stack([c["ax"], c["ay"], c["az"]])
-    n = c["n"].astype(int) if "n" in c else np.ones(N, int)
+    n = c["n"].astype(np.int64) if "n" in c else np.ones(N, np.int64)
     if all(k in c for k in ("sax", "say", "saz")):
         scov = np.zeros((N, 3, 3))
         for a, k in enumerate(("sax", "say", "saz")):
@@ -234,3 +247,16 @@ def read_poses(path: str) -> PoseSet:
                    c.get("t1", np.arange(N, dtype=float)), scov,
                    gy, gcov, g3(["mx", "my", "mz"]), None,
                    c.get("temp"), meta)
+
+
+def _check_pose_value(path: str, lineno: int, name: str, v: float, limit: float) -> None:
+    """One value of a pose file: finite (temp may be nan: unknown) and physically possible."""
+    if name == "temp" and v != v:
+        return
+    if not (abs(v) <= limit):
+        what = "is not a finite number" if not np.isfinite(v) else f"is beyond {limit:g}"
+        raise UserError(f"{path}:{lineno}: column {name}: {v!r} {what} (repair or delete this line)")
+    if name == "n" and (v < 1 or not v.is_integer()):
+        raise UserError(f"{path}:{lineno}: column n: {v!r} is not a sample count (a whole number >= 1)")
+    if name in ("sax", "say", "saz") and v < 0:
+        raise UserError(f"{path}:{lineno}: column {name}: {v!r} is a negative standard deviation")

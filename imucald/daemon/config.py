@@ -182,8 +182,12 @@ def _scan(text: str, path: str) -> Tuple[Dict[str, int], Dict[str, str]]:
             return
         seen: Dict[str, int] = {}
         for k, v in n.value:
-            key = f"{prefix}{k.value}"
             ln = k.start_mark.line + 1
+            if not isinstance(k, yaml.ScalarNode):
+                raise ConfigError(f"{path}:{ln}: a key must be a name, not a "
+                                  f"{'list' if isinstance(k, yaml.SequenceNode) else 'mapping'}; "
+                                  f"write section: / key: value")
+            key = f"{prefix}{k.value}"
             if k.value in seen:
                 raise ConfigError(f"{path}:{ln}: {key} is given twice (first at line {seen[k.value]}): "
                                   f"keep one")

@@ -1,0 +1,345 @@
+"""Property-based fuzzing (hypothesis) of the other inputs a user or a client hands imucald:
+the configuration file, the calibration file, pose files and control-socket requests.
+
+Each input, whatever it holds, gives a valid result or the project's one-line UserError
+naming the file (config: ConfigError, exit 78; calibration: CalibrationError; pose file:
+UserError, exit 2); never another exception.  A control request always gets one JSON reply
+line (strict JSON) of a known class; an error reply is one line.  2,000 cases per input,
+drawn from token lists (cheap), derandomized so CI is reproducible.
+"""
+import json
+import math
+import os
+import socket
+import tempfile
+
+import numpy as np
+import pytest
+import yaml
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+
+from imucald.calib.poses import POSES_MAGIC, read_poses  # noqa: E402
+from imucald.calibration import Calibration, CalibrationError, SensorCal, load  # noqa: E402
+from imucald.daemon import control as ctl  # noqa: E402
+from imucald.daemon.config import SCHEMA, ConfigError, parse_yaml, validate  # noqa: E402
+from imucald.errors import UserError  # noqa: E402
+
+N = 2000
+FUZZ = settings(max_examples=N, deadline=None, derandomize=True, database=None,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+
+_DIR = None
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _scratch():
+    import shutil
+    global _DIR
+    _DIR = tempfile.mkdtemp(prefix="imucald-fuzz-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
+    yield
+    shutil.rmtree(_DIR, ignore_errors=True)
+
+
+def _file(name: str, data: bytes) -> str:
+    p = os.path.join(_DIR, name)
+    with open(p, "wb") as fh:
+        fh.write(data)
+    return p
+
+
+def _one_line(e: Exception, path: str = "") -> None:
+    msg = str(e)
+    assert msg and "\n" not in msg and "Traceback" not in msg, msg
+    assert not path or msg.startswith(path), msg
+
+
+# --- the configuration file -------------------------------------------------------------------
+
+_KEYS = sorted(SCHEMA) + ["sensor.nope", "bogus.key", "sensor.emulate.x"]
+_SCALARS = ["yes", "no", "true", "false", "0660", '"0660"', "'0o660'", "0o660", "0x68", "104", "0",
+            "-1", "1e3", "1.5", ".nan", ".inf", "-.inf", "~", "null", "''", "100", "1000", "1001",
+            "mpu6050", "9dof", "ga", "ndjson", "info", "[1, 2]", "{a: 1}", "!!python/object:os.system",
+            "&a 1", "*a", "*b", "\"\\xff\"", "'unterminated", "\u00b0C", "x" * 200, "2.5e-3", "25", "5",
+            "4", "0.001", "60", "10"]
+_SEPS = [": ", ":", ":  ", " : "]
+
+
+@st.composite
+def config_text(draw):
+    lines = []
+    for key in draw(st.lists(st.sampled_from(_KEYS), max_size=6)):
+        sec, name = key.split(".", 1)
+        lines.append(f"{sec}:")
+        lines.append(f"{draw(st.sampled_from(['  ', '    ', '', chr(9)]))}{name}"
+                     f"{draw(st.sampled_from(_SEPS))}{draw(st.sampled_from(_SCALARS))}"
+                     f"{draw(st.sampled_from(['', '  # c', ' #' + chr(176)]))}")
+    if draw(st.booleans()):
+        lines.insert(draw(st.integers(0, len(lines))),
+                     draw(st.sampled_from(["---", "...", "- a", "[", "}", "%YAML 1.1", "? [a]\n: 1",
+                                           "sensor: [a, b]", "sensor: 3", "&x sensor: {}", "<<: *x",
+                                           "log: {level: debug}", "sensor:\n  board: 9dof\n  rate_hz: 150"])))
+    return "\n".join(lines) + draw(st.sampled_from(["", "\n", "\r\n"]))
+
+
+@FUZZ
+@given(text=config_text(), tail=st.sampled_from([b"", b"\xb0", b"\x00", b"\xef\xbb\xbf", b"\t: x"]))
+def test_config_loader_fuzz(text, tail):
+    raw = text.encode() + tail
+    try:
+        data, lines, plain = parse_yaml(raw, "c.yaml")
+        cfg = validate(data, "c.yaml", lines, plain)
+    except ConfigError as e:
+        _one_line(e, "c.yaml")
+        assert e.exit_code == 78
+        return
+    for key, (_, kind, allowed) in SCHEMA.items():
+        sec, k = key.split(".")
+        v = cfg[sec][k]
+        if kind in ("int", "float"):
+            assert not isinstance(v, bool) and allowed[0] <= v <= allowed[1], (key, v)
+        elif kind == "choice":
+            assert v in allowed, (key, v)
+        elif kind == "mode":
+            assert isinstance(v, str) and len(v) == 4 and int(v, 8) <= 0o777
+
+
+@FUZZ
+@given(data=st.binary(max_size=200))
+def test_config_loader_any_bytes(data):
+    try:
+        validate(*parse_yaml(data, "c.yaml")[:1], "c.yaml")
+    except ConfigError as e:
+        _one_line(e, "c.yaml")
+
+
+# --- the calibration file ---------------------------------------------------------------------
+
+def _good_doc():
+    from imucald.calib.models import get_model
+    acc = SensorCal.accel("triangular9", get_model("triangular9").nominal, np.full(9, 1e-4),
+                          method="ga", quality={"poses": 25, "rms_g": 0.001})
+    gyro = SensorCal("gyro", "bias", {"bias_dps": np.array([0.1, -0.2, 0.3]), "matrix": np.eye(3).ravel(),
+                                      "bias_temp_poly_dps": np.zeros((2, 3)), "temp_ref_c": np.array(25.0)},
+                     {"bias_dps": np.full(3, 0.01)}, method="mean")
+    mag = SensorCal("mag", "mag_sym", {"hard_iron_gauss": np.array([0.1, 0.0, -0.1]),
+                                       "soft_iron": np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0]),
+                                       "field_gauss": np.array(0.5)})
+    cal = Calibration("9dof", {"accel": "adxl345"}, 4, "2026-01-01T00:00:00Z", (20.0, 30.0), acc, gyro, mag,
+                      {"columns": ["ax", "ay", "az"], "rows": [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]},
+                      {"poses": 12, "poses_for_final": 25, "missing_orientations": ["-Z up"]}, "abc123")
+    return cal.to_dict()
+
+
+GOOD = _good_doc()
+
+
+def _paths(d, pre=()):
+    out = [pre] if pre else []
+    if isinstance(d, dict):
+        for k, v in d.items():
+            out += _paths(v, pre + (k,))
+    elif isinstance(d, list):
+        for i, v in enumerate(d):
+            out += _paths(v, pre + (i,))
+    return out
+
+
+_PATHS = _paths(GOOD)
+_DELETE = object()
+_VALUES = [None, "abc", "", math.nan, math.inf, -math.inf, -1, 0, 1, 2, 1.5, 1e308, -1e308, True, False,
+           [], {}, [1.0, 2.0], [1.0, 2.0, 3.0], [[1.0, 2.0, 3.0]], [None, 1.0, 2.0], ["a", "b", "c"],
+           {"x": 1}, "mpu6050", "triangular9", "bias", "mag_sym", "full12", "determined", 10 ** 30,
+           ["determined"] * 3, [[]], [[1.0, math.nan, 3.0]], "2026", 1, 3, _DELETE, "unknown_key"]
+
+
+def _mutate(doc, path, value):
+    if not path:
+        return value if value is not _DELETE else None
+    d = doc
+    for k in path[:-1]:
+        d = d[k]
+    if value == "unknown_key" and isinstance(d[path[-1]], dict):
+        d[path[-1]]["zz_unknown"] = 1
+    elif value is _DELETE:
+        if isinstance(d, dict):
+            del d[path[-1]]
+        else:
+            d.pop(path[-1])
+    else:
+        d[path[-1]] = value
+    return doc
+
+
+@FUZZ
+@given(muts=st.lists(st.tuples(st.sampled_from(_PATHS), st.sampled_from(_VALUES)), min_size=1, max_size=3),
+       v1=st.booleans())
+def test_calibration_from_dict_fuzz(muts, v1):
+    doc = json.loads(json.dumps(GOOD))
+    if v1:
+        doc["format_version"] = 1
+    for path, value in muts:
+        try:
+            doc = _mutate(doc, path, value)
+        except (KeyError, IndexError, TypeError):
+            pass                     # an earlier mutation removed or replaced the parent
+    try:
+        cal = Calibration.from_dict(doc)
+    except CalibrationError as e:
+        _one_line(e)
+        return
+    for s in ("accel", "gyro", "mag"):       # what loads corrects finitely
+        p = cal.part(s)
+        if p is not None:
+            out = p.apply(np.array([[0.1, -0.9, 0.2]]), np.array([30.0]))
+            assert np.isfinite(out).all(), (s, p.params)
+    assert Calibration.from_dict(cal.to_dict()).to_dict() == cal.to_dict()
+
+
+_GOOD_TEXT = yaml.safe_dump(GOOD, sort_keys=False, default_flow_style=None, width=100)
+_EDITS = [b"", b"\xb0", b"\x00", b"[", b"{", b"]", b":", b"- ", b"!!python/name:os.system", b"*x", b"&x ",
+          b".nan", b"~", b"'", b'"', b"\t", b"\n", b"  ", b"1e999", b"0x10", b"yes", b"? ", b"%", b"---\n"]
+
+
+@FUZZ
+@given(cuts=st.lists(st.tuples(st.integers(0, len(_GOOD_TEXT)), st.integers(0, 8), st.sampled_from(_EDITS)),
+                     min_size=1, max_size=3))
+def test_calibration_file_fuzz(cuts):
+    raw = bytearray(_GOOD_TEXT.encode())
+    for at, drop, ins in cuts:
+        raw[at:at + drop] = ins
+    path = _file("calibration.yaml", bytes(raw))
+    try:
+        load(path)
+    except CalibrationError as e:
+        _one_line(e, path)
+
+
+# --- pose files -------------------------------------------------------------------------------
+
+_PCOLS = ["t0", "t1", "n", "ax", "ay", "az", "sax", "say", "saz", "gx", "gy", "gz", "mx", "my", "mz",
+          "temp", "x"]
+_PNUMS = ["0", "1", "-1", "0.5", "200", "2.5", "1e3", "1e6", "1e7", "1e308", "1e999", "nan", "inf", "-inf",
+          "NaN", "x", "", " ", "1_0", "0x10", "-0.0", "4.9e-324", "\u0661", "123456789012345678901"]
+
+
+@st.composite
+def pose_file(draw):
+    cols = draw(st.one_of(st.just(["t0", "t1", "n", "ax", "ay", "az", "sax", "say", "saz", "temp"]),
+                          st.lists(st.sampled_from(_PCOLS), min_size=1, max_size=8)))
+    head = [draw(st.sampled_from([POSES_MAGIC, POSES_MAGIC, POSES_MAGIC + " ", "# imucald poses v2", "ax"]))]
+    head += draw(st.lists(st.sampled_from(["# board: mpu6050", "# rate_hz: 100", "#", "# a: b: c"]), max_size=2))
+    rows = draw(st.lists(st.lists(st.sampled_from(_PNUMS), min_size=len(cols) - 1, max_size=len(cols) + 1),
+                         max_size=5))
+    body = [",".join(cols)] + [",".join(r) for r in rows]
+    if draw(st.booleans()):
+        body.insert(draw(st.integers(0, len(body))), draw(st.sampled_from(["", "# c", "\u00e9", "\x00", ",,,"])))
+    return ("\n".join(head + body) + draw(st.sampled_from(["", "\n", "\r\n"]))).encode()
+
+
+@FUZZ
+@given(data=st.one_of(pose_file(), st.binary(max_size=200).map(lambda b: POSES_MAGIC.encode() + b"\n" + b)))
+def test_pose_file_fuzz(data):
+    path = _file("poses.csv", data)
+    try:
+        ps = read_poses(path)
+    except UserError as e:
+        _one_line(e, path)
+        return
+    assert len(ps) > 0 and (ps.n >= 1).all()
+    for a in (ps.acc, ps.t0, ps.t1, ps.gyro, ps.mag, ps.acc_sample_cov):
+        assert a is None or (np.isfinite(a).all() and (np.abs(a) <= 1e12).all())
+
+
+# --- control-socket requests ------------------------------------------------------------------
+
+_REPLY_CLASS = {"status": "STATUS", "poses": "POSES", "coverage": "COVERAGE", "recalibrate": "RECALIBRATE",
+                "reset": "RESET", "reload": "RELOAD"}
+
+
+class _Handler:
+    """Stands in for the daemon's command handler: answers a known command by class, and
+    for some raises, as a failing part of the daemon would."""
+
+    def __init__(self):
+        self.calls = []
+
+    def __call__(self, cmd):
+        self.calls.append(cmd)
+        if cmd == "reset":
+            raise ValueError("bad\nthing")
+        return {"class": _REPLY_CLASS[cmd], "value": 1.5}
+
+
+_WORDS = list(ctl.COMMANDS) + ["", " ", "STATUS", "status ", "stat", "{", "}", '{"cmd":', '"status"', "null",
+                               "[]", "1e999", '"cmd"', ":", ",", "\u00e9", "\x00", "\\u0000", "\\ud800", "{}",
+                               '{"cmd": 1}', '{"cmd": null}', '{"cmd": ["status"]}', '{"cmd": "status"}',
+                               '{"cmd": "reset", "x": NaN}', "9" * 5000, "[" * 2000, '{"a":' * 600]
+
+
+@FUZZ
+@given(parts=st.lists(st.one_of(st.sampled_from(_WORDS), st.text(max_size=8)), max_size=5),
+       junk=st.binary(max_size=12))
+def test_control_request_fuzz(parts, junk):
+    h = _Handler()
+    srv = ctl.ControlServer.__new__(ctl.ControlServer)     # dispatch only: no socket
+    srv.handler = h
+    raw = "".join(parts).encode("utf-8", "surrogatepass") + junk
+    reply = srv.dispatch(raw.replace(b"\n", b" "))
+    line = ctl._reply(reply)
+    assert line.endswith(b"\n") and line.count(b"\n") == 1
+    back = json.loads(line, parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    assert back["class"] in set(_REPLY_CLASS.values()) | {"ERROR"}
+    if back["class"] == "ERROR":
+        assert back["message"] and "\n" not in back["message"]
+    else:
+        assert h.calls and _REPLY_CLASS[h.calls[-1]] == back["class"]
+
+
+def test_control_requests_through_a_real_socket(tmp_path):
+    """Hostile lines through the real server: one reply line per request line, in order,
+    each strict JSON; an over-long line ends that client only."""
+    import random
+    h = _Handler()
+    srv = ctl.ControlServer(str(tmp_path / "c.sock"), h, "0600")
+    rnd = random.Random(7)
+    lines = [b"status", b"\xff\xfe", b'{"cmd": "poses"}', b"{", b"\x00reset", b'{"cmd": 1}', b"coverage",
+             bytes(rnd.randrange(256) for _ in range(40)).replace(b"\n", b""), b"reload"]
+    try:
+        c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        c.connect(str(tmp_path / "c.sock"))
+        c.settimeout(0.01)
+        c.sendall(b"\n".join(lines) + b"\n")
+        buf = b""
+        for _ in range(2000):
+            srv.poll()
+            try:
+                buf += c.recv(65536)
+            except socket.timeout:
+                pass
+            if buf.count(b"\n") >= len(lines):
+                break
+        replies = [json.loads(x) for x in buf.splitlines()]
+        assert [r["class"] for r in replies] == ["STATUS", "ERROR", "POSES", "ERROR", "ERROR", "ERROR",
+                                                 "COVERAGE", "ERROR", "RELOAD"]
+        assert all("\n" not in r.get("message", "") for r in replies)
+        # an over-long line: one ERROR, then the connection is closed; others go on
+        c.sendall(b"s" * (ctl.MAX_LINE + 10))
+        c.settimeout(0.01)
+        buf = b""
+        for _ in range(2000):
+            srv.poll()
+            try:
+                d = c.recv(65536)
+                if not d:
+                    break
+                buf += d
+            except socket.timeout:
+                pass
+            except ConnectionResetError:     # closed with the rest of the line unread
+                break
+        assert json.loads(buf)["class"] == "ERROR" and srv.dropped == 1
+        c.close()
+    finally:
+        srv.close()

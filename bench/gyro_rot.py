@@ -35,10 +35,11 @@ XSENS = os.path.join(ROOT, "..", "shared", "data", "real", "imutk_xsens_mti")
 
 
 def calibrated_acc(rec, slices, chip):
+    """(calibrated accel samples, acc_frame: model, theta, covariance)."""
     ps = poses_from_slices(rec, slices)
     cal = fit_norm(ps.acc, "triangular9", "lm", pose_cov=ps.acc_cov, chip=chip)
     A, c = get_model("triangular9").affine(cal.theta)
-    return rec.acc @ np.asarray(A).T + c
+    return rec.acc @ np.asarray(A).T + c, ("triangular9", cal.theta, cal.info["covariance"])
 
 
 def monte_carlo(runs, tremor_dps=0.0):
@@ -49,8 +50,9 @@ def monte_carlo(runs, tremor_dps=0.0):
                              move_s=(2, 4), tremor_dps=tremor_dps)
         rec = s.recording
         sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
-        f = fit_gyro_rotations(rec.t, rec.gyro, calibrated_acc(rec, sl, "mpu6050"), sl, chip="mpu6050",
-                               range_dps=250.0, folds=2)
+        acc, frame = calibrated_acc(rec, sl, "mpu6050")
+        f = fit_gyro_rotations(rec.t, rec.gyro, acc, sl, chip="mpu6050", range_dps=250.0, folds=2,
+                               acc_frame=frame)
         err.append(f.matrix - np.linalg.inv(s.truth.gyro_matrix))
         se.append(f.matrix_se)
         chi.append(f.chi2_dof)
@@ -84,8 +86,8 @@ def xsens():
 
     def run():
         sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
-        return sl, fit_gyro_rotations(rec.t, rec.gyro, calibrated_acc(rec, sl, None), sl,
-                                      range_dps=32768 / gs)
+        acc, frame = calibrated_acc(rec, sl, None)
+        return sl, fit_gyro_rotations(rec.t, rec.gyro, acc, sl, range_dps=32768 / gs, acc_frame=frame)
     dt, (sl, f) = median_time(run, 5)
     h = f.heldout
     print(f"  {len(rec)} samples, {len(sl)} still poses, {f.rotations} rotations used, left out {f.left_out}; "

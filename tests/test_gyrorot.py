@@ -24,7 +24,8 @@ def _fit(rec, **kw):
     cal = fit_norm(ps.acc, "triangular9", "lm", pose_cov=ps.acc_cov, chip="mpu6050")
     A, c = get_model("triangular9").affine(cal.theta)
     acc = rec.acc @ np.asarray(A).T + c
-    return fit_gyro_rotations(rec.t, rec.gyro, acc, sl, chip="mpu6050", range_dps=250, **kw), sl
+    return fit_gyro_rotations(rec.t, rec.gyro, acc, sl, chip="mpu6050", range_dps=250,
+                              acc_frame=("triangular9", cal.theta, cal.info["covariance"]), **kw), sl
 
 
 @pytest.fixture(scope="module")
@@ -225,3 +226,42 @@ def test_daemon_bias_refit_keeps_the_matrix_and_g_sensitivity():
     assert np.all(g.stderr["bias_dps"] < 0.002), g.stderr["bias_dps"]
     # 5 SE plus Earth rate's horizontal part
     assert np.all(np.abs(g.params["bias_dps"] - s.truth.gyro_bias_dps) < 5 * g.stderr["bias_dps"] + 0.003)
+
+
+def test_accelerometer_frame_uncertainty_is_carried_into_k():
+    """K is relative to the calibrated accelerometer's frame, itself uncertain (~1e-4 from 30
+    poses): its covariance adds to K's (bench/gyro_rot.py: without it the reported SE was
+    0.72 of the Monte Carlo spread of the misalignments, with it 0.92)."""
+    s = _session(11)
+    rec = s.recording
+    sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
+    ps = poses_from_slices(rec, sl)
+    cal = fit_norm(ps.acc, "triangular9", "lm", pose_cov=ps.acc_cov, chip="mpu6050")
+    A, c = get_model("triangular9").affine(cal.theta)
+    acc = rec.acc @ np.asarray(A).T + c
+    f0 = fit_gyro_rotations(rec.t, rec.gyro, acc, sl, chip="mpu6050")
+    f1 = fit_gyro_rotations(rec.t, rec.gyro, acc, sl, chip="mpu6050",
+                            acc_frame=("triangular9", cal.theta, cal.info["covariance"]))
+    assert np.array_equal(f0.matrix, f1.matrix)
+    ratio = f1.matrix_se / f0.matrix_se
+    assert np.all(ratio >= 1) and 1.1 < np.mean(ratio) < 2, ratio
+
+
+def test_field_direction_adds_the_rotation_about_gravity():
+    rng = np.random.default_rng(21)
+    s = simulate_session("mpu9250", random_pose_set(30, rng), rng, rate_hz=100, hold_s=(6, 8), move_s=(2, 3))
+    rec, tr = s.recording, s.truth
+    sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
+    ps = poses_from_slices(rec, sl)
+    cal = fit_norm(ps.acc, "triangular9", "lm", pose_cov=ps.acc_cov, chip="mpu9250")
+    A, c = get_model("triangular9").affine(cal.theta)
+    acc = rec.acc @ np.asarray(A).T + c
+    mag = (rec.mag - tr.mag_hard_iron_gauss) @ tr.mag_soft_iron.T      # calibrated: h = W (m - v)
+    frame = ("triangular9", cal.theta, cal.info["covariance"])
+    fg = fit_gyro_rotations(rec.t, rec.gyro, acc, sl, chip="mpu9250", acc_frame=frame)
+    fm = fit_gyro_rotations(rec.t, rec.gyro, acc, sl, mag=mag, chip="mpu9250", acc_frame=frame)
+    assert fm.reference == "gravity+field" and fg.reference == "gravity"
+    z = (fm.matrix - np.linalg.inv(tr.gyro_matrix)) / fm.matrix_se
+    assert np.all(np.abs(z) < 3), z
+    assert abs(fm.chi2_dof - 1) < 3 * np.sqrt(2 / 107), fm.chi2_dof     # 4 residuals per rotation
+    assert np.all(fm.matrix_se < fg.matrix_se)

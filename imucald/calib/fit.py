@@ -315,7 +315,7 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
                         "prior": ("datasheet tolerances" + (f" ({chip})" if chip else " (generic)"))
                         if lam.any() else ("none: ga-paper is paper 000 as written" if use_prior
                                            else "none")},
-        "heldout_normalised_rms": ho_norm, "heldout_residuals": ho,
+        "heldout_normalised_rms": ho_norm, "heldout_residuals": ho, "covariance": cov,
         "heldout_predicted_std": ho_sd}
     if noise_inflation is not None:
         k = np.broadcast_to(np.asarray(noise_inflation, float), (N,))

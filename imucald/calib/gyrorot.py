@@ -217,7 +217,7 @@ class _Windows:
         L = max(b - a for _, _, a, b, _ in wins) + 2
         R = len(wins)
         self.vd = np.zeros((R, L, 3))       # increments, deg (before K)
-        self.wdt2 = np.zeros(R)             # sum of (weight dt)^2, s^2: the angle random walk's
+        self.wdt2 = np.zeros(R)             # s^2: the angle's white-noise variance / per-sample variance
         self.T = np.zeros(R)                # motion time, s
         for r, (p, s, a, b, e) in enumerate(wins):
             tt = t[s:e + 1]
@@ -235,7 +235,16 @@ class _Windows:
             self.vd[r, 0] = d[pre].sum(0)
             self.vd[r, 1:n + 1] = d[~pre & ~post]
             self.vd[r, n + 1] = d[post].sum(0)
-            self.wdt2[r] = float(np.sum((wt * np.diff(tt)) ** 2))
+            # white noise: each sample's coefficient in the angle (s): its share of the weighted
+            # increments less its share of the pose-mean bias subtracted over the window
+            wd = wt * np.diff(tt)
+            fm = 0.5 * (f[1:] + f[:-1])
+            coef = np.zeros(len(tt))
+            coef[:-1] += 0.5 * wd
+            coef[1:] += 0.5 * wd
+            coef[:a - s + 1] -= np.sum(wd * (1 - fm)) / (a - s + 1)
+            coef[b - s:] -= np.sum(wd * fm) / (e - b + 1)
+            self.wdt2[r] = float(coef @ coef)
             self.T[r] = t[b] - t[a]
 
     def integrate(self, K):
@@ -294,6 +303,20 @@ class _Problem:
             Js.append(np.linalg.solve(Lc, J))
         return np.concatenate(rs, 1).reshape(-1), np.concatenate(Js, 1).reshape(-1, 9), Delta
 
+    def frame_jacobian(self, K, du_start, du_end):
+        """Whitened residuals' derivative (rows as residual_jacobian's, k columns) in the
+        accelerometer calibration's parameters, from the gravity directions' derivatives
+        du (R, 3, k) at the start and end poses (the field directions do not depend on them)."""
+        Delta, _ = self.W.integrate(K)
+        out = []
+        for i, (B, C) in enumerate(zip(self.B, self.cov(Delta))):
+            if i == 0:
+                D = np.einsum("ria,rik->rak", B, np.einsum("rji,rjk->rik", Delta, du_start) - du_end)
+                out.append(np.linalg.solve(np.linalg.cholesky(C), D))
+            else:
+                out.append(np.zeros((len(Delta), 2, du_start.shape[2])))
+        return np.concatenate(out, 1).reshape(-1, du_start.shape[2])
+
 
 def _solve(prob, lam, phi=1.0, E0=None, iters=20):
     """MAP Gauss-Newton on E (9), prior precision lam (9,), noise scale phi."""
@@ -323,7 +346,7 @@ def _build(t, gyro, acc, mag, slices, wins, offsets, G, acc_cov, mag_cov, sample
         P = np.eye(3) - np.einsum("ni,nj->nij", u, u)
         C = np.einsum("nij,njk,nkl->nil", P, covs, P) / nrm[:, None, None] ** 2
         refs.append((u[p0], u[p0 + 1], C[p0], C[p0 + 1]))
-    var_ang = sample_var * W.wdt2 + (offset_var[p0] + offset_var[p0 + 1]) / 2 * W.T ** 2
+    var_ang = sample_var * W.wdt2
     for q in (p0, p0 + 1):      # the wobble's share: (end - start angle) x (1/2 + T_motion / 2 T_pose)
         Tq = np.array([t[slices[i].stop - 1] - t[slices[i].start] for i in q])
         var_ang = var_ang + 2 * wobble[q] * (0.5 + W.T / (2 * np.maximum(Tq, 1e-9))) ** 2
@@ -332,14 +355,16 @@ def _build(t, gyro, acc, mag, slices, wins, offsets, G, acc_cov, mag_cov, sample
 
 
 def fit_gyro_rotations(t_s, gyro_dps, acc_g, slices: Sequence[slice], mag=None, chip: Optional[str] = None,
-                       range_dps: Optional[float] = None, g_sens: bool = True, folds: int = 5
-                       ) -> Optional[GyroRotFit]:
+                       range_dps: Optional[float] = None, g_sens: bool = True, folds: int = 5,
+                       acc_frame=None) -> Optional[GyroRotFit]:
     """Fit K (and G) from a recording: samples t_s (n,), gyro_dps (n, 3) raw, acc_g (n, 3)
     calibrated, optional mag (n, 3) calibrated (any unit; its direction is used), the still
     intervals ``slices`` (sample index ranges, e.g. calib.poses.detect_static).  range_dps:
     the gyro's full scale (saturation check; None: no check).  Held-out figures from
-    ``folds``-fold cross-validation over rotations.  None when fewer than 3 rotations are
-    usable."""
+    ``folds``-fold cross-validation over rotations.  acc_frame: (accelerometer model name,
+    theta, covariance of theta) of the calibration that gave acc_g; its uncertainty (the
+    frame K is relative to) is then added to K's covariance (sensitivity of the MAP
+    estimate to the gravity directions).  None when fewer than 3 rotations are usable."""
     t = np.asarray(t_s, float)
     gyro = np.asarray(gyro_dps, float)
     acc = np.asarray(acc_g, float)
@@ -381,6 +406,12 @@ def fit_gyro_rotations(t_s, gyro_dps, acc_g, slices: Sequence[slice], mag=None, 
     if phi != 1.0:
         E, r, J, H = _solve(prob, lam, phi, E)
     cov = np.linalg.inv(H)
+    if acc_frame is not None:
+        du = _frame_derivative(acc_frame, np.array([acc[s].mean(0) for s in slices]))
+        p0 = np.array([w[0] for w in wins])
+        Ja = prob.frame_jacobian(np.eye(3) + E.reshape(3, 3), du[p0], du[p0 + 1])
+        Sens = -cov @ (J.T @ Ja) / phi
+        cov = cov + Sens @ np.asarray(acc_frame[2], float) @ Sens.T
     se = np.sqrt(np.diag(cov))
     flags = ["determined" if s <= UNDETERMINED_RATIO / np.sqrt(l) else "undetermined"
              for s, l in zip(se, lam)]
@@ -392,6 +423,27 @@ def fit_gyro_rotations(t_s, gyro_dps, acc_g, slices: Sequence[slice], mag=None, 
         / nref)))
     return GyroRotFit(K, se.reshape(3, 3), flags, b, bse, G, Gse, gflags, len(wins), left, float(phi),
                       chi2 / dof, rms, ho, "gravity" if mg is None else "gravity+field")
+
+
+def _frame_derivative(acc_frame, cal_means):
+    """d(unit gravity direction)/d theta (N, 3, k) at the calibrated pose means, by central
+    differences of the model's affine correction."""
+    from .models import get_model
+    name, theta, _ = acc_frame
+    m = get_model(name)
+    th = np.asarray(theta, float)
+    A, c = (np.asarray(x, float) for x in m.affine(th))
+    raw = np.linalg.solve(A, (cal_means - c).T).T
+    unit = lambda x: x / np.linalg.norm(x, axis=1, keepdims=True)
+    out = np.zeros((len(raw), 3, len(th)))
+    for i in range(len(th)):
+        h = 1e-6 * max(1.0, abs(th[i]))
+        d = np.zeros(len(th))
+        d[i] = h
+        Ap, cp = (np.asarray(x, float) for x in m.affine(th + d))
+        Am, cm = (np.asarray(x, float) for x in m.affine(th - d))
+        out[:, :, i] = (unit(raw @ Ap.T + cp) - unit(raw @ Am.T + cm)) / (2 * h)
+    return out
 
 
 def _heldout(build, wins, lam, phi, folds, K_all):

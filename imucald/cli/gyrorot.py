@@ -34,7 +34,8 @@ def fit_rotations(rec, poses, args):
         rng = float(rng) if rng is not None else (GYRO[chips[1]].range_dps if chips[1] in GYRO else None)
     except ValueError:
         rng = None
-    fit = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, chip=chips[1], range_dps=rng)
+    fit = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, chip=chips[1], range_dps=rng,
+                             acc_frame=("triangular9", acc_cal.theta, acc_cal.info["covariance"]))
     if fit is None:
         return None, "fewer than 3 clean rotations between consecutive still poses"
     return fit, ""

@@ -194,7 +194,7 @@ def test_calibrate_gyro_fits_the_matrix_prints_it_and_writes_it(tmp_path, capsys
     assert cal.gyro.quality["rotations"] == 23
     assert main(["calibrate", str(rec), "--sensor", "gyro"]) == 0
     text = capsys.readouterr().out
-    assert "from 23 rotations between still poses" in text and "held-out rotations" in text
+    assert "from 23 rotations between still poses (reference: gravity;" in text and "held-out rotations" in text
 
 
 def test_daemon_bias_refit_keeps_the_matrix_and_g_sensitivity():

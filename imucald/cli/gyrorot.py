@@ -34,11 +34,31 @@ def fit_rotations(rec, poses, args):
         rng = float(rng) if rng is not None else (GYRO[chips[1]].range_dps if chips[1] in GYRO else None)
     except ValueError:
         rng = None
-    fit = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, chip=chips[1], range_dps=rng,
-                             acc_frame=("triangular9", acc_cal.theta, acc_cal.info["covariance"]))
+    frame = ("triangular9", acc_cal.theta, acc_cal.info["covariance"])
+    fit = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, chip=chips[1], range_dps=rng, acc_frame=frame)
     if fit is None:
         return None, "fewer than 3 clean rotations between consecutive still poses"
+    mag = _calibrated_mag(rec, args.seed)
+    if mag is not None:     # the field direction too, when it agrees with its noise model
+        fm = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, mag=mag, chip=chips[1], range_dps=rng,
+                                acc_frame=frame)
+        if fm is not None and fm.excess_scatter == 1.0:
+            return fm, ""
+        fit.reference = "gravity (field directions left out: they scatter beyond their noise)"
     return fit, ""
+
+
+def _calibrated_mag(rec, seed):
+    """The recording's magnetometer corrected by its own rotation-cloud calibration
+    (mag_sym), or None (no magnetometer, or the cloud does not determine one)."""
+    if rec.mag is None:
+        return None
+    from ..calib.magcal import calibrate_rotation
+    from ..calibration import SensorCal
+    res = calibrate_rotation(rec.mag, "mag_sym", "lm", rng=seed)
+    if not res["determined"]:
+        return None
+    return SensorCal.from_fit(res["calibration"]).apply(rec.mag)
 
 
 def _row(v, fmt):
@@ -50,7 +70,7 @@ def rotation_lines(fit, why: str = "") -> List[str]:
         return [f"gyro scale/misalignment: not fitted ({why})"]
     K, se = fit.matrix, fit.matrix_se
     out = [f"gyro scale/misalignment from {fit.rotations} rotations between still poses "
-           f"({fit.reference} directions; left out: {fit.left_out['saturated']} saturated, "
+           f"(reference: {fit.reference}; left out: {fit.left_out['saturated']} saturated, "
            f"{fit.left_out['gap']} with lost samples)",
            "  matrix K, corrected = K (raw - bias - G a), row by row:"]
     out += [f"    {_row(K[i], '{:+.6f}')}  +- {_row(se[i], '{:.1e}')}" for i in range(3)]

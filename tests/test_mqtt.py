@@ -266,7 +266,8 @@ def test_tls_with_a_private_ca(tmp_path):
     other = make_tls_files(tmp_path / "other")
     b2, stop2, t2 = _bridge_thread(_cfg(tmp_path, broker.port, tls="true", ca_file=other[0]), tmp_path)
     try:
-        time.sleep(1.0)
+        assert sub.wait(lambda: b2.last_connect_error is not None, 10)
+        assert "certificate verify failed" in b2.last_connect_error, b2.last_connect_error
         assert b2.stats["connects"] == 0 and b2.stats["published"] == 0
     finally:
         stop2.set()

@@ -188,3 +188,32 @@ def test_unit_prevents_restart_exactly_for_the_unfixable_codes():
     unit = open(os.path.join(ROOT, "systemd", "imucald.service")).read()
     line = next(l for l in unit.splitlines() if l.startswith("RestartPreventExitStatus="))
     assert {int(x) for x in line.split("=", 1)[1].split()} == set(NO_RESTART) == {2, 73, 78}
+
+
+@pytest.mark.parametrize("body,msg", [
+    (b"sensor:\n  board: mpu6050  # 20 \xb0C\n", "c.yaml:2: byte 0xb0 at offset 31 is not UTF-8"),
+    (b"output:\n  socket_mode: 0660\n", 'c.yaml:2: output.socket_mode: 0660 unquoted is a number to YAML'),
+    (b"sensor:\n  board: mpu6050\n  board: 9dof\n", "c.yaml:3: sensor.board is given twice"),
+    (b"sensor:\n  emulate: maybe\n", "c.yaml:2: sensor.emulate: 'maybe' is not allowed"),
+    (b"? [a]\n: 1\n", "c.yaml:1: a key must be a name"),
+])
+def test_a_bad_configuration_stops_the_daemon_at_start_with_78(tmp_path, capsys, body, msg):
+    (tmp_path / "c.yaml").write_bytes(body)
+    rc, out, err = run_main(capsys, "run", "--emulate", "--config", tmp_path / "c.yaml",
+                            "--runtime-dir", tmp_path / "run", "--state-dir", tmp_path / "st")
+    assert rc == 78 and msg in one_line(err), err
+    assert not (tmp_path / "run").exists() or not os.listdir(tmp_path / "run")
+
+
+@pytest.mark.parametrize("row,msg", [
+    ("0,1,200,nan,0,1,0.004,0.004,0.004", "p.csv:4: column ax: nan is not a finite number"),
+    ("0,1,200,1e300,0,1,0.004,0.004,0.004", "p.csv:4: column ax: 1e+300 is beyond 1e+06"),
+    ("0,1,-5,0,0,1,0.004,0.004,0.004", "p.csv:4: column n: -5.0 is not a sample count"),
+])
+def test_a_bad_pose_file_exits_2_with_one_line(tmp_path, capsys, row, msg):
+    good = "\n".join(f"{i},{i + 1},200,{x},{y},{z},0.004,0.004,0.004" for i, (x, y, z) in
+                     enumerate([(1, 0, 0), (0, 1, 0), (0, 0, 1)]))
+    (tmp_path / "p.csv").write_text(f"# imucald poses v1\n# board: mpu6050\nt0,t1,n,ax,ay,az,sax,say,saz\n"
+                                    f"{row}\n{good}\n")
+    rc, out, err = run_main(capsys, "calibrate", tmp_path / "p.csv")
+    assert rc == 2 and msg in one_line(err), err

@@ -38,7 +38,7 @@ def run_once(qos, count, rate_hz, paced, seconds):
         # message from the bridge: lifted, so that the subscriber sees what the bridge sent
         broker = Broker(os.path.join(d, "broker"), persistence=False, log_all=False,
                         global_extra="max_inflight_messages 0\nmax_queued_messages 1000000").start()
-        got, lock, first = [], threading.Lock(), threading.Event()
+        got, lock = [], threading.Lock()
         sub = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
         ready = threading.Event()
         sub.on_connect = lambda c, u, f, r, p: c.subscribe([(f"imucald/{SID}/imu", qos),

@@ -4,9 +4,7 @@ Skips, saying why, where mosquitto or paho-mqtt is missing."""
 import json
 import os
 import signal
-import socket
 import subprocess
-import sys
 import threading
 import time
 

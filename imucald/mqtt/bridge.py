@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import logging
 import os
-import select
 import socket
 import ssl
 import threading
@@ -24,7 +23,8 @@ import time
 from typing import Any, Callable, Dict, Optional
 
 from ..daemon.config import ConfigError
-from ..errors import DeviceUnavailable, UserError
+from ..errors import UserError
+from .net import Waker, loop_once, paho, read_password
 from .topics import (Decimator, OutBuffer, Topics, cal_payload, calibration_summary, discovery_messages,
                      dumps, health_payload, info_payload, sample_payload)
 
@@ -36,38 +36,6 @@ log = logging.getLogger("imucald.mqtt")
 INFLIGHT = 100
 
 
-def read_password(path: str) -> str:
-    """The first line of ``path`` (``$VAR`` expanded, e.g. ``$CREDENTIALS_DIRECTORY/mqtt``)."""
-    p = os.path.expandvars(path)
-    try:
-        with open(p, "rb") as fh:
-            raw = fh.read(4097)
-    except OSError as e:
-        raise ConfigError(f"mqtt.password_file: {p}: cannot read ({e.strerror}): create it with the "
-                          f"password on its first line, mode 0600") from None
-    try:
-        line = raw.decode("utf-8").splitlines()[0] if raw.strip() else ""
-    except UnicodeDecodeError:
-        raise ConfigError(f"mqtt.password_file: {p}: not UTF-8 text") from None
-    if not line:
-        raise ConfigError(f"mqtt.password_file: {p}: is empty: write the password on its first line")
-    try:
-        if os.stat(p).st_mode & 0o004:
-            log.warning("%s is readable by every user: chmod 0600 it", p)
-    except OSError:
-        pass
-    return line
-
-
-def _paho():
-    try:
-        import paho.mqtt.client as mqtt
-    except ImportError:
-        raise DeviceUnavailable("the MQTT bridge needs paho-mqtt: pip install 'imucald[mqtt]' "
-                                "(into imucald's venv)") from None
-    return mqtt
-
-
 class Bridge:
     """One bridge.  ``cfg`` is the loaded configuration (its ``mqtt``, ``runtime``,
     ``output`` and ``control`` sections); ``stats`` holds the counters published in
@@ -75,7 +43,7 @@ class Bridge:
 
     def __init__(self, cfg: Dict[str, Any], runtime_dir: Optional[str] = None,
                  clock: Callable[[], float] = time.time):
-        self.mqtt = _paho()
+        self.mqtt = paho()
         self.m = dict(cfg["mqtt"])
         rt = runtime_dir or cfg["runtime"]["directory"]
         self.stream_path = os.path.join(rt, cfg["output"]["socket"])
@@ -98,9 +66,7 @@ class Bridge:
                       "disconnects": 0, "buffered": 0, "stream_reconnects": 0, "samples_read": 0,
                       "samples_out": 0, "gaps": 0, "missing_samples": 0, "unsent_at_stop": 0}
         self._stream = None
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
+        self.waker = Waker()
         self.version: Optional[Dict[str, Any]] = None
         self.last_connect_error: Optional[str] = None
 
@@ -162,7 +128,7 @@ class Bridge:
             self.buf.put((topic, payload, self.m["qos"], retain))
             self.stats["dropped"] = self.buf.dropped
             self.cv.notify_all()
-        self._wake()
+        self.waker.wake()
 
     def _net(self, client, end: threading.Event, topics: Topics) -> None:
         """The one thread that calls paho: connects, reconnects (0.1 s doubling to 5 s),
@@ -189,7 +155,7 @@ class Bridge:
                     end.wait(delay)
                     delay = min(5.0, delay * 2)
                     continue
-            rc = self._loop_once(client)
+            rc = loop_once(mqtt, client, self.waker)
             if rc != mqtt.MQTT_ERR_SUCCESS:
                 up = False
                 end.wait(delay)
@@ -206,37 +172,6 @@ class Bridge:
             client.disconnect()
             client.loop(timeout=0.02)
         self.connected = False
-
-    def _loop_once(self, client) -> int:
-        """paho's loop, woken at once by put() (a byte on a pipe) instead of polling: a
-        sample waits for no timeout before it is handed over."""
-        mqtt = self.mqtt
-        sock = client.socket()
-        if sock is None:
-            return mqtt.MQTT_ERR_NO_CONN
-        try:
-            r, w, _ = select.select([sock, self._wake_r], [sock] if client.want_write() else [], [], 1.0)
-        except (OSError, ValueError):
-            return mqtt.MQTT_ERR_CONN_LOST
-        if self._wake_r in r:
-            try:
-                os.read(self._wake_r, 4096)
-            except BlockingIOError:
-                pass
-        rc = mqtt.MQTT_ERR_SUCCESS
-        if sock in r:
-            rc = client.loop_read()
-        if rc == mqtt.MQTT_ERR_SUCCESS and (sock in w or client.want_write()):
-            rc = client.loop_write()
-        if rc == mqtt.MQTT_ERR_SUCCESS:
-            rc = client.loop_misc()
-        return rc
-
-    def _wake(self) -> None:
-        try:
-            os.write(self._wake_w, b"x")
-        except (BlockingIOError, OSError):
-            pass                # already awake (the pipe is full) or closing
 
     def _hand_over(self, client) -> None:
         mqtt = self.mqtt
@@ -362,9 +297,7 @@ class Bridge:
                     break
                 self._session(st, stop)
         finally:
-            for fd in (self._wake_r, self._wake_w):
-                os.close(fd)
-            self._wake_r = self._wake_w = -1
+            self.waker.close()
         return 0
 
     def _session(self, st: Dict[str, Any], stop: threading.Event) -> None:

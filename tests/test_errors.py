@@ -1,11 +1,13 @@
 """The error boundary: every fault of issue 12's "Tracebacks" list ends in one line naming the
 place and the fix, with its documented exit code (imucald/errors.py), and nothing opened first."""
+import json
 import os
 import re
 import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from imucald.cli import main
@@ -106,6 +108,31 @@ def test_bad_recordings_exit_2_with_one_line(tmp_path, capsys, sim, cmd, name, f
     line = one_line(err.replace("imucald: 0 still poses", ""))
     assert rc == 2 and msg in line, err
     assert f"{name}:" in line
+
+
+def test_pose_file_with_zero_deviations_calibrates_without_thermal_terms(tmp_path, capsys, sim):
+    """Pose means without within-pose deviations (s* columns 0: hand-made means, one-sample
+    poses) fit as before; the thermal fit, which weights poses by those deviations, has no
+    pose to use and is left out (it was a ValueError traceback)."""
+    from imucald.calib.poses import poses_from_recording, write_poses
+    from imucald.recording import read_recording
+    p = tmp_path / "p.csv"
+    write_poses(poses_from_recording(read_recording(str(sim))), str(p))
+    lines = p.read_text().splitlines()
+    h = next(i for i, l in enumerate(lines) if l.startswith("t0,"))
+    cols = lines[h].split(",")
+    for i in range(h + 1, len(lines)):
+        row = lines[i].split(",")
+        for c in cols:
+            if c.startswith("s"):
+                row[cols.index(c)] = "0"
+        lines[i] = ",".join(row)
+    p.write_text("\n".join(lines) + "\n")
+    rc, out, err = run_main(capsys, "calibrate", p, "--json")
+    assert rc == 0 and "Traceback" not in err, err
+    d = json.loads(out)
+    assert "thermal" not in d and d["poses"] == 12 and d["noise_source"] == "residuals", d
+    assert np.isfinite(np.hstack(list(d["params"].values()))).all() and d["heldout_rms_g"] < 1e-3, d
 
 
 def test_nan_in_a_raw_table_is_named(tmp_path, capsys):

@@ -283,6 +283,8 @@ def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[n
     ok = np.isfinite(T) & np.all(np.isfinite(x), 1) & (vv0 > 0)
     x, T, vv0 = x[ok], T[ok], vv0[ok]
     N, p = len(x), model.k
+    if N == 0:
+        raise ValueError("no pose with a finite temperature, a finite mean and a variance > 0")
     lo, hi = float(T.min()), float(T.max())
     span = hi - lo
     t_ref = round((lo + hi) / 2, 2)

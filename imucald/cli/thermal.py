@@ -38,6 +38,8 @@ def fit_thermal(sensor: str, poses, fit, chip: Optional[str], infl, min_span_c: 
                                 cov * k[:, None, None])
     prior = accel_prior(m, chip) if sensor == "accel" else None
     x = poses.acc if sensor == "accel" else poses.mag
+    if not np.any(np.isfinite(poses.temp) & (np.asarray(var) > 0)):
+        return None     # no within-pose deviations (a pose file of bare means): nothing to weight by
     return fit_norm_thermal(m, x, var, poses.temp, fit.theta, prior, min_span_c, scale=sensor == "accel",
                             rng=seed)
 

@@ -244,3 +244,17 @@ def test_a_bad_pose_file_exits_2_with_one_line(tmp_path, capsys, row, msg):
                                     f"{row}\n{good}\n")
     rc, out, err = run_main(capsys, "calibrate", tmp_path / "p.csv")
     assert rc == 2 and msg in one_line(err), err
+
+
+@pytest.mark.parametrize("acc", ["0,0,0", "1e6,0,0", "0,0,0.2"])
+def test_a_pose_that_is_not_at_rest_under_gravity_exits_2(tmp_path, capsys, acc):
+    # a zero pose was a LinAlgError traceback; 1e6 g fitted "excess scatter x4e18"
+    rows = [f"{i},{i + 1},200,{x},{y},{z},0.004,0.004,0.004" for i, (x, y, z) in
+            enumerate([(1, 0, 0), (0, 1, 0), (0, 0, 1), (-1, 0, 0), (0, -1, 0), (0, 0, -1),
+                       (0.6, 0.8, 0), (0, 0.6, 0.8), (0.8, 0, 0.6), (-0.6, 0, 0.8), (0.6, -0.8, 0)])]
+    rows[4] = "4,5,200," + acc + ",0.004,0.004,0.004"
+    (tmp_path / "p.csv").write_text("# imucald poses v1\n# board: mpu6050\nt0,t1,n,ax,ay,az,sax,say,saz\n"
+                                    + "\n".join(rows) + "\n")
+    rc, out, err = run_main(capsys, "calibrate", tmp_path / "p.csv")
+    line = one_line(err)
+    assert rc == 2 and "p.csv: pose 5 (t0 4 s)" in line and "not ~1 g" in line, err

@@ -86,6 +86,24 @@ def _fmt_vec(v, unit_scale=1.0, fmt="{:+.6f}"):
     return "[" + ", ".join("   n/a   " if x is None else fmt.format(x * unit_scale) for x in v) + "]"
 
 
+#: |mean specific force| a still accelerometer pose may read, g: gravity (1 g) through an
+#: uncalibrated MEMS accelerometer's scale (a few %) and offset (<= ~0.15 g) errors, with a
+#: wide margin; outside it the pose is not at rest under gravity or not in g (a zero pose made
+#: the fit's matrices singular, a pose in counts gave nonsense)
+REST_NORM_G = (0.5, 2.0)
+
+
+def _check_rest_norms(path: str, poses) -> None:
+    import numpy as np
+    norm = np.linalg.norm(poses.acc, axis=1)
+    bad = np.flatnonzero(~((norm >= REST_NORM_G[0]) & (norm <= REST_NORM_G[1])))
+    if len(bad):
+        i = int(bad[0])
+        raise UserError(f"{path}: pose {i + 1} (t0 {poses.t0[i]:g} s) reads |a| = {norm[i]:.3g} g, not ~1 g "
+                        f"({REST_NORM_G[0]:g}..{REST_NORM_G[1]:g}): a still pose reads gravity in g; "
+                        f"remove that pose or convert the file to g")
+
+
 def cmd_calibrate(args) -> int:
     import numpy as np
     from ..calib.fit import fit_gyro_bias, fit_norm
@@ -118,6 +136,7 @@ def cmd_calibrate(args) -> int:
         if len(poses) < 10:
             raise UserError(f"{args.input}: only {len(poses)} still poses found; the 9-parameter "
                             f"model needs at least 10 (about 25 recommended), well spread over the sphere")
+        _check_rest_norms(args.input, poses)
         if progress:
             progress(f"imucald: {len(poses)} still poses; fitting {model} with {args.method}")
         kw = {"progress": progress} if args.method == "ga-paper" and progress else {}

@@ -138,7 +138,7 @@ def _thermal(v: Any, path: str, sensor: str) -> Dict[str, Any]:
         _fail(f"{path}.order", f"{order!r} is not an order 0..3", "e.g. order: 1")
     out: Dict[str, Any] = {"order": order}
     for k in ("t_min_c", "t_ref_c", "t_max_c"):
-        out[k] = float(_array(v[k], f"{path}.{k}", 0))
+        out[k] = float(_array(v[k], f"{path}.{k}", 0, limit=PARAM_LIMIT))
     if not out["t_min_c"] <= out["t_ref_c"] <= out["t_max_c"]:
         _fail(f"{path}.t_ref_c", f"{out['t_ref_c']} is not within [t_min_c, t_max_c] = "
               f"[{out['t_min_c']}, {out['t_max_c']}]", "t_min_c <= t_ref_c <= t_max_c")
@@ -146,7 +146,7 @@ def _thermal(v: Any, path: str, sensor: str) -> Dict[str, Any]:
         if key not in v and key == bp and order:
             _fail(f"{path}.{bp}", "missing", f"order {order} needs {order} rows of 3 coefficients")
         if key in v:
-            a = _array(v[key], f"{path}.{key}", (rows, 3))
+            a = _array(v[key], f"{path}.{key}", (rows, 3), limit=PARAM_LIMIT)
             if a.shape[0] != rows:
                 _fail(f"{path}.{key}", f"{a.shape[0]} rows for order {rows}", f"give {rows} rows of 3")
             out[key] = a

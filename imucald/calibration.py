@@ -57,6 +57,10 @@ _GYRO_OPTIONAL = {"matrix": 9, "g_sens_dps_per_g": 9, "bias_temp_poly_dps": -3, 
 #: plausible bounds: |M - I| (a gyro scale/misalignment matrix), |G| deg/s per g
 _GYRO_BOUNDS = {"matrix": (0.5, "scale and misalignment within 50 %"), "g_sens_dps_per_g": (10.0, "|G| <= 10 deg/s per g")}
 _SYM = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
+#: largest condition number of a part's correction matrix A: a sensor's scale and
+#: misalignment errors are percents (A near I, condition ~1.1); a singular A maps a whole
+#: axis onto zero (and made applying the thermal terms raise)
+MAX_CONDITION = 1e3
 
 
 def param_shapes(sensor: str, model: str) -> Tuple[Dict[str, int], Dict[str, int]]:
@@ -264,7 +268,14 @@ class SensorCal:
         if thermal is not None and "bias_temp_poly_dps" in params:
             _fail(f"{path}.thermal", "given together with params.bias_temp_poly_dps",
                   "keep one of the two thermal terms (thermal: supersedes the older one)")
-        return cls(sensor, model, params, stderr, flags, method, quality, thermal)
+        part = cls(sensor, model, params, stderr, flags, method, quality, thermal)
+        A = part.affine[0]
+        cond = np.linalg.cond(A) if np.isfinite(A).all() else math.inf
+        if not cond <= MAX_CONDITION:
+            _fail(f"{path}.params", f"the correction matrix is singular or nearly so (condition "
+                  f"number {cond:.3g} > {MAX_CONDITION:g}): it would lose an axis",
+                  "a scale of 0 or a degenerate soft iron is not a calibration: recalibrate")
+        return part
 
 
 def _fit_flags(fit) -> Dict[str, Tuple[str, ...]]:

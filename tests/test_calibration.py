@@ -346,3 +346,36 @@ def test_an_absurd_parameter_is_refused_not_turned_into_inf(key, value):
     with pytest.raises(CalibrationError) as e:
         Calibration.from_dict(d)
     assert "\n" not in str(e.value) and str(e.value).startswith(key) and "beyond" in str(e.value)
+
+
+@pytest.mark.parametrize("key,value", [("accel.thermal.bias_poly_g", [[1e308, 0.0, 0.0], [0.0, 0.0, 0.0]]),
+                                       ("accel.thermal.scale_poly", [[0.0, -1e300, 0.0]]),
+                                       ("mag.thermal.bias_poly_gauss", [[0.0, 0.0, 1e200]]),
+                                       ("accel.thermal.t_max_c", 1e308)])
+def test_an_absurd_thermal_coefficient_is_refused_not_turned_into_inf(key, value):
+    # found by tests/test_input_fuzz.py: 1e308 loaded, and the correction gave inf/NaN
+    d = copy.deepcopy(_DOC)
+    node = d
+    for k in key.split(".")[:-1]:
+        node = node[k]
+    node[key.split(".")[-1]] = value
+    with pytest.raises(CalibrationError) as e:
+        Calibration.from_dict(d)
+    assert "\n" not in str(e.value) and str(e.value).startswith(key) and "beyond" in str(e.value)
+
+
+@pytest.mark.parametrize("key,value", [("accel.params.scale", [0.0, 1.0, 1.0]),
+                                       ("mag.params.soft_iron", [1.0, 1.0, 0.0, 0.0, 0.0, 0.0]),
+                                       ("mag.params.soft_iron", [1.0, 1.0, 1.0, 1.0, 0.0, 0.0])])
+def test_a_correction_that_loses_an_axis_is_refused(key, value):
+    # found by tests/test_input_fuzz.py: scale 0 loaded, then applying the accelerometer's
+    # thermal terms raised LinAlgError (singular matrix) in the daemon
+    d = copy.deepcopy(_DOC)
+    node = d
+    for k in key.split(".")[:-1]:
+        node = node[k]
+    node[key.split(".")[-1]] = value
+    with pytest.raises(CalibrationError) as e:
+        Calibration.from_dict(d)
+    assert "\n" not in str(e.value) and str(e.value).startswith(key.rsplit(".", 1)[0]) \
+        and "singular" in str(e.value)

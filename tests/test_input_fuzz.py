@@ -120,12 +120,18 @@ def _good_doc():
     from imucald.calib.models import get_model
     acc = SensorCal.accel("triangular9", get_model("triangular9").nominal, np.full(9, 1e-4),
                           method="ga", quality={"poses": 25, "rms_g": 0.001})
+    acc = SensorCal(acc.sensor, acc.model, acc.params, acc.stderr, acc.flags, acc.method, acc.quality, {
+        "order": 1, "t_min_c": 20.0, "t_ref_c": 25.0, "t_max_c": 35.0,
+        "bias_poly_g": np.array([[6e-4, -8e-4, 5e-4]]), "bias_poly_stderr_g": np.array([[1e-5, 1e-5, 1e-5]]),
+        "scale_poly": np.array([[1e-4, -2e-4, 0]]), "note": ""})
     gyro = SensorCal("gyro", "bias", {"bias_dps": np.array([0.1, -0.2, 0.3]), "matrix": np.eye(3).ravel(),
                                       "bias_temp_poly_dps": np.zeros((2, 3)), "temp_ref_c": np.array(25.0)},
                      {"bias_dps": np.full(3, 0.01)}, method="mean")
     mag = SensorCal("mag", "mag_sym", {"hard_iron_gauss": np.array([0.1, 0.0, -0.1]),
                                        "soft_iron": np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0]),
-                                       "field_gauss": np.array(0.5)})
+                                       "field_gauss": np.array(0.5)},
+                    thermal={"order": 1, "t_min_c": 21.5, "t_ref_c": 25.0, "t_max_c": 30.25,
+                             "bias_poly_gauss": np.array([[5e-4, 0, -1e-4]]), "note": ""})
     cal = Calibration("9dof", {"accel": "adxl345"}, 4, "2026-01-01T00:00:00Z", (20.0, 30.0), acc, gyro, mag,
                       {"columns": ["ax", "ay", "az"], "rows": [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]},
                       {"poses": 12, "poses_for_final": 25, "missing_orientations": ["-Z up"]}, "abc123")
@@ -192,7 +198,7 @@ def test_calibration_from_dict_fuzz(muts, v1):
     for s in ("accel", "gyro", "mag"):       # what loads corrects finitely
         p = cal.part(s)
         if p is not None:
-            out = p.apply(np.array([[0.1, -0.9, 0.2]]), np.array([30.0]))
+            out = p.apply(np.array([[0.1, -0.9, 0.2], [0.0, 0.5, 0.9]]), np.array([30.0, 80.0]))
             assert np.isfinite(out).all(), (s, p.params)
     assert Calibration.from_dict(cal.to_dict()).to_dict() == cal.to_dict()
 

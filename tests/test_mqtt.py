@@ -61,6 +61,20 @@ class Sub:
         self.c.loop_stop()
 
 
+def _status(rt, proc, timeout=15.0):
+    """The daemon's status, once its control socket exists and listens (the socket file
+    appears a moment before the daemon listens on it)."""
+    wait_for(rt / "control.sock", proc)
+    t0 = time.monotonic()
+    while True:
+        try:
+            return control(rt, "status")
+        except ConnectionRefusedError:
+            if time.monotonic() - t0 > timeout:
+                raise
+            time.sleep(0.05)
+
+
 def _cfg(tmp_path, port, **mq):
     lines = [f"  port: {port}", "  host: 127.0.0.1", "  status_interval_s: 0.3"]
     lines += [f"  {k}: {v}" for k, v in mq.items()]
@@ -85,16 +99,16 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
     Home Assistant discovery under the sensor's id; "offline" on a clean stop and as the
     last will of a killed bridge."""
     broker = Broker(tmp_path / "broker").start()
-    d, rt, st = start_daemon(tmp_path, "--speed", "20", "--duration", "260", "--seed", "2")
+    # (a long duration: on a loaded machine the niced calibration worker may need a while)
+    d, rt, st = start_daemon(tmp_path, "--speed", "20", "--duration", "900", "--seed", "2")
     sub = bridge = None
     try:
-        wait_for(rt / "control.sock", d)
-        sid = control(rt, "status")["sensor"]["id"]
+        sid = _status(rt, d)["sensor"]["id"]
         sub = Sub(broker.port, topics=("imucald/#", "homeassistant/#"))
         cfg = _cfg(tmp_path, broker.port, sample_rate_hz=20, discovery="true")
         cmd = [PY, "-m", "imucald.cli", "mqtt", "--config", str(cfg), "--runtime-dir", str(rt)]
         bridge = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True)
-        got_cal = sub.wait(lambda: any(c.get("applied") for c in sub.of(f"{sid}/event/cal")), 60)
+        got_cal = sub.wait(lambda: any(c.get("applied") for c in sub.of(f"{sid}/event/cal")), 90)
         sub.wait(lambda: any(h["calibration_id"] for h in sub.of(f"{sid}/health")), 5)
         sub.wait(lambda: sum(m["cal"] >= 1 and m["still"] for m in sub.of(f"{sid}/imu")) >= 20, 10)
         bridge.send_signal(signal.SIGTERM)
@@ -142,8 +156,7 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
     # a new subscriber gets the retained status; a killed bridge leaves its last will
     d2, rt2, _ = start_daemon(tmp_path / "second", "--speed", "5", "--duration", "60")
     try:
-        wait_for(rt2 / "control.sock", d2)
-        sid2 = control(rt2, "status")["sensor"]["id"]
+        sid2 = _status(rt2, d2)["sensor"]["id"]
         late = Sub(broker.port, topics=(f"imucald/{sid}/status", f"imucald/{sid2}/status",
                                         f"imucald/{sid}/health", "homeassistant/#"))
         assert late.wait(lambda: late.of(f"{sid}/status") == ["offline"], 5)

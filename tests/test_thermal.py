@@ -71,3 +71,31 @@ def test_accel_thermal_scale_is_chosen_when_the_data_support_it():
     assert np.all(np.abs(f.scale_poly[0] - c) <= 4 * f.scale_poly_stderr[0]), (f.scale_poly, f.scale_poly_stderr)
     assert np.all(np.abs(f.bias_poly[0]) <= 4 * f.bias_poly_stderr[0])
     assert f.inflation < 1.5                        # the scale variant leaves only the noise
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_too_few_still_intervals_give_a_constant_untested_and_say_so(n):
+    # one interval made the twin's residual exactly 0 and the held-out ratio a division by 0
+    y = np.array([[0.5, 0.2, -1.3], [0.51, 0.21, -1.29], [0.52, 0.2, -1.31]])[:n]
+    v = np.array([[1e-8, 2e-7, 3e-8]] * n)
+    f = fit_bias_series(np.linspace(20.0, 34.0, n), y, v, rng=0)
+    assert f.order == 0 and "a temperature term needs at least 4: constant only" in f.note, f.note
+    assert np.allclose(f.base, np.average(y, axis=0, weights=1 / v))
+
+
+def test_calibrate_gyro_on_one_still_pose_notes_it_and_exits_0(tmp_path, capsys):
+    import json
+    from imucald.cli import main
+    from imucald.recording import Recording, write_recording
+    rng = np.random.default_rng(5)
+    n = 6000                                       # 60 s at 100 Hz, never moved
+    rec = Recording(t=np.arange(n) / 100.0, acc=np.array([0.0, 0.0, 1.0]) + rng.normal(size=(n, 3)) * 2e-3,
+                    gyro=np.array([0.497, 0.247, -1.306]) + rng.normal(size=(n, 3)) * 0.05,
+                    temp=np.full(n, 26.3), meta={"board": "mpu6050", "rate_hz": "100"})
+    p = str(tmp_path / "still.csv")
+    write_recording(rec, p)
+    assert main(["calibrate", p, "--sensor", "gyro"]) == 0
+    out = capsys.readouterr().out
+    assert "1 still interval: a temperature term needs at least 4" in out, out
+    assert main(["calibrate", p, "--sensor", "gyro", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["thermal"]["order"] == 0

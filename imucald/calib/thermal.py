@@ -49,6 +49,9 @@ MAX_ORDER = 3
 ALPHA = 0.01            #: the gap diagnosis's significance level (gap/verdict.py ALPHA)
 SIMS = 200              #: twin re-simulations per variant
 MIN_DOF = 6             #: residual degrees of freedom a variant must leave
+#: observations fit_bias_series needs for a first-order term (3 N - 6 >= MIN_DOF); the
+#: daemon's job asks the same of its thermal log
+MIN_BIAS_OBS = (MIN_DOF + 6 + 2) // 3
 
 
 @dataclass
@@ -108,8 +111,11 @@ def _stats(r, J, w, var, lam, rng, sims):
     e = heldout(r, J, w, lam)
     tw = twin_rms(J, var, w, sims, rng, lam, normalised=True)
     med = float(median(tw))
-    ratio = float(np.sqrt(np.mean(e * e * w))) / med
-    return {"chi2": float(np.sum(w * r * r)), "mse": float(np.mean(e * e * w)), "ratio": ratio,
+    num = float(np.sqrt(np.mean(e * e * w)))
+    if not med > 0:     # the design leaves no residual freedom (one pose): nothing to compare
+        return {"chi2": float(np.sum(w * r * r)), "mse": float(np.mean(e * e * w)),
+                "ratio": float("nan"), "q99": float("nan")}
+    return {"chi2": float(np.sum(w * r * r)), "mse": float(np.mean(e * e * w)), "ratio": num / med,
             "q99": float(np.quantile(tw / med, 0.99))}
 
 
@@ -142,6 +148,10 @@ def _choose(res: Dict[str, dict], n_obs: int, names: Sequence[str]) -> Tuple[str
     return best, (f"held-out ratio {b['ratio']:.2f} at the constant -> {v['ratio']:.2f} "
                   f"(twin 99 % {v['q99']:.2f}{', closed' if v['closed'] else ', the lowest; not closed'}; "
                   f"simplest that closes of {', '.join(names)})")
+
+
+def _few_note(n: int, what: str, need: int) -> str:
+    return f"{n} {what if n != 1 else what[:-1]}: a temperature term needs at least {need}: constant only, not tested"
 
 
 def _span_note(span: float, min_span_c: float) -> str:
@@ -180,7 +190,8 @@ def fit_bias_series(temp_c, y, var, min_span_c: float = MIN_SPAN_C, max_order: i
     u = (T - t_ref) / s
     yy, vv = y.reshape(-1), v.reshape(-1)
     orders = [k for k in range(max_order + 1) if 3 * len(T) - 3 * (k + 1) >= MIN_DOF]
-    if span < min_span_c or len(orders) < 2:
+    few = len(orders) < 2       # too few observations for any temperature term: no test at all
+    if span < min_span_c or few:
         orders = orders[:1] or [0]
     fits = {}
     for k in orders:
@@ -202,15 +213,16 @@ def fit_bias_series(temp_c, y, var, min_span_c: float = MIN_SPAN_C, max_order: i
         A = X.T @ (X * w[:, None])
         Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
         beta = Ai @ (X.T @ (w * yy))
-        r = yy - X @ beta
-        st = _stats(r, -X, w, vv, None, rng, sims)
-        st.update(q=X.shape[1], dof=len(yy) - X.shape[1])
-        res[f"order {k}"], sol[k] = st, (beta, Ai)
+        sol[k] = (beta, Ai)
+        if not few:
+            st = _stats(yy - X @ beta, -X, w, vv, None, rng, sims)
+            st.update(q=X.shape[1], dof=len(yy) - X.shape[1])
+            res[f"order {k}"] = st
     names = [f"order {k}" for k in orders]
-    if span < min_span_c:
+    if few:
+        chosen, why = "order 0", _few_note(len(T), "still intervals", MIN_BIAS_OBS)
+    elif span < min_span_c:
         chosen, why = "order 0", _span_note(span, min_span_c)
-    elif len(orders) < 2:
-        chosen, why = "order 0", f"{len(T)} observations: too few for a temperature term"
     else:
         chosen, why = _choose(res, len(yy), names)
     k = int(chosen.split()[1])
@@ -296,7 +308,8 @@ def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[n
     else:
         pm, lam = np.zeros(p), np.zeros(p)
     variants = [v for v in _norm_variants(max_order, scale) if N - p - 3 * (v[1] + v[2]) >= MIN_DOF]
-    if span < min_span_c or len(variants) < 2:
+    few = len(variants) < 2     # too few poses for any temperature term: no test at all
+    if span < min_span_c or few:
         variants = variants[:1] or [("order 0", 0, False)]
 
     def fit(k, sc, w, z0):
@@ -319,15 +332,17 @@ def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[n
     w = 1 / vv
     res = {}
     for name, k, sc in variants:
+        if few:
+            break
         z, r, J, la = fitted[name]
         st = _stats(r, J, w, vv, la, rng, sims)
         st.update(q=3 * (k + sc), dof=N - p)
         res[name] = st
     names = [v[0] for v in variants]
-    if span < min_span_c:
+    if few:
+        chosen, why = "order 0", _few_note(N, "poses", p + 3 + MIN_DOF)
+    elif span < min_span_c:
         chosen, why = "order 0", _span_note(span, min_span_c)
-    elif len(variants) < 2:
-        chosen, why = "order 0", f"{N} poses: too few for a temperature term"
     else:
         chosen, why = _choose(res, N, names)
     name, k, sc = next(v for v in variants if v[0] == chosen)

@@ -218,6 +218,9 @@ def test_daemon_bias_refit_keeps_the_matrix_and_g_sensitivity():
     job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "t0": ps.t0, "n": ps.n, "gyro": ps.gyro, "temp": None,
            "current": cur, "method": "lm", "holdout_fraction": 0.2, "seed": 0}
     g = calibration_job(job).candidate.gyro
+    # the gate scores the calibration in force with its G a term: its still-pose residual is
+    # Earth rate (<= 0.0042 deg/s at 45 deg N) and noise, not G a (~0.1 deg/s)
+    assert g.quality["heldout_rms_before_dps"] < 0.006, g.quality
     assert np.array_equal(g.params["matrix"], f.matrix.ravel())
     assert np.array_equal(g.params["g_sens_dps_per_g"], f.g_sens.ravel())
     assert g.flags["matrix"] == tuple(f.matrix_flags)
@@ -265,3 +268,34 @@ def test_field_direction_adds_the_rotation_about_gravity():
     assert np.all(np.abs(z) < 3), z
     assert abs(fm.chi2_dof - 1) < 3 * np.sqrt(2 / 107), fm.chi2_dof     # 4 residuals per rotation
     assert np.all(fm.matrix_se < fg.matrix_se)
+
+
+def test_daemon_thermal_bias_fit_keeps_the_matrix_and_g_sensitivity():
+    """The daemon's thermal gyro fit (daemon/thermaljob.py) refits only the bias and its
+    thermal terms, on the still means without G a, and keeps K and G in force."""
+    from imucald.daemon.thermaljob import thermal_parts
+    rng = np.random.default_rng(3)
+    n, sd = 60, 0.002                                   # still means, deg/s noise each
+    T = np.linspace(15, 40, n)
+    a = rng.normal(size=(n, 3))
+    a /= np.linalg.norm(a, axis=1)[:, None]              # calibrated specific force, 1 g
+    K = np.eye(3) + rng.normal(scale=0.01, size=(3, 3))
+    G = rng.normal(scale=0.08, size=(3, 3))
+    b0, slope = np.array([0.5, -1.0, 0.2]), np.array([0.01, -0.02, 0.015])   # deg/s, deg/s/degC
+    y = b0 + np.outer(T - 25, slope) + a @ G.T + rng.normal(scale=sd, size=(n, 3))
+    part = SensorCal("gyro", "bias", {"bias_dps": b0, "matrix": K.ravel(), "g_sens_dps_per_g": G.ravel()},
+                     {"bias_dps": np.full(3, 1e-3), "matrix": np.full(9, 1e-4)}, {"matrix": ("determined",) * 9})
+    cur = Calibration("mpu6050", id=1, gyro=part)
+    job = {"thermal": {"temp": T, "acc": a, "acc_cov": np.broadcast_to(np.eye(3) * 1e-8, (n, 3, 3)),
+                       "gyro": y, "gyro_var": np.full((n, 3), sd ** 2)},
+           "thermal_min_span_c": 10.0, "seed": 0}
+    parts, accept, gates, notes = {"gyro": part}, {}, {}, {"gate": {}}
+    thermal_parts(job, cur, parts, accept, gates, notes)
+    assert notes["thermal"]["gyro"]["accepted"], notes["thermal"]
+    g = parts["gyro"]
+    assert np.array_equal(g.params["matrix"], K.ravel()) and g.flags["matrix"] == ("determined",) * 9
+    assert np.array_equal(g.params["g_sens_dps_per_g"], G.ravel())
+    # corrected with G a, the still means read zero to the noise (G a left in the bias
+    # series would leave ~0.1 deg/s)
+    r = g.apply(y, T, a)
+    assert np.sqrt(np.mean(r ** 2)) < 2 * sd, np.sqrt(np.mean(r ** 2))

@@ -102,13 +102,16 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
         g = np.asarray(g, float)
         w = np.asarray(job["n"], float)
         tg = cur.gyro.thermal if cur.gyro is not None and temp is not None else None
-        g_inc = cur.apply_gyro(g, temp if temp is not None else np.full(len(g), np.nan))
+        # the incumbent is scored as the daemon applies it: with the calibrated specific
+        # force for its g-sensitivity term (else G a counts against it)
+        acc_cal = cur.apply_accel(acc, temp)
+        g_inc = cur.apply_gyro(g, temp if temp is not None else np.full(len(g), np.nan), acc_cal)
         g = cur.gyro.thermal_offset(g, temp) if tg else g
         # the scale/misalignment matrix and g-sensitivity in force (calibrate --sensor gyro,
         # calib/gyrorot.py) are kept; the bias is refitted on the means without G a
         kept = [k for k in ("matrix", "g_sens_dps_per_g") if cur.gyro is not None and k in cur.gyro.params]
         if "g_sens_dps_per_g" in kept:
-            g = g - cur.apply_accel(acc, temp) @ cur.gyro.params["g_sens_dps_per_g"].reshape(3, 3).T
+            g = g - acc_cal @ cur.gyro.params["g_sens_dps_per_g"].reshape(3, 3).T
         b, gdec = gate_gyro_bias(g, w, g_inc, alpha, against="raw" if cur.gyro is None else "current")
         sd = gyro_bias_scatter_se(g, w, b)
         carry = lambda d: {k: d[k] for k in kept if k in d}

@@ -68,17 +68,25 @@ def thermal_parts(job: Dict[str, Any], cur: Calibration, parts: Dict[str, Sensor
     if g is not None and th.get("gyro") is not None and len(T) >= 4:
         y = np.asarray(th["gyro"], float)
         var = np.maximum(np.asarray(th["gyro_var"], float), 1e-12)
-        tf = fit_bias_series(T, y, var, min_span, rng=seed)
+        # a g-sensitivity in force (calibrate --sensor gyro): the bias series is fitted on the
+        # means without G a, and the incumbent scored with it (as the daemon applies it)
+        acc_cal = cur.apply_accel(np.asarray(th["acc"], float), T)
+        G = g.params.get("g_sens_dps_per_g")
+        y_fit = y if G is None else y - acc_cal @ G.reshape(3, 3).T
+        tf = fit_bias_series(T, y_fit, var, min_span, rng=seed)
         ent = {"order": tf.order, "note": tf.note, "accepted": False, "span_c": round(tf.t_max_c - tf.t_min_c, 2)}
         if tf.order:
-            _, dec = gate_bias_thermal(tf, T, y, cur.apply_gyro(y, T), alpha,
+            _, dec = gate_bias_thermal(tf, T, y_fit, cur.apply_gyro(y, T, acc_cal), alpha,
                                        "raw" if cur.gyro is None else "current",
                                        current=cur.gyro.thermal if cur.gyro is not None else None)
             ent.update(accepted=dec.accept, p_value=dec.p_value, rms_cv_dps=dec.rms_cv,
                        rms_before_dps=dec.rms_incumbent)
             if dec.accept:
-                cand = SensorCal("gyro", "bias", {"bias_dps": np.asarray(tf.base, float)},
-                                 {"bias_dps": np.asarray(tf.base_stderr, float)}, {}, "thermal",
+                # only the bias (and its thermal terms) is refitted: the matrix and
+                # g-sensitivity of the part in force stay
+                kept = {k: v for k, v in g.params.items() if k not in ("bias_temp_poly_dps", "temp_ref_c")}
+                cand = SensorCal("gyro", g.model, {**kept, "bias_dps": np.asarray(tf.base, float)},
+                                 {**g.stderr, "bias_dps": np.asarray(tf.base_stderr, float)}, g.flags, "thermal",
                                  {**g.quality, "thermal_heldout_rms_dps": dec.rms_cv,
                                   "thermal_heldout_rms_before_dps": dec.rms_incumbent,
                                   "thermal_gate_p_value": dec.p_value}, tf.to_thermal("dps"))

@@ -183,7 +183,9 @@ def _writer(d, start):
 
 
 def _cal(i, rows=None):
-    return Calibration("mpu6050", id=i, accel=SensorCal.accel("triangular9", np.arange(9) * i),
+    """Calibration number i: a plausible triangular9 (alpha, scale, bias_g) differing with i."""
+    theta = np.array([1e-3, -2e-3, 5e-4, 1.01, 0.99, 1.0, 0.01, -0.02, 0.0]) + 1e-4 * i
+    return Calibration("mpu6050", id=i, accel=SensorCal.accel("triangular9", theta),
                        poses_used=None if rows is None else {"columns": POSE_COLUMNS, "rows": rows})
 
 

@@ -185,7 +185,7 @@ def fit_bias_series(temp_c, y, var, min_span_c: float = MIN_SPAN_C, max_order: i
         raise ValueError("no observation with a finite temperature")
     lo, hi = float(T.min()), float(T.max())
     span = hi - lo
-    t_ref = round((lo + hi) / 2, 2)
+    t_ref = min(max(round((lo + hi) / 2, 2), lo), hi)      # rounded, yet within the range it saw
     s = max(span / 2, 1e-6)
     u = (T - t_ref) / s
     yy, vv = y.reshape(-1), v.reshape(-1)
@@ -299,7 +299,7 @@ def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[n
         raise ValueError("no pose with a finite temperature, a finite mean and a variance > 0")
     lo, hi = float(T.min()), float(T.max())
     span = hi - lo
-    t_ref = round((lo + hi) / 2, 2)
+    t_ref = min(max(round((lo + hi) / 2, 2), lo), hi)      # rounded, yet within the range it saw
     s = max(span / 2, 1e-6)
     u = (T - t_ref) / s
     if prior is not None:

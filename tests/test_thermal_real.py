@@ -24,3 +24,28 @@ def test_held_out_temperature_bins_on_the_real_warm_up():
     # beyond the fitted range the terms are held at the edge value
     out = [r for r in rows if r[7]]
     assert out and np.allclose(out[0][4], predict(tf, np.array([tf.t_max_c]))[0][0])
+
+
+def test_gap_then_calibrate_closes_the_thermal_gap_on_the_one_placement_warm_up(tmp_path, capsys):
+    # one placement for 36 minutes: one pose when the still pieces are joined, so the thermal
+    # fit has to use the detector's pieces (each at its own temperature) to see the warm-up
+    real_path("freeimu_mpu6050_tempsweep")
+    import json
+    from real_gap import tempsweep
+    from imucald.calibration import load
+    from imucald.cli import main
+    from imucald.recording import write_recording
+    rec, cal, out = tmp_path / "sweep.csv", tmp_path / "cal.yaml", tmp_path / "corrected.csv"
+    write_recording(tempsweep(), str(rec))
+
+    def gyro_gap(path):
+        capsys.readouterr()
+        assert main(["gap", str(path), "--sensor", "gyro", "--json"]) == 0
+        g = json.loads(capsys.readouterr().out)["sensors"]["gyro"]
+        return g["verdict"] + "+" + g.get("partially_explained_by", "")
+    assert "thermal_bias" in gyro_gap(rec)
+    assert main(["calibrate", str(rec), "--sensor", "gyro", "-o", str(cal)]) == 0
+    th = load(str(cal)).gyro.thermal
+    assert th["order"] >= 1 and th["t_max_c"] - th["t_min_c"] >= 10, th["note"]
+    assert main(["apply", str(cal), str(rec), "-o", str(out)]) == 0
+    assert "thermal_bias" not in gyro_gap(out)

@@ -11,7 +11,7 @@ mean temperature and start/end time.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -20,7 +20,7 @@ from ..recording import Recording
 from .stillness import StillnessDetector
 from ..npstats import median
 
-__all__ = ["PoseSet", "detect_static", "detect_intervals", "poses_from_recording",
+__all__ = ["PoseSet", "detect_static", "detect_intervals", "poses_from_recording", "poses_and_pieces",
            "read_poses", "write_poses", "POSES_MAGIC"]
 
 POSES_MAGIC = "# imucald poses v1"
@@ -104,14 +104,24 @@ def _mean_cov(x: np.ndarray):
 
 def poses_from_recording(rec: Recording, **kw) -> PoseSet:
     """Detect still intervals in a recording and average each one."""
+    return poses_and_pieces(rec, **kw)[0]
+
+
+def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
+    """(poses, pieces): the still intervals of a recording averaged, contiguous pieces
+    joined (one pose per placement, what a constant fit wants), and the same averaged
+    piece by piece as the detector cut them (every ``max_pose_s``), so that a long still
+    stretch through a warm-up gives one point per piece at its own temperature: what
+    the thermal fit wants, as the daemon's thermal log keeps them."""
     if rec.acc is None:
         raise UserError("the recording has no accelerometer columns (ax, ay, az): "
                         "poses are detected from the accelerometer")
     ivs, dropped = detect_intervals(rec.t, rec.acc, rec.gyro, rec.rate_hz, **kw)
     ps = poses_from_slices(rec, merge_cut(ivs))
+    pieces = poses_from_slices(rec, [slice(iv.i0, iv.i1) for iv in ivs])
     if dropped:
-        ps.meta["dropped_samples"] = str(dropped)
-    return ps
+        ps.meta["dropped_samples"] = pieces.meta["dropped_samples"] = str(dropped)
+    return ps, pieces
 
 
 def poses_from_slices(rec: Recording, slices: List[slice]) -> PoseSet:

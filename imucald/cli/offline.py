@@ -109,7 +109,7 @@ def cmd_calibrate(args) -> int:
     from ..calib.fit import fit_gyro_bias, fit_norm
     from ..calib.inputs import load_input
     from ..calib.models import MODEL_NAMES
-    from ..calib.poses import poses_from_recording
+    from ..calib.poses import poses_and_pieces
     columns = args.columns.split(",") if args.columns else None
     kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
     sensor = args.sensor
@@ -129,8 +129,11 @@ def cmd_calibrate(args) -> int:
         if rec.mag is None:
             raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
         return _calibrate_mag_rotation(args, rec, model, progress)
-    poses = poses_from_recording(rec, window_s=args.window_s, k=args.threshold_k,
-                                 min_still_s=args.min_still_s) if rec is not None else obj
+    # poses: one per placement (the constant fit); pieces: the detector's pieces of them, each
+    # at its own temperature (the thermal fit: a one-placement warm-up is one pose but many pieces)
+    poses, pieces = poses_and_pieces(rec, window_s=args.window_s, k=args.threshold_k,
+                                     min_still_s=args.min_still_s) if rec is not None else (obj, obj)
+    infl_pieces = None
     chip = infl = None
     if sensor == "accel":
         if len(poses) < 10:
@@ -145,7 +148,9 @@ def cmd_calibrate(args) -> int:
         infl = None
         if rec is not None:     # coloured noise: the Allan model of the longest still pose
             from ..calib.noise import pose_colour_inflation
+            from .thermal import pieces_colour_inflation
             infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
+            infl_pieces = pieces_colour_inflation(rec, poses, pieces)
         cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed,
                        chip=chip, noise_inflation=infl, **kw)
     elif sensor == "mag":           # a pose file: the pose means are the points
@@ -171,7 +176,7 @@ def cmd_calibrate(args) -> int:
     if sensor in ("accel", "gyro") and args.method != "ga-paper":
         # the thermal terms: the order the held-out test supports (README: thermal terms)
         from .thermal import fit_thermal
-        tf = fit_thermal(sensor, poses, cal, chip, infl, args.thermal_min_span, args.seed)
+        tf = fit_thermal(sensor, pieces, cal, chip, infl_pieces, args.thermal_min_span, args.seed)
     if args.output:
         _write_calibration(args.output, poses.meta.get("board", "unknown"), cal, tf, rot)
     if args.json:

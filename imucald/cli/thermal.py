@@ -16,7 +16,8 @@ UNIT = {"accel": ("g", "mg", 1e3), "gyro": ("dps", "deg/s", 1.0), "mag": ("gauss
 
 def fit_thermal(sensor: str, poses, fit, chip: Optional[str], infl, min_span_c: float, seed):
     """The thermal fit of ``sensor`` on the still poses (None: no temperatures), started
-    from the constant fit ``fit`` (calib.fit.FitResult)."""
+    from the constant fit ``fit`` (calib.fit.FitResult).  From a recording the poses are the
+    detector's pieces (calib.poses.poses_and_pieces), not the joined placements."""
     from ..calib.thermal import fit_bias_series, fit_norm_thermal
     if poses.temp is None or not np.any(np.isfinite(poses.temp)):
         return None
@@ -42,6 +43,17 @@ def fit_thermal(sensor: str, poses, fit, chip: Optional[str], infl, min_span_c: 
         return None     # no within-pose deviations (a pose file of bare means): nothing to weight by
     return fit_norm_thermal(m, x, var, poses.temp, fit.theta, prior, min_span_c, scale=sensor == "accel",
                             rng=seed)
+
+
+def pieces_colour_inflation(rec, poses, pieces):
+    """The accelerometer's coloured-noise inflation of each piece (calib/noise.py), read from
+    the Allan model of the longest pose, as the constant fit's is."""
+    from ..calib.noise import colour_inflation_per_pose
+    if len(poses) == 0 or len(pieces) == 0:
+        return None
+    i = int(np.argmax(poses.t1 - poses.t0))
+    i0, i1 = np.searchsorted(rec.t, [poses.t0[i], poses.t1[i]])
+    return colour_inflation_per_pose(rec.acc[i0:i1], rec.rate_hz, pieces.n / rec.rate_hz)[0]
 
 
 def thermal_lines(sensor: str, tf) -> List[str]:

@@ -155,3 +155,25 @@ def test_floors_are_numpy_percentiles_value_for_value():
             want = [_floor(hist[max(0, len(hist) - m + j + 1 - FLOOR_WINDOWS):len(hist) - m + j + 1])
                     for j in range(m)]
             assert np.array_equal(got, want), (len(hist), m)
+
+
+@pytest.mark.parametrize("gap_s", [0.0, 5.0])
+def test_an_instant_change_of_orientation_splits_the_pose(gap_s):
+    """Two quiet stretches with nothing between them (samples lost while the board turned,
+    or files appended), with or without a time gap: two poses, each with its own mean - not
+    one pose with the mean of both.  A time gap with the board unmoved (a logger pausing)
+    stays one pose."""
+    rng = np.random.default_rng(0)
+    n, sig = 3000, 0.004                          # 30 s at 100 Hz, MPU-6050-like noise
+    t = np.arange(2 * n) / 100.0
+    t[n:] += gap_s
+    up = np.concatenate([np.tile([0, 0, 1.0], (n, 1)), np.tile([1.0, 0, 0], (n, 1))])
+    acc = up + rng.normal(0, sig, (2 * n, 3))
+    gyro = rng.normal(0, 0.05, (2 * n, 3))
+    sl = detect_static(t, acc, gyro, rate_hz=100.0)
+    assert len(sl) == 2 and sl[0].stop <= n <= sl[1].start
+    for x, u in zip(sl, ([0, 0, 1.0], [1.0, 0, 0])):
+        assert np.all(np.abs(acc[x].mean(0) - u) < 5 * sig / np.sqrt(x.stop - x.start))
+    assert sl == _streamed(Recording(t=t, acc=acc, gyro=gyro), 37, 100.0)
+    same = np.tile([0, 0, 1.0], (2 * n, 1)) + rng.normal(0, sig, (2 * n, 3))
+    assert len(detect_static(t, same, gyro, rate_hz=100.0)) == 1

@@ -15,7 +15,9 @@ Defaults (``DEFAULTS``) and what they mean, documented once here and in the READ
   moving a board turns tens of deg/s.  0.5 deg sits 3x above the worst tremor residue.
   The bias is the median window-mean rate of the accelerometer-quiet windows seen.
 * ``min_still_s`` = 1.0 s, ``trim_s`` = 0.25 s: a sample is still when some quiet
-  window contains it; a run of still samples, cut ``trim_s`` at its start and (after
+  window contains it, and two neighbouring still samples belong to one run only when some
+  quiet window contains both (so an instant change of orientation between two quiet
+  stretches, e.g. samples lost while the board turned, splits them); a run of still samples, cut ``trim_s`` at its start and (after
   the motion-onset cut) at its end, is a pose when it lasts ``min_still_s``.  A 1.5 s
   hold therefore counts.  Runs longer than ``max_pose_s`` (20 s) are cut in several.
 
@@ -267,20 +269,33 @@ class StillnessDetector:
         if nd == 0:
             return []
         c = np.concatenate([[0], np.cumsum(q)])
-        hi = np.minimum(np.arange(nd) + self.w, nk)
-        still = (c[hi] - c[np.arange(nd)] > 0) & b["ok"][:nd]
-        out = self._runs(still, {k: (None if b[k] is None else b[k][:nd]) for k in _CH + ("i",)})
+        ar = np.arange(nd)
+        hi = np.minimum(ar + self.w, nk)
+        still = (c[hi] - c[ar] > 0) & b["ok"][:nd]
+        # a run breaks before sample i when no quiet window holds both i - 1 and i (the
+        # windows ending in [i, i + w - 2]): two quiet stretches either side of an instant
+        # change of orientation (samples lost while the board turned, a spliced file) are
+        # two poses, not one pose with the mean of both.  A time gap alone does not break a
+        # run (loggers pause with the board unmoved); a turn during it shows as a step.
+        brk = c[np.minimum(ar + self.w - 1, nk)] - c[ar] == 0
+        out = self._runs(still, {k: (None if b[k] is None else b[k][:nd]) for k in _CH + ("i",)}, brk)
         self._buf = {k: (None if v is None else v[nd:]) for k, v in b.items()}
         return out
 
     # -- intervals --------------------------------------------------------------------
-    def _runs(self, still, ch) -> List[StaticInterval]:
+    def _runs(self, still, ch, brk) -> List[StaticInterval]:
         out: List[StaticInterval] = []
         n = len(still)
         if n == 0:
             return out
-        cut = (np.flatnonzero(still[1:] != still[:-1]) + 1).tolist()    # where the value changes
+        # where the value changes, and where a still run breaks (brk[i]: before sample i)
+        cut = np.flatnonzero((still[1:] != still[:-1]) | (still[1:] & brk[1:])) + 1
+        cut = cut.tolist()
         for i, j in zip([0] + cut, cut + [n]):
+            if still[i] and brk[i] and self._run:
+                iv = self._close(trim=True)
+                if iv is not None:
+                    out.append(iv)
             if still[i]:
                 s = i
                 while s < j:

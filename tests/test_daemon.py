@@ -272,6 +272,11 @@ def test_config_validation_names_key_value_and_allowed(tmp_path):
                                           r"fit \(9 parameters\) scored by leave-one-pose-out needs at "
                                           r"least 10 poses; allowed 10..500"):
         load_config(str(f))
+    for bad in ("-5", ".nan"):          # the thermal fit's minimum span: nan would turn the check off
+        f.write_text(f"calibration:\n  thermal_min_span_c: {bad}\n")
+        with pytest.raises(ConfigError, match=r"c.yaml:2: calibration.thermal_min_span_c: .* is out of range; "
+                                              r"allowed 1.0..200.0"):
+            load_config(str(f))
     # each key in range, together a contradiction: the accumulator could never hold min_poses
     f.write_text("poses:\n  max_poses: 20\ncalibration:\n  min_poses: 25\n")
     with pytest.raises(ConfigError, match=r"c.yaml:2: poses.max_poses: 20 is below calibration.min_poses 25"):

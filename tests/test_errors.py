@@ -62,6 +62,9 @@ def sim(tmp_path_factory):
      "c9.yaml:3: sensor.rate_hz: 150 Hz is not a rate of the 9dof board's ADXL345"),
     (["simulate", "--poses", "0", "-o", "{d}/r.csv"], 2, "argument --poses: 0 is too few: at least 1"),
     (["gap", "{sim}", "--sims", "0"], 2, "argument --sims: 0 is too few: at least 20"),
+    # nan turned the minimum-span check off (span < nan is False) and -5 meant "any span"
+    (["calibrate", "{sim}", "--thermal-min-span", "-5"], 2, "argument --thermal-min-span: -5 is not a number > 0"),
+    (["calibrate", "{sim}", "--thermal-min-span", "nan"], 2, "argument --thermal-min-span: nan is not a number > 0"),
     # outputs that cannot be created: said before the work, not after it
     (["record", "--emulate", "-o", "{d}/missing/r.csv"], 73, "directory {d}/missing does not exist"),
     (["record", "--emulate", "-o", "{d}"], 73, "-o {d}: is a directory; give a file name"),

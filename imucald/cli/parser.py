@@ -87,7 +87,7 @@ def _add_calibrate(c) -> None:
                    help="still when the accelerometer's moving variance < k x its noise floor")
     c.add_argument("--min-still-s", type=positive_float, default=_ST["min_still_s"],
                    help="shortest still interval, s")
-    c.add_argument("--thermal-min-span", type=float, default=10.0, metavar="DEGC",
+    c.add_argument("--thermal-min-span", type=positive_float, default=10.0, metavar="DEGC",
                    help="accel and gyro: fit a bias polynomial in temperature (order 0-3 by held-out "
                         "error) when the still poses span at least this many degC (default 10); "
                         "below it a constant only")

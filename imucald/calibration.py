@@ -180,11 +180,14 @@ class SensorCal:
     def apply(self, raw, temp_c=None, acc_g=None) -> np.ndarray:
         """Correct raw readings (N, 3) in this sensor's unit; temp_c (N,) or a scalar degC
         (a batch's temperature) feeds the thermal terms (unknown = NaN: those at t_ref_c);
-        acc_g (N, 3) calibrated specific force feeds the gyro's g-sensitivity term (None:
-        that term is left out)."""
+        acc_g (N, 3) calibrated specific force feeds the gyro's g-sensitivity term (required
+        when the part has one: leaving G a out would be a silent error of up to |G| deg/s)."""
         x = np.asarray(raw, float)
         if x.ndim != 2 or x.shape[1] != 3:
             raise ValueError(f"{self.sensor}: raw readings must have shape (N, 3), got {x.shape}")
+        if acc_g is None and "g_sens_dps_per_g" in self.params:
+            raise ValueError("gyro: this calibration has a g-sensitivity term (g_sens_dps_per_g): "
+                             "give acc_g, the calibrated accelerometer readings (N, 3) in g")
         A, c = self.affine
         if self.thermal is not None:
             x = self.thermal_offset(x, temp_c)
@@ -319,7 +322,8 @@ class Calibration:
         return np.asarray(acc_g, float) if self.accel is None else self.accel.apply(acc_g, temp_c)
 
     def apply_gyro(self, gyro_dps, temp_c=None, acc_g=None):
-        """acc_g: the calibrated specific force, for a g-sensitivity term (None: left out)."""
+        """acc_g (N, 3): the calibrated specific force in g, required when the gyro part has
+        a g-sensitivity term (g_sens_dps_per_g; ValueError without it)."""
         return np.asarray(gyro_dps, float) if self.gyro is None else self.gyro.apply(gyro_dps, temp_c, acc_g)
 
     def apply_mag(self, mag_gauss, temp_c=None):

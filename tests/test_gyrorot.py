@@ -155,10 +155,37 @@ def test_calibration_applies_matrix_and_g_sensitivity_and_round_trips():
     a = rng.normal(size=(20, 3))
     want = (raw - [0.5, -1.0, 0.2] - a @ G.T) @ K.T
     assert np.allclose(cal.apply_gyro(raw, None, a), want, atol=1e-12)
-    assert np.allclose(cal.apply_gyro(raw), (raw - [0.5, -1.0, 0.2]) @ K.T, atol=1e-12)
+    with pytest.raises(ValueError, match="g_sens_dps_per_g"):       # G a not silently left out
+        cal.apply_gyro(raw)
     back = Calibration.from_dict(cal.to_dict())
     assert np.allclose(back.apply_gyro(raw, None, a), want, atol=1e-12)
     assert np.allclose(back.gyro.stderr["g_sens_dps_per_g"], 1e-4)
+
+
+def test_apply_command_corrects_the_gyro_with_g_sensitivity(tmp_path, capsys):
+    """imucald apply: the gyro's G a term takes the recording's calibrated accelerometer; a
+    recording without accelerometer columns is a one-line error (exit 2), not a silent omission."""
+    from imucald.calibration import save
+    from imucald.cli import main
+    from imucald.recording import Recording, read_recording, write_recording
+    rng = np.random.default_rng(1)
+    K = np.eye(3) + rng.normal(scale=0.01, size=(3, 3))
+    G = rng.normal(scale=0.1, size=(3, 3))
+    acc_part = SensorCal.accel("triangular9", np.array([0.01, -0.02, 0.03, 1.01, 0.99, 1.02, 0.003, -0.002, 0.001]))
+    cal = Calibration("mpu6050", id=3, accel=acc_part, gyro=_gyro_part(K, G))
+    save(cal, tmp_path / "c.yaml")
+    t = np.arange(50) / 100
+    acc, gyro = rng.normal(size=(50, 3)), rng.normal(scale=20, size=(50, 3))
+    write_recording(Recording(t, acc, gyro, meta={"board": "mpu6050", "rate_hz": "100"}), tmp_path / "r.csv")
+    assert main(["apply", str(tmp_path / "c.yaml"), str(tmp_path / "r.csv"), "-o", str(tmp_path / "o.csv")]) == 0
+    out = read_recording(tmp_path / "o.csv")
+    a_cal = acc_part.apply(acc)
+    assert np.allclose(out.gyro, (gyro - [0.5, -1.0, 0.2] - a_cal @ G.T) @ K.T, atol=1e-5)
+    write_recording(Recording(t, None, gyro, meta={"board": "mpu6050", "rate_hz": "100"}), tmp_path / "g.csv")
+    capsys.readouterr()
+    assert main(["apply", str(tmp_path / "c.yaml"), str(tmp_path / "g.csv"), "-o", str(tmp_path / "x.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "g-sensitivity" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
 @pytest.mark.parametrize("key,value", [("matrix", [2.0, 0, 0, 0, 1, 0, 0, 0, 1]),

@@ -124,7 +124,13 @@ def cmd_apply(args) -> int:
     if acc is not None and cal.accel is not None:
         acc, _ = cal.apply_accel(acc, T), got.append("accel")
     if gyro is not None and cal.gyro is not None:
-        gyro, _ = cal.apply_gyro(gyro, np.full(len(rec), np.nan) if T is None else T), got.append("gyro")
+        # the g-sensitivity term takes the calibrated specific force (acc, corrected above)
+        has_g = "g_sens_dps_per_g" in cal.gyro.params
+        if has_g and acc is None:
+            raise UserError(f"{args.calibration}: the gyro part has a g-sensitivity term and "
+                            f"{args.recording} has no accelerometer columns; record ax,ay,az too")
+        gyro, _ = cal.apply_gyro(gyro, np.full(len(rec), np.nan) if T is None else T,
+                                 acc if has_g else None), got.append("gyro")
     if mag is not None and cal.mag is not None:
         mag, _ = cal.apply_mag(mag, T), got.append("mag")
     if not got:

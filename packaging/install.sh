@@ -28,7 +28,7 @@ UDEV_RULE=60-imucald-i2c.rules
 MANIFEST="$DESTDIR$PREFIX/install-manifest.txt"
 
 say() { printf 'imucald install: %s\n' "$*"; }
-die() { printf 'imucald install: error: %s\n' "$*" >&2; exit "${2:-1}"; }
+die() { printf 'imucald install: error: %s\n' "$1" >&2; exit "${2:-1}"; }
 
 case "$PREFIX" in
     /*) ;;

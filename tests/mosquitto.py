@@ -10,9 +10,27 @@ import subprocess
 import threading
 import time
 
-__all__ = ["find_mosquitto", "free_port", "Broker", "make_tls_files", "FakeDaemon", "SID"]
+__all__ = ["find_mosquitto", "free_port", "Broker", "stop_all", "make_tls_files", "FakeDaemon", "SID"]
 
 SID = "0123456789ab"
+
+#: brokers started and not yet stopped (tests stop them all at teardown: stop_all)
+LIVE = []
+
+
+def _die_with_parent():
+    """In the broker's child process: SIGTERM when the test process dies (Linux
+    PR_SET_PDEATHSIG), so a killed pytest run leaves no broker behind."""
+    try:
+        import ctypes
+        ctypes.CDLL(None, use_errno=True).prctl(1, 15)     # PR_SET_PDEATHSIG, SIGTERM
+    except (OSError, AttributeError):
+        pass
+
+
+def stop_all():
+    for b in list(LIVE):
+        b.stop()
 
 
 def find_mosquitto():
@@ -57,7 +75,9 @@ class Broker:
 
     def start(self, timeout_s=10.0):
         self.proc = subprocess.Popen([self.exe, "-c", self.conf], stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE)
+                                     stderr=subprocess.PIPE, preexec_fn=_die_with_parent)
+        if self not in LIVE:
+            LIVE.append(self)
         t0 = time.monotonic()
         while time.monotonic() - t0 < timeout_s:
             if self.proc.poll() is not None:
@@ -79,6 +99,8 @@ class Broker:
                 self.proc.kill()
                 self.proc.wait()
         self.proc = None
+        if self in LIVE:
+            LIVE.remove(self)
 
     def log(self):
         try:

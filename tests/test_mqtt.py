@@ -12,7 +12,14 @@ import numpy as np
 import pytest
 
 from imucald.daemon.config import load_config
-from tests.mosquitto import SID, Broker, FakeDaemon, find_mosquitto, make_tls_files
+from tests.mosquitto import SID, Broker, FakeDaemon, find_mosquitto, make_tls_files, stop_all
+
+
+@pytest.fixture(autouse=True)
+def _no_broker_left():
+    """Every broker a test started is stopped, whether the test passed or not."""
+    yield
+    stop_all()
 from tests.test_daemon import PY, ROOT, control, start_daemon, wait_for
 
 mqtt = pytest.importorskip("paho.mqtt.client", reason="paho-mqtt is not installed (pip install '.[test]')")

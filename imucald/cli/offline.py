@@ -171,7 +171,7 @@ def cmd_calibrate(args) -> int:
     rot = why = None
     if sensor == "gyro" and rec is not None:    # scale/misalignment from the rotations between poses
         from .gyrorot import fit_rotations
-        rot, why = fit_rotations(rec, poses, args)
+        rot, why = fit_rotations(rec, poses, args, pieces)
     tf = None
     if sensor in ("accel", "gyro") and args.method != "ga-paper":
         # the thermal terms: the order the held-out test supports (README: thermal terms)

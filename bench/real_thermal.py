@@ -70,6 +70,18 @@ def held_out_bins(block=40):
     return tf, rows, sorted({10 + 2 * int(k) for k in set(b[train])}), int(train.sum()), len(T)
 
 
+def against_constant(rows):
+    """Per axis over the bins in between (inside the fitted range): RMS of observed -
+    predicted, of observed - the best constant for those bins (their own mean: no constant
+    calibration can do better) and of the stated standard error of observed - predicted,
+    deg/s (3,) each."""
+    ins = [r for r in rows if not r[7]]
+    obs, pred = np.array([r[2] for r in ins]), np.array([r[4] for r in ins])
+    se = np.array([np.hypot(r[3], r[5]) for r in ins])
+    f = lambda e: np.sqrt(np.mean(e ** 2, axis=0))
+    return f(obs - pred), f(obs - obs.mean(0)), f(se)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--block", type=int, default=40)
@@ -94,6 +106,9 @@ def main():
     print(f"inside the fitted range: |z| <= 2 in {int((np.abs(zs) <= 2).sum())} of {zs.size} (bin, axis) "
           f"predictions; per axis RMS z " + ", ".join(f"{a} {np.sqrt(np.mean(zs[:, i] ** 2)):.2f}"
                                                      for i, a in enumerate("xyz")))
+    e, e0, se = against_constant(rows)
+    print("held-out RMS error per axis (mdps), thermal terms / the best constant / stated: " + "; ".join(
+        f"{ax} {x * 1e3:.1f} / {y * 1e3:.1f} / {z * 1e3:.1f}" for ax, x, y, z in zip("xyz", e, e0, se)))
     if beyond:
         print("beyond it: z " + "; ".join(" ".join(f"{zi:+.1f}" for zi in z) for z in beyond))
 

@@ -23,12 +23,19 @@ from imucald.sim.effects import effect_session
 from imucald.sim.poses import random_pose_set
 
 
-def session(seed, rise, acc_mg, gyro_dps, poses=60, rate_hz=100.0):
+def session(seed, rise, acc_mg, gyro_dps, poses=60, rate_hz=100.0, truth=False):
+    """The recording (with ``truth``: and the true thermal coefficients, accel g/degC and
+    gyro deg/s/degC, in the raw frame the calibration's terms are in)."""
     rng = np.random.default_rng(seed)
     s, eff = effect_session("mpu6050", random_pose_set(poses, rng), rng,
                             [("accel.thermal_bias", acc_mg * 1e-3), ("gyro.thermal_bias", gyro_dps)],
                             rate_hz, (6.4, 9.6), (2.1, 3.9), "heatcool", rise)
-    return s.recording
+    if not truth:
+        return s.recording
+    coef = {e["name"]: np.asarray(e["params"]["coef"], float) for e in eff}
+    # the simulator adds both to the raw reading (sim/sensor.py: after the sensor's matrix),
+    # where the calibration subtracts its terms (calibration.py thermal_offset)
+    return s.recording, {"accel": coef["accel.thermal_bias"], "gyro": coef["gyro.thermal_bias"]}
 
 
 def replay(rec, min_span_c, applied=None):

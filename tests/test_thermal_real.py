@@ -19,8 +19,14 @@ def test_held_out_temperature_bins_on_the_real_warm_up():
     assert len(inside) >= 4
     z = np.array([r[6] for r in inside])
     # y carries the large curve (+28 mdeg/s/degC): every bin in between within 2 standard errors;
-    # x does not (wander the size of its whole thermal change; README says so)
+    # x and z do not: x wanders beyond its stated errors (|z| up to 4.5, held-out RMS error 5.5
+    # mdps against 1.6 stated), z reaches |z| 2.4 (README, Benchmarks, gives the table)
     assert np.all(np.abs(z[:, 1]) <= 2), z
+    # what holds on every axis: the terms predict the bins in between better than any constant
+    # could (held-out RMS error x 5.5 mdps against 9.0 for the bins' own mean, y 2.0 / 130, z 2.8 / 12)
+    from real_thermal import against_constant
+    e, e0, se = against_constant(rows)
+    assert np.all(e < e0), (e, e0, se)
     # beyond the fitted range the terms are held at the edge value
     out = [r for r in rows if r[7]]
     assert out and np.allclose(out[0][4], predict(tf, np.array([tf.t_max_c]))[0][0])

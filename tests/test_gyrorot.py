@@ -85,7 +85,7 @@ def test_heldout_gravity_prediction_improves_on_bias_only(plain):
     h = f.heldout
     # the drawn truth has ~1 % scale / cross-axis errors: degrees over 100-deg turns; the
     # calibrated prediction is at the direction noise (~0.01-0.02 deg)
-    assert h["raw_mean_deg"] > 0.5
+    assert h["raw_mean_deg"] > 0.5 and h["better"] and h["evaluated"] == f.rotations
     assert h["cal_mean_deg"] < 0.05 and h["cal_max_deg"] < 0.15
 
 
@@ -346,3 +346,48 @@ def test_calibrate_gyro_gravity_reference_carries_the_accelerometer_thermal_term
     assert abs(d["chi2_dof"] - 1) < 3 * np.sqrt(2 / dof), d["chi2_dof"]
     K_true = np.linalg.inv(np.array(json.loads(truth.read_text())["gyro_matrix"]))
     assert np.all(np.abs(np.array(d["matrix"]) - K_true) < 3 * np.array(d["matrix_stderr"]))
+
+
+def _bias_only_part():
+    return SensorCal("gyro", "bias", {"bias_dps": np.array([0.5, -1.0, 0.2])}, {"bias_dps": np.full(3, 1e-3)})
+
+
+def test_three_rotations_leave_no_held_out_figures_and_keep_bias_only():
+    """3 rotations: every 3-fold training set has 2 (< 3) rotations, so nothing is held
+    out.  No figures (they read 0.000 deg before), no NaN in the JSON, K not written."""
+    import json
+    from imucald.cli.gyrorot import rotation_json, rotation_lines, with_rotations
+    rng = np.random.default_rng(21)
+    s = simulate_session("mpu6050", random_pose_set(4, rng), rng, rate_hz=100, hold_s=(6, 8), move_s=(2, 3))
+    rec = s.recording
+    sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
+    f = fit_gyro_rotations(rec.t, rec.gyro, s.specific_force_g, sl, chip="mpu6050", range_dps=250)
+    assert f.rotations == 3
+    h = f.heldout
+    assert h["evaluated"] == 0 and h["omitted"] == 3 and not h["better"]
+    assert not any(k.endswith("_deg") for k in h), h
+    d = json.loads(json.dumps(rotation_json(f), allow_nan=False))
+    assert d["used"] is False and "no held-out rotation" in d["not_used_reason"]
+    assert "none evaluated" in "\n".join(rotation_lines(f))
+    part = _bias_only_part()
+    assert with_rotations(part, f) is part
+
+
+def test_matrix_not_written_when_it_does_not_beat_bias_only():
+    """A gyro whose true K is the identity: the fitted K (identity plus its estimation
+    error) cannot beat K = I on held-out rotations, so the file keeps the bias only and
+    text and JSON say why."""
+    from imucald.cli.gyrorot import rotation_json, rotation_lines, with_rotations
+    from imucald.sim.sensor import draw_truth
+    rng = np.random.default_rng(22)
+    truth = draw_truth("mpu6050", rng)
+    truth.gyro_matrix = np.eye(3)
+    s = simulate_session("mpu6050", random_pose_set(14, rng), rng, rate_hz=100, hold_s=(6, 8),
+                         move_s=(2, 3), truth=truth)
+    f, _ = _fit(s.recording)
+    h = f.heldout
+    assert h["evaluated"] == f.rotations and not h["better"] and h["p_value"] > 0.01, h
+    assert "not better than bias only" in rotation_json(f)["not_used_reason"]
+    assert any("K and G not used" in x for x in rotation_lines(f))
+    part = _bias_only_part()
+    assert with_rotations(part, f) is part

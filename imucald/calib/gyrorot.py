@@ -70,7 +70,9 @@ class GyroRotFit:
     excess_scatter: float               #: chi^2/dof scaling applied (1 = noise model held)
     chi2_dof: float                     #: whitened residuals' chi^2 per degree of freedom (fit)
     rms_deg: float                      #: in-sample direction error RMS
-    heldout: Dict[str, float] = field(default_factory=dict)
+    #: folds, evaluated, better (K beats bias only), p_value, {raw,cal}_{mean,max}_deg when any
+    #: rotation was evaluated, omitted + omitted_reason, why (when not better)
+    heldout: Dict[str, object] = field(default_factory=dict)
     reference: str = "gravity"          #: gravity, or gravity+field
 
     @property
@@ -323,10 +325,14 @@ def _frame_derivative(acc_frame, cal_means):
 
 def _heldout(build, wins, lam, phi, folds, K_all):
     """Gravity-direction prediction error (deg) on held-out rotations: bias only (K = I)
-    and calibrated (K fitted on the other folds)."""
+    and calibrated (K fitted on the other folds), and whether the calibrated errors are
+    smaller (one-sided signed-rank test on the paired squared errors, calib.gate).  A fold
+    with fewer than 3 training rotations is not evaluated: its rotations are counted as
+    omitted (the figures and the test use the evaluated ones; none evaluated: no figures)."""
+    from .gate import ALPHA, paired_gate
     R = len(wins)
     k = max(2, min(folds, R))
-    raw, cal = np.zeros(R), np.zeros(R)
+    raw, cal, ok = np.zeros(R), np.zeros(R), np.zeros(R, bool)
     for f in range(k):
         test = np.arange(f, R, k)
         train = np.setdiff1d(np.arange(R), test)
@@ -337,5 +343,19 @@ def _heldout(build, wins, lam, phi, folds, K_all):
         s, e = pt.refs[0][:2]
         raw[test] = _angle_deg(predict_directions(pt.W.integrate(np.eye(3))[0], s), e)
         cal[test] = _angle_deg(predict_directions(pt.W.integrate(np.eye(3) + Ef.reshape(3, 3))[0], s), e)
-    return {"folds": k, "raw_mean_deg": float(raw.mean()), "raw_max_deg": float(raw.max()),
-            "cal_mean_deg": float(cal.mean()), "cal_max_deg": float(cal.max())}
+        ok[test] = True
+    out: Dict[str, object] = {"folds": k, "evaluated": int(ok.sum())}
+    if not ok.all():
+        out["omitted"] = int(R - ok.sum())
+        out["omitted_reason"] = "held-out folds with fewer than 3 training rotations"
+    if not ok.any():
+        out.update(better=False, why="no held-out rotation could be evaluated")
+        return out
+    dec = paired_gate(raw[ok] ** 2, cal[ok] ** 2, ALPHA, "raw")
+    out.update(raw_mean_deg=float(raw[ok].mean()), raw_max_deg=float(raw[ok].max()),
+               cal_mean_deg=float(cal[ok].mean()), cal_max_deg=float(cal[ok].max()),
+               p_value=dec.p_value, better=dec.accept)
+    if not dec.accept:
+        out["why"] = (f"not better than bias only on {int(ok.sum())} held-out rotations "
+                      f"(one-sided signed-rank p = {dec.p_value:.2g} > {ALPHA:g})")
+    return out

@@ -109,9 +109,17 @@ def rotation_lines(fit, why: str = "") -> List[str]:
     h = fit.heldout
     out.append(f"  noise model: chi2/dof {fit.chi2_dof:.2f}, excess scatter x{fit.excess_scatter:.2f}; "
                f"in-sample gravity-direction RMS {fit.rms_deg:.3f} deg")
-    out.append(f"  gravity direction at the next pose, held-out rotations ({h['folds']}-fold): bias only "
-               f"mean {h['raw_mean_deg']:.3f} max {h['raw_max_deg']:.3f} deg; calibrated mean "
-               f"{h['cal_mean_deg']:.3f} max {h['cal_max_deg']:.3f} deg")
+    om = f"; {h['omitted']} omitted: {h['omitted_reason']}" if h.get("omitted") else ""
+    if "cal_mean_deg" in h:
+        out.append(f"  gravity direction at the next pose, held-out rotations ({h['folds']}-fold, "
+                   f"{h['evaluated']} evaluated{om}): bias only mean {h['raw_mean_deg']:.3f} max "
+                   f"{h['raw_max_deg']:.3f} deg; calibrated mean {h['cal_mean_deg']:.3f} max "
+                   f"{h['cal_max_deg']:.3f} deg (p = {h['p_value']:.2g})")
+    else:
+        out.append(f"  gravity direction at the next pose, held-out rotations: none evaluated{om}")
+    if not h.get("better"):
+        out.append(f"  K and G not used: {h.get('why', 'not better than bias only')}; "
+                   f"the calibration file keeps the gyro bias only")
     return out
 
 
@@ -124,15 +132,19 @@ def rotation_json(fit, why: str = "") -> Dict[str, object]:
             else None, "g_sens_stderr": fit.g_sens_se.tolist() if fit.g_sens_used else None,
             "g_sens_flags": list(fit.g_sens_flags), "bias_dps": fit.bias_dps.tolist(),
             "chi2_dof": fit.chi2_dof, "excess_scatter": fit.excess_scatter, "rms_deg": fit.rms_deg,
-            "heldout": dict(fit.heldout)}
+            "heldout": dict(fit.heldout), "used": bool(fit.heldout.get("better")),
+            **({} if fit.heldout.get("better") else
+               {"not_used_reason": fit.heldout.get("why", "not better than bias only") +
+                "; the calibration file keeps the gyro bias only"})}
 
 
 def with_rotations(part, fit):
-    """The gyro part with K (and G, with the bias intercept that goes with it) added.  G is
-    left out when the part carries a thermal bias polynomial (fitted without G)."""
+    """The gyro part with K (and G, with the bias intercept that goes with it) added, when
+    they beat bias only on held-out rotations (else the part as is).  G is left out when
+    the part carries a thermal bias polynomial (fitted without G)."""
     from ..calibration import SensorCal
-    if fit is None:
-        return part
+    if fit is None or not fit.heldout.get("better"):
+        return part             # K (and G) only when they beat bias only on held-out rotations
     p, se, fl = dict(part.params), dict(part.stderr), dict(part.flags)
     p["matrix"], se["matrix"], fl["matrix"] = fit.matrix.ravel(), fit.matrix_se.ravel(), tuple(fit.matrix_flags)
     th = part.thermal

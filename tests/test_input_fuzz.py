@@ -384,3 +384,47 @@ def test_control_requests_through_a_real_socket(tmp_path):
         c.close()
     finally:
         srv.close()
+
+
+def test_hostile_requests_to_a_running_daemon(tmp_path):
+    """The real daemon's handler behind the real socket: every command and hostile lines in
+    one write; one strict-JSON reply line each, in order; the daemon samples on and ends
+    cleanly."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    rt = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "imucald.cli", "run", "--emulate", "--speed", "5", "--state-dir",
+                          str(tmp_path / "st"), "--runtime-dir", str(rt)], stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE, text=True, cwd=root)
+    lines = [b"status", b"poses", b"coverage", b"\xff\xfe\x00", b'{"cmd": "status", "x": NaN}', b"[" * 900,
+             b'{"cmd": ["reset"]}', b"recalibrate", b"reset", b"reload", b"STATUS", b"status"]
+    want = ["STATUS", "POSES", "COVERAGE", "ERROR", "STATUS", "ERROR", "ERROR", "ERROR", "RESET", "RELOAD",
+            "ERROR", "STATUS"]
+    try:
+        t0 = time.time()
+        while not (rt / "control.sock").exists() and p.poll() is None and time.time() - t0 < 60:
+            time.sleep(0.05)
+        c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        c.connect(str(rt / "control.sock"))
+        c.settimeout(30)
+        c.sendall(b"\n".join(lines) + b"\n")
+        buf = b""
+        while buf.count(b"\n") < len(lines):
+            d = c.recv(65536)
+            if not d:
+                break
+            buf += d
+        c.close()
+        strict = [json.loads(x, parse_constant=lambda k: pytest.fail(f"non-strict JSON {k} in {x[:80]!r}"))
+                  for x in buf.splitlines()]
+        assert [r["class"] for r in strict] == want, strict
+        assert all("\n" not in r.get("message", "") for r in strict)
+        assert strict[-1]["board_stats"]["samples"] > strict[0]["board_stats"]["samples"]
+    finally:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+        err = p.communicate(timeout=60)[1]
+    assert p.returncode == 0 and "Traceback" not in err, err

@@ -146,3 +146,31 @@ def test_recalibrate_refuses_up_front_with_the_poses_needed_and_status_says_prov
     s = pipe.status()
     assert s["calibration_id"] == 1 and s["calibration_provisional"] is True
     assert s["missing_orientations"] == pipe.acc.coverage()["missing"]
+
+
+def test_replay_starts_from_the_calibration_in_the_state_dir(tmp_path, capsys):
+    """replay --state-dir D starts from D/calibration.yaml, as the daemon does: a gyro file
+    from calibrate --sensor gyro keeps its K and G through the replay's calibrations (it was
+    overwritten by a bias-only id 1); a file for another board is refused in one line and
+    left as it is."""
+    from imucald.calibration import load
+    rec, d = tmp_path / "r.csv", tmp_path / "st"
+    d.mkdir()
+    assert main(["simulate", "-o", str(rec), "--board", "mpu6050", "--poses", "24", "--hold", "6",
+                 "--seed", "5"]) == 0
+    assert main(["calibrate", str(rec), "--sensor", "gyro", "-o", str(d / "calibration.yaml")]) == 0
+    before = load(d / "calibration.yaml")
+    assert "matrix" in before.gyro.params and "g_sens_dps_per_g" in before.gyro.params
+    capsys.readouterr()
+    assert main(["replay", str(rec), "--state-dir", str(d)]) == 0
+    after = load(d / "calibration.yaml")
+    assert after.id > before.id and after.accel is not None
+    for k in ("matrix", "g_sens_dps_per_g"):
+        assert np.array_equal(after.gyro.params[k], before.gyro.params[k]), k
+    text = (d / "calibration.yaml").read_text().replace("board: mpu6050", "board: 9dof")
+    (d / "calibration.yaml").write_text(text)
+    capsys.readouterr()
+    assert main(["replay", str(rec), "--state-dir", str(d)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(d / "calibration.yaml") in err and "9dof" in err, err
+    assert (d / "calibration.yaml").read_text() == text

@@ -94,6 +94,11 @@ def cmd_replay(args) -> int:
         pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag, chips=chips,
                         has_acc=has_acc)
         pipe.use_noise_file(cfg["noise"]["file"])
+        if args.state_dir:      # as the daemon at start: from the calibration saved there
+            cal = _replay_start(args.state_dir, pipe.board, chips)
+            if cal is not None:
+                pipe.applied = cal
+                logging.getLogger("imucald").info("starting from calibration #%d (%s)", cal.id, cal.created)
         out = sys.stdout.buffer
         from ..daemon.outputs import banner
         out.write(banner(cfg["output"]["format"], pipe.board, chips or None))
@@ -135,6 +140,25 @@ def cmd_replay(args) -> int:
         logging.getLogger("imucald").info("no calibration was reached (%d poses; %s)",
                                           len(pipe.acc), pipe.ready_to_calibrate())
     return 0
+
+
+def _replay_start(state_dir: str, board: str, chips):
+    """The calibration in ``state_dir`` to start the replay from (None: no file there).
+    One that does not load or belongs to another board is refused (the daemon would set it
+    aside; a replay must not overwrite it with a calibration made from scratch)."""
+    from ..calibration import CalibrationError, load
+    path = os.path.join(state_dir, "calibration.yaml")
+    if not os.path.exists(path):
+        return None
+    fix = "; replay starts from the calibration in --state-dir: move the file away or give another --state-dir"
+    try:
+        cal = load(path)
+    except CalibrationError as e:
+        raise type(e)(f"{str(e).splitlines()[0]}{fix}") from None
+    why = cal.mismatch(board, chips)
+    if why:
+        raise UserError(f"{path}: {why}{fix}")
+    return cal
 
 
 def _cat(parts):

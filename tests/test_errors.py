@@ -261,3 +261,21 @@ def test_a_pose_that_is_not_at_rest_under_gravity_exits_2(tmp_path, capsys, acc)
     rc, out, err = run_main(capsys, "calibrate", tmp_path / "p.csv")
     line = one_line(err)
     assert rc == 2 and "p.csv: pose 5 (t0 4 s)" in line and "not ~1 g" in line, err
+
+
+@pytest.mark.parametrize("mag", ["zero", "same", "plane"])
+def test_magnetometer_pose_means_that_do_not_span_3d_exit_2(tmp_path, capsys, mag):
+    # all-zero or identical magnetometer means were a LinAlgError traceback
+    import numpy as np
+    rng = np.random.default_rng(3)
+    acc = rng.normal(size=(14, 3))
+    acc /= np.linalg.norm(acc, axis=1, keepdims=True)
+    m = {"zero": np.zeros((14, 3)), "same": np.tile([0.2, 0.1, 0.4], (14, 1)),
+         "plane": np.c_[0.3 * np.cos(np.arange(14)), 0.3 * np.sin(np.arange(14)), np.full(14, 0.2)]}[mag]
+    rows = [f"{i},{i + 2},200,{a[0]},{a[1]},{a[2]},0.004,0.004,0.004,{b[0]},{b[1]},{b[2]}"
+            for i, (a, b) in enumerate(zip(acc, m))]
+    (tmp_path / "p.csv").write_text("# imucald poses v1\n# board: 9dof\nt0,t1,n,ax,ay,az,sax,say,saz,mx,my,mz\n"
+                                    + "\n".join(rows) + "\n")
+    rc, out, err = run_main(capsys, "calibrate", tmp_path / "p.csv", "--sensor", "mag")
+    line = one_line(err)
+    assert rc == 2 and "p.csv: the magnetometer pose means do not span three dimensions" in line, err

@@ -104,6 +104,23 @@ def _check_rest_norms(path: str, poses) -> None:
                         f"remove that pose or convert the file to g")
 
 
+#: smallest ratio of the magnetometer pose means' least to greatest spread (principal axes)
+#: for a 3-D fit; below it they lie in a plane, on a line or at one point, where the
+#: ellipsoid is not determined (and the solvers raised LinAlgError)
+MAG_MIN_SPAN_RATIO = 1e-3
+
+
+def _check_mag_span(path: str, mag) -> None:
+    import numpy as np
+    x = np.asarray(mag, float)
+    sv = np.linalg.svd(x - x.mean(0), compute_uv=False) if len(x) >= 3 else np.zeros(3)
+    if len(sv) < 3 or not sv[0] > 0 or sv[-1] < MAG_MIN_SPAN_RATIO * sv[0]:
+        raise UserError(f"{path}: the magnetometer pose means do not span three dimensions (they lie in a "
+                        f"plane, on a line or at one point), so no 3-D calibration is determined: turn the "
+                        f"board through many orientations, or calibrate from a rotation recording "
+                        f"(README: magnetometer only)")
+
+
 def cmd_calibrate(args) -> int:
     import numpy as np
     from ..calib.fit import fit_gyro_bias, fit_norm
@@ -156,6 +173,7 @@ def cmd_calibrate(args) -> int:
     elif sensor == "mag":           # a pose file: the pose means are the points
         if poses.mag is None:
             raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
+        _check_mag_span(args.input, poses.mag)
         cal = fit_norm(poses.mag, model, args.method, pose_cov=poses.mag_cov, rng=args.seed)
     else:
         if poses.gyro is None:

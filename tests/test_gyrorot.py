@@ -222,6 +222,12 @@ def test_calibrate_gyro_fits_the_matrix_prints_it_and_writes_it(tmp_path, capsys
     assert main(["calibrate", str(rec), "--sensor", "gyro"]) == 0
     text = capsys.readouterr().out
     assert "from 23 rotations between still poses (reference: gravity;" in text and "held-out rotations" in text
+    # one bias in text, JSON and file: the rotation fit's intercept (G a removed), labelled
+    # apart from the pose mean (which includes G a)
+    line = next(x for x in text.splitlines() if "in the calibration file" in x)
+    shown = np.array(line.split("[")[1].split("]")[0].split(","), float)
+    assert np.allclose(shown, cal.gyro.params["bias_dps"], atol=1e-6), (line, cal.gyro.params["bias_dps"])
+    assert np.allclose(shown, d["bias_dps"], atol=1e-6) and "with K and G" in line
 
 
 def test_daemon_bias_refit_keeps_the_matrix_and_g_sensitivity():

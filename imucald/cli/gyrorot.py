@@ -123,6 +123,16 @@ def rotation_lines(fit, why: str = "") -> List[str]:
     return out
 
 
+def file_line(part) -> str:
+    """The gyro bias the calibration file holds (the rotation fit's intercept when G is
+    used: the pose mean above includes G a), so that text, JSON and file agree."""
+    with_ = [w for k, w in (("matrix", "K"), ("g_sens_dps_per_g", "G")) if k in part.params]
+    src = "intercept of the rotation fit, G a removed" if "g_sens_dps_per_g" in part.params else \
+        "the still-pose mean above" if not part.thermal else "the thermal fit's, at its reference temperature"
+    return (f"  in the calibration file (-o): bias_dps {_row(part.params['bias_dps'], '{:+.6f}')} deg/s ({src})"
+            + (f", with {' and '.join(with_)}" if with_ else ", bias only"))
+
+
 def rotation_json(fit, why: str = "") -> Dict[str, object]:
     if fit is None:
         return {"fitted": False, "reason": why}

@@ -195,13 +195,17 @@ def cmd_calibrate(args) -> int:
         # the thermal terms: the order the held-out test supports (README: thermal terms)
         from .thermal import fit_thermal
         tf = fit_thermal(sensor, pieces, cal, chip, infl_pieces, args.thermal_min_span, args.seed)
+    part = _file_part(cal, tf, rot)             # what -o writes (and the file's bias for the gyro)
     if args.output:
-        _write_calibration(args.output, poses.meta.get("board", "unknown"), cal, tf, rot)
+        _write_calibration(args.output, poses.meta.get("board", "unknown"), part, tf)
     if args.json:
         d = cal.to_json()
         if rec is not None and sensor == "gyro":
             from .gyrorot import rotation_json
             d["rotations"] = rotation_json(rot, why)
+        if sensor == "gyro":
+            d["file"] = {"bias_dps": part.params["bias_dps"].tolist(),
+                         "matrix": "matrix" in part.params, "g_sens_dps_per_g": "g_sens_dps_per_g" in part.params}
         if tf is not None:
             from .thermal import thermal_json
             d["thermal"] = thermal_json(sensor, tf)
@@ -211,6 +215,9 @@ def cmd_calibrate(args) -> int:
     if rec is not None and sensor == "gyro":
         from .gyrorot import rotation_lines
         print("\n".join(rotation_lines(rot, why)))
+    if sensor == "gyro":
+        from .gyrorot import file_line
+        print(file_line(part))
     if tf is not None:
         from .thermal import thermal_lines
         print("\n".join(thermal_lines(sensor, tf)))
@@ -225,7 +232,8 @@ def _print_cal(sensor: str, cal) -> None:
         se = cal.stderr.get(g)
         vv = v if isinstance(v, list) else [v]
         ss = se if isinstance(se, list) else [se]
-        print(f"  {g:<18} {_fmt_vec(vv)}  +- {_fmt_vec(ss, fmt='{:.2e}')}")
+        name = "bias_dps (pose mean)" if sensor == "gyro" and g == "bias_dps" else g
+        print(f"  {name:<18} {_fmt_vec(vv)}  +- {_fmt_vec(ss, fmt='{:.2e}')}")
     if sensor != "gyro":
         print(f"  residual |x|-target RMS: in-sample {cal.rms * unit[1]:.4f} {unit[0]}, "
               f"held-out {cal.heldout_rms * unit[1]:.4f} {unit[0]}")
@@ -291,19 +299,27 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     return 0
 
 
-def _write_calibration(path: str, board: str, fit, thermal=None, rotations=None) -> None:
-    """--output: the fitted part (with its thermal terms and, for the gyro, the scale/
-    misalignment from the rotations) as a calibration file (the daemon's and
-    imucald.load_calibration's format), written atomically."""
-    from ..calibration import Calibration, SensorCal, save
+def _file_part(fit, thermal=None, rotations=None):
+    """The part --output writes: the fitted one with its thermal terms and, for the gyro,
+    the scale/misalignment (and g-sensitivity) from the rotations when they beat bias only."""
+    from ..calibration import SensorCal
     from .thermal import thermal_part
     part = SensorCal.from_fit(fit) if thermal is None else thermal_part(fit.sensor, fit, thermal)
     if rotations is not None:
         from .gyrorot import with_rotations
         part = with_rotations(part, rotations)
+    return part
+
+
+def _write_calibration(path: str, board: str, part, thermal=None) -> None:
+    """--output: ``part`` (a fit: its part, see _file_part) as a calibration file (the
+    daemon's and imucald.load_calibration's format), written atomically."""
+    from ..calibration import Calibration, SensorCal, save
+    if not isinstance(part, SensorCal):
+        part = _file_part(part, thermal)
     tr = None if thermal is None else (round(thermal.t_min_c, 2), round(thermal.t_max_c, 2))
     try:
-        save(Calibration(board, id=1, temperature_range_c=tr, **{fit.sensor: part}), path)
+        save(Calibration(board, id=1, temperature_range_c=tr, **{part.sensor: part}), path)
     except OSError as e:
         raise CannotCreate(f"--output {path}: cannot write: {e.strerror}") from None
 

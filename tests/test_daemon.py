@@ -91,7 +91,7 @@ def check_stream(lines, label):
     return objs, imu
 
 
-@pytest.mark.parametrize("board,speed,duration", [("mpu6050", 20, 230), ("9dof", 10, 230)])
+@pytest.mark.parametrize("board,speed,duration", [("mpu6050", 20, 230), ("9dof", 10, 150)])
 def test_end_to_end_calibrates_and_streams_every_sample(tmp_path, board, speed, duration):
     p, rt, st = start_daemon(tmp_path, "--board", board, "--speed", str(speed), "--duration",
                              str(duration), "--fifo", "imucald.fifo", "--seed", "2")

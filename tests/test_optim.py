@@ -71,11 +71,12 @@ def test_results_stay_inside_the_bounds(fn):
     assert np.any(np.isclose(res.theta[6:9], lo[6:9]) | np.isclose(res.theta[6:9], hi[6:9]))
 
 
-@pytest.mark.parametrize("fn", [ga, hga, ga_paper])
-def test_seeded_runs_repeat_exactly(fn):
+@pytest.mark.parametrize("fn,kw", [(ga, {}), (hga, {}), (ga_paper, {"runs": 4})])
+def test_seeded_runs_repeat_exactly(fn, kw):
+    # ga_paper with 4 of its 20 averaged runs: the seeding is the same, at a fifth of the time
     _, raw, _, _ = _case(51)
-    a = fn(Problem(T9, raw), rng=7)
-    b = fn(Problem(T9, raw), rng=np.random.default_rng(7))
+    a = fn(Problem(T9, raw), rng=7, **kw)
+    b = fn(Problem(T9, raw), rng=np.random.default_rng(7), **kw)
     assert np.array_equal(a.theta, b.theta)
 
 

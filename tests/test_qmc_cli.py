@@ -26,7 +26,7 @@ def test_probe_reports_qmc_boards_as_supported(capsys):
 
 def test_run_nine_dof_with_qmc_end_to_end(tmp_path):
     p, rt, st = start_daemon(tmp_path, "--board", "9dof", "--mag", "qmc5883l", "--speed", "10",
-                             "--seed", "2", "--method", "lm", "--duration", "300")
+                             "--seed", "2", "--method", "lm", "--duration", "150")
     try:
         wait_for(rt / "control.sock", p)
         s = control(rt, "status")

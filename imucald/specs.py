@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Dict, Optional
 
-__all__ = ["AccelSpec", "GyroSpec", "MagSpec", "ACCEL", "GYRO", "MAG", "BOARDS"]
+__all__ = ["AccelSpec", "GyroSpec", "MagSpec", "ACCEL", "GYRO", "MAG", "BOARDS", "recording_chips"]
 
 
 @dataclass(frozen=True)
@@ -112,3 +112,14 @@ BOARDS = {
     "9dof-qmc": ("adxl345", "itg3200", "qmc5883l"),     # a 9DOF/GY-85 board with the QMC5883L
     "mpu9250": ("mpu9250", "mpu9250", "ak8963"),
 }
+
+
+def recording_chips(meta) -> dict:
+    """{accel, gyro, mag: chip} of a recording: its ``chips`` meta (``accel=mpu6050,...``,
+    written by ``imucald record``), else the board's usual chips (a simulated or converted
+    recording); {} for an unknown board."""
+    chips = dict(kv.split("=", 1) for kv in str(meta.get("chips", "")).split(",") if "=" in kv)
+    if not chips:
+        chips = {k: v for k, v in zip(("accel", "gyro", "mag"), BOARDS.get(meta.get("board", ""), ()))
+                 if v is not None}
+    return chips

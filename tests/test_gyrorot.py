@@ -219,6 +219,11 @@ def test_calibrate_gyro_fits_the_matrix_prints_it_and_writes_it(tmp_path, capsys
     assert np.allclose(cal.gyro.params["matrix"].reshape(3, 3), d["matrix"])
     assert cal.gyro.flags["matrix"] == tuple(d["matrix_flags"])
     assert cal.gyro.quality["rotations"] == 23
+    # identity: made now (UTC), for the recording's board and its usual chips (was '' and {})
+    from datetime import datetime, timezone
+    made = datetime.fromisoformat(cal.created)
+    assert made.utcoffset().total_seconds() == 0 and abs((datetime.now(timezone.utc) - made).total_seconds()) < 600
+    assert cal.board == "mpu6050" and dict(cal.chips) == {"accel": "mpu6050", "gyro": "mpu6050"}
     assert main(["calibrate", str(rec), "--sensor", "gyro"]) == 0
     text = capsys.readouterr().out
     assert "from 23 rotations between still poses (reference: gravity;" in text and "held-out rotations" in text

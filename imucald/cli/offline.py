@@ -197,7 +197,7 @@ def cmd_calibrate(args) -> int:
         tf = fit_thermal(sensor, pieces, cal, chip, infl_pieces, args.thermal_min_span, args.seed)
     part = _file_part(cal, tf, rot)             # what -o writes (and the file's bias for the gyro)
     if args.output:
-        _write_calibration(args.output, poses.meta.get("board", "unknown"), part, tf)
+        _write_calibration(args.output, poses.meta, part, tf)
     if args.json:
         d = cal.to_json()
         if rec is not None and sensor == "gyro":
@@ -280,7 +280,7 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
                              thermal_min_span_c=args.thermal_min_span)
     tf = res.get("thermal")
     if args.output and res["determined"]:
-        _write_calibration(args.output, rec.meta.get("board", "unknown"), res["calibration"], tf)
+        _write_calibration(args.output, rec.meta, res["calibration"], tf)
     if args.json:
         d = rotation_json(res)
         if tf is not None:
@@ -311,15 +311,21 @@ def _file_part(fit, thermal=None, rotations=None):
     return part
 
 
-def _write_calibration(path: str, board: str, part, thermal=None) -> None:
+def _write_calibration(path: str, meta, part, thermal=None) -> None:
     """--output: ``part`` (a fit: its part, see _file_part) as a calibration file (the
-    daemon's and imucald.load_calibration's format), written atomically."""
+    daemon's and imucald.load_calibration's format), written atomically; board and chips
+    from the input's meta (chips: the recorded ones, else the board's usual), created now."""
+    from datetime import datetime, timezone
+
     from ..calibration import Calibration, SensorCal, save
+    from ..specs import recording_chips
     if not isinstance(part, SensorCal):
         part = _file_part(part, thermal)
     tr = None if thermal is None else (round(thermal.t_min_c, 2), round(thermal.t_max_c, 2))
+    now = datetime.now(timezone.utc).isoformat(timespec="seconds")
     try:
-        save(Calibration(board, id=1, temperature_range_c=tr, **{part.sensor: part}), path)
+        save(Calibration(meta.get("board", "unknown"), recording_chips(meta), id=1, created=now,
+                         temperature_range_c=tr, **{part.sensor: part}), path)
     except OSError as e:
         raise CannotCreate(f"--output {path}: cannot write: {e.strerror}") from None
 

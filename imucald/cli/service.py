@@ -86,11 +86,8 @@ def cmd_replay(args) -> int:
                             f"(mx, my, mz) columns")
         meta, has_mag, has_acc = reader.meta, "mx" in cols, "ax" in cols
         rate_hz = float(meta["rate_hz"])
-        chips = dict(kv.split("=", 1) for kv in meta.get("chips", "").split(",") if "=" in kv)
-        if not chips:               # a simulated or converted recording: the board's usual chips
-            from ..specs import BOARDS
-            chips = {k: v for k, v in zip(("accel", "gyro", "mag"), BOARDS.get(meta.get("board"), ()))
-                     if v is not None}
+        from ..specs import recording_chips
+        chips = recording_chips(meta)      # a simulated or converted recording: the board's usual
         pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag, chips=chips,
                         has_acc=has_acc)
         pipe.use_noise_file(cfg["noise"]["file"])

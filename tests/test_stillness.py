@@ -177,3 +177,20 @@ def test_an_instant_change_of_orientation_splits_the_pose(gap_s):
     assert sl == _streamed(Recording(t=t, acc=acc, gyro=gyro), 37, 100.0)
     same = np.tile([0, 0, 1.0], (2 * n, 1)) + rng.normal(0, sig, (2 * n, 3))
     assert len(detect_static(t, same, gyro, rate_hz=100.0)) == 1
+
+
+def test_a_small_step_between_two_quiet_stretches_splits_the_pose():
+    """A 20 mg change (a board set down again a little differently, two sessions appended):
+    too small for the variance test (a window half on each side reads 1e-4 g^2, under
+    k x floor), so the means of the quiet windows either side decide."""
+    rng = np.random.default_rng(1)
+    n, sig = 3000, 0.004
+    t = np.arange(2 * n) / 100.0
+    up = np.tile([0, 0, 1.0], (2 * n, 1))
+    up[n:, 0] += 0.02
+    acc = up + rng.normal(0, sig, (2 * n, 3))
+    gyro = rng.normal(0, 0.05, (2 * n, 3))
+    sl = detect_static(t, acc, gyro, rate_hz=100.0)
+    assert len(sl) == 2 and sl[0].stop <= n <= sl[1].start
+    assert abs(acc[sl[1]].mean(0)[0] - acc[sl[0]].mean(0)[0] - 0.02) < 5 * sig * np.sqrt(2 / 2000)
+    assert sl == _streamed(Recording(t=t, acc=acc, gyro=gyro), 23, 100.0)

@@ -16,8 +16,11 @@ Defaults (``DEFAULTS``) and what they mean, documented once here and in the READ
   The bias is the median window-mean rate of the accelerometer-quiet windows seen.
 * ``min_still_s`` = 1.0 s, ``trim_s`` = 0.25 s: a sample is still when some quiet
   window contains it, and two neighbouring still samples belong to one run only when some
-  quiet window contains both (so an instant change of orientation between two quiet
-  stretches, e.g. samples lost while the board turned, splits them); a run of still samples, cut ``trim_s`` at its start and (after
+  quiet window contains both and the quiet windows just before and just from the second
+  agree in mean (within 5 sigma of two still means: 25 x 2 x k x floor / w summed over the
+  axes), so an instant change of orientation between two quiet stretches (samples lost
+  while the board turned, sessions appended, a board set down again a little differently)
+  splits them; a run of still samples, cut ``trim_s`` at its start and (after
   the motion-onset cut) at its end, is a pose when it lasts ``min_still_s``.  A 1.5 s
   hold therefore counts.  Runs longer than ``max_pose_s`` (20 s) are cut in several.
 
@@ -99,6 +102,8 @@ class StillnessDetector:
         self._run_n = 0
         self._run_i0 = 0
         self._run_cut = False                # run continues a piece cut at max_pose_s
+        self._prev_am = None                 # trailing accelerometer mean at the last decided sample
+        self._prev_q = False                 # and whether its window was quiet
 
     # -- statistics -------------------------------------------------------------------
     def _blocks(self, x: np.ndarray, gy: bool) -> None:
@@ -159,7 +164,7 @@ class StillnessDetector:
             full_w = cnt[:, 0] >= self.w
         s1, s2 = s[:, :k], s[:, k:]
         var = np.maximum(s2[:, :3] - s1[:, :3] * s1[:, :3] / cnt, 0) / np.maximum(cnt - 1, 1)
-        return var.sum(1), s1[:, 3:] / cnt + ref[3:], full_w
+        return var.sum(1), s1[:, 3:] / cnt + ref[3:], s1[:, :3] / cnt + ref[:3], full_w
 
     # -- streaming --------------------------------------------------------------------
     def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
@@ -181,12 +186,12 @@ class StillnessDetector:
         if n:
             self._last = x[-1]
         self._blocks(x, gyro is not None)
-        va, gm, full = self._window_stats(x)
+        va, gm, am, full = self._window_stats(x)
         # stream index, quiet flag and its known mark are made for the joined pending rows
         new = {"t": np.asarray(t, float), "acc": acc,
                "gyro": None if gyro is None else np.asarray(gyro, float),
                "temp": None if temp is None else np.asarray(temp, float), "mag": mag,
-               "fresh": mag_fresh, "good": good & full, "ok": good, "va": va, "gm": gm}
+               "fresh": mag_fresh, "good": good & full, "ok": good, "va": va, "gm": gm, "am": am}
         if not self._pend:
             self._pend_i0 = self._seen
         self._seen += n
@@ -209,7 +214,7 @@ class StillnessDetector:
             k: (None if pend[0][k] is None else np.concatenate([p[k] for p in pend]))
             for k in pend[0]}
         new.update(i=np.arange(self._pend_i0, self._pend_i0 + m), q=np.zeros(m, bool),
-                   known=np.zeros(m, bool))
+                   known=np.zeros(m, bool), fa=np.zeros(m))
         b = self._buf
         self._buf = new if b is None else {
             k: (None if b[k] is None else np.concatenate([b[k], new[k]])) for k in b}
@@ -253,6 +258,7 @@ class StillnessDetector:
             fa = np.array([self._F[jj][0] for jj in u])[pos]
             bias = None if self._F[u[0]][1] is None else np.array([self._F[jj][1] for jj in u])[pos]
             b["q"][idx] = self._quiet({k: b[k][idx] for k in ("good", "va", "gm")}, fa, bias)
+            b["fa"][idx] = fa
             b["known"][idx] = True
         lo = max(int(b["i"][0]) // self.w, WARMUP_WINDOWS) if len(b["i"]) else self._nblk
         for kk in [kk for kk in self._F if kk < min(lo, self._nblk)]:
@@ -278,6 +284,22 @@ class StillnessDetector:
         # two poses, not one pose with the mean of both.  A time gap alone does not break a
         # run (loggers pause with the board unmoved); a turn during it shows as a step.
         brk = c[np.minimum(ar + self.w - 1, nk)] - c[ar] == 0
+        # ... and where the mean of the window before i and of the window from i differ by
+        # more than a still board's means can (a step too small for the variance test to see
+        # when a window holds only a few samples of the other side): per axis the
+        # difference of two w-sample means has variance 2 s^2 / w, s^2 <= k x floor on a
+        # quiet window; 25 x that (5 sigma) summed over the axes
+        # Only two quiet windows are compared (a window reaching into a move differs anyway).
+        if nd:
+            am = b["am"][:nk]
+            before = np.concatenate([[self._prev_am if self._prev_am is not None else am[0]],
+                                     am[:nd - 1]])
+            q_before = np.concatenate([[self._prev_q], q[:nd - 1]])
+            ia = np.minimum(ar + self.w - 1, nk - 1)
+            after, q_after = am[ia], q[ia]
+            brk |= q_before & q_after & (
+                ((after - before) ** 2).sum(1) > 25.0 * 2.0 * self.k * b["fa"][:nd] / self.w)
+            self._prev_am, self._prev_q = am[nd - 1].copy(), bool(q[nd - 1])
         out = self._runs(still, {k: (None if b[k] is None else b[k][:nd]) for k in _CH + ("i",)}, brk)
         self._buf = {k: (None if v is None else v[nd:]) for k, v in b.items()}
         return out

@@ -95,7 +95,8 @@ def xsens():
     print(f"  gravity direction at the next pose, held-out rotations ({h['folds']}-fold): "
           f"bias only (nominal 4778 counts/(rad/s)) mean {h['raw_mean_deg']:.3f} max {h['raw_max_deg']:.3f} deg; "
           f"calibrated mean {h['cal_mean_deg']:.3f} max {h['cal_max_deg']:.3f} deg "
-          f"(target <= 0.45 mean; IMU-TK 0.48 mean, 1.0 max, in-sample)")
+          f"(target <= 0.45 mean; IMU-TK 0.48 mean, 1.0 max, in-sample); {h['evaluated']} evaluated, "
+          f"K better than bias only: {h['better']} (p = {h['p_value']:.2g})")
     print(f"  in-sample RMS {f.rms_deg:.3f} deg; chi2/dof {f.chi2_dof:.2f}, excess scatter x{f.excess_scatter:.2f}")
     K, se = f.matrix, f.matrix_se
     imutk_scale = 4778.0 / np.array([4778.0, 4758.0, 4766.0])    # their counts/(rad/s) over our nominal

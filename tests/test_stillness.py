@@ -146,7 +146,7 @@ def test_the_daemon_pipeline_and_calibrate_find_the_same_poses():
 def test_floors_are_numpy_percentiles_value_for_value():
     """The vectorised floors equal np.percentile over each window's history bit for bit
     (random, quantised with zeros, and a history shorter and longer than FLOOR_WINDOWS)."""
-    from imucald.calib.stillness import FLOOR_WINDOWS, _floor, _floors
+    from imucald.calib.stillfloor import FLOOR_WINDOWS, floor as _floor, floors as _floors
     rng = np.random.default_rng(3)
     for hist in (rng.gamma(2.0, 1e-6, 700), np.round(rng.gamma(1.0, 1.0, 450)) * 1e-8,
                  np.zeros(20), rng.gamma(2.0, 1.0, 1)):

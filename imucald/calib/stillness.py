@@ -42,12 +42,11 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from ..npstats import median
+from .stillfloor import FLOOR_WINDOWS, floors as _floors, onset as _onset
 
 __all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS"]
 
 from ..stillness_defaults import STILLNESS_DEFAULTS as DEFAULTS
-FLOOR_PCT = 5.0
-FLOOR_WINDOWS = 300
 WARMUP_WINDOWS = 8
 ABSURD = 1e6
 _CH = ("t", "acc", "gyro", "temp", "mag", "fresh")
@@ -375,55 +374,3 @@ class StillnessDetector:
             if f.any():
                 iv.mag = mm[f].mean(0)
         return iv
-
-
-def _onset(acc: np.ndarray, short: int = 10) -> int:
-    """Index where motion starts at the end of a still run (len(acc) if none)."""
-    n = len(acc)
-    if n < 4 * short:
-        return n
-    half = n // 2
-    m0 = acc[:half].mean(0)
-    sd = acc[:half].std(0, ddof=1) + 1e-12
-    c = np.cumsum(np.vstack([np.zeros((1, 3)), acc]), 0)
-    ma = (c[short:] - c[:-short]) / short            # ma[i] = mean of acc[i:i+short]
-    dev = np.abs(ma - m0) / (sd / np.sqrt(short))
-    bad = np.flatnonzero(dev[half:].max(1) > 5.0)
-    return n if not len(bad) else half + int(bad[0])
-
-
-def _floors(hist: np.ndarray, m: int) -> np.ndarray:
-    """The noise floor after each of the last m windows of hist: the FLOOR_PCT percentile of
-    the variances of the FLOOR_WINDOWS windows up to it, as ``numpy.percentile`` (method
-    'linear') computes it, value for value, for all m at once (np.percentile per window cost
-    ~60 us, most of a file's stillness detection); a floor of 0 (quantised, noiseless data)
-    becomes the smallest positive variance, or 1e-12."""
-    if not np.isfinite(hist).all():           # not from finite samples: numpy's own rules
-        return np.array([_floor(hist[max(0, len(hist) - m + j + 1 - FLOOR_WINDOWS):len(hist) - m + j + 1])
-                         for j in range(m)])
-    L = FLOOR_WINDOWS
-    pad = np.concatenate([np.full(L - 1, np.inf), hist])     # +inf sorts after every variance
-    rows = np.sort(np.lib.stride_tricks.sliding_window_view(pad, L)[-m:], axis=1)
-    n = np.minimum(np.arange(len(hist) - m + 1, len(hist) + 1), L)    # real values per row
-    vi = (n - 1) * (FLOOR_PCT / 100.0)                       # numpy's virtual index, 'linear'
-    prev = np.floor(vi)
-    top = vi >= n - 1
-    i0 = np.where(top, n - 1, prev).astype(np.intp)
-    i1 = np.where(top, n - 1, prev + 1).astype(np.intp)
-    a = rows[np.arange(m), i0]
-    b = rows[np.arange(m), i1]
-    g = vi - prev
-    d = b - a
-    f = np.where(g >= 0.5, b - d * (1 - g), a + d * g)       # numpy's _lerp
-    for j in np.flatnonzero(f <= 0):
-        pos = rows[j, :n[j]][rows[j, :n[j]] > 0]
-        f[j] = float(pos.min()) if pos.size else 1e-12
-    return f
-
-
-def _floor(v: np.ndarray) -> float:
-    f = float(np.percentile(v, FLOOR_PCT))
-    if f <= 0:  # quantised, noiseless data: the smallest positive variance
-        pos = v[v > 0]
-        f = float(pos.min()) if pos.size else 1e-12
-    return f

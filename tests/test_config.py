@@ -152,3 +152,38 @@ def test_a_key_that_is_not_a_name_is_one_line(tmp_path, text):
     with pytest.raises(ConfigError) as e:
         load_config(cfg_file(tmp_path, text))
     assert "\n" not in str(e.value) and "c.yaml:" in str(e.value) and "key" in str(e.value)
+
+
+@pytest.mark.parametrize("board,rate,batch,ok", [
+    ("mpu6050", 1000, 0.5, False),   # was accepted, and the daemon streamed 0 samples (every drain overflowed)
+    ("mpu6050", 1000, 0.063, True),  # 73 frames = 73 ms, less 10 ms of slack
+    ("mpu6050", 1000, 0.064, False),
+    ("mpu9250", 1000, 0.02, True),   # the default at the top rate: 36 frames = 36 ms
+    ("mpu9250", 1000, 0.03, False),
+    ("mpu6050", 100, 0.5, True),     # 730 ms of FIFO at 100 Hz
+    ("9dof", 100, 0.5, True),        # polled once per sample: no FIFO to overflow
+])
+def test_a_batch_longer_than_the_fifo_holds_is_refused(tmp_path, board, rate, batch, ok):
+    text = f"sensor:\n  board: {board}\n  rate_hz: {rate}\n  batch_s: {batch}\n"
+    if ok:
+        assert load_config(cfg_file(tmp_path, text))["sensor"]["batch_s"] == batch
+        return
+    with pytest.raises(ConfigError) as e:
+        load_config(cfg_file(tmp_path, text))
+    msg = str(e.value)
+    assert "\n" not in msg and "c.yaml:4: sensor.batch_s" in msg and "FIFO" in msg, msg
+
+
+def test_the_fifo_check_runs_a_real_drain_at_its_limit():
+    """The limit is the drain that still loses nothing on the emulated MPU-6050 at 1 kHz."""
+    from imucald.cli.boards import emulated_bus
+    from imucald.drivers.board import make_board
+    from imucald.drivers.rates import batch_limit_s
+    lim = batch_limit_s("mpu6050", 1000.0)
+    for batch, lost in ((lim, False), (0.5, True)):
+        bus = emulated_bus("mpu6050", seed=1)
+        b = make_board("mpu6050", bus, bus.clock, rate_hz=1000.0)
+        b.start()
+        for _ in range(int(2.0 / batch)):
+            b.read_batch(batch_s=batch)
+        assert (b.stats.missing > 0) == lost, (batch, b.stats.as_dict())

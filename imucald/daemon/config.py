@@ -322,6 +322,11 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
         raise error(key, f"sensor.rate_hz: {why}" + (f" (sensor.board is {s['board']})"
                                                        if key == "sensor.rate_hz" else
                                                        f"; sensor.rate_hz is {s['rate_hz']:g}"))
+    from ..drivers.rates import batch_problem
+    why = batch_problem(s["board"], s["rate_hz"], s["batch_s"])
+    if why:
+        key = "sensor.rate_hz" if "sensor.rate_hz" in flags else "sensor.batch_s"
+        raise error(key, f"sensor.batch_s: {why}")
     if cfg["output"]["covariance"] and not cfg["noise"]["file"]:
         raise error("output.covariance", "output.covariance: true needs noise.file (the "
                     "figures of `imucald noise STILL_RECORDING -o FILE`)")

@@ -13,6 +13,7 @@ from typing import Optional
 import numpy as np
 
 from .bus import Bus, ChipMismatch, Clock, RealClock
+from .rates import MPU_FIFO_BYTES, MPU_FRAME_BYTES
 from .regmap import Field, Register, RegisterMap
 
 __all__ = ["REGMAP", "WHO_AM_I_IDS", "MPU6xxx", "ACCEL_LSB_PER_G", "GYRO_LSB_PER_DPS",
@@ -80,9 +81,9 @@ GYRO_LSB_PER_DPS = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}             #
 #: DLPF_CFG -> (accel bandwidth Hz, gyro bandwidth Hz), MPU-6050 (K enum, A Bandwidth)
 DLPF_HZ = {0: (260, 256), 1: (184, 188), 2: (94, 98), 3: (44, 42), 4: (21, 20), 5: (10, 10),
            6: (5, 5)}
-FIFO_SIZE = {"mpu6050": 1024, "mpu6500": 512, "mpu9250": 512, "mpu9255": 512}  # K hw_info
+FIFO_SIZE = MPU_FIFO_BYTES      # K hw_info (one table: drivers/rates.py, numpy-free)
 #: a FIFO frame with TEMP|XG|YG|ZG|ACCEL enabled: accel 6, temp 2, gyro 6 (register order)
-FRAME_BYTES = 14
+FRAME_BYTES = MPU_FRAME_BYTES
 #: temperature: degC = raw / 340 + 36.53 (MPU-6050, A/K); raw / 333.87 + 21 (MPU-6500/9250, T/K)
 TEMP_FORMULA = {"mpu6050": (340.0, 36.53), "mpu6500": (333.87, 21.0), "mpu9250": (333.87, 21.0),
                 "mpu9255": (333.87, 21.0)}

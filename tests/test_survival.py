@@ -394,7 +394,11 @@ def test_bad_calibration_file_is_set_aside_in_one_line(tmp_path, caplog, body, w
     assert len(msgs) == 1 and "\n" not in msgs[0] and why in msgs[0] and "set aside as" in msgs[0]
 
 
-def test_nan_in_poses_csv_is_set_aside_in_one_line(tmp_path, caplog):
+@pytest.mark.parametrize("name", ["poses.csv", "thermal.csv"])
+@pytest.mark.parametrize("value,what", [("nan", "is not a finite number"), ("1e300", "is beyond")])
+def test_nan_in_poses_csv_is_set_aside_in_one_line(tmp_path, caplog, name, value, what):
+    """A NaN, or a value no sensor reads (1e300 in ax: the fit overflowed for minutes), in the
+    saved poses or thermal log: set aside naming line and column, the daemon starts afresh."""
     from imucald.calib.poses import PoseSet, write_poses
     from imucald.daemon.state import load_poses
     rng = np.random.default_rng(0)
@@ -403,13 +407,17 @@ def test_nan_in_poses_csv_is_set_aside_in_one_line(tmp_path, caplog):
     cov = np.broadcast_to(np.eye(3) * 1e-8, (12, 3, 3)).copy()
     ps = PoseSet(acc=acc, acc_cov=cov / 200, n=np.full(12, 200), t0=np.arange(12.0), t1=np.arange(12.0) + 2,
                  acc_sample_cov=cov)
-    write_poses(ps, str(tmp_path / "poses.csv"))
-    assert len(load_poses(str(tmp_path))) == 12
-    lines = (tmp_path / "poses.csv").read_text().splitlines()
+    write_poses(ps, str(tmp_path / name))
+    assert len(load_poses(str(tmp_path), name)) == 12
+    lines = (tmp_path / name).read_text().splitlines()
     i = next(k for k, l in enumerate(lines) if l[:1].isdigit() or l[:1] == "-")
-    lines[i + 3] = ",".join(["nan"] + lines[i + 3].split(",")[1:])
-    (tmp_path / "poses.csv").write_text("\n".join(lines) + "\n")
+    row = lines[i + 3].split(",")
+    row[lines[i - 1].split(",").index("ax")] = value
+    lines[i + 3] = ",".join(row)
+    (tmp_path / name).write_text("\n".join(lines) + "\n")
     with caplog.at_level("WARNING", logger="imucald"):
-        assert load_poses(str(tmp_path)) is None
+        assert load_poses(str(tmp_path), name) is None
     msgs = [r.getMessage() for r in caplog.records]
-    assert len(msgs) == 1 and "unreadable poses" in msgs[0] and "set aside as" in msgs[0]
+    assert len(msgs) == 1 and "unreadable poses" in msgs[0] and "set aside as" in msgs[0], msgs
+    assert f"{name}:{i + 4}: column ax: " in msgs[0] and what in msgs[0], msgs
+    assert not (tmp_path / name).exists() and any(f.startswith(name + ".corrupt-") for f in os.listdir(tmp_path))

@@ -402,3 +402,35 @@ def test_matrix_not_written_when_it_does_not_beat_bias_only():
     assert any("K and G not used" in x for x in rotation_lines(f))
     part = _bias_only_part()
     assert with_rotations(part, f) is part
+
+
+def test_calibrate_gyro_without_still_poses_is_one_line(tmp_path, capsys):
+    """A table the detector finds no still pose in (here: always turning) is a one-line
+    error, exit 2 (it was an IndexError traceback in the bias fit)."""
+    from imucald.cli import main
+    rng = np.random.default_rng(2)
+    n = 2000
+    t = np.arange(n) / 100
+    acc = np.column_stack([np.sin(t), np.cos(t), np.zeros(n)]) + rng.normal(scale=0.05, size=(n, 3))
+    gyro = rng.normal(scale=50, size=(n, 3))
+    f = tmp_path / "moving.csv"
+    np.savetxt(f, np.column_stack([t, acc, gyro]), delimiter=",", fmt="%.6f")
+    assert main(["calibrate", str(f), "--sensor", "gyro", "--columns", "t,ax,ay,az,gx,gy,gz",
+                 "--nominal-scale", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "no still poses found" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_file_line_names_where_the_files_bias_comes_from():
+    """calibrate's 'in the calibration file' line: a thermal fit that kept the constant
+    only is not called 'at its reference temperature'."""
+    from imucald.cli.gyrorot import file_line
+    th0 = {"order": 0, "t_ref_c": 25.2, "t_min_c": 24.9, "t_max_c": 25.5, "bias_poly_dps": np.zeros((0, 3)),
+           "note": "constant only"}
+    th1 = {**th0, "order": 1, "bias_poly_dps": np.array([[0.01, 0.02, 0.03]])}
+    p = _bias_only_part()
+    mk = lambda th: SensorCal("gyro", "bias", p.params, p.stderr, thermal=th)
+    assert "constant only" in file_line(mk(th0)) and "reference" not in file_line(mk(th0))
+    assert "at its reference 25.20 degC" in file_line(mk(th1))
+    assert "still-pose mean" in file_line(p) and "bias only" in file_line(p)
+    assert "G a removed" in file_line(_gyro_part(np.eye(3), np.zeros((3, 3))))

@@ -127,8 +127,15 @@ def file_line(part) -> str:
     """The gyro bias the calibration file holds (the rotation fit's intercept when G is
     used: the pose mean above includes G a), so that text, JSON and file agree."""
     with_ = [w for k, w in (("matrix", "K"), ("g_sens_dps_per_g", "G")) if k in part.params]
-    src = "intercept of the rotation fit, G a removed" if "g_sens_dps_per_g" in part.params else \
-        "the still-pose mean above" if not part.thermal else "the thermal fit's, at its reference temperature"
+    th = part.thermal or {}
+    if "g_sens_dps_per_g" in part.params:
+        src = "intercept of the rotation fit, G a removed"
+    elif len(np.asarray(th.get("bias_poly_dps", []))):
+        src = f"the thermal fit's, at its reference {th['t_ref_c']:.2f} degC"
+    elif th:
+        src = "the still pieces' mean of the thermal fit, constant only"
+    else:
+        src = "the still-pose mean above"
     return (f"  in the calibration file (-o): bias_dps {_row(part.params['bias_dps'], '{:+.6f}')} deg/s ({src})"
             + (f", with {' and '.join(with_)}" if with_ else ", bias only"))
 

@@ -178,6 +178,9 @@ def cmd_calibrate(args) -> int:
     else:
         if poses.gyro is None:
             raise UserError(f"{args.input}: no gyro columns (gx, gy, gz)")
+        if len(poses) == 0:
+            raise UserError(f"{args.input}: no still poses found; the gyro bias needs at least one: hold "
+                            f"the board still for a few seconds, or check the units (--nominal-scale)")
         samples = None
         if model == "eq6":
             if rec is None:

@@ -186,6 +186,12 @@ def test_apply_command_corrects_the_gyro_with_g_sensitivity(tmp_path, capsys):
     assert main(["apply", str(tmp_path / "c.yaml"), str(tmp_path / "g.csv"), "-o", str(tmp_path / "x.csv")]) == 2
     err = capsys.readouterr().err
     assert "g-sensitivity" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    # a gyro-only file (calibrate --sensor gyro -o): G takes the raw accelerometer, and says so
+    save(Calibration("mpu6050", id=3, gyro=_gyro_part(K, G)), tmp_path / "g.yaml")
+    assert main(["apply", str(tmp_path / "g.yaml"), str(tmp_path / "r.csv"), "-o", str(tmp_path / "o2.csv")]) == 0
+    assert "raw accelerometer" in capsys.readouterr().err
+    out = read_recording(tmp_path / "o2.csv")
+    assert np.allclose(out.gyro, (gyro - [0.5, -1.0, 0.2] - acc @ G.T) @ K.T, atol=1e-5)
 
 
 @pytest.mark.parametrize("key,value", [("matrix", [2.0, 0, 0, 0, 1, 0, 0, 0, 1]),

@@ -129,6 +129,9 @@ def cmd_apply(args) -> int:
         if has_g and acc is None:
             raise UserError(f"{args.calibration}: the gyro part has a g-sensitivity term and "
                             f"{args.recording} has no accelerometer columns; record ax,ay,az too")
+        if has_g and cal.accel is None:
+            eprint(f"imucald: {args.calibration} has no accelerometer part: the gyro's g-sensitivity "
+                   f"takes the recording's raw accelerometer")
         gyro, _ = cal.apply_gyro(gyro, np.full(len(rec), np.nan) if T is None else T,
                                  acc if has_g else None), got.append("gyro")
     if mag is not None and cal.mag is not None:

@@ -53,6 +53,12 @@ def test_pose_file_errors(tmp_path):
     (b"t0,t1,n,ax,ay,az,sax,say,saz\n0,1,10,0,0,1,-1,0,0\n", 3, "sax"),
     (b"ax,ay,az,ax\n1,0,0,1\n", 2, "ax"),                                  # a column given twice
     (b"# board: x \xb0C\nax,ay,az\n1,0,0\n", 2, "UTF-8"),                  # was UnicodeDecodeError
+    # columns read as nothing: a misspelt temp dropped the thermal fit, a gyro without gz
+    # the gyro, both silently
+    (b"t0,t1,n,ax,ay,az,tmp\n0,1,10,0,0,1,25\n", 2, "unknown column 'tmp'"),
+    (b"t0,t1,n,ax,ay,az,gx,gy\n0,1,10,0,0,1,0,0\n", 2, "columns gx,gy,gz must come together"),
+    (b"t0,t1,n,ax,ay,az,sax,say\n0,1,10,0,0,1,0,0\n", 2, "columns sax,say,saz must come together"),
+    (b"t0,t1,n,ax,ay,az,sgx,sgy,sgz\n0,1,10,0,0,1,0,0,0\n", 2, "sgx,sgy,sgz need gx,gy,gz"),
 ])
 def test_pose_file_faults_are_one_line_errors_naming_the_line(tmp_path, body, where, what):
     p = tmp_path / "p.csv"

@@ -219,6 +219,7 @@ def read_poses(path: str) -> PoseSet:
     dup = next((c for c in cols if cols.count(c) > 1), None)
     if dup is not None:
         raise UserError(f"{path}:{i + 1}: column {dup} is given twice; keep one")
+    _check_pose_columns(path, i + 1, cols)
     rows = []
     for j in range(i + 1, len(lines)):
         s = lines[j].strip()
@@ -257,6 +258,26 @@ def read_poses(path: str) -> PoseSet:
                    c.get("t1", np.arange(N, dtype=float)), scov,
                    gy, gcov, g3(["mx", "my", "mz"]), None,
                    c.get("temp"), meta)
+
+
+#: the columns write_poses writes; each group's axes come together
+_POSE_ALL = _POSE_COLS + ["gx", "gy", "gz", "sgx", "sgy", "sgz", "mx", "my", "mz", "temp"]
+_POSE_GROUPS = (("ax", "ay", "az"), ("sax", "say", "saz"), ("gx", "gy", "gz"), ("sgx", "sgy", "sgz"),
+                ("mx", "my", "mz"))
+
+
+def _check_pose_columns(path: str, lineno: int, cols: List[str]) -> None:
+    """Every column one the reader uses: a misspelt or half-given one would be read as
+    nothing, without a word (a 'tmp' column: no thermal fit; gx,gy without gz: no gyro)."""
+    bad = next((c for c in cols if c not in _POSE_ALL), None)
+    if bad is not None:
+        raise UserError(f"{path}:{lineno}: unknown column {bad[:40]!r}; allowed: {', '.join(_POSE_ALL)}")
+    for g in _POSE_GROUPS:
+        if sum(c in cols for c in g) not in (0, 3):
+            raise UserError(f"{path}:{lineno}: columns {','.join(g)} must come together")
+    if "sgx" in cols and "gx" not in cols:
+        raise UserError(f"{path}:{lineno}: columns sgx,sgy,sgz need gx,gy,gz (the gyro means they "
+                        f"are the deviations of)")
 
 
 def _check_pose_value(path: str, lineno: int, name: str, v: float, limit: float) -> None:

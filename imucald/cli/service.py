@@ -134,8 +134,12 @@ def cmd_replay(args) -> int:
             "turned in all three dimensions)", 100 * pipe.reservoir.coverage(),
             100 * cfg["calibration"]["mag_min_coverage"])
     elif args.state_dir:
-        logging.getLogger("imucald").info("no calibration was reached (%d poses; %s)",
-                                          len(pipe.acc), pipe.ready_to_calibrate())
+        from ..daemon.pipeline import MIN_FIT_POSES
+        n = len(pipe.acc)
+        why = (f"{n} still pose{'' if n == 1 else 's'}; a first calibration needs {MIN_FIT_POSES} in different orientations"
+               if n < MIN_FIT_POSES else f"{n} still poses, none of the fits beat the raw readings "
+               f"significantly")
+        logging.getLogger("imucald").info("no calibration was reached (%s)", why)
     return 0
 
 

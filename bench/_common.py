@@ -26,3 +26,75 @@ def median_time(fn, repeats):
         out = fn()
         ts.append(time.perf_counter() - t)
     return float(np.median(ts)), out
+
+
+# --- a daemon under test: start/stop, /proc figures, the control socket ----------------------
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def status_kb(pid, key):
+    """One ``key:`` figure (kB) of /proc/pid/status, e.g. VmRSS or VmHWM; 0 once pid is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def control(sock_path, cmd, timeout_s=20.0):
+    """The daemon's JSON reply to one control-socket command."""
+    import json
+    import socket
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(timeout_s)
+    s.connect(sock_path)
+    with s:
+        s.sendall((cmd + "\n").encode())
+        buf = b""
+        while not buf.endswith(b"\n"):
+            d = s.recv(65536)
+            if not d:
+                break
+            buf += d
+    return json.loads(buf)
+
+
+def start_daemon(runtime_dir, state_dir, *extra, timeout_s=30.0):
+    """``imucald run --emulate *extra`` with its sockets in runtime_dir and its state in
+    state_dir; returns the process once its control socket answers ``status``.  Raises
+    RuntimeError (with the end of the daemon's stderr) if it does not within timeout_s."""
+    import subprocess
+    import tempfile
+    import time
+    err = tempfile.TemporaryFile()      # a file, not a pipe: a chatty daemon never blocks on it
+    p = subprocess.Popen([sys.executable, "-m", "imucald.cli", "run", "--emulate", *map(str, extra),
+                          "--runtime-dir", runtime_dir, "--state-dir", state_dir],
+                         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err)
+    sock = os.path.join(runtime_dir, "control.sock")
+    t_end = time.monotonic() + timeout_s
+    while p.poll() is None and time.monotonic() < t_end:
+        if os.path.exists(sock):
+            try:
+                control(sock, "status", timeout_s=5.0)
+                return p
+            except (OSError, ValueError):
+                pass
+        time.sleep(0.1)
+    stop_daemon(p)
+    err.seek(0)
+    raise RuntimeError(f"the daemon did not start: {err.read().decode(errors='replace')[-300:]}")
+
+
+def stop_daemon(p, timeout_s=30.0):
+    """SIGTERM, then SIGKILL if the daemon has not exited within timeout_s."""
+    import subprocess
+    p.terminate()
+    try:
+        p.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        p.wait()

@@ -17,27 +17,13 @@ Prints the medians over the repeats.  Usage: python bench/daemon_rss.py [--repea
 [--board B] [--speed S]
 """
 import argparse
-import json
 import os
-import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def _status_kb(pid, key):
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith(key + ":"):
-                    return int(line.split()[1])
-    except OSError:
-        pass
-    return 0
+from _common import control, start_daemon, status_kb, stop_daemon
 
 
 def pss_kb(pid):
@@ -96,27 +82,12 @@ def children(pid):
     return out
 
 
-def control(sock, cmd, timeout=5.0):
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(timeout)
-    s.connect(sock)
-    with s:
-        s.sendall((cmd + "\n").encode())
-        buf = b""
-        while not buf.endswith(b"\n"):
-            d = s.recv(65536)
-            if not d:
-                break
-            buf += d
-    return json.loads(buf)
-
-
 def idle_mb(pid):
     """(median VmRSS MB, median PSS MB) of the daemon and any worker, 10 reads over 1 s."""
     rss, pss = [], []
     for _ in range(10):
         ps = [pid] + children(pid)
-        rss.append(sum(_status_kb(p, "VmRSS") for p in ps) / 1024)
+        rss.append(sum(status_kb(p, "VmRSS") for p in ps) / 1024)
         pss.append(sum(pss_kb(p) for p in ps) / 1024)
         time.sleep(0.1)
     return statistics.median(rss), statistics.median(pss)
@@ -142,7 +113,7 @@ def watch_job(pid, start, timeout_s=120.0):
         ws = children(pid)
         if ws:
             seen.update(ws)
-            peak = max(peak, (_status_kb(pid, "VmRSS") + sum(_status_kb(w, "VmHWM") for w in ws)) / 1024)
+            peak = max(peak, (status_kb(pid, "VmRSS") + sum(status_kb(w, "VmHWM") for w in ws)) / 1024)
             ppss = max(ppss, sum(pss_kb(q) for q in [pid] + ws) / 1024)
             u = union_mb([pid] + ws)              # None when a worker ended mid-read
             if u is not None:
@@ -156,34 +127,21 @@ def watch_job(pid, start, timeout_s=120.0):
 def one_run(board, speed):
     with tempfile.TemporaryDirectory(prefix="imucald-rss-") as d:
         sock = os.path.join(d, "control.sock")
-        p = subprocess.Popen([sys.executable, "-m", "imucald.cli", "run", "--emulate", "--board", board,
-                              "--speed", str(speed), "--runtime-dir", d,
-                              "--state-dir", os.path.join(d, "state")],
-                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        p = start_daemon(d, os.path.join(d, "state"), "--board", board, "--speed", speed)
         try:
-            t_end = time.monotonic() + 30
-            while not os.path.exists(sock):
-                if p.poll() is not None or time.monotonic() > t_end:
-                    raise RuntimeError(f"the daemon did not start: {p.stderr.read().decode()[-300:]}")
-                time.sleep(0.1)
             time.sleep(3.0)                               # streaming, poses accumulating
             idle0 = idle_mb(p.pid)
             first = watch_job(p.pid, lambda: None)        # the automatic first calibration
             t_end = time.monotonic() + 60
-            while not control(sock, "status").get("calibration_id") and time.monotonic() < t_end:
+            while not control(sock, "status", 5.0).get("calibration_id") and time.monotonic() < t_end:
                 time.sleep(0.2)
-            again = watch_job(p.pid, lambda: control(sock, "recalibrate"))
+            again = watch_job(p.pid, lambda: control(sock, "recalibrate", 5.0))
             time.sleep(1.0)
             idle1 = idle_mb(p.pid)
-            hwm = _status_kb(p.pid, "VmHWM") / 1024
+            hwm = status_kb(p.pid, "VmHWM") / 1024
             return idle0, first, again, idle1, hwm
         finally:
-            p.terminate()
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+            stop_daemon(p, 10)
 
 
 def main():

@@ -16,28 +16,14 @@ Prints the medians over the repeats.  Usage: python bench/flood.py [--repeats N]
 [--seconds S] [--clients C ...]
 """
 import argparse
-import json
 import os
 import socket
 import statistics
-import subprocess
-import sys
 import tempfile
 import threading
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def _status_kb(pid, key):
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith(key + ":"):
-                    return int(line.split()[1])
-    except OSError:
-        pass
-    return 0
+from _common import control, start_daemon, status_kb, stop_daemon
 
 
 def _control(sock_path, cmd="status"):
@@ -45,25 +31,10 @@ def _control(sock_path, cmd="status"):
     still held by flooders that have just hung up)."""
     t0 = time.time()
     while True:
-        r = _ask(sock_path, cmd)
+        r = control(sock_path, cmd)
         if r.get("class") != "ERROR" or time.time() - t0 > 30:
             return r
         time.sleep(0.2)
-
-
-def _ask(sock_path, cmd):
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(20)
-    s.connect(sock_path)
-    s.sendall((cmd + "\n").encode())
-    buf = b""
-    while not buf.endswith(b"\n"):
-        d = s.recv(65536)
-        if not d:
-            break
-        buf += d
-    s.close()
-    return json.loads(buf)
 
 
 def _flood(sock_path, stop, sent):
@@ -100,7 +71,7 @@ def _window(pid, sock_path, seconds, clients):
         th.start()
         ths.append(th)
     time.sleep(seconds)
-    rss = _status_kb(pid, "VmRSS") / 1024
+    rss = status_kb(pid, "VmRSS") / 1024
     cpu = 100 * (_cpu_s(pid) - cpu0) / (time.time() - w0)
     stop.set()
     for th in ths:
@@ -109,7 +80,7 @@ def _window(pid, sock_path, seconds, clients):
     b0, b1 = s0["board_stats"], s1["board_stats"]
     c0, c1 = s0["control"], s1["control"]
     return {"samples": b1["samples"] - b0["samples"], "lost": b1["missing"] - b0["missing"],
-            "gaps": b1["gaps"] - b0["gaps"], "cpu_pct": cpu, "rss_mb": rss, "hwm_mb": _status_kb(pid, "VmHWM") / 1024,
+            "gaps": b1["gaps"] - b0["gaps"], "cpu_pct": cpu, "rss_mb": rss, "hwm_mb": status_kb(pid, "VmHWM") / 1024,
             "sent_mb": sum(sent) / 1e6,
             "refused": c1["refused"] - c0["refused"],
             "throttled": c1["throttled"] - c0["throttled"]}
@@ -119,27 +90,15 @@ def run_once(seconds, clients):
     with tempfile.TemporaryDirectory(prefix="imucald-flood-") as d:
         rt = os.path.join(d, "run")
         sock = os.path.join(rt, "control.sock")
-        p = subprocess.Popen([sys.executable, "-m", "imucald.cli", "run", "--emulate", "--rate", "1000",
-                              "--speed", "1", "--state-dir", os.path.join(d, "state"), "--runtime-dir", rt],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
+        p = start_daemon(rt, os.path.join(d, "state"), "--rate", "1000", "--speed", "1", timeout_s=60)
         try:
-            t0 = time.time()
-            while not os.path.exists(sock):
-                if p.poll() is not None or time.time() - t0 > 60:
-                    raise SystemExit("the daemon did not start")
-                time.sleep(0.05)
             time.sleep(2.0)                             # past start-up
             out = []
             for c in clients:           # each flood window after a quiet one: same machine load
                 out.append((0, _window(p.pid, sock, seconds, 0)))
                 out.append((c, _window(p.pid, sock, seconds, c)))
         finally:
-            p.terminate()
-            try:
-                p.wait(30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+            stop_daemon(p, 30)
     return out
 
 

@@ -26,7 +26,8 @@ import sys
 import tempfile
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from _common import ROOT, start_daemon, stop_daemon
+
 XSENS = os.environ.get("IMUCALD_XSENS") or os.path.join(ROOT, "..", "shared", "data", "real",
                                                          "imutk_xsens_mti", "xsens_acc.mat")
 
@@ -47,31 +48,6 @@ def medians(argv, repeats):
     rs = [run(argv) for _ in range(repeats)]
     return (statistics.median(r[0] for r in rs) * 1e3, statistics.median(r[1] for r in rs) * 1e3,
             rs[-1][2])
-
-
-def start_daemon(d):
-    """``imucald run --emulate`` with its sockets and state under d; returns the process once
-    its control socket answers (or None if it did not come up within 20 s)."""
-    p = subprocess.Popen([sys.executable, "-m", "imucald.cli", "run", "--emulate", "--runtime-dir", d,
-                          "--state-dir", os.path.join(d, "state")], cwd=ROOT,
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    sock = os.path.join(d, "control.sock")
-    t_end = time.monotonic() + 20
-    while time.monotonic() < t_end and p.poll() is None:
-        if os.path.exists(sock) and run(["status", "--runtime-dir", d])[2].returncode == 0:
-            return p
-        time.sleep(0.2)
-    stop(p)
-    return None
-
-
-def stop(p):
-    p.terminate()
-    try:
-        p.wait(10)
-    except subprocess.TimeoutExpired:
-        p.kill()
-        p.wait()
 
 
 def importtime(argv):
@@ -103,16 +79,17 @@ def main():
         for argv in (["--help"], ["status", "--runtime-dir", d], ["watch", "--runtime-dir", d]):
             w, c, _ = medians(argv, a.repeats)
             row(f"{argv[0]} (no daemon)" if argv[0] != "--help" else argv[0], w, c, argv)
-        p = start_daemon(d)
-        if p is None:
-            print("status (daemon running): the emulated daemon did not come up")
+        try:
+            p = start_daemon(d, os.path.join(d, "state"), timeout_s=20)
+        except RuntimeError as e:
+            print(f"status (daemon running): the emulated daemon did not come up ({e})")
         else:
             try:
                 argv = ["status", "--runtime-dir", d]
                 w, c, _ = medians(argv, a.repeats)
                 row("status (daemon running)", w, c, argv)
             finally:
-                stop(p)
+                stop_daemon(p, 10)
     if not os.path.exists(XSENS):
         print(f"calibrate: skipped, {XSENS} is absent (../shared is not beside the checkout)")
         return 0

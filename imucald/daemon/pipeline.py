@@ -293,13 +293,15 @@ class Pipeline:
             if self.reservoir is not None:
                 self._maybe_calibrate_mag_only()
             return
-        # the readiness check (a CRLB) only changes when the pose set does
         c = self.cfg["calibration"]
         span = self.thermal_log.span_c()
         thermal_due = (self.applied.accel is not None and span >= c["thermal_min_span_c"]
                        and span >= self._thermal_span_at + THERMAL_REFIT_GROWTH_C)
-        key = (self.acc.added, len(self.acc), self.applied.id)
-        if not self.force and not thermal_due and key == getattr(self, "_checked", None):
+        # the readiness check (a CRLB) only changes when the pose set does (or a thermal
+        # refit falls due: once, not at every batch while too few poses hold it back)
+        key = (self.acc.added, len(self.acc), self.applied.id,
+               self.thermal_log.seen if thermal_due else None)
+        if not self.force and key == getattr(self, "_checked", None):
             return
         self._checked = key
         r = self.ready_to_calibrate()
@@ -319,7 +321,6 @@ class Pipeline:
         self._tried_raw_at = self.acc.added
         self._job_ready = bool(ready)
         self._job_missing = self.acc.coverage()["missing"]
-        c = self.cfg["calibration"]
         ps = self.acc.pose_set()
         mag_pts = mag_temp = None
         if self.reservoir is not None and self.reservoir.coverage() >= c["mag_min_coverage"]:

@@ -30,6 +30,7 @@ class ThermalLog:
         self.max = int(max_intervals)
         self.items: List[StaticInterval] = []
         self.seen = 0               #: intervals offered since start
+        self._span_c = 0.0          #: max - min temperature of items, kept by add/load
 
     def __len__(self) -> int:
         return len(self.items)
@@ -47,17 +48,21 @@ class ThermalLog:
             j = int(np.flatnonzero(np.asarray(inv).ravel() == crowded)[0])    # the oldest there
             del self.items[j]
         self.items.append(iv)
+        self._respan()
         return True
+
+    def _respan(self) -> None:
+        t = [p.temp for p in self.items]
+        self._span_c = float(max(t) - min(t)) if t else 0.0
 
     @staticmethod
     def _key(p: StaticInterval):
         return (int(np.floor(p.temp)), int(np.argmax(_CUBE @ (p.acc / np.linalg.norm(p.acc)))))
 
     def span_c(self) -> float:
-        if not self.items:
-            return 0.0
-        t = [p.temp for p in self.items]
-        return float(max(t) - min(t))
+        """Temperature span of the log, degC (the pipeline asks once per batch: kept, not
+        recomputed over up to MAX_INTERVALS items each time)."""
+        return self._span_c
 
     def pose_set(self) -> PoseSet:
         """The log as a pose set (the state directory's thermal.csv)."""
@@ -84,6 +89,7 @@ class ThermalLog:
                 float(ps.t1[i]), float(ps.temp[i]), None if ps.gyro is None else ps.gyro[i],
                 None if ps.gyro_cov is None else ps.gyro_cov[i]))
         self.items = self.items[-self.max:]
+        self._respan()
 
     def arrays(self) -> Optional[Dict[str, np.ndarray]]:
         """The job's ``thermal`` data: acc (N, 3) g, acc_cov (N, 3, 3), gyro (N, 3) deg/s or

@@ -21,11 +21,11 @@ PY = sys.executable
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def start_daemon(tmp_path, *extra, env=None):
+def start_daemon(tmp_path, *extra, env=None, stdout=subprocess.PIPE):
     rt, st = tmp_path / "run", tmp_path / "state"
     cmd = [PY, "-m", "imucald.cli", "run", "--emulate", "--state-dir", str(st), "--runtime-dir",
-           str(rt), *extra]
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+           str(rt), *map(str, extra)]
+    p = subprocess.Popen(cmd, stdout=stdout, stderr=subprocess.PIPE, text=True,
                          env=env or os.environ.copy(), cwd=ROOT)
     return p, rt, st
 
@@ -40,14 +40,17 @@ def wait_for(path, proc, timeout=30):
         time.sleep(0.05)
 
 
-def control(rt, cmd):
+def control(rt, cmd, timeout=10):
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(10)
+    s.settimeout(timeout)
     s.connect(str(rt / "control.sock"))
     s.sendall((cmd + "\n").encode())
     buf = b""
     while not buf.endswith(b"\n"):
-        buf += s.recv(65536)
+        d = s.recv(65536)
+        if not d:                       # the daemon hung up mid-reply: json.loads says so
+            break
+        buf += d
     s.close()
     return json.loads(buf)
 

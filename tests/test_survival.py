@@ -15,6 +15,9 @@ import pytest
 from imucald.daemon import control as ctl
 from imucald.daemon.worker import WorkerDied, WorkerRunner, WorkerTimeout
 
+from .test_daemon import control as _control
+from .test_daemon import start_daemon, wait_for
+
 PY = sys.executable
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -201,28 +204,14 @@ def test_control_refuses_connections_beyond_the_limit_and_overlong_lines(tmp_pat
 # --- the daemon end to end --------------------------------------------------------------------
 
 def start(tmp_path, *extra):
-    rt, st = tmp_path / "run", tmp_path / "state"
-    p = subprocess.Popen([PY, "-m", "imucald.cli", "run", "--emulate", "--state-dir", str(st), "--runtime-dir",
-                          str(rt), *map(str, extra)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                         text=True, cwd=ROOT)
-    wait_until(lambda: (rt / "control.sock").exists() or p.poll() is not None, timeout=60)
-    assert p.poll() is None, p.stderr.read()
+    """The emulated daemon, once its control socket is there (stdout unread: not piped)."""
+    p, rt, st = start_daemon(tmp_path, *extra, stdout=subprocess.DEVNULL)
+    wait_for(rt / "control.sock", p, timeout=60)
     return p, rt, st
 
 
 def control(rt, cmd):
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(20)
-    s.connect(str(rt / "control.sock"))
-    s.sendall((cmd + "\n").encode())
-    buf = b""
-    while not buf.endswith(b"\n"):
-        d = s.recv(65536)
-        if not d:
-            break
-        buf += d
-    s.close()
-    return json.loads(buf)
+    return _control(rt, cmd, timeout=20)
 
 
 def stop(p):

@@ -178,8 +178,9 @@ def _nan_in(v):
     return v
 
 
-def _corrupt(key, kind, value):
-    d = copy.deepcopy(_DOC)
+def _corrupt(key, kind, value, doc=_DOC):
+    """A copy of doc with the dotted key deleted (kind "missing") or set to value."""
+    d = copy.deepcopy(doc)
     path = key.split(".")
     node = d
     for k in path[:-1]:
@@ -339,12 +340,8 @@ def test_an_absurd_parameter_is_refused_not_turned_into_inf(key, value):
     d["gyro"]["params"]["temp_ref_c"] = 25.0
     d["gyro"]["params"]["bias_temp_poly_dps"] = [[0.0, 0.0, 0.0]]
     Calibration.from_dict(d)
-    node = d
-    for k in key.split(".")[:-1]:
-        node = node[k]
-    node[key.split(".")[-1]] = value
     with pytest.raises(CalibrationError) as e:
-        Calibration.from_dict(d)
+        Calibration.from_dict(_corrupt(key, "absurd", value, d))
     assert "\n" not in str(e.value) and str(e.value).startswith(key) and "beyond" in str(e.value)
 
 
@@ -354,13 +351,8 @@ def test_an_absurd_parameter_is_refused_not_turned_into_inf(key, value):
                                        ("accel.thermal.t_max_c", 1e308)])
 def test_an_absurd_thermal_coefficient_is_refused_not_turned_into_inf(key, value):
     # found by tests/test_input_fuzz.py: 1e308 loaded, and the correction gave inf/NaN
-    d = copy.deepcopy(_DOC)
-    node = d
-    for k in key.split(".")[:-1]:
-        node = node[k]
-    node[key.split(".")[-1]] = value
     with pytest.raises(CalibrationError) as e:
-        Calibration.from_dict(d)
+        Calibration.from_dict(_corrupt(key, "absurd", value))
     assert "\n" not in str(e.value) and str(e.value).startswith(key) and "beyond" in str(e.value)
 
 
@@ -370,12 +362,7 @@ def test_an_absurd_thermal_coefficient_is_refused_not_turned_into_inf(key, value
 def test_a_correction_that_loses_an_axis_is_refused(key, value):
     # found by tests/test_input_fuzz.py: scale 0 loaded, then applying the accelerometer's
     # thermal terms raised LinAlgError (singular matrix) in the daemon
-    d = copy.deepcopy(_DOC)
-    node = d
-    for k in key.split(".")[:-1]:
-        node = node[k]
-    node[key.split(".")[-1]] = value
     with pytest.raises(CalibrationError) as e:
-        Calibration.from_dict(d)
+        Calibration.from_dict(_corrupt(key, "axis lost", value))
     assert "\n" not in str(e.value) and str(e.value).startswith(key.rsplit(".", 1)[0]) \
         and "singular" in str(e.value)

@@ -194,3 +194,39 @@ def test_a_small_step_between_two_quiet_stretches_splits_the_pose():
     assert len(sl) == 2 and sl[0].stop <= n <= sl[1].start
     assert abs(acc[sl[1]].mean(0)[0] - acc[sl[0]].mean(0)[0] - 0.02) < 5 * sig * np.sqrt(2 / 2000)
     assert sl == _streamed(Recording(t=t, acc=acc, gyro=gyro), 23, 100.0)
+
+
+def test_the_daemon_keeps_nearby_but_distinct_poses():
+    """A pose a few degrees of tilt from another is distinct information (calibrate uses
+    it): the accumulator keeps it; a repeat of a pose within its noise refines that pose.
+    (It used to replace the older pose within 12 deg, so replaying the real Xsens file left
+    14 of its 38 poses.)"""
+    from imucald.calib.stillness import StaticInterval
+    from imucald.daemon.accumulator import PoseAccumulator
+    cov = np.eye(3) * (1e-4) ** 2
+    iv = lambda u, t: StaticInterval(np.asarray(u, float) / np.linalg.norm(u), cov, cov * 100, 100, t, t + 1, 25.0)
+    acc = PoseAccumulator()
+    assert acc.add(iv([0, 0, 1], 0)) == "new"
+    assert acc.add(iv([np.sin(np.radians(5)), 0, np.cos(np.radians(5))], 2)) == "new"
+    assert acc.add(iv([0, 0, 1], 4)) == "refined"
+    assert len(acc) == 2
+
+
+def test_replaying_the_real_xsens_file_keeps_every_pose_calibrate_finds():
+    p = real_path("imutk_xsens_mti", "xsens_acc.mat")
+    a = np.loadtxt(str(p))
+    g = np.loadtxt(str(real_path("imutk_xsens_mti", "xsens_gyro.mat")))
+    rec = Recording(t=a[:, 0] - a[0, 0], acc=(a[:, 1:4] - 32768) / (415 * 9.80665),
+                    gyro=(g[:, 1:4] - 32768) / (4778 * np.pi / 180))
+    from imucald.daemon.config import load_config
+    from imucald.daemon.pipeline import Pipeline
+    from imucald.drivers.board import SampleBatch
+    pipe = Pipeline(load_config(None), "xsens", 100.0, has_mag=False)
+    pipe.maybe_calibrate = lambda *a, **k: None            # poses only
+    n = len(rec.t)
+    seq = np.arange(n, dtype=np.int64)
+    for i in range(0, n, 50):
+        sl = slice(i, i + 50)
+        pipe.process(SampleBatch(rec.t[sl], seq[sl], rec.acc[sl], rec.gyro[sl], np.full(len(seq[sl]), 25.0), None, None))
+    pipe.end_of_stream()
+    assert len(pipe.acc) == len(detect_static(rec.t, rec.acc, rec.gyro, rate_hz=100.0)) == 38

@@ -58,9 +58,8 @@ class PoseAccumulator:
                     self.poses[j] = _merge(old, iv)
                     self.added += 1
                     return "refined"
-                self.poses[j] = iv
-                self.added += 1
-                return "replaced"
+                # a nearby but distinct pose (a few degrees of tilt away) carries its own
+                # information, as calibrate uses it: kept, up to max_poses
         if len(self.poses) >= self.max_poses:
             # full: replace the oldest pose in the most crowded region
             U = self.directions()

@@ -1,8 +1,9 @@
 """Pose accumulator: keeps the still poses well spread on the sphere.
 
-A new pose closer than ``merge_angle_deg`` to an existing one replaces it (the
-newer pose reflects the current temperature and mounting) unless it is within
-the pose noise of it, in which case the two are averaged (refined).  Coverage
+A new pose within ``merge_angle_deg`` of an existing one and within the pose noise of
+it is the same pose: the two are averaged (refined).  Any other pose is kept, even a
+few degrees of tilt away (it carries its own information); past ``max_poses`` the
+oldest pose in the most crowded region gives way.  Coverage
 is measured against the 26 directions of a cube's faces, edges and corners
 (calib/coverage.py); the accumulator says which ones still lack a pose, and what
 CRLB the current pose set predicts for the calibration.

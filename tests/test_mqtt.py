@@ -100,6 +100,19 @@ def _bridge_thread(cfg_path, rt):
     return b, stop, t
 
 
+def _refused_bridge(sub, cfg_path, rt):
+    """Run a bridge that the broker must refuse: no connection, nothing published; returns
+    its last connect error."""
+    b, stop, t = _bridge_thread(cfg_path, rt)
+    try:
+        assert sub.wait(lambda: b.last_connect_error is not None, 10)
+        assert b.stats["connects"] == 0 and b.stats["published"] == 0
+        return b.last_connect_error
+    finally:
+        stop.set()
+        t.join(10)
+
+
 def test_round_trip_from_the_emulated_daemon(tmp_path):
     """Daemon (emulated MPU-6050, 20x time) -> bridge process -> broker -> subscriber:
     decimated samples, a calibration event with standard errors, health, retained status and
@@ -252,14 +265,9 @@ def test_username_and_password_from_a_file(tmp_path):
     assert b.stats["connects"] >= 1
     # the wrong password: refused, nothing published
     secret.write_text("wrong\n")
-    b2, stop2, t2 = _bridge_thread(_cfg(tmp_path, broker.port, username="imu", password_file=str(secret)),
-                                   tmp_path)
     try:
-        assert sub.wait(lambda: b2.last_connect_error is not None, 10)
-        assert b2.stats["connects"] == 0 and b2.stats["published"] == 0
+        _refused_bridge(sub, _cfg(tmp_path, broker.port, username="imu", password_file=str(secret)), tmp_path)
     finally:
-        stop2.set()
-        t2.join(10)
         fake.close()
         sub.close()
         broker.stop()
@@ -282,14 +290,10 @@ def test_tls_with_a_private_ca(tmp_path):
     # a broker whose certificate the given CA did not sign: no connection
     (tmp_path / "other").mkdir()
     other = make_tls_files(tmp_path / "other")
-    b2, stop2, t2 = _bridge_thread(_cfg(tmp_path, broker.port, tls="true", ca_file=other[0]), tmp_path)
     try:
-        assert sub.wait(lambda: b2.last_connect_error is not None, 10)
-        assert "certificate verify failed" in b2.last_connect_error, b2.last_connect_error
-        assert b2.stats["connects"] == 0 and b2.stats["published"] == 0
+        err = _refused_bridge(sub, _cfg(tmp_path, broker.port, tls="true", ca_file=other[0]), tmp_path)
+        assert "certificate verify failed" in err, err
     finally:
-        stop2.set()
-        t2.join(10)
         fake.close()
         sub.close()
         broker.stop()

@@ -149,7 +149,8 @@ class SensorCal:
 
     @cached_property
     def _thermal_terms(self):
-        """(t_min, t_ref, t_max, bias rows (K, 3), scale rows (L, 3), b0 (3,)) or None."""
+        """(t_min, t_ref, t_max, bias rows (K, 3), scale rows (L, 3), b0 (3,), powers
+        1..max(K, L)) or None: worked out once per calibration, not per batch."""
         th = self.thermal
         if not th:
             return None
@@ -159,7 +160,14 @@ class SensorCal:
             return None
         A, c = self.affine
         b0 = -np.linalg.solve(A, c) if len(S) else np.zeros(3)
-        return th["t_min_c"], th["t_ref_c"], th["t_max_c"], P, S, b0
+        k = np.arange(1, max(len(P), len(S)) + 1)
+        return float(th["t_min_c"]), float(th["t_ref_c"]), float(th["t_max_c"]), P, S, b0, k
+
+    @cached_property
+    def _g_sens(self):
+        """G (3, 3) transposed, deg/s per g, or None: the g-sensitivity term's matrix."""
+        G = self.params.get("g_sens_dps_per_g")
+        return None if G is None else G.reshape(3, 3).T
 
     def thermal_offset(self, raw, temp_c):
         """raw minus the thermal terms at temp_c (degC: a scalar, e.g. a batch's mean, or
@@ -167,11 +175,14 @@ class SensorCal:
         tt = self._thermal_terms
         if tt is None or temp_c is None:
             return raw
-        lo, ref, hi, P, S, b0 = tt
-        T = np.asarray(temp_c, float)
-        dT = np.where(np.isfinite(T), np.clip(T, lo, hi) - ref, 0.0)
-        K = max(len(P), len(S))
-        pw = dT[..., None] ** np.arange(1, K + 1)            # (K,) or (N, K)
+        lo, ref, hi, P, S, b0, k = tt
+        if np.ndim(temp_c) == 0:            # a batch's temperature: scalar arithmetic
+            T = float(temp_c)
+            dT = np.float64(min(max(T, lo), hi) - ref if math.isfinite(T) else 0.0)
+        else:
+            T = np.asarray(temp_c, float)
+            dT = np.where(np.isfinite(T), np.clip(T, lo, hi) - ref, 0.0)
+        pw = dT[..., None] ** k                              # (K,) or (N, K)
         out = raw - pw[..., :len(P)] @ P if len(P) else raw
         if len(S):
             out = out - (raw - b0) * (pw[..., :len(S)] @ S)
@@ -198,8 +209,8 @@ class SensorCal:
             poly = self.params["bias_temp_poly_dps"].reshape(-1, 3)
             drift = sum(np.outer(dt ** (k + 1), poly[k]) for k in range(len(poly)))
             x = x - drift
-        if acc_g is not None and "g_sens_dps_per_g" in self.params:
-            x = x - np.asarray(acc_g, float) @ self.params["g_sens_dps_per_g"].reshape(3, 3).T
+        if acc_g is not None and self._g_sens is not None:
+            x = x - np.asarray(acc_g, float) @ self._g_sens
         return x @ A.T + c
 
     # -- serialisation ---------------------------------------------------------------

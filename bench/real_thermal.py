@@ -18,17 +18,16 @@ import os
 
 from _common import np
 
+from real_gap import REAL, tempsweep  # the one reader of the recording (counts -> g, dps, degC)
+
 from imucald.calib.thermal import _design, fit_bias_series
 
-REAL = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "data", "real")
 PATH = os.path.join(REAL, "freeimu_mpu6050_tempsweep", "Tempdata01-02-14.csv")
 
 
 def blocks(block):
-    d = np.genfromtxt(PATH, delimiter=",", skip_header=1)
-    t = d[:, 12] / 1000.0
-    g = d[:, 3:6] / 16.4
-    T = d[:, 9] / 340 + 36.53
+    rec = tempsweep()
+    t, g, T = rec.t, rec.gyro, rec.temp
     cut = np.flatnonzero(np.diff(t) > 0.1) + 1
     out = []
     for seg in np.split(np.arange(len(t)), cut):

@@ -39,6 +39,7 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from .noise import MIN_STRETCH_S, allan_deviation, fit_avar_terms
+from .stats import chi2_logsf
 
 __all__ = ["FLICKER_FACTOR", "edf_overlapping", "chi2_ppf", "tau_grid", "characterise",
            "kalibr_imu", "kalibr_text", "ros_imu_covariances", "KALIBR_UNITS", "TO_SI",
@@ -67,36 +68,10 @@ def edf_overlapping(n: int, m: int, alpha: int) -> float:
     return max(float(e), 1.0)
 
 
-def _gamma_p(a: float, x: float) -> float:
-    """Regularised lower incomplete gamma P(a, x): the series for x < a + 1, else the
-    continued fraction (Lentz), both to 1e-12 (Abramowitz & Stegun 6.5.29, 6.5.31)."""
-    if x <= 0:
-        return 0.0
-    lg = a * math.log(x) - x - math.lgamma(a)
-    if x < a + 1:
-        term = total = 1.0 / a
-        ap = a
-        for _ in range(1000):
-            ap += 1
-            term *= x / ap
-            total += term
-            if abs(term) < abs(total) * 1e-12:
-                break
-        return min(1.0, total * math.exp(lg))
-    b, c, d = x + 1 - a, 1e300, 1.0 / (x + 1 - a)
-    h = d
-    for i in range(1, 1000):
-        an = -i * (i - a)
-        b += 2
-        d = an * d + b
-        d = 1e-300 if abs(d) < 1e-300 else d
-        c = b + an / c
-        c = 1e-300 if abs(c) < 1e-300 else c
-        d = 1.0 / d
-        h *= d * c
-        if abs(d * c - 1) < 1e-12:
-            break
-    return max(0.0, 1.0 - math.exp(lg) * h)
+def _chi2_cdf(x: float, nu: float) -> float:
+    """P(chi2_nu <= x): one minus calib.stats' survival function (its regularised incomplete
+    gamma, A&S 6.5.29/6.5.31), taken through log Q so a CDF near 0 keeps its digits."""
+    return -math.expm1(chi2_logsf(x, nu))
 
 
 def chi2_ppf(p: float, nu: float) -> float:
@@ -108,11 +83,11 @@ def chi2_ppf(p: float, nu: float) -> float:
         h = 2.0 / (9.0 * nu)
         return nu * (1.0 - h + NormalDist().inv_cdf(p) * math.sqrt(h)) ** 3
     lo, hi = 0.0, max(10.0, 2 * nu)
-    while _gamma_p(nu / 2, hi / 2) < p:
+    while _chi2_cdf(hi, nu) < p:
         hi *= 2
     for _ in range(100):
         mid = 0.5 * (lo + hi)
-        if _gamma_p(nu / 2, mid / 2) < p:
+        if _chi2_cdf(mid, nu) < p:
             lo = mid
         else:
             hi = mid

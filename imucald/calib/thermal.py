@@ -171,6 +171,16 @@ def _design(u: np.ndarray, order: int) -> np.ndarray:
     return X
 
 
+def _temperature_axis(T):
+    """(t_min_c, t_max_c, t_ref_c, scale_c, u) of temperatures T (N,): the range seen, its
+    middle rounded to 0.01 degC yet within the range, half the span (at least 1e-6) and
+    u = (T - t_ref_c) / scale_c in [-1, 1], the polynomials' variable."""
+    lo, hi = float(T.min()), float(T.max())
+    t_ref = min(max(round((lo + hi) / 2, 2), lo), hi)
+    s = max((hi - lo) / 2, 1e-6)
+    return lo, hi, t_ref, s, (T - t_ref) / s
+
+
 def fit_bias_series(temp_c, y, var, min_span_c: float = MIN_SPAN_C, max_order: int = MAX_ORDER,
                     sims: int = SIMS, rng=None) -> ThermalFit:
     """Bias polynomial from direct observations: ``y`` (N, 3) bias readings (e.g. gyro still
@@ -183,11 +193,8 @@ def fit_bias_series(temp_c, y, var, min_span_c: float = MIN_SPAN_C, max_order: i
     T, y, v = T[ok], y[ok], v[ok]
     if len(T) == 0:
         raise ValueError("no observation with a finite temperature")
-    lo, hi = float(T.min()), float(T.max())
+    lo, hi, t_ref, s, u = _temperature_axis(T)
     span = hi - lo
-    t_ref = min(max(round((lo + hi) / 2, 2), lo), hi)      # rounded, yet within the range it saw
-    s = max(span / 2, 1e-6)
-    u = (T - t_ref) / s
     yy, vv = y.reshape(-1), v.reshape(-1)
     orders = [k for k in range(max_order + 1) if 3 * len(T) - 3 * (k + 1) >= MIN_DOF]
     few = len(orders) < 2       # too few observations for any temperature term: no test at all
@@ -297,11 +304,8 @@ def fit_norm_thermal(model, x, pose_var, temp_c, theta0, prior: Optional[Tuple[n
     N, p = len(x), model.k
     if N == 0:
         raise ValueError("no pose with a finite temperature, a finite mean and a variance > 0")
-    lo, hi = float(T.min()), float(T.max())
+    lo, hi, t_ref, s, u = _temperature_axis(T)
     span = hi - lo
-    t_ref = min(max(round((lo + hi) / 2, 2), lo), hi)      # rounded, yet within the range it saw
-    s = max(span / 2, 1e-6)
-    u = (T - t_ref) / s
     if prior is not None:
         pm, ps = (np.asarray(a, float) for a in prior)
         lam = np.where(np.isfinite(ps) & (ps > 0), 1.0 / np.where(np.isfinite(ps) & (ps > 0), ps, 1.0) ** 2, 0.0)

@@ -3,7 +3,7 @@ the rotations between the still poses (calib/gyrorot.py), printed, as JSON, and 
 calibration file."""
 from __future__ import annotations
 
-from typing import Dict, List, Optional
+from typing import Dict, List
 
 import numpy as np
 
@@ -17,7 +17,6 @@ def fit_rotations(rec, poses, args, pieces=None):
     still intervals (found with the same detector settings)."""
     from ..calib.fit import fit_norm
     from ..calib.gyrorot import fit_gyro_rotations
-    from ..calib.models import get_model
     from ..calib.poses import detect_static
     from ..specs import BOARDS, GYRO
     if rec is None or rec.acc is None or rec.gyro is None:
@@ -57,7 +56,6 @@ def _gravity_reference(rec, poses, pieces, acc_cal, chip, seed):
     order test guards against fitting noise): a bias drifting 0.7 mg/degC over 6 degC turns
     the gravity directions by ~0.2 deg, far beyond a gyro rotation's noise."""
     from ..calib.models import get_model
-    from ..calibration import SensorCal
     from .thermal import fit_thermal, pieces_colour_inflation, thermal_part
     tf = None
     if pieces is not None and rec.temp is not None and len(pieces) >= 10:

@@ -138,11 +138,13 @@ class Pipeline:
             for iv in intervals:
                 self._pose(iv)
             if self.reservoir is not None and b.mag_fresh is not None and b.mag_fresh.any():
+                fresh = b.mag[b.mag_fresh]
                 # each point's tag: its temperature in centi-kelvin (-1 unknown), for the hard
                 # iron's thermal terms (daemon/thermaljob.py)
-                self.reservoir.add(b.mag[b.mag_fresh], None if b.temp is None else np.where(
-                    np.isfinite(b.temp[b.mag_fresh]), np.round((b.temp[b.mag_fresh] + 273.15) * 100), -1))
-                self.mag_recent.extend(b.mag[b.mag_fresh])
+                tf = None if b.temp is None else b.temp[b.mag_fresh]
+                self.reservoir.add(fresh, None if tf is None else
+                                   np.where(np.isfinite(tf), np.round((tf + 273.15) * 100), -1))
+                self.mag_recent.extend(fresh)
             ap = self.applied
             dec = self.cfg["output"]["decimate"]
             keep = (b.seq % dec) == 0 if dec > 1 else slice(None)

@@ -22,6 +22,7 @@ from ..calib.thermal import fit_bias_series, fit_norm_thermal
 from ..calib.thermal_gate import gate_bias_thermal, gate_norm_thermal
 from ..calib.uncertainty import residual_variance
 from ..calibration import Calibration, SensorCal
+from ..npstats import median
 
 __all__ = ["thermal_parts", "mag_thermal"]
 
@@ -102,13 +103,13 @@ def mag_thermal(job: Dict[str, Any], cur: Calibration, mp: np.ndarray, temp: np.
     accelerometer's on the points (10 folds) against the calibration in force."""
     mdl = MagModel("sym")
     min_span = float(job.get("thermal_min_span_c", 10.0))
-    c = np.eye(3) * np.median(np.var(np.diff(mp, axis=0), axis=0)) / 2 if cov is None else cov
+    c = np.eye(3) * median(np.var(np.diff(mp, axis=0), axis=0)) / 2 if cov is None else cov
     var = residual_variance(mdl, theta0, mp, np.broadcast_to(c, (len(mp), 3, 3)))
     tf = fit_norm_thermal(mdl, mp, var, temp, theta0, None, min_span, scale=False, rng=job.get("seed"))
     ent = {"order": tf.order, "note": tf.note, "accepted": False, "span_c": round(tf.t_max_c - tf.t_min_c, 2)}
     if tf.order:
         if cur.mag is None:
-            inc = mp / np.median(np.linalg.norm(mp, axis=1))
+            inc = mp / median(np.linalg.norm(mp, axis=1))
         else:
             inc = cur.apply_mag(mp, temp) / float(cur.mag.params["field_gauss"])
         _, dec = gate_norm_thermal(mdl, tf, mp, temp, inc, job.get("alpha", ALPHA),

@@ -44,6 +44,7 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from ..npstats import median
+from .metrics import rms
 from .rotint import (GAP_FACTOR, RAIL_FRACTION, _D2R, _angle_deg, _tangent, _Windows,  # noqa: F401
                      predict_directions, rotation_windows)
 from .uncertainty import UNDETERMINED_RATIO
@@ -294,12 +295,10 @@ def fit_gyro_rotations(t_s, gyro_dps, acc_g, slices: Sequence[slice], mag=None, 
              for s, l in zip(se, lam)]
     K = np.eye(3) + E.reshape(3, 3)
     ho = _heldout(build, wins, lam, phi, folds, K)
-    nref = len(prob.refs)
-    rms = float(np.sqrt(np.mean(np.sum(
-        [_angle_deg(predict_directions(prob.W.integrate(K)[0], s), e) ** 2 for s, e, _, _ in prob.refs], 0)
-        / nref)))
+    Delta = prob.W.integrate(K)[0]
+    rms_deg = rms([_angle_deg(predict_directions(Delta, s), e) for s, e, _, _ in prob.refs])
     return GyroRotFit(K, se.reshape(3, 3), flags, b, bse, G, Gse, gflags, len(wins), left, float(phi),
-                      chi2 / dof, rms, ho, "gravity" if mg is None else "gravity+field")
+                      chi2 / dof, rms_deg, ho, "gravity" if mg is None else "gravity+field")
 
 
 def _frame_derivative(acc_frame, cal_means):

@@ -157,7 +157,7 @@ def with_rotations(part, fit):
     """The gyro part with K (and G, with the bias intercept that goes with it) added, when
     they beat bias only on held-out rotations (else the part as is).  G is left out when
     the part carries a thermal bias polynomial (fitted without G)."""
-    from ..calibration import SensorCal
+    from dataclasses import replace
     if fit is None or not fit.heldout.get("better"):
         return part             # K (and G) only when they beat bias only on held-out rotations
     p, se, fl = dict(part.params), dict(part.stderr), dict(part.flags)
@@ -171,4 +171,4 @@ def with_rotations(part, fit):
     q = {**part.quality, "rotations": int(fit.rotations),
          "heldout_gravity_mean_deg": fit.heldout["cal_mean_deg"],
          "heldout_gravity_max_deg": fit.heldout["cal_max_deg"]}
-    return SensorCal(part.sensor, part.model, p, se, fl, part.method, q, th)
+    return replace(part, params=p, stderr=se, flags=fl, quality=q)

@@ -4,6 +4,7 @@ enough temperature (calib/thermal.py chooses the order and says why), and
 can be run on the corrected data: the loop of README "Closing the loop")."""
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import List, Optional
 
 import numpy as np
@@ -88,13 +89,13 @@ def thermal_part(sensor: str, fit, tf):
         return sc
     th = tf.to_thermal(UNIT[sensor][0])
     if tf.order == 0 and tf.scale_poly is None:
-        return SensorCal(sc.sensor, sc.model, sc.params, sc.stderr, sc.flags, sc.method, sc.quality, th)
+        return replace(sc, thermal=th)
     if sensor == "gyro":
         return SensorCal("gyro", "bias", {"bias_dps": np.asarray(tf.base, float)},
                          {"bias_dps": np.asarray(tf.base_stderr, float)}, {}, sc.method, sc.quality, th)
     if sensor == "accel":
         a = SensorCal.accel(fit.model, tf.base, tf.base_stderr, sc.method, sc.quality, sc.flags)
-        return SensorCal(a.sensor, a.model, a.params, a.stderr, a.flags, a.method, a.quality, th)
+        return replace(a, thermal=th)
     from ..calib.models import get_model, mag_report
     m = get_model(fit.model)
     p, se = mag_report(m, tf.base, tf.cov[:m.k, :m.k])

@@ -13,6 +13,7 @@ then refitted on all of them.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Any, Dict, NamedTuple
 
 import numpy as np
@@ -93,8 +94,7 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
         "predicted_heldout_rms_g": pred, "poses": int(len(acc)), "gate_p_value": dec.p_value,
         "false_accept_rate": dec.alpha})
     if ta:
-        p = parts["accel"]
-        parts["accel"] = SensorCal(p.sensor, p.model, p.params, p.stderr, p.flags, p.method, p.quality, ta)
+        parts["accel"] = replace(parts["accel"], thermal=ta)
     accept["accel"], gates["accel"] = dec.accept, dec
     # --- gyro bias: count-weighted mean of the still poses, gated the same way ---
     g = job.get("gyro")
@@ -168,8 +168,7 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
         "gate_p_value": dec.p_value,
         "coverage_fraction": cv["fraction"], "coverage_min_eigenvalue": cv["direction_eigenvalues"][-1]})
     if tm:
-        q = parts["mag"]
-        parts["mag"] = SensorCal(q.sensor, q.model, q.params, q.stderr, q.flags, q.method, q.quality, tm)
+        parts["mag"] = replace(parts["mag"], thermal=tm)
     accept["mag"], notes["gate"]["mag"] = dec.accept, dec
     if job.get("thermal") and mt is not None:
         from .thermaljob import mag_thermal

@@ -11,6 +11,7 @@ the note says why; with the terms in force, the constant refits of later jobs ke
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Dict
 
 import numpy as np
@@ -27,11 +28,6 @@ from ..npstats import median
 __all__ = ["thermal_parts", "mag_thermal"]
 
 _T9 = Triangular9()
-
-
-def _with(part: SensorCal, thermal) -> SensorCal:
-    return SensorCal(part.sensor, part.model, part.params, part.stderr, part.flags, part.method,
-                     part.quality, thermal)
 
 
 def thermal_parts(job: Dict[str, Any], cur: Calibration, parts: Dict[str, SensorCal],
@@ -63,7 +59,7 @@ def thermal_parts(job: Dict[str, Any], cur: Calibration, parts: Dict[str, Sensor
                                        {**a.quality, "thermal_heldout_rms_g": dec.rms_cv,
                                         "thermal_heldout_rms_before_g": dec.rms_incumbent,
                                         "thermal_gate_p_value": dec.p_value})
-                parts["accel"], accept["accel"], gates["accel"] = _with(cand, tf.to_thermal("g")), True, dec
+                parts["accel"], accept["accel"], gates["accel"] = replace(cand, thermal=tf.to_thermal("g")), True, dec
         out["accel"] = ent
     g = parts.get("gyro")
     if g is not None and th.get("gyro") is not None and len(T) >= 4:

@@ -169,6 +169,12 @@ class SensorCal:
         G = self.params.get("g_sens_dps_per_g")
         return None if G is None else G.reshape(3, 3).T
 
+    def g_offset(self, raw, acc_g):
+        """raw minus the g-sensitivity term G a (deg/s; acc_g (N, 3): the calibrated specific
+        force in g); raw when the part has no such term."""
+        G = self._g_sens
+        return raw if G is None else raw - np.asarray(acc_g, float) @ G
+
     def thermal_offset(self, raw, temp_c):
         """raw minus the thermal terms at temp_c (degC: a scalar, e.g. a batch's mean, or
         (N,)); clamped to the fitted range, unknown (NaN/None) = t_ref_c."""
@@ -209,8 +215,8 @@ class SensorCal:
             poly = self.params["bias_temp_poly_dps"].reshape(-1, 3)
             drift = sum(np.outer(dt ** (k + 1), poly[k]) for k in range(len(poly)))
             x = x - drift
-        if acc_g is not None and self._g_sens is not None:
-            x = x - np.asarray(acc_g, float) @ self._g_sens
+        if acc_g is not None:
+            x = self.g_offset(x, acc_g)
         return x @ A.T + c
 
     # -- serialisation ---------------------------------------------------------------

@@ -110,8 +110,8 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
         # the scale/misalignment matrix and g-sensitivity in force (calibrate --sensor gyro,
         # calib/gyrorot.py) are kept; the bias is refitted on the means without G a
         kept = [k for k in ("matrix", "g_sens_dps_per_g") if cur.gyro is not None and k in cur.gyro.params]
-        if "g_sens_dps_per_g" in kept:
-            g = g - acc_cal @ cur.gyro.params["g_sens_dps_per_g"].reshape(3, 3).T
+        if kept:
+            g = cur.gyro.g_offset(g, acc_cal)
         b, gdec = gate_gyro_bias(g, w, g_inc, alpha, against="raw" if cur.gyro is None else "current")
         sd = gyro_bias_scatter_se(g, w, b)
         carry = lambda d: {k: d[k] for k in kept if k in d}

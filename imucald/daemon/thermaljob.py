@@ -68,8 +68,7 @@ def thermal_parts(job: Dict[str, Any], cur: Calibration, parts: Dict[str, Sensor
         # a g-sensitivity in force (calibrate --sensor gyro): the bias series is fitted on the
         # means without G a, and the incumbent scored with it (as the daemon applies it)
         acc_cal = cur.apply_accel(np.asarray(th["acc"], float), T)
-        G = g.params.get("g_sens_dps_per_g")
-        y_fit = y if G is None else y - acc_cal @ G.reshape(3, 3).T
+        y_fit = g.g_offset(y, acc_cal)
         tf = fit_bias_series(T, y_fit, var, min_span, rng=seed)
         ent = {"order": tf.order, "note": tf.note, "accepted": False, "span_c": round(tf.t_max_c - tf.t_min_c, 2)}
         if tf.order:

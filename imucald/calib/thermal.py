@@ -82,12 +82,6 @@ class ThermalFit:
     def name(self) -> str:
         return f"order {self.order}" + (" + scale" if self.scale_poly is not None else "")
 
-    def bias_at(self, temp_c) -> np.ndarray:
-        """The bias polynomial's change from t_ref_c at temp_c (clamped), (N, 3)."""
-        T = np.clip(np.atleast_1d(np.asarray(temp_c, float)), self.t_min_c, self.t_max_c) - self.t_ref_c
-        return sum((np.outer(T ** (k + 1), self.bias_poly[k]) for k in range(self.order)),
-                   np.zeros((len(T), 3)))
-
     def to_thermal(self, unit: str) -> Dict[str, object]:
         """The ``thermal`` block of a calibration part (calibration.SensorCal.thermal)."""
         d: Dict[str, object] = {"order": int(self.order), "t_ref_c": round(float(self.t_ref_c), 3),

@@ -64,12 +64,18 @@ def test_whole_file_call_in_chunks_finds_what_one_update_finds(monkeypatch):
     assert all(np.array_equal(a.acc, b.acc) and np.array_equal(a.gyro, b.gyro) for a, b in zip(ivs, one))
 
 
-def test_batch_and_streaming_find_the_same_poses_on_real_xsens():
+def _xsens():
+    """The real Xsens MTi file in physical units (IMU-TK's nominal scales; SOURCE.md)."""
     p = real_path("imutk_xsens_mti", "xsens_acc.mat")
     a = np.loadtxt(str(p))
     g = np.loadtxt(str(real_path("imutk_xsens_mti", "xsens_gyro.mat")))
     rec = Recording(t=a[:, 0] - a[0, 0], acc=(a[:, 1:4] - 32768) / (415 * 9.80665),
                     gyro=(g[:, 1:4] - 32768) / (4778 * np.pi / 180))
+    return rec
+
+
+def test_batch_and_streaming_find_the_same_poses_on_real_xsens():
+    rec = _xsens()
     b = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=100.0)
     assert len(b) == 38              # SOURCE.md: 38 (k = 10) to 40 (k = 3) segments
     assert b == _streamed(rec, 20, 100.0)
@@ -213,11 +219,7 @@ def test_the_daemon_keeps_nearby_but_distinct_poses():
 
 
 def test_replaying_the_real_xsens_file_keeps_every_pose_calibrate_finds():
-    p = real_path("imutk_xsens_mti", "xsens_acc.mat")
-    a = np.loadtxt(str(p))
-    g = np.loadtxt(str(real_path("imutk_xsens_mti", "xsens_gyro.mat")))
-    rec = Recording(t=a[:, 0] - a[0, 0], acc=(a[:, 1:4] - 32768) / (415 * 9.80665),
-                    gyro=(g[:, 1:4] - 32768) / (4778 * np.pi / 180))
+    rec = _xsens()
     from imucald.daemon.config import load_config
     from imucald.daemon.pipeline import Pipeline
     from imucald.drivers.board import SampleBatch

@@ -4,9 +4,11 @@
 candidate :class:`~imucald.calibration.Calibration` and a decision per sensor
 out), so the daemon runs it in a worker process and replay runs it inline.
 Every candidate part is fitted on all poses and scored by leave-one-pose-out
-against the calibration in force (the raw sensor before the first) on the same
-poses; calib/gate.py's paired signed-rank test accepts it only if it predicts
-significantly better, at the configured false-accept rate (job key ``alpha``).
+against the calibration in force (the raw sensor before the first), both out of
+sample on the same poses: those the calibration in force was not fitted on (its
+``poses_used`` table).  calib/gate.py decides: the fit on more data replaces it when
+the new poses agree with it, else the candidate must predict significantly better, at
+the configured false-accept rate (job key ``alpha``).
 The magnetometer cloud goes through the same test on its withheld points and is
 then refitted on all of them.
 """
@@ -20,7 +22,7 @@ import numpy as np
 
 from ..calib.fit import fit_norm
 from ..calib.models import gyro_bias_scatter_se
-from ..calib.gate import ALPHA, Decision, gate_accel, gate_gyro_bias, paired_gate
+from ..calib.gate import ALPHA, Decision, fitted_poses, gate_accel, gate_gyro_bias, paired_gate
 from ..calib.magcal import SphereReservoir as MagReservoir
 from ..calib.magcal import coverage, flat_axis
 from ..calib.models import MagModel, Triangular9
@@ -54,7 +56,7 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     """Fit, validate and decide.  Pure: no I/O, no globals.
 
     job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3), t0 (N,),
-    n (N,), gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
+    t1 (N,) (the poses' still intervals, s: matched against the incumbent's poses_used), n (N,), gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
     per-sample noise or None, current (the Calibration in force), method, holdout_fraction
     (magnetometer points), alpha (the gate's false-accept rate), seed; thermal (the thermal
     log's arrays, daemon/thermallog.py) or None and thermal_min_span_c (daemon/thermaljob.py).
@@ -82,10 +84,14 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
     # (each at its own temperature) and the candidate keeps them
     ta = cur.accel.thermal if cur.accel is not None and temp is not None else None
     acc_fit = cur.accel.thermal_offset(acc, temp) if ta else acc
+    # the poses the calibration in force was fitted on: in-sample for it, never scored
+    fitted, nested = fitted_poses(acc, job.get("t0"), job.get("t1"), cur.poses_used)
     # --- accelerometer: fitted on all poses, gated on their cross-validated residuals ---
     cal, _, dec = gate_accel(acc_fit, job["acc_cov"], cur.apply_accel(acc, temp), job["method"], alpha,
                              against="raw" if cur.accel is None else "current", rng=job.get("seed"),
-                             chip=cur.chips.get("accel"))      # the datasheet prior of this chip
+                             chip=cur.chips.get("accel"),      # the datasheet prior of this chip
+                             fitted=fitted if cur.accel is not None else None, nested=nested,
+                             incumbent=None if cur.accel is None else (cur.accel.model, cur.accel.theta))
     # predicted cross-validated residual: each pose's noise plus the uncertainty of the
     # refit without it (calib.fit.heldout_residuals)
     pred = rms(cal.info["heldout_predicted_std"])
@@ -112,7 +118,8 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
         kept = [k for k in ("matrix", "g_sens_dps_per_g") if cur.gyro is not None and k in cur.gyro.params]
         if kept:
             g = cur.gyro.g_offset(g, acc_cal)
-        b, gdec = gate_gyro_bias(g, w, g_inc, alpha, against="raw" if cur.gyro is None else "current")
+        b, gdec = gate_gyro_bias(g, w, g_inc, alpha, against="raw" if cur.gyro is None else "current",
+                                 fitted=fitted if cur.gyro is not None else None, nested=nested)
         sd = gyro_bias_scatter_se(g, w, b)
         carry = lambda d: {k: d[k] for k in kept if k in d}
         parts["gyro"] = SensorCal("gyro", "bias", {"bias_dps": b, **carry(cur.gyro.params if kept else {})},

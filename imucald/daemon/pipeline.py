@@ -337,7 +337,7 @@ class Pipeline:
             k = np.array([inflation_of(self.noise["accel"]["avar_coef"], n / self.rate_hz)[0]
                           for n in ps.n])
             acc_cov = acc_cov * k[:, None, None]
-        job = {"acc": ps.acc, "acc_cov": acc_cov, "t0": ps.t0, "n": ps.n, "temp": _temps(ps.temp),
+        job = {"acc": ps.acc, "acc_cov": acc_cov, "t0": ps.t0, "t1": ps.t1, "n": ps.n, "temp": _temps(ps.temp),
                "gyro": ps.gyro, "mag_points": mag_pts, "mag_temp": mag_temp, "mag_noise": self._mag_noise(),
                "method": c["method"],
                "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
@@ -385,7 +385,7 @@ class Pipeline:
                              ", ".join(f"{k} ({v})" for k, v in undet.items()))
         if "gyro" in gates:
             parts.append(f"gyro bias {'applied' if 'gyro' in take else 'kept'} "
-                         f"(p = {gates['gyro'].p_value:.2g})")
+                         f"({gates['gyro'].text(1.0, 'dps')})")
         for s, ent in res.notes.get("thermal", {}).items():
             self.thermal_notes[s] = ent
             parts.append(f"{s} thermal {ent['note'].split(':')[0]}" + (
@@ -398,19 +398,25 @@ class Pipeline:
             parts.append(f"mag held-out {m.quality['heldout_rel_rms'] * 100:.2f} % vs "
                          f"{m.quality['heldout_rel_rms_before'] * 100:.2f} % "
                          f"(p = {gates['mag'].p_value:.2g}) {'(applied)' if 'mag' in take else '(kept)'}")
+        # the gate's figures and reasons (calib/gate.py Decision), in the CAL event too
+        gate_ev = {k: d.to_dict() for k, d in gates.items()} or None
         if not take:
-            confirmed = bool(a) and self._job_ready and ap.provisional is not None
+            # a fit on a ready pose set did not replace the provisional one though scored
+            # out of sample on the poses it was not fitted on: it has been checked against
+            # the full set and stays, as final -- unless those poses disagree with it
+            acc_dec = gates.get("accel")
+            confirmed = (bool(a) and self._job_ready and ap.provisional is not None
+                         and not (acc_dec is not None and acc_dec.consistency_p is not None
+                                  and not acc_dec.consistent))
             if confirmed:
-                # a fit on a ready pose set does no significantly better: the provisional
-                # calibration has been checked against the full set and stays, as final
                 self.applied = ap.replace(provisional=None)
                 self.persist("calibration", self.applied)
-            msg = ("calibration not applied: it validates no better than the current one" +
-                   (f" (#{ap.id} is no longer provisional)" if confirmed else "") + ": " + "; ".join(parts))
+            msg = (f"calibration not applied, #{ap.id} stays" +
+                   (" and is no longer provisional" if confirmed else "") + ": " + "; ".join(parts))
             log.info(msg)
             self.events.append(msg)
             self.history.append({"applied": False, **_summary(cand)})
-            return event("CAL", self.fmt, id=ap.id, applied=False)
+            return event("CAL", self.fmt, id=ap.id, applied=False, reason=msg, gate=gate_ev)
         now = datetime.now(timezone.utc).isoformat(timespec="seconds")
         lo, hi = self.temp_range
         temp = ps.temp if ps.temp is not None else np.full(len(ps), np.nan)
@@ -445,7 +451,8 @@ class Pipeline:
                      accel_heldout_rms_g=q.get("heldout_rms_g"),
                      accel_heldout_rms_before_g=q.get("heldout_rms_before_g"),
                      accel_predicted_heldout_rms_g=q.get("predicted_heldout_rms_g"),
-                     mag_heldout_rel_rms=m.quality.get("heldout_rel_rms") if m else None)
+                     mag_heldout_rel_rms=m.quality.get("heldout_rel_rms") if m else None,
+                     reason=msg, gate=gate_ev)
 
     # -- status ---------------------------------------------------------------------------
     def thermal_status(self) -> Dict[str, Any]:

@@ -71,14 +71,16 @@ def _corrected_matches_the_truth(part, rec, truth, sensor):
     instead of T - t_ref: accel 4.0-4.9 mg off against a 0.6 mg bound."""
     th = part.thermal
     unit = {"accel": "g", "gyro": "dps"}[sensor]
-    coef = np.asarray(next(e for e in truth["effects"] if e["name"] == f"{sensor}.thermal_bias")["params"]["coef"])
-    t0 = float(read_recording(rec).temp[0])         # sim/effects.py: coef * (T - T[0]) on the raw reading
+    eff = next(e for e in truth["effects"] if e["name"] == f"{sensor}.thermal_bias")
+    coef = np.asarray(eff["params"]["coef"])
+    t0 = float(read_recording(rec).temp[0])     # sim/effects.py: coef * (T - T[0]) on the raw reading
     lo, ref, hi = th["t_min_c"], th["t_ref_c"], th["t_max_c"]
     se, se_p = part.stderr, np.asarray(th[f"bias_poly_stderr_{unit}"][0])
     if sensor == "accel":
         T9 = Triangular9()
         U = sphere_lattice(500)
-        true_raw = lambda T: T9.inverse(np.asarray(truth["accel_triangular9"]), U) + coef * (T - t0)
+        th_true = np.asarray(truth["accel_triangular9"])
+        true_raw = lambda T: T9.inverse(th_true, U) + coef * (T - t0)
         want = U
         var = se["bias_g"] ** 2 + se["scale"] ** 2 + 2 * np.max(se["alpha"]) ** 2
     else:

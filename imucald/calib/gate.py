@@ -160,12 +160,13 @@ class Decision:
         '... current, both out of sample on the 10 poses it was not fitted on, ...'."""
         rel = lambda p: "<=" if p <= self.alpha else ">"
         who = "raw" if self.against == "raw" else "current"
-        on = (f"both out of sample on the {self.n} {what} it was not fitted on" if self.n_fitted
-              else f"on {self.n} {what}")
+        one = what[:-1] if what.endswith("s") else what
+        on = (f"both out of sample on the {self.n} {what if self.n != 1 else one} it was not fitted on"
+              if self.n_fitted else f"on {self.n} {what if self.n != 1 else one}")
         head = (f"{self.rms_cv * scale:.3f} {unit} cross-validated vs {self.rms_incumbent * scale:.3f} "
                 f"{unit} {who}{',' if self.n_fitted else ''} {on}")
         if self.rule == "no_new_poses":
-            return (f"no {what[:-1] if what.endswith('s') else what} that the current one was not "
+            return (f"no {one} that the current one was not "
                     f"fitted on ({self.n_fitted} of {self.n_fitted}): nothing to score it on out of sample")
         sig = f"p = {self.p_value:.2g} {rel(self.p_value)} {self.alpha:g}"
         cons = ("" if self.consistency_p is None else
@@ -179,13 +180,11 @@ class Decision:
         if self.rule == "worse":
             return (f"{head}; it predicts them significantly worse (p_worse = {self.p_worse:.2g} "
                     f"<= {self.alpha:g})" + (f"; {sig}" if self.accept else ""))
-        if self.rule in ("better", "not_better") and self.consistency_p is not None:
-            return (f"{head}; they disagree with the current one ({cons}), so it must be significantly better: {sig}"
-                    + ("" if self.accept else
-                       " (the lower figure is within what the noise of so few poses gives)"
-                       if self.rms_cv < self.rms_incumbent else ""))
-        tail = (" (the lower figure is within what the noise of so few poses gives)"
+        tail = (f" (lower, but noise alone gives such a difference with probability {self.p_value:.2g})"
                 if not self.accept and self.rms_cv < self.rms_incumbent else "")
+        if self.rule in ("better", "not_better") and self.consistency_p is not None:
+            return (f"{head}; they disagree with the current one ({cons}), so it must be "
+                    f"significantly better: {sig}{tail}")
         return f"{head}, {sig}{tail}"
 
 

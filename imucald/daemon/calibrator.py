@@ -56,7 +56,8 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     """Fit, validate and decide.  Pure: no I/O, no globals.
 
     job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3), t0 (N,),
-    t1 (N,) (the poses' still intervals, s: matched against the incumbent's poses_used), n (N,), gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
+    t1 (N,) (the poses' still intervals, s: matched against the incumbent's poses_used), n (N,),
+    gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
     per-sample noise or None, current (the Calibration in force), method, holdout_fraction
     (magnetometer points), alpha (the gate's false-accept rate), seed; thermal (the thermal
     log's arrays, daemon/thermallog.py) or None and thermal_min_span_c (daemon/thermaljob.py).

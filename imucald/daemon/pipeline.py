@@ -337,7 +337,8 @@ class Pipeline:
             k = np.array([inflation_of(self.noise["accel"]["avar_coef"], n / self.rate_hz)[0]
                           for n in ps.n])
             acc_cov = acc_cov * k[:, None, None]
-        job = {"acc": ps.acc, "acc_cov": acc_cov, "t0": ps.t0, "t1": ps.t1, "n": ps.n, "temp": _temps(ps.temp),
+        job = {"acc": ps.acc, "acc_cov": acc_cov, "t0": ps.t0, "t1": ps.t1, "n": ps.n,
+               "temp": _temps(ps.temp),
                "gyro": ps.gyro, "mag_points": mag_pts, "mag_temp": mag_temp, "mag_noise": self._mag_noise(),
                "method": c["method"],
                "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],

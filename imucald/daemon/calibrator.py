@@ -96,10 +96,12 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
     # predicted cross-validated residual: each pose's noise plus the uncertainty of the
     # refit without it (calib.fit.heldout_residuals)
     pred = rms(cal.info["heldout_predicted_std"])
-    parts["accel"] = SensorCal.from_fit(cal, {
-        "fitness": float(cal.fitness), "heldout_rms_g": dec.rms_cv, "heldout_rms_before_g": dec.rms_incumbent,
-        "predicted_heldout_rms_g": pred, "poses": int(len(acc)), "gate_p_value": dec.p_value,
-        "false_accept_rate": dec.alpha})
+    # heldout_rms_g and heldout_rms_before_g: both out of sample on the same gate_poses poses
+    # (those the calibration in force was not fitted on); loo_rms_g: the candidate's over all
+    q = {"fitness": float(cal.fitness), "heldout_rms_g": dec.rms_cv,
+         "heldout_rms_before_g": dec.rms_incumbent, "predicted_heldout_rms_g": pred, "poses": int(len(acc)), "gate_poses": int(dec.n),
+         "gate_p_value": dec.p_value, "false_accept_rate": dec.alpha}
+    parts["accel"] = SensorCal.from_fit(cal, {k: v for k, v in q.items() if np.isfinite(v)})
     if ta:
         parts["accel"] = replace(parts["accel"], thermal=ta)
     accept["accel"], gates["accel"] = dec.accept, dec
@@ -126,9 +128,11 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
         parts["gyro"] = SensorCal("gyro", "bias", {"bias_dps": b, **carry(cur.gyro.params if kept else {})},
                                   {"bias_dps": sd, **carry(cur.gyro.stderr if kept else {})},
                                   carry(cur.gyro.flags if kept else {}), method="mean",
-                                  quality={"heldout_rms_dps": gdec.rms_cv,
-                                           "heldout_rms_before_dps": gdec.rms_incumbent,
-                                           "poses": int(len(g)), "gate_p_value": gdec.p_value},
+                                  quality={k: v for k, v in {
+                                      "heldout_rms_dps": gdec.rms_cv,
+                                      "heldout_rms_before_dps": gdec.rms_incumbent, "poses": int(len(g)),
+                                      "gate_poses": int(gdec.n), "gate_p_value": gdec.p_value}.items()
+                                      if np.isfinite(v)},
                                   thermal=tg)
         accept["gyro"], gates["gyro"] = gdec.accept, gdec
     # --- thermal terms from the thermal log (daemon/thermaljob.py) ---

@@ -99,8 +99,9 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
     # heldout_rms_g and heldout_rms_before_g: both out of sample on the same gate_poses poses
     # (those the calibration in force was not fitted on); loo_rms_g: the candidate's over all
     q = {"fitness": float(cal.fitness), "heldout_rms_g": dec.rms_cv,
-         "heldout_rms_before_g": dec.rms_incumbent, "predicted_heldout_rms_g": pred, "poses": int(len(acc)), "gate_poses": int(dec.n),
-         "gate_p_value": dec.p_value, "false_accept_rate": dec.alpha}
+         "heldout_rms_before_g": dec.rms_incumbent, "predicted_heldout_rms_g": pred,
+         "poses": int(len(acc)), "gate_poses": int(dec.n), "gate_p_value": dec.p_value,
+         "false_accept_rate": dec.alpha}
     parts["accel"] = SensorCal.from_fit(cal, {k: v for k, v in q.items() if np.isfinite(v)})
     if ta:
         parts["accel"] = replace(parts["accel"], thermal=ta)

@@ -405,10 +405,7 @@ class Pipeline:
             # a fit on a ready pose set did not replace the provisional one though scored
             # out of sample on the poses it was not fitted on: it has been checked against
             # the full set and stays, as final -- unless those poses disagree with it
-            acc_dec = gates.get("accel")
-            confirmed = (bool(a) and self._job_ready and ap.provisional is not None
-                         and not (acc_dec is not None and acc_dec.consistency_p is not None
-                                  and not acc_dec.consistent))
+            confirmed = bool(a) and self._job_ready and ap.provisional is not None and _confirms(gates)
             if confirmed:
                 self.applied = ap.replace(provisional=None)
                 self.persist("calibration", self.applied)
@@ -429,7 +426,7 @@ class Pipeline:
             prov = None if self._job_ready else {
                 "poses": len(ps), "poses_for_final": self.cfg["calibration"]["min_poses"],
                 "missing_orientations": list(self._job_missing)}
-        elif a and self._job_ready and prov is not None:
+        elif a and self._job_ready and prov is not None and _confirms(gates):
             # as below when nothing is taken: a fit on a ready pose set did no significantly
             # better, so the provisional accelerometer part stays, as final (the gyro or the
             # magnetometer part taken with it does not change that)
@@ -483,6 +480,13 @@ class Pipeline:
 def _temps(t):
     """Pose temperatures, or None when any is unknown."""
     return None if t is None or not np.all(np.isfinite(t)) else t
+
+
+def _confirms(gates) -> bool:
+    """A refused accelerometer candidate on a ready pose set confirms the provisional part in
+    force, unless the gate found the new poses at odds with it (calib/gate.py rule 1)."""
+    d = gates.get("accel")
+    return not (d is not None and d.consistency_p is not None and not d.consistent)
 
 
 def _provisional_text(prov) -> str:

@@ -434,7 +434,10 @@ class Pipeline:
             parts.append(f"accel #{ap.id} is no longer provisional")
         new = ap.replace(id=ap.id + 1, created=now, provisional=prov,
                          temperature_range_c=(round(lo, 2), round(hi, 2)) if np.isfinite(lo) else None,
-                         poses_used={"columns": POSE_COLUMNS, "rows": rows} if len(ps) else None,
+                         # the poses the accelerometer part in force was fitted on (calib/gate.py
+                         # scores it on the others): kept when only the gyro or mag part changes
+                         poses_used=({"columns": POSE_COLUMNS, "rows": rows} if len(ps) else None)
+                         if "accel" in take or ap.accel is None else ap.poses_used,
                          **{k: cand.part(k) for k in take})
         self.applied, self.applied_t_s = new, self.t_last
         self.persist("calibration", new)

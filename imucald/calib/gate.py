@@ -301,7 +301,7 @@ def incumbent_predicted_var(model, theta: np.ndarray, raw: np.ndarray,
     incumbent's own estimation uncertainty there, g_i' C g_i, with C the covariance of
     the fit on the poses it was fitted on (MAP with the datasheet prior, as the fit; its
     excess-scatter factor scales the noise).  None when those poses cannot determine
-    the model (fewer than its parameters + 1)."""
+    the model (fewer than its parameters + 1, or the fit fails)."""
     from .fit import fit_norm
     from .models import get_model
     from .uncertainty import residual_variance
@@ -311,7 +311,11 @@ def incumbent_predicted_var(model, theta: np.ndarray, raw: np.ndarray,
     if int(old.sum()) < int(m.free_mask.sum()) + 1:
         return None
     pc = None if pose_cov is None else np.asarray(pose_cov, float)
-    f = fit_norm(raw[old], m, "lm", pose_cov=None if pc is None else pc[old], chip=chip, heldout=False)
+    from ..errors import UserError
+    try:
+        f = fit_norm(raw[old], m, "lm", pose_cov=None if pc is None else pc[old], chip=chip, heldout=False)
+    except (UserError, ValueError, np.linalg.LinAlgError):
+        return None                 # no rule 1 then: the candidate must be significantly better
     phi = float(f.info["noise_model"]["excess_scatter"])
     var = (residual_variance(m, theta, raw, pc) * phi if pc is not None
            else np.full(len(raw), float(f.noise) ** 2))

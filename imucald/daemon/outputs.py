@@ -165,8 +165,14 @@ def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str =
     return "".join(out).encode()
 
 
-def _chown_chmod(path: str, mode: str, group: Optional[str]) -> None:
-    os.chmod(path, int(mode, 8))
+def _chown_chmod(path: str, mode: str, group: Optional[str], key: str = "socket") -> None:
+    """Mode and group of a socket or FIFO just made; one line naming the setting and the fix
+    (exit 73, "cannot create": a restart cannot fix it, the unit does not retry it)."""
+    from ..errors import CannotCreate
+    try:
+        os.chmod(path, int(mode, 8))
+    except OSError as e:
+        raise CannotCreate(f"{key}: cannot set mode {mode} on {path}: {e.strerror}") from None
     if group:
         try:
             gid = grp.getgrnam(group).gr_gid
@@ -174,7 +180,15 @@ def _chown_chmod(path: str, mode: str, group: Optional[str]) -> None:
             from .config import ConfigError
             raise ConfigError(f"socket_group: group {group!r} does not exist (getent group lists "
                               f"them; create it with groupadd or change the setting)") from None
-        os.chown(path, -1, gid)
+        try:
+            os.chown(path, -1, gid)
+        except OSError as e:
+            # EPERM: a process may give a file only to a group it is in (chown(2))
+            raise CannotCreate(
+                f"{key}: cannot give {path} to group {group!r} ({e.strerror}): this process "
+                f"(uid {os.getuid()}) is not in that group: add SupplementaryGroups={group} to the "
+                f"unit (systemctl edit imucald, or imucald@NAME) or choose a group it is in for "
+                f"{key.split('.')[0]}.socket_group") from None
 
 
 #: longest path a Unix socket address holds (sun_path is 108 bytes with its NUL, unix(7))
@@ -209,7 +223,12 @@ def listen_unix(path: str, mode: str, group: Optional[str], backlog: int,
         s.close()
         from ..errors import CannotCreate
         raise CannotCreate(f"{key}: cannot create the socket {path}: {e.strerror}") from None
-    _chown_chmod(path, mode, group)
+    try:
+        _chown_chmod(path, mode, group, key)
+    except Exception:
+        s.close()
+        os.unlink(path)
+        raise
     s.listen(backlog)
     s.setblocking(False)
     return s
@@ -297,7 +316,11 @@ class FifoSink:
         self.chips: Optional[dict] = None     #: set by the daemon once the chips are identified
         if not os.path.exists(path):
             os.mkfifo(path)
-            _chown_chmod(path, mode, group)
+            try:
+                _chown_chmod(path, mode, group, "output.fifo")
+            except Exception:
+                os.unlink(path)
+                raise
         elif not stat.S_ISFIFO(os.stat(path).st_mode):
             from ..errors import CannotCreate
             raise CannotCreate(f"output.fifo: {path} exists and is not a FIFO: move it away or "

@@ -25,6 +25,13 @@ __all__ = ["Daemon", "LOCK_FILE"]
 #: held with flock in the runtime and state directories while a daemon runs
 LOCK_FILE = "imucald.lock"
 
+#: a sensor with no fresh sample for this long is stalled: one log line, and under systemd's
+#: watchdog the daemon stops feeding it and asks for the watchdog action at once
+#: (WATCHDOG=trigger, sd_notify(3)), so systemd restarts it STALL_S (+ RestartSec=) after the
+#: outage instead of 2 x WatchdogSec.  Longer than any outage the chip's FIFO rides out
+#: (1024 bytes at 200 Hz x 12 bytes: 0.4 s) and than a re-initialisation (0.5 s of faults).
+STALL_S = 3.0
+
 log = logging.getLogger("imucald")
 
 
@@ -159,7 +166,7 @@ class Daemon:
         b, pipe = self.board, self.pipe
         batch_s = batch_period_s(self.cfg["sensor"]["batch_s"], b.rate_hz)
         wd = watchdog_period_s()
-        ready = False
+        ready = stalled = False
         last_status = last_wd = -1e9
         last_fresh = time.monotonic()
         t_start = b.clock.now()
@@ -171,6 +178,9 @@ class Daemon:
             self.control.poll()
             now = time.monotonic()
             if len(batch):
+                if stalled:
+                    stalled = False
+                    log.warning("the sensor is back after %.1f s without a sample", now - last_fresh)
                 last_fresh = now
                 if not ready:
                     notify("READY=1", f"STATUS={self._status_line()}")
@@ -179,7 +189,10 @@ class Daemon:
                 if self.echo and now - getattr(self, "_last_echo", 0) >= 1.0:
                     self._last_echo = now
                     print(data.split(b"\n")[-2].decode() if data.count(b"\n") else "", flush=True)
-            if wd and now - last_wd >= wd and now - last_fresh < 2 * wd:
+            if ready and not stalled and now - last_fresh >= STALL_S:
+                stalled = True
+                self._stalled(now - last_fresh, wd is not None)
+            if wd and now - last_wd >= wd and not stalled:
                 notify("WATCHDOG=1")                        # only while fresh samples arrive
                 last_wd = now
             if now - last_status >= 1.0:
@@ -192,6 +205,18 @@ class Daemon:
                 break
         notify("STOPPING=1")
         return 0
+
+    def _stalled(self, idle_s: float, watchdog: bool) -> None:
+        """No fresh sample for ``idle_s``: say so (once per stall), and under the watchdog
+        stop feeding it and trigger it (systemd restarts the service: Restart=on-failure)."""
+        st = self.board.stats
+        log.error("no sample from the sensor for %.1f s (bus faults %d, last fault: %s): %s", idle_s,
+                  st.bus_faults, getattr(self.board, "last_fault", None) or "none",
+                  "stopped feeding the watchdog; systemd restarts the service" if watchdog else
+                  "check the wiring and power; sampling resumes when it answers")
+        if watchdog:
+            notify("WATCHDOG=trigger", f"STATUS=sensor stalled: no sample for {idle_s:.0f} s, "
+                   f"bus faults {st.bus_faults}")
 
     def _status_line(self) -> str:
         p = self.pipe

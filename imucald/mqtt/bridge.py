@@ -4,7 +4,8 @@ A process of its own (the daemon keeps ``PrivateNetwork=yes``): one thread reads
 NDJSON stream socket, the main loop polls the control socket every
 ``mqtt.status_interval_s``, paho's thread talks to the broker and a publisher thread hands
 it the messages of a bounded buffer (:class:`~imucald.mqtt.topics.OutBuffer`, oldest
-dropped and counted).  While the broker is away paho reconnects (0.1 s .. 5 s backoff);
+dropped and counted).  While the broker is away or refuses the login the bridge reconnects (0.1 s doubling
+to 5 s, reset only by an accepted login; 5 logins refused for the credentials in a row: exit 78);
 QoS 1/2 messages already handed to paho are resent by paho, at most ``INFLIGHT`` of them.
 The sensor's identity (its fingerprint id) is in every topic and in the last will; when
 the daemon comes back with another sensor the bridge says "offline" for the old one and
@@ -34,6 +35,19 @@ log = logging.getLogger("imucald.mqtt")
 
 #: messages handed to paho and not yet confirmed (QoS 0: written; 1/2: acknowledged)
 INFLIGHT = 100
+
+#: reconnect delay after a failed connect or a refused login: doubles from the first to the
+#: last, and goes back to the first only once the broker accepted the login (CONNACK 0), not on
+#: every TCP connect (a broker that accepts TCP and refuses the login is not hammered)
+BACKOFF_S = (0.1, 5.0)
+
+#: logins refused for the credentials (bad user name or password, not authorized) in a row
+#: before the bridge gives up: exit 78 (configuration), which the unit does not restart
+LOGIN_REFUSALS = 5
+
+#: CONNACK reason codes that say the credentials are wrong (MQTT 5.0 0x86, 0x87; paho maps
+#: MQTT 3.1.1's return codes 4 and 5 to them)
+_BAD_LOGIN = (0x86, 0x87)
 
 
 class Bridge:
@@ -69,6 +83,10 @@ class Bridge:
         self.waker = Waker()
         self.version: Optional[Dict[str, Any]] = None
         self.last_connect_error: Optional[str] = None
+        self.backoff_s = BACKOFF_S[0]
+        self.refused = 0                            # logins refused in a row
+        self.fatal: Optional[UserError] = None      # why the bridge gives up (exit code)
+        self.stopping = False
 
     # -- the broker side ---------------------------------------------------------------
     def _client(self, topics: Topics, sensor_id: str):
@@ -85,8 +103,20 @@ class Bridge:
         def on_connect(client, userdata, flags, reason, props):
             if reason.is_failure:
                 self.last_connect_error = str(reason)
-                log.warning("%s:%d refused the connection: %s", self.m["host"], self.port, reason)
+                bad_login = getattr(reason, "value", None) in _BAD_LOGIN
+                self.refused = self.refused + 1 if bad_login else 0
+                if bad_login and self.refused >= LOGIN_REFUSALS:
+                    self.fatal = ConfigError(
+                        f"mqtt.username/mqtt.password_file: {self.m['host']}:{self.port} refused the login "
+                        f"of {self.m['username'] or 'anonymous'!r} {self.refused} times in a row ({reason}): "
+                        f"check the user name and the password file (and the broker's ACL), then "
+                        f"restart the bridge")
+                    log.error("%s:%d refused the connection: %s; giving up", self.m["host"], self.port, reason)
+                else:
+                    log.warning("%s:%d refused the connection: %s; retrying in %.1f s", self.m["host"],
+                                self.port, reason, self.backoff_s)
                 return
+            self.backoff_s, self.refused = BACKOFF_S[0], 0
             self.stats["connects"] += 1
             log.info("connected to %s:%d (as %s)", self.m["host"], self.port, self.m["username"] or "anonymous")
             # birth and retained state first, straight to paho (it queues them ahead)
@@ -102,7 +132,9 @@ class Bridge:
 
         def on_disconnect(client, userdata, flags, reason, props):
             with self.cv:
-                if self.connected:
+                if self.stopping:
+                    log.info("disconnected from %s:%d (clean stop)", self.m["host"], self.port)
+                elif self.connected:
                     self.stats["disconnects"] += 1
                     log.warning("broker connection lost (%s); reconnecting, buffering up to %d messages",
                                 reason, self.buf.size)
@@ -136,8 +168,13 @@ class Bridge:
         paho's own loop thread, a publish from another thread racing the resend of a
         reconnect lost messages: here nothing calls paho concurrently.)"""
         mqtt = self.mqtt
-        delay, said, up, tried = 0.1, False, False, False
-        while not end.is_set():
+        said, up, tried = False, False, False
+
+        def back_off():
+            end.wait(self.backoff_s)
+            self.backoff_s = min(BACKOFF_S[1], self.backoff_s * 2)
+
+        while not end.is_set() and self.fatal is None:
             if not up:
                 try:
                     if tried:
@@ -145,24 +182,24 @@ class Bridge:
                     else:
                         tried = True
                         client.connect(self.m["host"], self.port, keepalive=self.m["keepalive_s"])
-                    up, delay = True, 0.1
+                    up = True               # TCP only: the delay resets on the broker's CONNACK
                 except (OSError, ssl.SSLError, ValueError) as e:
                     if not said:
                         log.warning("cannot reach the broker at %s:%d (%s); retrying",
                                     self.m["host"], self.port, e)
                     said = True
                     self.last_connect_error = str(e)
-                    end.wait(delay)
-                    delay = min(5.0, delay * 2)
+                    back_off()
                     continue
             rc = loop_once(mqtt, client, self.waker)
             if rc != mqtt.MQTT_ERR_SUCCESS:
                 up = False
-                end.wait(delay)
-                delay = min(5.0, delay * 2)
+                if self.fatal is None:
+                    back_off()
                 continue
             self._hand_over(client)
         # stopping: the birth topic says offline (a clean disconnect sends no will)
+        self.stopping = True
         if self.connected:
             info = client.publish(topics.status, b"offline", qos=self.m["qos"], retain=True)
             t_end = time.monotonic() + 2.0
@@ -291,13 +328,17 @@ class Bridge:
     def run(self, stop: threading.Event) -> int:
         """Bridge until ``stop`` is set; 0 on a clean stop."""
         try:
-            while not stop.is_set():
+            while not stop.is_set() and self.fatal is None:
                 st = self._wait_for_daemon(stop)
                 if st is None:
                     break
                 self._session(st, stop)
         finally:
             self.waker.close()
+        if self.fatal is not None:
+            raise self.fatal
+        log.info("stopped (clean stop): %d messages published, %d unsent", self.stats["published"],
+                 self.stats["unsent_at_stop"])
         return 0
 
     def _session(self, st: Dict[str, Any], stop: threading.Event) -> None:
@@ -309,6 +350,7 @@ class Bridge:
         log.info("bridging sensor %s (%s) to %s:%d under %s/", sid, st.get("board"), self.m["host"],
                  self.port, topics.base)
         client = self._client(topics, sid)
+        self.stopping = False
         end, reading = threading.Event(), threading.Event()
         changed = threading.Event()
         reader = threading.Thread(target=self._reader, args=(topics, sid, reading, changed), daemon=True)
@@ -317,7 +359,7 @@ class Bridge:
             t.start()
         last = None         # (wall time, samples) of the previous status
         try:
-            while not stop.is_set() and not changed.is_set():
+            while not stop.is_set() and not changed.is_set() and self.fatal is None:
                 try:
                     st = self._request("status")
                 except (UserError, OSError, ValueError):
@@ -332,7 +374,7 @@ class Bridge:
                     bs = st.get("board_stats") or {}
                     last = (self.clock(), bs.get("samples", st.get("samples", 0)))
                 t_next = time.monotonic() + self.m["status_interval_s"]
-                while not (stop.is_set() or changed.is_set()) and time.monotonic() < t_next:
+                while not (stop.is_set() or changed.is_set() or self.fatal) and time.monotonic() < t_next:
                     stop.wait(min(0.1, self.m["status_interval_s"]))
         finally:
             # stop reading first, so that what was read is sent (or counted as not sent)

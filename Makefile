@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 TSTAMP := $(VENV)/.installed-test
 
-.PHONY: run test bench clean test-deps install uninstall
+.PHONY: run test test-system bench clean test-deps install uninstall
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 9))' || \
@@ -47,6 +47,21 @@ test-deps:
 	  else echo "mosquitto is missing (sudo apt-get install mosquitto): the MQTT tests will skip"; fi; \
 	fi
 
+# The service under a real systemd (tests/test_system.py): a Debian bookworm container booted
+# with systemd-nspawn, this checkout installed in it with `make install`, every unit checked.
+# Needs root, systemd-nspawn (apt-get install systemd-container) and, the first time,
+# debootstrap; the tree is cached in /var/cache/imucald-systest (IMUCALD_SYSTEST_CACHE).
+# Where the host cannot boot a container it skips, and the summary says why.
+test-system: $(TSTAMP)
+	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+	  { ! command -v systemd-nspawn >/dev/null 2>&1 || ! command -v debootstrap >/dev/null 2>&1; }; then \
+	  echo "installing systemd-container and debootstrap (apt-get) for the system test"; \
+	  { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
+	      systemd-container debootstrap; } >/dev/null 2>&1 \
+	    || echo "could not install systemd-container/debootstrap: the system test will skip"; \
+	fi
+	IMUCALD_SYSTEM_TEST=1 $(BIN)/python -m pytest -q -rs -p no:cacheprovider tests/test_system.py
+
 bench: $(TSTAMP)
 	$(BIN)/python bench/speed.py
 
@@ -54,10 +69,12 @@ bench: $(TSTAMP)
 # mqtt extra, /etc/imucald/imucald.yaml where there is none, the units in /etc/systemd/system,
 # an i2c udev rule where none exists.  DESTDIR=DIR stages into DIR and changes nothing else;
 # NO_VENV=1 lays out the files only; `make uninstall` keeps the configuration and the
-# calibrations unless PURGE=1.  packaging/install.sh does the work.
+# calibrations unless PURGE=1; BINDIR (/usr/local/bin) gets a link to imucald.
+# packaging/install.sh does the work.
 INSTALL_VARS = DESTDIR="$(DESTDIR)" PREFIX="$(or $(PREFIX),/opt/imucald)" PYTHON="$(PYTHON)" \
 	SYSCONFDIR="$(or $(SYSCONFDIR),/etc/imucald)" UNITDIR="$(or $(UNITDIR),/etc/systemd/system)" \
 	UDEVDIR="$(or $(UDEVDIR),/etc/udev/rules.d)" DOCDIR="$(or $(DOCDIR),/usr/share/doc/imucald)" \
+	BINDIR="$(or $(BINDIR),/usr/local/bin)" \
 	EXTRAS="$(if $(filter undefined,$(origin EXTRAS)),mqtt,$(EXTRAS))" NO_VENV="$(NO_VENV)" PURGE="$(PURGE)"
 
 install:

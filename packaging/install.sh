@@ -4,7 +4,8 @@
 # Variables (make passes them through): DESTDIR (staging root, e.g. for a package or a
 # test: nothing outside it is touched, no systemctl/udevadm/groupadd), PREFIX (the venv,
 # /opt/imucald), SYSCONFDIR (/etc/imucald), UNITDIR (/etc/systemd/system), UDEVDIR
-# (/etc/udev/rules.d), DOCDIR (/usr/share/doc/imucald), PYTHON (python3), EXTRAS (mqtt),
+# (/etc/udev/rules.d), DOCDIR (/usr/share/doc/imucald), BINDIR (/usr/local/bin: a link to
+# the venv's imucald, so that it is on root's PATH), PYTHON (python3), EXTRAS (mqtt),
 # NO_VENV=1 (lay out the files only), PURGE=1 (uninstall also removes the configuration
 # and the state in /var/lib/imucald).
 # What install created is listed in $PREFIX/install-manifest.txt; uninstall removes those
@@ -19,6 +20,7 @@ SYSCONFDIR=${SYSCONFDIR:-/etc/imucald}
 UNITDIR=${UNITDIR:-/etc/systemd/system}
 UDEVDIR=${UDEVDIR:-/etc/udev/rules.d}
 DOCDIR=${DOCDIR:-/usr/share/doc/imucald}
+BINDIR=${BINDIR:-/usr/local/bin}
 PYTHON=${PYTHON:-python3}
 EXTRAS=${EXTRAS:-mqtt}
 NO_VENV=${NO_VENV:-}
@@ -58,6 +60,33 @@ udev_has_i2c_rule() {
         done
     done
     return 1
+}
+
+# Before issue 22 an instance imucald@NAME kept its state in /var/lib/imucald/NAME, inside
+# the main unit's directory (with DynamicUser= that is /var/lib/private/imucald/NAME): the two
+# could not run together.  Now it is /var/lib/imucald-NAME (/var/lib/private/imucald-NAME).
+# Each NAME with a /etc/imucald/NAME.yaml is moved (its unit stopped first, started again
+# after), unless the new directory exists already (then both are left and it says so).
+RESTART_INSTANCES=""
+migrate_instances() {
+    for base in /var/lib/private /var/lib; do
+        old="$base/imucald"
+        [ -d "$old" ] && [ ! -L "$old" ] || continue
+        for d in "$old"/*/; do
+            [ -d "$d" ] || continue
+            name=$(basename "$d")
+            [ -f "$SYSCONFDIR/$name.yaml" ] || continue        # history/, sensors/: the main unit's
+            new="$base/imucald-$name"
+            if [ -e "$new" ]; then
+                say "both $old/$name and $new exist: left as they are (imucald@$name uses $new)"
+                continue
+            fi
+            if command -v systemctl >/dev/null 2>&1 && systemctl -q is-active "imucald@$name" 2>/dev/null; then
+                systemctl stop "imucald@$name" && RESTART_INSTANCES="$RESTART_INSTANCES imucald@$name"
+            fi
+            mv "$d" "$new" && say "moved the state of imucald@$name from $old/$name to $new"
+        done
+    done
 }
 
 do_install() {
@@ -104,6 +133,19 @@ do_install() {
     done
     say "installed $UNITS into $UNITDIR"
 
+    # 3b. `imucald` on the PATH: a link in BINDIR, unless something else is there
+    link="$DESTDIR$BINDIR/imucald"
+    if [ -e "$link" ] && [ ! -L "$link" ]; then
+        say "kept $BINDIR/imucald (not ours); run $PREFIX/bin/imucald"
+    elif [ -L "$link" ] && [ "$(readlink "$link")" != "$PREFIX/bin/imucald" ]; then
+        say "kept $BINDIR/imucald -> $(readlink "$link") (not ours); run $PREFIX/bin/imucald"
+    else
+        mkdir -p "$DESTDIR$BINDIR"
+        ln -sfn "$PREFIX/bin/imucald" "$link"
+        record "link $BINDIR/imucald"
+        say "linked $BINDIR/imucald -> $PREFIX/bin/imucald"
+    fi
+
     # 4. documentation (the units' Documentation=) and the shipped configuration
     install -D -m 0644 "$SRC/README.md" "$DESTDIR$DOCDIR/README.md"
     install -D -m 0644 "$SRC/config/imucald.yaml" "$DESTDIR$DOCDIR/imucald.yaml"
@@ -121,10 +163,14 @@ do_install() {
     fi
 
     if live; then
+        migrate_instances
         getent group i2c >/dev/null 2>&1 || { groupadd --system i2c && say "created the system group i2c"; }
         command -v udevadm >/dev/null 2>&1 && { udevadm control --reload 2>/dev/null || true;
             udevadm trigger --subsystem-match=i2c-dev 2>/dev/null || true; }
         command -v systemctl >/dev/null 2>&1 && systemctl daemon-reload 2>/dev/null || true
+        for inst in $RESTART_INSTANCES; do
+            systemctl start "$inst" && say "started $inst again"
+        done
     elif [ -n "$DESTDIR" ]; then
         say "DESTDIR: no group, udev or systemd changes made on this machine"
     fi
@@ -158,6 +204,7 @@ do_uninstall() {
     while read -r kind path; do
         case "$kind" in
             file) rm -f "$DESTDIR$path" ;;
+            link) [ -L "$DESTDIR$path" ] && rm -f "$DESTDIR$path" ;;
             dir) rm -rf "$DESTDIR$path" ;;
             config)
                 if [ -n "$PURGE" ]; then rm -f "$DESTDIR$path"; else kept_conf="$path"; fi ;;

@@ -37,7 +37,10 @@ def test_install_lays_out_the_files_and_uninstall_undoes_it_keeping_the_configur
     got = files(dest)
     assert got == {"etc/imucald/imucald.yaml", "etc/udev/rules.d/60-imucald-i2c.rules",
                    "opt/imucald/install-manifest.txt", "usr/share/doc/imucald/README.md",
-                   "usr/share/doc/imucald/imucald.yaml"} | {f"etc/systemd/system/{u}" for u in UNITS}
+                   "usr/share/doc/imucald/imucald.yaml", "usr/local/bin/imucald"} | \
+        {f"etc/systemd/system/{u}" for u in UNITS}
+    # imucald on root's PATH: a link into the venv (dangling here: NO_VENV)
+    assert os.readlink(dest / "usr/local/bin/imucald") == "/opt/imucald/bin/imucald"
     for u in UNITS:
         p = dest / "etc/systemd/system" / u
         assert stat.S_IMODE(p.stat().st_mode) == 0o644

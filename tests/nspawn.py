@@ -112,6 +112,9 @@ def ensure_tree(log=print, timeout_s=900):
         if _cached_tree():
             return tree, 0.0
         shutil.rmtree(tree, ignore_errors=True)  # a half-made one
+        for f in os.listdir(CACHE_DIR):           # a build of a killed run (we hold the lock)
+            if f.startswith("build."):
+                shutil.rmtree(os.path.join(CACHE_DIR, f), ignore_errors=True)
         t0 = time.monotonic()
         build = tempfile.mkdtemp(prefix="build.", dir=CACHE_DIR)
         try:

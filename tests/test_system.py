@@ -17,6 +17,7 @@ import json
 import os
 import re
 import shlex
+import signal
 import subprocess
 import sys
 import time
@@ -156,9 +157,15 @@ class Sys:
 def sysc(request):
     _CAPTURE[:] = [request.config.pluginmanager.getplugin("capturemanager")]
     t0 = time.monotonic()
+
+    def interrupted(signum, frame):     # SIGTERM/SIGHUP (a CI timeout): the finalizers still run
+        raise KeyboardInterrupt(f"signal {signum}")
+    old = {sg: signal.signal(sg, interrupted) for sg in (signal.SIGTERM, signal.SIGHUP)}
     try:
         tree, built_s = nspawn.ensure_tree(log=say)
     except (RuntimeError, OSError, subprocess.SubprocessError) as e:
+        for sg, h in old.items():
+            signal.signal(sg, h)
         pytest.skip(f"this host cannot make the bookworm tree: {e}")
     files, binds, penv = nspawn.pip_setup()
     ct = nspawn.Container(tree, log=say, binds=binds)
@@ -190,6 +197,8 @@ def sysc(request):
     finally:
         t2 = time.monotonic()
         ct.close()
+        for sg, h in old.items():
+            signal.signal(sg, h)
         say(f"container halted and removed in {time.monotonic() - t2:.1f} s; "
             f"whole system test {time.monotonic() - t0:.0f} s wall")
 

@@ -159,8 +159,9 @@ def test_two_imus_two_instances_keep_their_own_state(tmp_path):
     assert ids[0] != ids[1]
     unit = open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                              "systemd", "imucald@.service")).read()
-    for key in ("--config /etc/imucald/%i.yaml", "--state-dir /var/lib/imucald/%i",
-                "--runtime-dir /run/imucald/%i", "StateDirectory=imucald/%i", "RuntimeDirectory=imucald/%i",
+    # the instance's directories beside the main unit's, never inside them (issue 22)
+    for key in ("--config /etc/imucald/%i.yaml", "--state-dir /var/lib/imucald-%i",
+                "--runtime-dir /run/imucald-%i", "StateDirectory=imucald-%i", "RuntimeDirectory=imucald-%i",
                 "PrivateNetwork=yes", "RestrictAddressFamilies=AF_UNIX"):
         assert key in unit
 

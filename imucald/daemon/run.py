@@ -192,7 +192,7 @@ class Daemon:
             if ready and not stalled and now - last_fresh >= STALL_S:
                 stalled = True
                 self._stalled(now - last_fresh, wd is not None)
-            if wd and now - last_wd >= wd and not stalled:
+            if wd and now - last_wd >= wd and not stalled and now - last_fresh < min(2 * wd, STALL_S):
                 notify("WATCHDOG=1")                        # only while fresh samples arrive
                 last_wd = now
             if now - last_status >= 1.0:

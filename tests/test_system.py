@@ -103,7 +103,7 @@ class Sys:
             if isinstance(msg, list):
                 msg = bytes(msg).decode("utf-8", "replace")
             out.append((int(e["__REALTIME_TIMESTAMP"]) / 1e6, msg))
-        return sorted(out)
+        return sorted(set(out))
 
     def cursor(self):
         r = self.sh("journalctl -n 0 --show-cursor --no-pager", check=False)

@@ -7,7 +7,7 @@
 # (/etc/udev/rules.d), DOCDIR (/usr/share/doc/imucald), BINDIR (/usr/local/bin: a link to
 # the venv's imucald, so that it is on root's PATH), PYTHON (python3), EXTRAS (mqtt),
 # NO_VENV=1 (lay out the files only), PURGE=1 (uninstall also removes the configuration
-# and the state in /var/lib/imucald).
+# and the state in /var/lib/imucald and the instances' /var/lib/imucald-NAME).
 # What install created is listed in $PREFIX/install-manifest.txt; uninstall removes those
 # files only (a configuration that was already there is never in it).
 set -eu
@@ -212,7 +212,8 @@ do_uninstall() {
         esac
     done < "$MANIFEST"
     if [ -n "$PURGE" ]; then
-        for d in "$DESTDIR$SYSCONFDIR" "$DESTDIR/var/lib/imucald" "$DESTDIR/var/lib/private/imucald"; do
+        for d in "$DESTDIR$SYSCONFDIR" "$DESTDIR/var/lib/imucald" "$DESTDIR/var/lib/private/imucald" \
+                 "$DESTDIR"/var/lib/imucald-* "$DESTDIR"/var/lib/private/imucald-*; do
             [ -e "$d" ] && rm -rf "$d" && say "purged $d"
         done
     else

@@ -65,6 +65,9 @@ def test_install_lays_out_the_files_and_uninstall_undoes_it_keeping_the_configur
     # installed fresh, PURGE=1 removes the configuration and the calibrations too
     conf.unlink()
     assert make("install", dest).returncode == 0
+    inst = dest / "var/lib/private/imucald-imu1"          # an instance's state (issue 22)
+    inst.mkdir(parents=True)
+    (inst / "poses.csv").write_text("ax\n")
     r = make("uninstall", dest, PURGE=1)
     assert r.returncode == 0, r.stderr
     assert files(dest) == set()

@@ -230,6 +230,13 @@ def test_start_is_ready_with_status(sysc):
         assert re.search(r"\d+ Hz, poses \d+/\d+", st["StatusText"]), st
         assert "first valid sample: ready" in sysc.journal("imucald")
         say(f"imucald.service ready in {time.monotonic() - t:.1f} s")
+        # the sandbox as it runs: a seccomp filter, no capabilities, the exposure README quotes
+        proc = sysc.sh(f"cat /proc/{st['MainPID']}/status").stdout
+        assert re.search(r"^Seccomp:\s+2$", proc, re.M) and re.search(r"^CapEff:\s+0+$", proc, re.M), proc
+        r = sysc.sh("systemd-analyze security --no-pager imucald.service", check=False)
+        m = re.search(r"Overall exposure level for imucald.service: ([0-9.]+)", r.stdout)
+        assert m and float(m.group(1)) <= 0.8, r.stdout[-600:]
+        say(f"running unit: seccomp on, no capabilities, exposure {m.group(1)}")
 
 
 def test_sockets_owner_group_mode_and_others_refused(sysc):

@@ -30,7 +30,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SRC = os.environ.get("IMUCALD_SYSTEST_SOURCE") or ROOT
 
 if not os.environ.get("IMUCALD_SYSTEM_TEST"):
-    pytest.skip("the system test boots a container (about 1-4 min): run `make test-system`",
+    pytest.skip("the system test boots a container (about 1.5 min; 5 min the first time): run `make test-system`",
                 allow_module_level=True)
 _WHY = nspawn.cannot_boot_reason()
 if _WHY:

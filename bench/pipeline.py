@@ -60,11 +60,14 @@ GYRO_ROT = {"matrix": np.array([1.01, 0.004, -0.003, 0.002, 0.995, 0.006, -0.005
             "g_sens_dps_per_g": np.array([0.05, -0.02, 0.01, 0.03, -0.06, 0.02, -0.01, 0.04, 0.05])}
 
 
-def cost(board, rate, seconds, fmt, tmp, thermal=False, gyro_rot=False):
+def cost(board, rate, seconds, fmt, tmp, thermal=False, gyro_rot=False, orientation=False):
+    """CPU per sample (us) and samples; ``orientation``: the orientation filter on (issue 26,
+    the orientation extra), else off as without the extra."""
     cfg = copy.deepcopy(DEFAULTS)
     cfg["output"]["format"] = fmt
     bs = batches(board, rate, seconds)
     pipe = Pipeline(cfg, board, rate, board in ("9dof", "mpu9250"))
+    pipe.use_orientation("yes" if orientation else "no")
     poly = np.array([[5e-4, -4e-4, 3e-4], [1e-5, 2e-6, -3e-6], [1e-7, -1e-7, 2e-7]])
     ta = dict(THERMAL, bias_poly_g=poly, scale_poly=np.array([[1e-4, -1e-4, 5e-5]])) if thermal else None
     tg = dict(THERMAL, bias_poly_dps=poly * 40) if thermal else None

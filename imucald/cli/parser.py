@@ -147,6 +147,8 @@ def _add_run(rn) -> None:
     rn.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N")
     rn.add_argument("--format", choices=_choices("output.format"))
     rn.add_argument("--fifo", help="also stream to this FIFO")
+    rn.add_argument("--orientation", choices=_choices("output.orientation"),
+                    help="orientation in the stream (the orientation extra): auto, yes, no")
     rn.add_argument("--method", choices=_choices("calibration.method"))
     rn.add_argument("--min-poses", type=int)
     g = rn.add_mutually_exclusive_group()
@@ -168,6 +170,8 @@ def _add_replay(rp) -> None:
     rp.add_argument("--state-dir", help="save the calibration reached as DIR/calibration.yaml")
     rp.add_argument("--config")
     rp.add_argument("--format", choices=_choices("output.format"))
+    rp.add_argument("--orientation", choices=_choices("output.orientation"),
+                    help="orientation in the stream (the orientation extra): auto, yes, no")
     rp.add_argument("--method", choices=_choices("calibration.method"))
     rp.add_argument("--min-poses", type=int)
     rp.add_argument("--log-level", choices=_choices("log.level"))

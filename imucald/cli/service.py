@@ -24,6 +24,7 @@ def _overrides(args):
                             ("bus", "sensor.bus", "--bus"), ("state_dir", "state.directory", "--state-dir"),
                             ("runtime_dir", "runtime.directory", "--runtime-dir"),
                             ("format", "output.format", "--format"), ("fifo", "output.fifo", "--fifo"),
+                            ("orientation", "output.orientation", "--orientation"),
                             ("method", "calibration.method", "--method"),
                             ("min_poses", "calibration.min_poses", "--min-poses"),
                             ("log_level", "log.level", "--log-level")):
@@ -91,6 +92,7 @@ def cmd_replay(args) -> int:
         pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag, chips=chips,
                         has_acc=has_acc)
         pipe.use_noise_file(cfg["noise"]["file"])
+        pipe.use_orientation(cfg["output"]["orientation"], has_gyro="gx" in cols)
         if args.state_dir:      # as the daemon at start: from the calibration saved there
             cal = _replay_start(args.state_dir, pipe.board, chips)
             if cal is not None:
@@ -98,7 +100,7 @@ def cmd_replay(args) -> int:
                 logging.getLogger("imucald").info("starting from calibration #%d (%s)", cal.id, cal.created)
         out = sys.stdout.buffer
         from ..daemon.outputs import banner
-        out.write(banner(cfg["output"]["format"], pipe.board, chips or None))
+        out.write(banner(cfg["output"]["format"], pipe.board, chips or None, pipe.orientation_off))
         step = max(1, int(round(cfg["sensor"]["batch_s"] * rate_hz)))
         seq0, prev_mag, pending = 0, None, []
         for chunk in reader.chunks():

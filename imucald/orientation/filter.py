@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import EX_CONFIG, UserError
 from . import quality
-from .quat import rotate
+from .quat import gravity_free_g, qmul, rotate
 
 __all__ = ["OrientationFilter", "OrientationUnavailable", "load_vqf", "unavailable_reason",
            "MISSING_EXTRA", "G_MS2"]
@@ -174,15 +174,16 @@ class OrientationFilter:
     # -- the batch ------------------------------------------------------------------------
     def update(self, acc_g, gyro_dps, mag_gauss=None) -> Dict[str, Any]:
         acc = np.asarray(acc_g, float)
+        gyro = np.asarray(gyro_dps, float)
         n = len(acc)
-        q = np.full((n, 4), np.nan)
-        lin = np.full((n, 3), np.nan)
-        ok = np.all(np.isfinite(acc), 1) & np.all(np.isfinite(gyro_dps), 1)
+        ok = np.isfinite(acc).all(1) & np.isfinite(gyro).all(1)
+        allok = bool(ok.all())
         mag = None
         if self.has_mag and mag_gauss is not None:
-            mag = np.array(mag_gauss, float)       # a copy: held readings are filled in below
-            good = np.all(np.isfinite(mag), 1)
+            mag = np.asarray(mag_gauss, float)
+            good = np.isfinite(mag).all(1)
             if not good.all():                     # sample-and-hold over rows without a reading
+                mag = mag.copy()
                 idx = np.where(good, np.arange(n), -1)
                 np.maximum.accumulate(idx, out=idx)
                 have = idx >= 0
@@ -193,23 +194,22 @@ class OrientationFilter:
                 good = have
             if good.any():
                 self._last_mag = mag[good][-1].copy()
-        dist = np.zeros(n, bool) if self.has_mag else None
+            if not good.all():
+                mag = None                         # none seen yet: these rows go without
         sig = self._sigma0_rad_s
-        if ok.any():
-            a = np.ascontiguousarray(acc[ok] * G_MS2)
-            w = np.ascontiguousarray(np.radians(np.asarray(gyro_dps, float)[ok]))
-            use_mag = mag is not None and bool(np.all(np.isfinite(mag[ok])))
-            if use_mag:
-                o = self.f.updateBatch(w, a, np.ascontiguousarray(mag[ok]))
-                q[ok] = o["quat9D"]
-                dist[ok] = o["magDistDetected"]
-                self._mag_seen = True
-            else:
-                o = self.f.updateBatch(w, a)
-                q[ok] = o["quat6D"] if not self._mag_seen else self._q9_from_6d(o["quat6D"])
-            sig = float(o["biasSigma"][-1])
-            lin[ok] = acc[ok] - rotate_inv_rows(q[ok])
-            self._track(q[ok], acc[ok], mag[ok] if use_mag else None, dist[ok] if use_mag else None)
+        dist = None
+        if allok:
+            q, lin, dist, sig = self._run(acc, gyro, mag)
+        else:
+            q, lin = np.full((n, 4), np.nan), np.full((n, 3), np.nan)
+            if self.has_mag:
+                dist = np.zeros(n, bool)
+            if ok.any():
+                q[ok], lin[ok], d, sig = self._run(acc[ok], gyro[ok], None if mag is None else mag[ok])
+                if d is not None:
+                    dist[ok] = d
+        if self.has_mag and dist is None:
+            dist = np.zeros(n, bool)
         magnetic = self.has_mag and self._mag_seen
         tv = quality.tilt_var_rad2(self.acc_bias_se_g, sig, float(np.hypot(*self._lin_lp)),
                                    self.acc_noise_g, self.tau_acc_s, self.rate_hz)
@@ -224,37 +224,57 @@ class OrientationFilter:
                 "heading_std_deg": math.degrees(math.sqrt(hv)) if magnetic else None,
                 "cov": quality.ros_covariance(tv, hv), "bias_sigma_dps": math.degrees(sig)}
 
+    def _run(self, acc, gyro, mag):
+        """VQF over rows that are all finite: (q, lin_acc_g, mag_disturbed or None, bias sigma)."""
+        a = acc * G_MS2
+        w = np.radians(gyro)
+        if mag is not None:
+            o = self.f.updateBatch(w, a, np.ascontiguousarray(mag))
+            q, dist = o["quat9D"], o["magDistDetected"]
+            self._mag_seen = True
+        else:
+            o = self.f.updateBatch(w, a)
+            q, dist = o["quat6D"] if not self._mag_seen else self._q9_from_6d(o["quat6D"]), None
+        lin = gravity_free_g(q, acc)
+        self._track(q, lin, mag, dist)
+        return q, lin, dist, float(o["biasSigma"][-1])
+
     def _q9_from_6d(self, q6):
         """Rows fed without a magnetometer reading after one was seen: the 6D attitude turned
         by the filter's current heading offset (VQF's delta, about the vertical)."""
         d = self.f.getDelta()
         dq = np.array([math.cos(d / 2), 0.0, 0.0, math.sin(d / 2)])
-        from .quat import qmul
         return qmul(dq, q6)
 
-    def _track(self, q, acc, mag, dist) -> None:
-        """The filter-state figures the standard deviations use, once per batch."""
+    def _track(self, q, lin, mag, dist) -> None:
+        """The filter-state figures the standard deviations use, once per batch (scalar
+        arithmetic on the batch's last attitude: a batch turns the board by a few degrees at
+        most, a second-order error in a tau_acc low-pass)."""
         n = len(q)
         k = 1.0 - math.exp(-n / (self.rate_hz * self.tau_acc_s))
-        lin_enu = rotate(q, acc).mean(0) - np.array([0.0, 0.0, 1.0])
-        self._lin_lp += k * (lin_enu[:2] - self._lin_lp)
+        e = _rotate1(q[-1].tolist(), lin.mean(0).tolist())
+        self._lin_lp[0] += k * (e[0] - self._lin_lp[0])
+        self._lin_lp[1] += k * (e[1] - self._lin_lp[1])
         if mag is None:
             return
-        nm = np.linalg.norm(mag, axis=1)
+        nm = np.sqrt(np.einsum("ij,ij->i", mag, mag))
         m = float(nm.mean())
         if self._mnorm is None:
             self._mnorm = m
         self._mnorm += (1.0 - math.exp(-n / (self.rate_hz * 20.0))) * (m - self._mnorm)
         km = 1.0 - math.exp(-n / (self.rate_hz * self.tau_mag_s))
         self._mvar += km * (float(np.mean((nm / self._mnorm - 1.0) ** 2)) - self._mvar)
-        me = rotate(q[-1], mag[-1])
+        me = _rotate1(q[-1].tolist(), mag[-1].tolist())
         self._dip_rad = math.atan2(-me[2], math.hypot(me[0], me[1]))
         self._rejected_s = (self._rejected_s + n / self.rate_hz) if dist[-1] else 0.0
 
     _dip_rad = 0.0
 
 
-def rotate_inv_rows(q) -> np.ndarray:
-    """Gravity's direction (+1 g up, as the accelerometer reads it at rest) in the body frame."""
-    from .quat import rotate_inv
-    return rotate_inv(q, np.array([0.0, 0.0, 1.0]))
+def _rotate1(q, v):
+    """One vector v (list) by one quaternion q (list [w, x, y, z]), body -> ENU, in floats."""
+    w, x, y, z = q
+    a, b, c = v
+    return (a * (1 - 2 * (y * y + z * z)) + b * 2 * (x * y - w * z) + c * 2 * (x * z + w * y),
+            a * 2 * (x * y + w * z) + b * (1 - 2 * (x * x + z * z)) + c * 2 * (y * z - w * x),
+            a * 2 * (x * z - w * y) + b * 2 * (y * z + w * x) + c * (1 - 2 * (x * x + y * y)))

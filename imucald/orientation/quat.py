@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["qmul", "qconj", "qnormalize", "rotate", "rotate_inv", "euler_deg", "compass_heading_deg",
+__all__ = ["qmul", "qconj", "qnormalize", "rotate", "rotate_inv", "up_in_body", "euler_deg", "compass_heading_deg",
            "gravity_free_g", "error_angles_rad", "rmse_deg"]
 
 
@@ -33,18 +33,40 @@ def qnormalize(q) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
+def _matrix_rows(q):
+    """The rotation matrix of q (body -> ENU), as nine arrays r00..r22 (row-major)."""
+    q = np.asarray(q, float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    return (1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
+            2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
+            2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy))
+
+
 def rotate(q, v) -> np.ndarray:
     """q * v * conj(q): a body-frame vector v in ENU (row by row)."""
-    q, v = np.asarray(q, float), np.asarray(v, float)
-    w = q[..., :1]
-    u = q[..., 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    r = _matrix_rows(q)
+    v = np.asarray(v, float)
+    a, b, c = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([r[0] * a + r[1] * b + r[2] * c, r[3] * a + r[4] * b + r[5] * c,
+                     r[6] * a + r[7] * b + r[8] * c], -1)
 
 
 def rotate_inv(q, v) -> np.ndarray:
     """conj(q) * v * q: an ENU vector v in the body frame."""
-    return rotate(qconj(q), v)
+    r = _matrix_rows(q)
+    v = np.asarray(v, float)
+    a, b, c = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([r[0] * a + r[3] * b + r[6] * c, r[1] * a + r[4] * b + r[7] * c,
+                     r[2] * a + r[5] * b + r[8] * c], -1)
+
+
+def up_in_body(q) -> np.ndarray:
+    """The ENU up axis (0, 0, 1) in the body frame: the third row of the rotation matrix."""
+    q = np.asarray(q, float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)
 
 
 def euler_deg(q) -> np.ndarray:
@@ -67,7 +89,7 @@ def compass_heading_deg(q) -> np.ndarray:
 def gravity_free_g(q, acc_g) -> np.ndarray:
     """Specific force minus gravity's share, body frame, g: acc_g - conj(q) * (0, 0, 1) * q.
     An accelerometer at rest reads +1 g up (specific force), so this is ~0 at rest."""
-    return np.asarray(acc_g, float) - rotate_inv(q, np.array([0.0, 0.0, 1.0]))
+    return np.asarray(acc_g, float) - up_in_body(q)
 
 
 def error_angles_rad(q_est, q_ref):

@@ -226,8 +226,8 @@ class OrientationFilter:
 
     def _run(self, acc, gyro, mag):
         """VQF over rows that are all finite: (q, lin_acc_g, mag_disturbed or None, bias sigma)."""
-        a = acc * G_MS2
-        w = np.radians(gyro)
+        a = np.ascontiguousarray(acc * G_MS2)        # VQF takes C-ordered m/s^2 and rad/s
+        w = np.ascontiguousarray(np.radians(gyro))
         if mag is not None:
             o = self.f.updateBatch(w, a, np.ascontiguousarray(mag))
             q, dist = o["quat9D"], o["magDistDetected"]

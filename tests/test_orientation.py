@@ -258,3 +258,27 @@ def test_a_converted_broad_trial_replays_with_q_on_every_sample_and_matches_the_
     assert ang.max() < 0.5, ang.max()        # its still intervals then refine VQF's bias
     assert tr["movement"].sum() > 1000
     assert broad.score(q, tr)[2] < 1.0
+
+
+def test_client_mqtt_and_watch_carry_q_and_read_roll_pitch_heading_off_it():
+    """The binary record decodes (imucald.client) to the NDJSON object's orientation fields;
+    roll, pitch and compass heading from q match the attitude built (roll 10, pitch -20 about
+    the fixed axes, then yaw 30 deg counter-clockwise from east: compass 60); the MQTT payload
+    and `imucald watch` add them.  Fails when attitude_deg returns ENU yaw instead of the
+    compass heading (checked)."""
+    from imucald.client import attitude_deg, decode_record
+    from imucald.cli.service import _with_attitude
+    from imucald.mqtt.topics import sample_payload
+    q_true = qmul(_axis_quat([0, 0, 1], 30), qmul(_axis_quat([0, 1, 0], -20), _axis_quat([1, 0, 0], 10)))
+    r, p, h = attitude_deg(q_true.tolist())
+    assert (r, p, h) == pytest.approx((10.0, -20.0, 60.0), abs=1e-9)
+    nd = _run(q_true, seconds=3.0)
+    bi = _run(q_true, seconds=3.0, fmt="binary")
+    dec = decode_record(bi[-1:].tobytes())
+    assert dec["q"] == pytest.approx(nd[-1]["q"], abs=1e-6) and dec["heading"] == nd[-1]["heading"]
+    assert dec["incl_std_deg"] == pytest.approx(nd[-1]["incl_std_deg"], rel=1e-2)
+    pay = sample_payload(nd[-1], 0.0)
+    assert (pay["roll_deg"], pay["pitch_deg"], pay["heading_deg"]) == pytest.approx((10, -20, 60), abs=1.0)
+    line = json.dumps(nd[-1], separators=(",", ":")) + "\n"
+    w = strict(_with_attitude(line))
+    assert w["heading_deg"] == pytest.approx(60, abs=1.0) and w["q"] == nd[-1]["q"]

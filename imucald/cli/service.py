@@ -242,9 +242,24 @@ def cmd_watch(args) -> int:
     f = s.makefile("rb")
     count = 0
     for line in f:
-        sys.stdout.write(line.decode(errors="replace"))
+        sys.stdout.write(_with_attitude(line.decode(errors="replace")))
         count += 1
         if args.count and count >= args.count:
             break
     return 0
+
+
+def _with_attitude(line: str) -> str:
+    """An IMU line carrying ``q`` gets roll_deg, pitch_deg and heading_deg (compass degrees
+    from magnetic north, or arbitrary as its ``heading`` says) appended; others unchanged."""
+    if '"q":' not in line or not line.startswith('{"class":"IMU"'):
+        return line
+    try:
+        q = json.loads(line)["q"]
+    except (ValueError, KeyError):
+        return line
+    from ..client import attitude_deg
+    r, p, h = attitude_deg(q)
+    body = line.rstrip()
+    return f'{body[:-1]},"roll_deg":{r:.2f},"pitch_deg":{p:.2f},"heading_deg":{h:.2f}}}\n'
 

@@ -24,7 +24,6 @@ Needs the orientation extra (vqf) and h5py.
 """
 import argparse
 import copy
-import os
 import sys
 import tempfile
 import time
@@ -46,7 +45,6 @@ ACCEPT_TOTAL_DEG, ACCEPT_INCL_DEG, ACCEPT_US = 2.1, 0.6, 20.0
 def run_pipeline(rec, cal=None, still_bias=True):
     """The recording through the daemon's pipeline as replay feeds it (batches of
     sensor.batch_s); returns the decoded binary records (q, incl_std, heading_std...)."""
-    from imucald.cli.service import _cat  # noqa: F401  (replay's helper; the same batching below)
     from imucald.daemon.config import DEFAULTS
     from imucald.daemon.outputs import BINARY_DTYPE
     from imucald.daemon.pipeline import Pipeline

@@ -17,9 +17,10 @@ NDJSON follows gpsd's habits: one object per line with a ``class`` field, a
 
 With orientation on (``output.orientation``, the ``orientation`` extra; issue 26) every IMU
 object also carries ``q`` [w, x, y, z] (unit quaternion, body -> ENU, REP-103) and
-``lin_acc_g`` [x, y, z] (gravity-free specific force, body frame, g), ``mag_disturbed``
-(bool, boards with a magnetometer), and per batch the same ``heading`` ("magnetic": north
-is magnetic north; "arbitrary": a 6D board, the heading is where the filter started),
+``lin_acc_g`` [x, y, z] (gravity-free specific force, body frame, g), and per batch the
+same ``heading`` ("magnetic": north is magnetic north; "arbitrary": a 6D board, the heading
+is where the filter started), ``mag_disturbed`` (boards with a magnetometer: the filter
+rejected the magnetometer as disturbed at some sample of the batch),
 ``incl_std_deg``, ``heading_std_deg`` (omitted when arbitrary) and ``q_cov_rad2`` (9 numbers,
 sensor_msgs/Imu ``orientation_covariance``).  The VERSION banner says ``"orientation":"on"``
 or ``"off"`` (with ``orientation_off``: why).
@@ -121,9 +122,11 @@ def orientation_extra(o) -> str:
         return ""
     h = o.get("heading_std_deg")
     cov = ",".join(f"{v:.4g}" for v in o["cov"])
+    md = o.get("mag_disturbed")
     return (f',"heading":"{o["heading"]}","incl_std_deg":{o["incl_std_deg"]:.3g}'
             + (f',"heading_std_deg":{h:.3g}' if h is not None and np.isfinite(h) else "")
-            + f',"q_cov_rad2":[{cov}]')
+            + f',"q_cov_rad2":[{cov}]'
+            + ("" if md is None else f',"mag_disturbed":{"true" if md.any() else "false"}'))
 
 
 def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str = "",
@@ -181,7 +184,6 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, e
         okO = fin(orient["q"]) & fin(orient["lin_acc_g"])
         OQ = np.round(orient["q"], 6).tolist()
         OL = np.round(orient["lin_acc_g"], 5).tolist()
-        MD = None if orient.get("mag_disturbed") is None else orient["mag_disturbed"].tolist()
     out = []
     if fmt == "csv":
         cell = lambda V, ok, i: V[i] if V is not None and ok[i] else ("", "", "")
@@ -206,9 +208,8 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, e
         if orient is None:
             oo = [""] * n
         else:
-            oo = [(f',"q":[{q[0]},{q[1]},{q[2]},{q[3]}],"lin_acc_g":[{la[0]},{la[1]},{la[2]}]' if ok else "")
-                  + ("" if MD is None else f',"mag_disturbed":{"true" if d else "false"}')
-                  for q, la, ok, d in zip(OQ, OL, okO, MD if MD is not None else okO)]
+            oo = [f',"q":[{q[0]},{q[1]},{q[2]},{q[3]}],"lin_acc_g":[{la[0]},{la[1]},{la[2]}]' if ok else ""
+                  for q, la, ok in zip(OQ, OL, okO)]
         tail = f',"cal":{cal_id}}}\n'
         out = [f'{{"class":"IMU","seq":{q},"t":{ts}{a}{g}{m}{tc}{o}{extra},"still":{"true" if st else "false"}{tail}'
                for q, ts, a, g, m, tc, o, st in zip(Q, TT, aa, gg, mm, tt, oo, S)]
@@ -221,6 +222,8 @@ _DEC = np.array([6, 6, 6, 6, 5, 5, 5, 3, 6, 6, 6])
 _POW = 10.0 ** _DEC
 #: and of the orientation columns [q (4), lin_acc_g (3)]
 _POW_O = 10.0 ** np.array([6, 6, 6, 6, 5, 5, 5])
+#: [t, acc, gyro, temp, q, lin_acc_g, mag] with orientation on
+_POW_Q = np.concatenate([_POW[:8], _POW_O, _POW[8:]])
 
 
 def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str = "",
@@ -229,6 +232,24 @@ def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str =
     usual case; a magnetometer row that is not fresh or not finite is left out), with a
     handful of numpy calls per batch rather than per field; None when the general path
     must look."""
+    if orient is not None:
+        # one array for everything: [t, acc, gyro, temp, q, lin_acc, mag]
+        cols = [t[:, None], acc, gyro, temp[:, None], orient["q"], orient["lin_acc_g"]]
+        X = np.concatenate(cols + ([mag] if mag is not None else []), 1)
+        fin = np.isfinite(X)
+        if not fin[:, :15].all():
+            return None
+        R = (np.rint(X * _POW_Q[:X.shape[1]]) / _POW_Q[:X.shape[1]]).tolist()
+        okM = fin[:, 15:].all(1).tolist() if mag is not None else None
+        tail = f',"cal":{cal_id}}}\n'
+        out = []
+        for i, (q, r, st) in enumerate(zip(seq.tolist(), R, still.tolist())):
+            m = f',"mag_gauss":[{r[15]},{r[16]},{r[17]}]' if okM is not None and okM[i] else ""
+            out.append(f'{{"class":"IMU","seq":{q},"t":{r[0]},"acc_g":[{r[1]},{r[2]},{r[3]}],'
+                       f'"gyro_dps":[{r[4]},{r[5]},{r[6]}]{m},"temp_c":{r[7]},'
+                       f'"q":[{r[8]},{r[9]},{r[10]},{r[11]}],"lin_acc_g":[{r[12]},{r[13]},{r[14]}]{extra},'
+                       f'"still":{"true" if st else "false"}{tail}')
+        return "".join(out).encode()
     cols = [t[:, None], acc, gyro, temp[:, None]] + ([mag] if mag is not None else [])
     X = np.concatenate(cols, 1)
     fin = np.isfinite(X)
@@ -239,21 +260,6 @@ def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str =
     okM = fin[:, 8:].all(1).tolist() if mag is not None else None
     tail = f',"cal":{cal_id}}}\n'
     out = []
-    if orient is not None:
-        O = np.concatenate([orient["q"], orient["lin_acc_g"]], 1)
-        if not np.isfinite(O).all():
-            return None
-        O = (np.rint(O * _POW_O) / _POW_O).tolist()
-        md = orient.get("mag_disturbed")
-        md = [""] * len(O) if md is None else [',"mag_disturbed":true' if d else ',"mag_disturbed":false'
-                                               for d in md.tolist()]
-        for i, (q, r, st, o, d) in enumerate(zip(seq.tolist(), R, still.tolist(), O, md)):
-            m = f',"mag_gauss":[{r[8]},{r[9]},{r[10]}]' if okM is not None and okM[i] else ""
-            out.append(f'{{"class":"IMU","seq":{q},"t":{r[0]},"acc_g":[{r[1]},{r[2]},{r[3]}],'
-                       f'"gyro_dps":[{r[4]},{r[5]},{r[6]}]{m},"temp_c":{r[7]},'
-                       f'"q":[{o[0]},{o[1]},{o[2]},{o[3]}],"lin_acc_g":[{o[4]},{o[5]},{o[6]}]{d}{extra},'
-                       f'"still":{"true" if st else "false"}{tail}')
-        return "".join(out).encode()
     for i, (q, r, st) in enumerate(zip(seq.tolist(), R, still.tolist())):
         m = f',"mag_gauss":[{r[8]},{r[9]},{r[10]}]' if okM is not None and okM[i] else ""
         out.append(f'{{"class":"IMU","seq":{q},"t":{r[0]},"acc_g":[{r[1]},{r[2]},{r[3]}],'

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import EX_CONFIG, UserError
 from . import quality
-from .quat import gravity_free_g, qmul, rotate
+from .quat import gravity_free_g, qmul
 
 __all__ = ["OrientationFilter", "OrientationUnavailable", "load_vqf", "unavailable_reason",
            "MISSING_EXTRA", "G_MS2"]
@@ -105,6 +105,7 @@ class OrientationFilter:
         self.tau_acc_s, self.tau_mag_s = float(p["tauAcc"]), float(p["tauMag"])
         self._sigma0_rad_s = math.radians(float(p["biasSigmaInit"]))
         self.acc_bias_se_g: Optional[np.ndarray] = None
+        self._acc_var: Optional[float] = None      #: sum of acc_bias_se_g squared, g^2
         self.mag_rel_floor = 0.0
         self._keys = (None, None, None)
         self.resets = 0
@@ -132,6 +133,7 @@ class OrientationFilter:
         elif a is None and acc_bias_tol_g is not None:
             se = np.asarray(acc_bias_tol_g, float) / 2.0
         self.acc_bias_se_g = se
+        self._acc_var = None if se is None else float(np.sum(se[np.isfinite(se)] ** 2))
         self.mag_rel_floor = float((m.quality or {}).get("heldout_rel_rms", 0.0) or 0.0) if m is not None else 0.0
         old, self._keys = self._keys, keys
         if old == keys:
@@ -176,13 +178,15 @@ class OrientationFilter:
         acc = np.asarray(acc_g, float)
         gyro = np.asarray(gyro_dps, float)
         n = len(acc)
-        ok = np.isfinite(acc).all(1) & np.isfinite(gyro).all(1)
-        allok = bool(ok.all())
+        allok = math.isfinite(float(acc.sum()) + float(gyro.sum()))     # the usual case, cheaply
+        ok = None if allok else (np.isfinite(acc).all(1) & np.isfinite(gyro).all(1))
         mag = None
         if self.has_mag and mag_gauss is not None:
             mag = np.asarray(mag_gauss, float)
-            good = np.isfinite(mag).all(1)
-            if not good.all():                     # sample-and-hold over rows without a reading
+            good = None if math.isfinite(float(mag.sum())) else np.isfinite(mag).all(1)
+            if good is None:
+                self._last_mag = mag[-1].copy()
+            elif not good.all():                   # sample-and-hold over rows without a reading
                 mag = mag.copy()
                 idx = np.where(good, np.arange(n), -1)
                 np.maximum.accumulate(idx, out=idx)
@@ -192,9 +196,9 @@ class OrientationFilter:
                     mag[~have] = self._last_mag
                     have[:] = True
                 good = have
-            if good.any():
+            if good is not None and good.any():
                 self._last_mag = mag[good][-1].copy()
-            if not good.all():
+            if good is not None and not good.all():
                 mag = None                         # none seen yet: these rows go without
         sig = self._sigma0_rad_s
         dist = None
@@ -211,7 +215,7 @@ class OrientationFilter:
         if self.has_mag and dist is None:
             dist = np.zeros(n, bool)
         magnetic = self.has_mag and self._mag_seen
-        tv = quality.tilt_var_rad2(self.acc_bias_se_g, sig, float(np.hypot(*self._lin_lp)),
+        tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),
                                    self.acc_noise_g, self.tau_acc_s, self.rate_hz)
         if magnetic:
             rel = max(math.sqrt(self._mvar), self.mag_rel_floor)
@@ -257,14 +261,14 @@ class OrientationFilter:
         self._lin_lp[1] += k * (e[1] - self._lin_lp[1])
         if mag is None:
             return
-        nm = np.sqrt(np.einsum("ij,ij->i", mag, mag))
-        m = float(nm.mean())
+        ml = mag[-1].tolist()               # one reading a batch (magnetometers run at 10-100 Hz)
+        m = math.sqrt(ml[0] * ml[0] + ml[1] * ml[1] + ml[2] * ml[2])
         if self._mnorm is None:
             self._mnorm = m
         self._mnorm += (1.0 - math.exp(-n / (self.rate_hz * 20.0))) * (m - self._mnorm)
         km = 1.0 - math.exp(-n / (self.rate_hz * self.tau_mag_s))
-        self._mvar += km * (float(np.mean((nm / self._mnorm - 1.0) ** 2)) - self._mvar)
-        me = _rotate1(q[-1].tolist(), mag[-1].tolist())
+        self._mvar += km * ((m / self._mnorm - 1.0) ** 2 - self._mvar)
+        me = _rotate1(q[-1].tolist(), ml)
         self._dip_rad = math.atan2(-me[2], math.hypot(me[0], me[1]))
         self._rejected_s = (self._rejected_s + n / self.rate_hz) if dist[-1] else 0.0
 

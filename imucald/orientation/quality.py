@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 from typing import Optional
 
-import numpy as np
 
 __all__ = ["tilt_var_rad2", "heading_var_rad2", "ros_covariance", "ARBITRARY_HEADING_VAR_RAD2"]
 
@@ -36,21 +35,20 @@ __all__ = ["tilt_var_rad2", "heading_var_rad2", "ros_covariance", "ARBITRARY_HEA
 ARBITRARY_HEADING_VAR_RAD2 = math.pi ** 2 / 3
 
 
-def tilt_var_rad2(acc_bias_se_g: Optional[np.ndarray], gyro_bias_sigma_rad_s: float,
+def tilt_var_rad2(acc_bias_var_g2: Optional[float], gyro_bias_sigma_rad_s: float,
                   lin_acc_lp_g: float, acc_noise_g: Optional[float], tau_acc_s: float,
                   rate_hz: float) -> float:
     """Variance of the total tilt error (both horizontal components), rad^2.
 
-    acc_bias_se_g: per-axis standard error of the accelerometer calibration's bias (g), or
-    None when unknown; its horizontal share is 2/3 of the total on average over orientations.
+    acc_bias_var_g2: the sum over the axes of the accelerometer calibration's squared bias
+    standard errors (g^2), or None when unknown; its horizontal share is 2/3 of the total on
+    average over orientations.
     gyro_bias_sigma_rad_s: the filter's own bias uncertainty (worst direction).
     lin_acc_lp_g: magnitude of the tau-low-passed horizontal gravity-free acceleration (g).
     acc_noise_g: one sample's accelerometer noise std (g), or None."""
     v = 2.0 * (gyro_bias_sigma_rad_s * tau_acc_s) ** 2 + lin_acc_lp_g ** 2
-    if acc_bias_se_g is not None:
-        se = np.asarray(acc_bias_se_g, float)
-        se = se[np.isfinite(se)]
-        v += 2.0 / 3.0 * float(np.sum(se ** 2))
+    if acc_bias_var_g2 is not None:
+        v += 2.0 / 3.0 * acc_bias_var_g2
     if acc_noise_g is not None:
         v += 2.0 * acc_noise_g ** 2 / (2.0 * tau_acc_s * rate_hz)
     return v

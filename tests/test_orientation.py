@@ -76,8 +76,8 @@ def test_a_board_at_rest_on_each_face_gives_gravity_up_in_enu_and_north_on_y(fac
     Tolerance: the tilt error of VQF at rest is the accelerometer noise averaged over its 3 s
     time constant (0.004 g / sqrt(300) ~ 0.01 deg); 0.5 deg also covers its not-yet-settled
     start.  Fails when the stream carries conj(q) (ENU -> body) or the filter is fed deg/s as
-    rad/s: checked by swapping rotate/rotate_inv in the filter's gravity-free acceleration and
-    by dropping np.radians in OrientationFilter._run (both fail here)."""
+    rad/s: checked by conjugating q in OrientationFilter._run (5 of the 6 faces fail) and by
+    dropping np.radians there (all 6 fail)."""
     q_true = qmul(_axis_quat([0, 0, 1], 30.0), FACES[face])     # heading turned 30 deg too
     imu = _run(q_true)
     last = imu[-100:]
@@ -225,8 +225,9 @@ def test_a_converted_broad_trial_replays_with_q_on_every_sample_and_matches_the_
     slow rotation) converted by bench/broad.py and replayed as a user would: q on every sample,
     the same q as VQF run alone on the SI data (to 0.001 deg, NDJSON's 6 decimals, until
     imucald's first still interval refines the bias; 0.5 deg after), and BROAD's inclination RMSE over the movement samples of the stretch
-    under 1 deg (the whole trial: 0.43 deg, SOURCE.md).  Fails when the pipeline feeds VQF in
-    the recording's units (g, deg/s): checked by removing G_MS2 from OrientationFilter._run."""
+    under 1 deg (the whole trial: 0.43 deg, SOURCE.md).  Fails when the pipeline feeds VQF the
+    recording's deg/s as rad/s: checked by dropping np.radians in OrientationFilter._run (the
+    accelerometer's unit is not checked here: VQF normalises it, only its rest thresholds see it)."""
     pytest.importorskip("h5py")
     from .conftest import real_path
     path = real_path("broad", "02_undisturbed_slow_rotation_B.hdf5")

@@ -18,7 +18,8 @@ through the daemon's pipeline as ``imucald replay`` runs it (binary stream, q de
    orientation error on the raw data vs after imucald's calibration fitted from the trial
    itself (gyro bias and accelerometer from its still phases, magnetometer from its rotation).
 
-Usage: python bench/orientation.py [--trials DIR] [--repeats N] [--skip-cpu] [--skip-study]
+Usage: python bench/orientation.py [--trials DIR] [--repeats N] [--mips M]
+       [--skip-accuracy] [--skip-cpu] [--skip-study]
        [--compare-still]   (also run the filter without imucald's still intervals)
 Needs the orientation extra (vqf) and h5py.
 """
@@ -87,6 +88,7 @@ def vqf_alone(tr, mag=True):
     o = f.updateBatch(np.ascontiguousarray(tr["gyr_rads"]), np.ascontiguousarray(tr["acc_ms2"]),
                       np.ascontiguousarray(tr["mag_ut"]) if mag else None)
     us = (time.process_time() - t0) / len(tr["acc_ms2"]) * 1e6
+    vqf_alone.rest = o["restDetected"]
     return o["quat9D" if mag else "quat6D"], us
 
 
@@ -103,7 +105,8 @@ def accuracy(paths, compare_still):
     print("1. accuracy, BROAD's metric (RMSE over the movement phase, deg), the pipeline as replay "
           "runs it; reference: Madgwick TAGP published | vqf alone on the SI data")
     hdr = (f"{'trial':<40} {'9D total':>8} {'head':>6} {'incl':>6} | {'6D incl':>7} | "
-           f"{'Madgwick tot/incl':>17} | {'vqf alone tot/incl':>18} | {'incl err/std':>12} {'<=2std':>6}")
+           f"{'Madgwick tot/incl':>17} | {'vqf alone tot/incl':>18} | {'incl err/std':>12} {'<=2std':>6} | "
+           f"{'still/rest':>10}")
     if compare_still:
         hdr += f" | {'no still-bias tot/incl':>22}"
     print(hdr)
@@ -115,37 +118,44 @@ def accuracy(paths, compare_still):
         s9, s6 = broad.score(r9["q"].astype(float), tr), broad.score(r6["q"].astype(float), tr)
         alone = broad.score(vqf_alone(tr)[0], tr)
         ratio, within = sigma_check(r9, tr)
+        # imucald's still flag vs VQF's own rest detection: the share of samples they agree on
+        agree = float(np.mean((r9["flags"] & 1).astype(bool) == vqf_alone.rest))
         ref = REFERENCE.get(tr["name"][:2], (np.nan,) * 4)
-        row = [*s9, s6[2], ref[0], ref[1], alone[0], alone[2], ratio, within]
+        row = [*s9, s6[2], ref[0], ref[1], alone[0], alone[2], ratio, within, agree]
         line = (f"{tr['name']:<40} {s9[0]:8.2f} {s9[1]:6.2f} {s9[2]:6.2f} | {s6[2]:7.2f} | "
-                f"{ref[0]:8.2f} / {ref[1]:<6.2f} | {alone[0]:8.2f} / {alone[2]:<7.2f} | {ratio:12.2f} {within:6.2f}")
+                f"{ref[0]:8.2f} / {ref[1]:<6.2f} | {alone[0]:8.2f} / {alone[2]:<7.2f} | {ratio:12.2f} {within:6.2f} | "
+                f"{agree:10.3f}")
         if compare_still:
             ns = broad.score(run_pipeline(broad.to_recording(tr), still_bias=False)["q"].astype(float), tr)
             row += [ns[0], ns[2]]
-            line += f" | {ns[0]:10.2f} / {ns[2]:<9.2f}"
+            line += f" | {ns[0]:10.3f} / {ns[2]:<9.3f}"
         rows.append(row)
         print(line, flush=True)
     R = np.array(rows)
     mu = R.mean(0)
     line = (f"{'mean of ' + str(len(rows)) + ' trials':<40} {mu[0]:8.2f} {mu[1]:6.2f} {mu[2]:6.2f} | {mu[3]:7.2f} | "
-            f"{mu[4]:8.2f} / {mu[5]:<6.2f} | {mu[6]:8.2f} / {mu[7]:<7.2f} | {mu[8]:12.2f} {mu[9]:6.2f}")
+            f"{mu[4]:8.2f} / {mu[5]:<6.2f} | {mu[6]:8.2f} / {mu[7]:<7.2f} | {mu[8]:12.2f} {mu[9]:6.2f} | "
+            f"{mu[10]:10.3f}")
     if compare_still:
-        line += f" | {mu[10]:10.2f} / {mu[11]:<9.2f}"
+        line += f" | {mu[11]:10.3f} / {mu[12]:<9.3f}"
     print(line)
+    print(f"  mean 9D with more digits: total {mu[0]:.3f}, heading {mu[1]:.3f}, inclination {mu[2]:.3f} deg")
     ok = mu[0] <= ACCEPT_TOTAL_DEG and mu[2] <= ACCEPT_INCL_DEG
     print(f"acceptance (9D mean total <= {ACCEPT_TOTAL_DEG}, inclination <= {ACCEPT_INCL_DEG} deg): "
           f"{'met' if ok else 'NOT met'}")
     return R
 
 
-def cpu(paths, repeats):
+def cpu(paths, repeats, mips=None):
     import budget
     import pipeline
     print("\n2. CPU per sample")
     tr = broad.load(paths[0])
     us = float(np.median([vqf_alone(tr)[1] for _ in range(repeats)]))
     print(f"  the filter alone (vqf updateBatch, 9D, {len(tr['acc_ms2'])} samples): {us:.2f} us/sample")
-    here = budget.mips_here()
+    here = mips or budget.mips_here()
+    if here is None:
+        print("  (7z is not installed and --mips was not given: no Pi columns; apt install p7zip-full)")
     fac = {k: here / v for k, v in budget.PI_MIPS.items()} if here else {}
     with tempfile.TemporaryDirectory() as tmp:
         for board in ("mpu6050", "mpu9250"):
@@ -194,24 +204,33 @@ def miscalibrated(rec, e):
 def self_calibration(rec, seed):
     """imucald's calibration from the recording itself, as ``imucald calibrate`` fits it: the
     gyro bias from the still poses (--sensor gyro, model mean), the magnetometer from the
-    rotation cloud (--sensor mag, mag_sym), the accelerometer from the still poses when there
-    are the 10 it needs (--sensor accel); returns (Calibration, what was fitted)."""
+    rotation cloud (--sensor mag, mag_sym) when the rotation covers the share of the sphere
+    the daemon waits for (calibration.mag_min_coverage, 50 %), the accelerometer from the
+    still poses when there are the 10 it needs (--sensor accel); returns (Calibration, what
+    was fitted or why not)."""
     from imucald.calib.fit import fit_gyro_bias, fit_norm
     from imucald.calib.magcal import calibrate_rotation
     from imucald.calib.poses import poses_and_pieces
     from imucald.calibration import Calibration, SensorCal
     poses, _ = poses_and_pieces(rec)
     parts, what = {}, []
-    if len(poses) >= 10:
-        parts["accel"] = SensorCal.from_fit(fit_norm(poses.acc, "triangular9", "ga", pose_cov=poses.acc_cov, rng=seed))
-        what.append("accel")
     if len(poses):
         parts["gyro"] = SensorCal.from_fit(fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov))
         what.append(f"gyro bias ({len(poses)} still pose{'s' if len(poses) > 1 else ''})")
+    if len(poses) >= 10:
+        parts["accel"] = SensorCal.from_fit(fit_norm(poses.acc, "triangular9", "ga", pose_cov=poses.acc_cov, rng=seed))
+        what.append("accel")
+    else:
+        what.append(f"accel: not fitted ({len(poses)} poses < 10)")
+    from imucald.daemon.config import DEFAULTS
+    need = DEFAULTS["calibration"]["mag_min_coverage"]
     res = calibrate_rotation(rec.mag, "mag_sym", "ga", rng=seed)
-    if res["determined"]:
+    cov = res["coverage"]["fraction"]
+    if res["determined"] and cov >= need:
         parts["mag"] = SensorCal.from_fit(res["calibration"])
-        what.append("mag")
+        what.append(f"mag ({cov:.0%} of the sphere)")
+    else:
+        what.append(f"mag: not fitted ({cov:.0%} of the sphere < {need:.0%})")
     return Calibration(rec.meta.get("board", "unknown"), {}, id=1, **parts), what
 
 
@@ -240,7 +259,9 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--trials", default=broad.BROAD_DIR, help="directory of BROAD .hdf5 trials")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--skip-accuracy", action="store_true")
     ap.add_argument("--skip-cpu", action="store_true")
+    ap.add_argument("--mips", type=float, help="this machine's 7z b -mmt1 rating (bench/budget.py)")
     ap.add_argument("--skip-study", action="store_true")
     ap.add_argument("--seed", type=int, default=26, help="seed of the miscalibrations drawn")
     ap.add_argument("--compare-still", action="store_true",
@@ -250,9 +271,10 @@ def main():
     if not paths:
         print(f"no BROAD trials in {a.trials}")
         return 1
-    accuracy(paths, a.compare_still)
+    if not a.skip_accuracy:
+        accuracy(paths, a.compare_still)
     if not a.skip_cpu:
-        cpu(paths, a.repeats)
+        cpu(paths, a.repeats, a.mips)
     if not a.skip_study:
         study(paths, a.seed)
     return 0

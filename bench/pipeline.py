@@ -194,6 +194,19 @@ def main():
                 us = float(np.median([c for c, _ in cs]))
                 print(f"  {board:<8} {rate:5d} Hz {fmt:<7} {us:6.1f} us/sample -> highest sustained "
                       f"rate {1e6 / us:8.0f} Hz ({cs[0][1]} samples)")
+        # with the orientation filter (issue 26, the orientation extra): q, gravity-free
+        # acceleration and their uncertainty in every sample
+        try:
+            import vqf  # noqa: F401
+            have_vqf = True
+        except ImportError:
+            have_vqf = False
+            print("  (orientation rows left out: the orientation extra (vqf) is not installed)")
+        for board in ("mpu6050", "mpu9250") if have_vqf else ():
+            for fmt in ("ndjson", "binary"):
+                us = float(np.median([cost(board, 1000, args.seconds, fmt, tmp, orientation=True)[0]
+                                      for _ in range(args.repeats)]))
+                print(f"  {board:<8}  1000 Hz {fmt:<7} {us:6.1f} us/sample with orientation (issue 26: <= 20)")
         # with thermal terms applied (order 3 accelerometer bias + scale, order 3 gyro bias)
         for fmt in ("ndjson", "binary"):
             us = float(np.median([cost("mpu6050", 1000, args.seconds, fmt, tmp, thermal=True)[0]

@@ -283,3 +283,33 @@ def test_client_mqtt_and_watch_carry_q_and_read_roll_pitch_heading_off_it():
     line = json.dumps(nd[-1], separators=(",", ":")) + "\n"
     w = strict(_with_attitude(line))
     assert w["heading_deg"] == pytest.approx(60, abs=1.0) and w["q"] == nd[-1]["q"]
+
+
+def test_apply_writes_the_orientation_of_every_corrected_sample(tmp_path):
+    """`imucald apply CAL REC -o OUT --orientation Q.csv` on a 6D board at rest on its +y face:
+    a row per sample, gravity up in ENU through q (0.5 deg, as the face test), the heading
+    standard deviation empty (arbitrary).  Fails when apply feeds the filter the uncorrected
+    samples: checked by passing ``rec`` instead of ``out`` to write_orientation (the 0.05 g
+    accelerometer bias of the recording then tilts q by ~2.9 deg)."""
+    from imucald.calibration import save
+    from imucald.cli import main
+    from imucald.recording import Recording, write_recording
+    rng = np.random.default_rng(1)
+    n = 400
+    bias = np.array([0.05, 0.0, 0.0])          # what the calibration removes
+    up = rotate_inv(FACES["+y up"], [0.0, 0.0, 1.0])
+    rec = Recording(np.arange(n) / RATE_HZ, up + bias + rng.normal(0, SIG_A, (n, 3)),
+                    rng.normal(0, SIG_G, (n, 3)), meta={"board": "mpu6050", "rate_hz": "100"})
+    write_recording(rec, tmp_path / "r.csv")
+    acc = SensorCal.accel("triangular9", [0, 0, 0, 1, 1, 1, *bias], [1e-4] * 9)
+    save(Calibration("mpu6050", {}, id=1, accel=acc), tmp_path / "cal.yaml")
+    assert main(["apply", str(tmp_path / "cal.yaml"), str(tmp_path / "r.csv"), "-o", str(tmp_path / "c.csv"),
+                 "--orientation", str(tmp_path / "q.csv")]) == 0
+    lines = (tmp_path / "q.csv").read_text().splitlines()
+    assert lines[0].startswith("# ") and "heading arbitrary" in lines[0]
+    assert lines[1] == "t,qw,qx,qy,qz,lax,lay,laz,incl_std_deg,heading_std_deg"
+    rows = [l.split(",") for l in lines[2:]]
+    assert len(rows) == n and all(r[-1] == "" for r in rows)
+    q = np.array([[float(x) for x in r[1:5]] for r in rows[-50:]])
+    tilt = np.degrees(np.arccos(np.clip(rotate(q, up)[:, 2], -1, 1)))
+    assert tilt.max() < 0.5, tilt.max()

@@ -98,6 +98,9 @@ def _add_apply(ap) -> None:
     ap.add_argument("calibration", help="calibration file (calibrate -o, or the daemon's state)")
     ap.add_argument("recording")
     ap.add_argument("-o", "--output", required=True, help="corrected recording to write")
+    ap.add_argument("--orientation", metavar="FILE",
+                    help="also write the orientation of the corrected samples to this CSV table "
+                         "(the orientation extra)")
     ap.set_defaults(func=_command("thermal", "cmd_apply"))
 
 

@@ -105,6 +105,8 @@ def cmd_replay(args) -> int:
         seq0, prev_mag, pending = 0, None, []
         for chunk in reader.chunks():
             n = len(chunk)
+            if seq0 == 0:
+                pipe.orientation_rate_from(chunk.t)
             gyro, temp = chunk.gyro, chunk.temp      # None (omitted from the stream) when absent
             fresh = None
             if has_mag:         # a new magnetometer reading differs from the one before it

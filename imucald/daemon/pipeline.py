@@ -241,6 +241,18 @@ class Pipeline:
         self._orient_cal = None
         self.orientation_off = None
 
+    def orientation_rate_from(self, t_s) -> None:
+        """Replay: the filter integrates at the rate the recording's timestamps show (their
+        median step) when it differs from its header's rate_hz by more than 1 %; called with
+        the first block's times, before any sample reached the filter."""
+        if self.orient is None or len(t_s) < 3 or self.samples:
+            return
+        dt = float(np.median(np.diff(t_s)))
+        if dt > 0 and abs(1.0 / dt / self.rate_hz - 1.0) > 0.01:
+            log.info("orientation: the timestamps step %.6g s (%.6g Hz), the header says %.6g Hz: "
+                     "the filter integrates at %.6g Hz", dt, 1.0 / dt, self.rate_hz, 1.0 / dt)
+            self.orient.set_rate(1.0 / dt)
+
     def _orientation(self, b, keep, tb, acc, gyro, mag, intervals):
         """Feed the filter this batch's calibrated samples, every one of them (decimation thins
         the stream only); returns its output for the kept rows, or None without a gyro."""

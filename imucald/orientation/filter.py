@@ -100,7 +100,8 @@ class OrientationFilter:
         self.has_mag = bool(has_mag)
         self.acc_noise_g = acc_noise_g
         #: VQF's defaults unless overridden (its parameter names, e.g. tauAcc)
-        self.f = vqf.VQF(1.0 / self.rate_hz, **dict(params or {}))
+        self._params = dict(params or {})
+        self.f = vqf.VQF(1.0 / self.rate_hz, **self._params)
         p = self.f.params
         self.tau_acc_s, self.tau_mag_s = float(p["tauAcc"]), float(p["tauMag"])
         self._sigma0_rad_s = math.radians(float(p["biasSigmaInit"]))
@@ -118,6 +119,14 @@ class OrientationFilter:
         self._rejected_s = 0.0
         self._mag_seen = False
         self._last_mag: Optional[np.ndarray] = None
+
+    def set_rate(self, rate_hz: float) -> None:
+        """A new sample rate (before the first sample: the state is started afresh)."""
+        vqf = load_vqf()
+        self.rate_hz = float(rate_hz)
+        self.f = vqf.VQF(1.0 / self.rate_hz, **self._params)
+        self._keys = (None, None, None)
+        self._clear_quality()
 
     # -- the calibration in force ---------------------------------------------------------
     def use_calibration(self, cal, acc_bias_tol_g=None) -> Optional[str]:

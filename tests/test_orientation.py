@@ -43,15 +43,17 @@ FACES = {"+z up": _axis_quat([1, 0, 0], 0), "-z up": _axis_quat([1, 0, 0], 180),
          "+y up": _axis_quat([1, 0, 0], 90), "-y up": _axis_quat([1, 0, 0], -90)}
 
 
-def _run(q_true, seconds=6.0, mag=True, fmt="ndjson", seed=0, cal=None):
-    """A board at rest in attitude q_true through the daemon's pipeline; the IMU objects."""
+def _run(q_true, seconds=6.0, mag=True, fmt="ndjson", seed=0, cal=None, decimate=1, turn_dps=0.0):
+    """A board at rest in attitude q_true (turning about the vertical at turn_dps) through the
+    daemon's pipeline; the IMU objects."""
     rng = np.random.default_rng(seed)
     n = int(seconds * RATE_HZ)
     acc = rotate_inv(q_true, [0.0, 0.0, 1.0]) + rng.normal(0, SIG_A, (n, 3))
-    gyro = rng.normal(0, SIG_G, (n, 3))
+    gyro = rng.normal(0, SIG_G, (n, 3)) + rotate_inv(q_true, [0.0, 0.0, turn_dps])
     m = rotate_inv(q_true, M_ENU) + rng.normal(0, SIG_M, (n, 3)) if mag else None
     cfg = copy.deepcopy(DEFAULTS)
     cfg["output"]["format"] = fmt
+    cfg["output"]["decimate"] = decimate
     pipe = Pipeline(cfg, "mpu9250" if mag else "mpu6050", RATE_HZ, mag,
                     chips={"accel": "mpu9250" if mag else "mpu6050"})
     if cal is not None:
@@ -313,3 +315,16 @@ def test_apply_writes_the_orientation_of_every_corrected_sample(tmp_path):
     q = np.array([[float(x) for x in r[1:5]] for r in rows[-50:]])
     tilt = np.degrees(np.arccos(np.clip(rotate(q, up)[:, 2], -1, 1)))
     assert tilt.max() < 0.5, tilt.max()
+
+
+def test_decimation_thins_the_stream_not_the_filters_input():
+    """output.decimate 4: every 4th sample is streamed, with the same q as without decimation
+    (the filter still integrates every sample; the board turns at 30 deg/s about the vertical,
+    6D, so a filter fed every 4th sample at the full rate's step would lag by 3/4 of the turn).
+    Fails when the hook feeds the filter the kept rows only: checked by making
+    Pipeline._orientation return f.update(acc, gyro, mag) regardless of ``keep``."""
+    full = _run(FACES["+z up"], seconds=3.0, mag=False, turn_dps=30.0)
+    dec = _run(FACES["+z up"], seconds=3.0, mag=False, turn_dps=30.0, decimate=4)
+    assert [o["seq"] for o in dec] == [o["seq"] for o in full][::4]
+    by = {o["seq"]: o["q"] for o in full}
+    assert all(o["q"] == pytest.approx(by[o["seq"]], abs=2e-6) for o in dec)

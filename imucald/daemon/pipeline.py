@@ -547,6 +547,11 @@ class Pipeline:
         if self.reservoir is not None:
             d["mag_coverage"] = self.reservoir.coverage()
         d["thermal"] = self.thermal_status()
+        d["orientation"] = "on" if self.orient is not None else "off"     # issue 26
+        if self.orient is None:
+            d["orientation_off"] = self.orientation_off
+        else:
+            d["orientation_resets"] = self.orient.resets
         if self.events:
             d["last_event"] = self.events[-1]
         return d

@@ -60,11 +60,14 @@ GYRO_ROT = {"matrix": np.array([1.01, 0.004, -0.003, 0.002, 0.995, 0.006, -0.005
             "g_sens_dps_per_g": np.array([0.05, -0.02, 0.01, 0.03, -0.06, 0.02, -0.01, 0.04, 0.05])}
 
 
-def cost(board, rate, seconds, fmt, tmp, thermal=False, gyro_rot=False):
+def cost(board, rate, seconds, fmt, tmp, thermal=False, gyro_rot=False, orientation=False):
+    """CPU per sample (us) and samples; ``orientation``: the orientation filter on (issue 26,
+    the orientation extra), else off as without the extra."""
     cfg = copy.deepcopy(DEFAULTS)
     cfg["output"]["format"] = fmt
     bs = batches(board, rate, seconds)
     pipe = Pipeline(cfg, board, rate, board in ("9dof", "mpu9250"))
+    pipe.use_orientation("yes" if orientation else "no")
     poly = np.array([[5e-4, -4e-4, 3e-4], [1e-5, 2e-6, -3e-6], [1e-7, -1e-7, 2e-7]])
     ta = dict(THERMAL, bias_poly_g=poly, scale_poly=np.array([[1e-4, -1e-4, 5e-5]])) if thermal else None
     tg = dict(THERMAL, bias_poly_dps=poly * 40) if thermal else None
@@ -191,6 +194,19 @@ def main():
                 us = float(np.median([c for c, _ in cs]))
                 print(f"  {board:<8} {rate:5d} Hz {fmt:<7} {us:6.1f} us/sample -> highest sustained "
                       f"rate {1e6 / us:8.0f} Hz ({cs[0][1]} samples)")
+        # with the orientation filter (issue 26, the orientation extra): q, gravity-free
+        # acceleration and their uncertainty in every sample
+        try:
+            import vqf  # noqa: F401
+            have_vqf = True
+        except ImportError:
+            have_vqf = False
+            print("  (orientation rows left out: the orientation extra (vqf) is not installed)")
+        for board in ("mpu6050", "mpu9250") if have_vqf else ():
+            for fmt in ("ndjson", "binary"):
+                us = float(np.median([cost(board, 1000, args.seconds, fmt, tmp, orientation=True)[0]
+                                      for _ in range(args.repeats)]))
+                print(f"  {board:<8}  1000 Hz {fmt:<7} {us:6.1f} us/sample with orientation (issue 26: <= 20)")
         # with thermal terms applied (order 3 accelerometer bias + scale, order 3 gyro bias)
         for fmt in ("ndjson", "binary"):
             us = float(np.median([cost("mpu6050", 1000, args.seconds, fmt, tmp, thermal=True)[0]

@@ -2,10 +2,11 @@
 
 Allowed direction (an arrow: "may import"):
 
-    cli -> daemon, gap, sim, drivers, calib, mqtt (the top: it builds and wires everything)
+    cli -> daemon, gap, sim, drivers, calib, mqtt, orientation (the top: it builds and wires everything)
     mqtt -> daemon                               (the bridge reads the daemon's config and control socket)
     gap -> sim, calib                            (diagnosis re-simulates and refits)
-    daemon -> drivers, calib                     (the production path: never sim or gap)
+    daemon -> drivers, calib, orientation        (the production path: never sim or gap)
+    orientation -> (none of these)               (the filter shell and quaternion math, issue 26)
     sim -> drivers, calib                        (the emulated chips share the drivers' register maps)
     drivers -> (none of these)
     calib -> (none of these)
@@ -21,12 +22,13 @@ import os
 import pytest
 
 ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "imucald")
-PACKAGES = ("calib", "sim", "drivers", "daemon", "gap", "cli", "mqtt")
+PACKAGES = ("calib", "sim", "drivers", "daemon", "gap", "cli", "mqtt", "orientation")
 ALLOWED = {
-    "cli": {"daemon", "gap", "sim", "drivers", "calib", "mqtt"},
+    "cli": {"daemon", "gap", "sim", "drivers", "calib", "mqtt", "orientation"},
     "mqtt": {"daemon"},
     "gap": {"sim", "calib"},
-    "daemon": {"drivers", "calib"},
+    "daemon": {"drivers", "calib", "orientation"},
+    "orientation": set(),
     "sim": {"drivers", "calib"},
     "drivers": set(),
     "calib": set(),

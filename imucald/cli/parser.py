@@ -98,6 +98,9 @@ def _add_apply(ap) -> None:
     ap.add_argument("calibration", help="calibration file (calibrate -o, or the daemon's state)")
     ap.add_argument("recording")
     ap.add_argument("-o", "--output", required=True, help="corrected recording to write")
+    ap.add_argument("--orientation", metavar="FILE",
+                    help="also write the orientation of the corrected samples to this CSV table "
+                         "(the orientation extra)")
     ap.set_defaults(func=_command("thermal", "cmd_apply"))
 
 
@@ -147,6 +150,8 @@ def _add_run(rn) -> None:
     rn.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N")
     rn.add_argument("--format", choices=_choices("output.format"))
     rn.add_argument("--fifo", help="also stream to this FIFO")
+    rn.add_argument("--orientation", choices=_choices("output.orientation"),
+                    help="orientation in the stream (the orientation extra): auto, yes, no")
     rn.add_argument("--method", choices=_choices("calibration.method"))
     rn.add_argument("--min-poses", type=int)
     g = rn.add_mutually_exclusive_group()
@@ -168,6 +173,8 @@ def _add_replay(rp) -> None:
     rp.add_argument("--state-dir", help="save the calibration reached as DIR/calibration.yaml")
     rp.add_argument("--config")
     rp.add_argument("--format", choices=_choices("output.format"))
+    rp.add_argument("--orientation", choices=_choices("output.orientation"),
+                    help="orientation in the stream (the orientation extra): auto, yes, no")
     rp.add_argument("--method", choices=_choices("calibration.method"))
     rp.add_argument("--min-poses", type=int)
     rp.add_argument("--log-level", choices=_choices("log.level"))

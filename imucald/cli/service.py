@@ -24,6 +24,7 @@ def _overrides(args):
                             ("bus", "sensor.bus", "--bus"), ("state_dir", "state.directory", "--state-dir"),
                             ("runtime_dir", "runtime.directory", "--runtime-dir"),
                             ("format", "output.format", "--format"), ("fifo", "output.fifo", "--fifo"),
+                            ("orientation", "output.orientation", "--orientation"),
                             ("method", "calibration.method", "--method"),
                             ("min_poses", "calibration.min_poses", "--min-poses"),
                             ("log_level", "log.level", "--log-level")):
@@ -91,6 +92,7 @@ def cmd_replay(args) -> int:
         pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag, chips=chips,
                         has_acc=has_acc)
         pipe.use_noise_file(cfg["noise"]["file"])
+        pipe.use_orientation(cfg["output"]["orientation"], has_gyro="gx" in cols)
         if args.state_dir:      # as the daemon at start: from the calibration saved there
             cal = _replay_start(args.state_dir, pipe.board, chips)
             if cal is not None:
@@ -98,11 +100,13 @@ def cmd_replay(args) -> int:
                 logging.getLogger("imucald").info("starting from calibration #%d (%s)", cal.id, cal.created)
         out = sys.stdout.buffer
         from ..daemon.outputs import banner
-        out.write(banner(cfg["output"]["format"], pipe.board, chips or None))
+        out.write(banner(cfg["output"]["format"], pipe.board, chips or None, pipe.orientation_off))
         step = max(1, int(round(cfg["sensor"]["batch_s"] * rate_hz)))
         seq0, prev_mag, pending = 0, None, []
         for chunk in reader.chunks():
             n = len(chunk)
+            if seq0 == 0:
+                pipe.orientation_rate_from(chunk.t)
             gyro, temp = chunk.gyro, chunk.temp      # None (omitted from the stream) when absent
             fresh = None
             if has_mag:         # a new magnetometer reading differs from the one before it
@@ -240,9 +244,24 @@ def cmd_watch(args) -> int:
     f = s.makefile("rb")
     count = 0
     for line in f:
-        sys.stdout.write(line.decode(errors="replace"))
+        sys.stdout.write(_with_attitude(line.decode(errors="replace")))
         count += 1
         if args.count and count >= args.count:
             break
     return 0
+
+
+def _with_attitude(line: str) -> str:
+    """An IMU line carrying ``q`` gets roll_deg, pitch_deg and heading_deg (compass degrees
+    from magnetic north, or arbitrary as its ``heading`` says) appended; others unchanged."""
+    if '"q":' not in line or not line.startswith('{"class":"IMU"'):
+        return line
+    try:
+        q = json.loads(line)["q"]
+    except (ValueError, KeyError):
+        return line
+    from ..client import attitude_deg
+    r, p, h = attitude_deg(q)
+    body = line.rstrip()
+    return f'{body[:-1]},"roll_deg":{r:.2f},"pitch_deg":{p:.2f},"heading_deg":{h:.2f}}}\n'
 

@@ -110,6 +110,9 @@ def cmd_apply(args) -> int:
     each sample at its own temperature (thermal terms)."""
     from ..calibration import load
     from ..recording import Recording, read_recording, write_recording
+    if getattr(args, "orientation", None):          # the extra missing: say so before writing
+        from ..orientation import load_vqf
+        load_vqf()
     cal = load(args.calibration)
     rec = read_recording(args.recording)
     board = rec.meta.get("board", "unknown")
@@ -147,4 +150,8 @@ def cmd_apply(args) -> int:
     except OSError as e:
         raise CannotCreate(f"-o {args.output}: cannot write: {e.strerror}") from None
     eprint(f"imucald: wrote {args.output}: {len(rec)} samples, {', '.join(got)} corrected")
+    if getattr(args, "orientation", None):          # issue 26: cli/orientation.py
+        from .orientation import write_orientation
+        h = write_orientation(out, cal, args.orientation, args.recording)
+        eprint(f"imucald: wrote {args.orientation}: orientation of every sample (heading {h})")
     return 0

@@ -78,6 +78,9 @@ SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
     "output.decimate": (1, "int", (1, 1000)),
     # per-sample variances in the NDJSON stream (acc_var_g2, gyro_var_dps2); needs noise.file
     "output.covariance": (False, "choice", (False, True)),
+    # orientation (q, gravity-free acc, its uncertainty) in every IMU object: auto = when the
+    # orientation extra is installed and the board has a gyro; yes = required (else a config error)
+    "output.orientation": ("auto", "choice", ("auto", "yes", "no")),
     "control.socket": ("control.sock", "str", None),
     "control.socket_mode": ("0660", "mode", None),
     "control.socket_group": (None, "str?", None),

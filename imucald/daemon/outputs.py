@@ -15,10 +15,22 @@ NDJSON follows gpsd's habits: one object per line with a ``class`` field, a
 ``class: "GAP"``: seq (first missing), missing (count).
 ``class: "CAL"``: id, accel/gyro/mag held-out residuals before and after.
 
-Binary record, little-endian, 64 bytes (struct ``<QdIB3x3f3ff3f``, see
-:data:`BINARY_FORMAT`): seq u64, t f64, cal u32, flags u8 (bit 0 still,
-bit 1 magnetometer present), 3 pad bytes, acc_g 3 x f32, gyro_dps 3 x f32,
-temp_c f32, mag_gauss 3 x f32 (NaN when absent).
+With orientation on (``output.orientation``, the ``orientation`` extra; issue 26) every IMU
+object also carries ``q`` [w, x, y, z] (unit quaternion, body -> ENU, REP-103) and
+``lin_acc_g`` [x, y, z] (gravity-free specific force, body frame, g), and per batch the
+same ``heading`` ("magnetic": north is magnetic north; "arbitrary": a 6D board, the heading
+is where the filter started), ``mag_disturbed`` (boards with a magnetometer: the filter
+rejected the magnetometer as disturbed at some sample of the batch),
+``incl_std_deg``, ``heading_std_deg`` (omitted when arbitrary) and ``q_cov_rad2`` (9 numbers,
+sensor_msgs/Imu ``orientation_covariance``).  The VERSION banner says ``"orientation":"on"``
+or ``"off"`` (with ``orientation_off``: why).
+
+Binary record version 2, little-endian, 100 bytes (struct ``<QdIB3x3f3ff3f4f3fff``, see
+:data:`BINARY_FORMAT`; the banner names it as ``record``): seq u64, t f64, cal u32, flags u8
+(bit 0 still, bit 1 magnetometer present, bit 2 orientation present, bit 3 heading magnetic,
+bit 4 magnetometer disturbed), 3 pad bytes, acc_g 3 x f32, gyro_dps 3 x f32, temp_c f32,
+mag_gauss 3 x f32, q 4 x f32 [w, x, y, z], lin_acc_g 3 x f32, incl_std_deg f32,
+heading_std_deg f32 (NaN when absent).  Version 1 (64 bytes) ended after mag_gauss.
 
 Sinks never block the sampler: sockets and the FIFO are non-blocking, every
 client has a bounded buffer, and a client that falls behind it is dropped and
@@ -40,23 +52,44 @@ import numpy as np
 from .. import __version__
 
 __all__ = ["encode_samples", "banner", "event", "SocketSink", "FifoSink", "BINARY_FORMAT",
-           "PROTO_MAJOR", "PROTO_MINOR", "CSV_HEADER"]
+           "BINARY_DTYPE", "BINARY_VERSION", "PROTO_MAJOR", "PROTO_MINOR", "CSV_HEADER",
+           "CSV_ORIENTATION", "orientation_extra"]
 
-PROTO_MAJOR, PROTO_MINOR = 1, 0
-BINARY_FORMAT = struct.Struct("<QdIB3x3f3ff3f")
+#: minor 1: orientation fields (additive in NDJSON and CSV; the binary record is version 2)
+PROTO_MAJOR, PROTO_MINOR = 1, 1
+BINARY_FORMAT = struct.Struct("<QdIB3x3f3ff3f4f3fff")
+BINARY_VERSION = 2
+#: the record as a numpy dtype (the same layout as BINARY_FORMAT)
+BINARY_DTYPE = np.dtype([("seq", "<u8"), ("t", "<f8"), ("cal", "<u4"), ("flags", "u1"), ("pad", "u1", 3),
+                         ("acc", "<f4", 3), ("gyro", "<f4", 3), ("temp", "<f4"), ("mag", "<f4", 3),
+                         ("q", "<f4", 4), ("lin_acc", "<f4", 3), ("incl_std", "<f4"),
+                         ("heading_std", "<f4")])
+FLAG_STILL, FLAG_MAG, FLAG_ORIENT, FLAG_HEADING_MAGNETIC, FLAG_MAG_DISTURBED = 1, 2, 4, 8, 16
 CSV_HEADER = "seq,t,ax,ay,az,gx,gy,gz,mx,my,mz,temp,still,cal\n"
+#: columns CSV adds with orientation on
+CSV_ORIENTATION = ",qw,qx,qy,qz,lax,lay,laz,incl_std_deg,heading_std_deg"
 
 
-def banner(fmt: str, board: str, chips: Optional[dict] = None) -> bytes:
+def banner(fmt: str, board: str, chips: Optional[dict] = None,
+           orientation: Optional[str] = None) -> bytes:
     """The VERSION line: release, protocol, format, board and (when known) its chips by
-    role, e.g. {"accel": "adxl345", "gyro": "itg3200", "mag": "qmc5883l"}."""
+    role, e.g. {"accel": "adxl345", "gyro": "itg3200", "mag": "qmc5883l"}; ``orientation``
+    None: on, else why it is off (``"orientation":"off","orientation_off":why``); binary
+    streams name their record (version, bytes, struct)."""
     d = {"class": "VERSION", "release": __version__, "proto_major": PROTO_MAJOR,
          "proto_minor": PROTO_MINOR, "format": fmt, "board": board}
     if chips:
         d["chips"] = chips
+    d["orientation"] = "on" if orientation is None else "off"
+    if orientation is not None:
+        d["orientation_off"] = orientation
+    if fmt == "binary":
+        d["record"] = {"version": BINARY_VERSION, "bytes": BINARY_FORMAT.size,
+                       "struct": BINARY_FORMAT.format}
     line = json.dumps(d, separators=(",", ":")) + "\n"
     if fmt == "csv":
-        return ("# " + line + CSV_HEADER).encode()
+        return ("# " + line + CSV_HEADER[:-1] + (CSV_ORIENTATION if orientation is None else "")
+                + "\n").encode()
     if fmt == "binary":
         # the banner is a JSON line, then fixed-size records
         return line.encode()
@@ -82,29 +115,59 @@ def _vecs(name: str, V, ok, n: int):
     return [f',"{name}":[{v[0]},{v[1]},{v[2]}]' if k else "" for v, k in zip(V, ok)]
 
 
-def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str = "") -> bytes:
+def orientation_extra(o) -> str:
+    """The batch-level orientation fields as ',"key":value...' (NDJSON): heading reference,
+    inclination and heading standard deviations (omitted when not known), the ROS covariance."""
+    if o is None:
+        return ""
+    h = o.get("heading_std_deg")
+    cov = ",".join(f"{v:.4g}" for v in o["cov"])
+    md = o.get("mag_disturbed")
+    return (f',"heading":"{o["heading"]}","incl_std_deg":{o["incl_std_deg"]:.3g}'
+            + (f',"heading_std_deg":{h:.3g}' if h is not None and np.isfinite(h) else "")
+            + f',"q_cov_rad2":[{cov}]'
+            + ("" if md is None else f',"mag_disturbed":{"true" if md.any() else "false"}'))
+
+
+def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str = "",
+                   orient=None) -> bytes:
     """Encode a batch of corrected samples (arrays with n rows; gyro, temp and mag may
     be None when the board or recording has none).  NDJSON omits a field whose value is
     unknown (no gyro, NaN temperature, no fresh magnetometer reading, a non-finite
     value); CSV leaves its cells empty; binary carries NaN.  ``extra``: fields the same
-    for every sample of the batch (',"key":value...'), NDJSON only (the covariances)."""
+    for every sample of the batch (',"key":value...'), NDJSON only (the covariances).
+    ``orient``: the orientation filter's output for these rows (q, lin_acc_g, mag_disturbed,
+    heading, incl_std_deg, heading_std_deg, cov; orientation/filter.py), or None when off."""
     n = len(seq)
     if n == 0:
         return b""
     if fmt == "binary":
         nan3 = np.full((n, 3), np.nan)
         m = mag if mag is not None else nan3
-        flags = still.astype(np.uint8) | (np.uint8(2) if mag is not None else np.uint8(0))
-        rec = np.zeros(n, dtype=np.dtype([("seq", "<u8"), ("t", "<f8"), ("cal", "<u4"), ("flags", "u1"),
-                                          ("pad", "u1", 3), ("acc", "<f4", 3), ("gyro", "<f4", 3),
-                                          ("temp", "<f4"), ("mag", "<f4", 3)]))
-        rec["seq"], rec["t"], rec["cal"], rec["flags"] = seq, t, cal_id, flags
+        flags = still.astype(np.uint8) | (np.uint8(FLAG_MAG) if mag is not None else np.uint8(0))
+        rec = np.zeros(n, dtype=BINARY_DTYPE)
+        rec["seq"], rec["t"], rec["cal"] = seq, t, cal_id
         rec["acc"], rec["gyro"] = acc, gyro if gyro is not None else nan3
         rec["temp"], rec["mag"] = temp if temp is not None else np.nan, m
+        if orient is None:
+            rec["q"], rec["lin_acc"], rec["incl_std"], rec["heading_std"] = np.nan, np.nan, np.nan, np.nan
+        else:
+            okq = np.all(np.isfinite(orient["q"]), 1)
+            flags = flags | np.where(okq, np.uint8(FLAG_ORIENT), np.uint8(0))
+            if orient["heading"] == "magnetic":
+                flags = flags | np.uint8(FLAG_HEADING_MAGNETIC)
+            if orient.get("mag_disturbed") is not None:
+                flags = flags | np.where(orient["mag_disturbed"], np.uint8(FLAG_MAG_DISTURBED), np.uint8(0))
+            h = orient.get("heading_std_deg")
+            rec["q"], rec["lin_acc"] = orient["q"], orient["lin_acc_g"]
+            rec["incl_std"], rec["heading_std"] = orient["incl_std_deg"], np.nan if h is None else h
+        rec["flags"] = flags
         return rec.tobytes()
+    if fmt == "ndjson" and orient is not None:
+        extra = extra + orientation_extra(orient)
     if fmt == "ndjson" and gyro is not None and temp is not None:
         # the usual case, every value known (_ndjson_known); else one comprehension per field
-        fast = _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id, extra)
+        fast = _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id, extra, orient)
         if fast is not None:
             return fast
     fin = lambda x: None if x is None else np.all(np.isfinite(x), axis=1)
@@ -117,23 +180,39 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, e
     S = still.tolist()
     Q = seq.tolist()
     TT = np.round(t, 6).tolist()
+    if orient is not None:
+        okO = fin(orient["q"]) & fin(orient["lin_acc_g"])
+        OQ = np.round(orient["q"], 6).tolist()
+        OL = np.round(orient["lin_acc_g"], 5).tolist()
     out = []
     if fmt == "csv":
         cell = lambda V, ok, i: V[i] if V is not None and ok[i] else ("", "", "")
+        if orient is not None:
+            h = orient.get("heading_std_deg")
+            sd = f"{orient['incl_std_deg']:.3g},{'' if h is None else format(h, '.3g')}"
         for i in range(n):
             a, g, m = cell(A, okA, i), cell(G, okG, i), cell(M, okM, i)
             tc = T[i] if T is not None and okT[i] else ""
+            o = ""
+            if orient is not None:
+                o = (f",{OQ[i][0]},{OQ[i][1]},{OQ[i][2]},{OQ[i][3]},{OL[i][0]},{OL[i][1]},{OL[i][2]},{sd}"
+                     if okO[i] else ",,,,,,,,,")
             out.append(f"{Q[i]},{TT[i]},{a[0]},{a[1]},{a[2]},{g[0]},{g[1]},{g[2]},"
-                       f"{m[0]},{m[1]},{m[2]},{tc},{int(S[i])},{cal_id}\n")
+                       f"{m[0]},{m[1]},{m[2]},{tc},{int(S[i])},{cal_id}{o}\n")
     else:
         # one comprehension per field (a value that is not known contributes "")
         aa = _vecs("acc_g", A, okA, n)
         gg = _vecs("gyro_dps", G, okG, n)
         mm = _vecs("mag_gauss", M, okM, n)
         tt = [""] * n if T is None else [f',"temp_c":{x}' if ok else "" for x, ok in zip(T, okT)]
+        if orient is None:
+            oo = [""] * n
+        else:
+            oo = [f',"q":[{q[0]},{q[1]},{q[2]},{q[3]}],"lin_acc_g":[{la[0]},{la[1]},{la[2]}]' if ok else ""
+                  for q, la, ok in zip(OQ, OL, okO)]
         tail = f',"cal":{cal_id}}}\n'
-        out = [f'{{"class":"IMU","seq":{q},"t":{ts}{a}{g}{m}{tc}{extra},"still":{"true" if st else "false"}{tail}'
-               for q, ts, a, g, m, tc, st in zip(Q, TT, aa, gg, mm, tt, S)]
+        out = [f'{{"class":"IMU","seq":{q},"t":{ts}{a}{g}{m}{tc}{o}{extra},"still":{"true" if st else "false"}{tail}'
+               for q, ts, a, g, m, tc, o, st in zip(Q, TT, aa, gg, mm, tt, oo, S)]
     return "".join(out).encode()
 
 
@@ -141,12 +220,36 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, e
 #: rint(x * 10**d) / 10**d
 _DEC = np.array([6, 6, 6, 6, 5, 5, 5, 3, 6, 6, 6])
 _POW = 10.0 ** _DEC
+#: and of the orientation columns [q (4), lin_acc_g (3)]
+_POW_O = 10.0 ** np.array([6, 6, 6, 6, 5, 5, 5])
+#: [t, acc, gyro, temp, q, lin_acc_g, mag] with orientation on
+_POW_Q = np.concatenate([_POW[:8], _POW_O, _POW[8:]])
 
 
-def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str = "") -> Optional[bytes]:
-    """NDJSON of a batch whose t, acc, gyro and temp are all finite (the usual case; a
-    magnetometer row that is not fresh or not finite is left out), with a handful of numpy
-    calls per batch rather than per field; None when the general path must look."""
+def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str = "",
+                  orient=None) -> Optional[bytes]:
+    """NDJSON of a batch whose t, acc, gyro and temp (and orientation) are all finite (the
+    usual case; a magnetometer row that is not fresh or not finite is left out), with a
+    handful of numpy calls per batch rather than per field; None when the general path
+    must look."""
+    if orient is not None:
+        # one array for everything: [t, acc, gyro, temp, q, lin_acc, mag]
+        cols = [t[:, None], acc, gyro, temp[:, None], orient["q"], orient["lin_acc_g"]]
+        X = np.concatenate(cols + ([mag] if mag is not None else []), 1)
+        fin = np.isfinite(X)
+        if not fin[:, :15].all():
+            return None
+        R = (np.rint(X * _POW_Q[:X.shape[1]]) / _POW_Q[:X.shape[1]]).tolist()
+        okM = fin[:, 15:].all(1).tolist() if mag is not None else None
+        tail = f',"cal":{cal_id}}}\n'
+        out = []
+        for i, (q, r, st) in enumerate(zip(seq.tolist(), R, still.tolist())):
+            m = f',"mag_gauss":[{r[15]},{r[16]},{r[17]}]' if okM is not None and okM[i] else ""
+            out.append(f'{{"class":"IMU","seq":{q},"t":{r[0]},"acc_g":[{r[1]},{r[2]},{r[3]}],'
+                       f'"gyro_dps":[{r[4]},{r[5]},{r[6]}]{m},"temp_c":{r[7]},'
+                       f'"q":[{r[8]},{r[9]},{r[10]},{r[11]}],"lin_acc_g":[{r[12]},{r[13]},{r[14]}]{extra},'
+                       f'"still":{"true" if st else "false"}{tail}')
+        return "".join(out).encode()
     cols = [t[:, None], acc, gyro, temp[:, None]] + ([mag] if mag is not None else [])
     X = np.concatenate(cols, 1)
     fin = np.isfinite(X)
@@ -248,6 +351,8 @@ class SocketSink:
                  group: Optional[str] = None, max_buffer: int = 1 << 20):
         self.path, self.fmt, self.board, self.max_buffer = path, fmt, board, max_buffer
         self.chips: Optional[dict] = None     #: set by the daemon once the chips are identified
+        #: None: orientation on; else why it is off (the banner says so); set by the daemon
+        self.orientation_off: Optional[str] = "not started"
         self.lsock = listen_unix(path, mode, group, 16, "output.socket")
         self.clients: List[_Client] = []
         self.dropped = 0          #: clients dropped for falling behind
@@ -262,7 +367,7 @@ class SocketSink:
                 return
             s.setblocking(False)
             c = _Client(s, self.accepted)
-            c.buf += banner(self.fmt, self.board, self.chips)
+            c.buf += banner(self.fmt, self.board, self.chips, self.orientation_off)
             self.clients.append(c)
             self.accepted += 1
 
@@ -314,6 +419,7 @@ class FifoSink:
                  group: Optional[str] = None, max_buffer: int = 1 << 20):
         self.path, self.fmt, self.board, self.max_buffer = path, fmt, board, max_buffer
         self.chips: Optional[dict] = None     #: set by the daemon once the chips are identified
+        self.orientation_off: Optional[str] = "not started"    #: as SocketSink's
         if not os.path.exists(path):
             os.mkfifo(path)
             try:
@@ -338,7 +444,7 @@ class FifoSink:
                 return False          # no reader yet
             raise
         self.connects += 1
-        self.buf = bytearray(banner(self.fmt, self.board, self.chips))
+        self.buf = bytearray(banner(self.fmt, self.board, self.chips, self.orientation_off))
         self._banner_left = len(self.buf)
         self._written = 0           # record bytes delivered since the banner
         self._last = b"\n"

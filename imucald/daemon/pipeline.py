@@ -72,6 +72,7 @@ class Pipeline:
                  executor: Optional[Executor] = None, persist: Optional[Callable] = None,
                  chips: Optional[Dict[str, str]] = None, has_acc: bool = True):
         self.cfg, self.board, self.rate_hz, self.has_mag = cfg, board, rate_hz, has_mag
+        self.chips = dict(chips or {})
         # without an accelerometer (gy273) there are no still poses: the magnetometer is
         # calibrated from its rotation cloud alone, as `imucald calibrate` does
         self.has_acc = has_acc
@@ -109,6 +110,9 @@ class Pipeline:
         self.noise: Optional[Dict[str, Dict[str, np.ndarray]]] = None
         self._cov_key = None
         self._cov_text = ""
+        #: the orientation filter (issue 26; use_orientation), None when off, and why it is off
+        self.orient = None
+        self.orientation_off: Optional[str] = "not asked for"
 
     def reconfigure(self, cfg: Dict[str, Dict[str, Any]], changed) -> None:
         """A reload: ``changed`` keys of ``cfg`` take effect from the next batch (new
@@ -154,8 +158,9 @@ class Pipeline:
             acc = ap.apply_accel(b.acc[keep], tb)
             gyro = None if b.gyro is None else ap.apply_gyro(b.gyro[keep], tb, acc)
             mag = None if b.mag is None else ap.apply_mag(b.mag[keep], tb)
+            ori = None if self.orient is None else self._orientation(b, keep, tb, acc, gyro, mag, intervals)
             out.append(encode_samples(self.fmt, b.seq[keep], b.t[keep], acc,
-                                      gyro, temp, mag, still[keep], ap.id, self._covariance()))
+                                      gyro, temp, mag, still[keep], ap.id, self._covariance(), ori))
         out.append(self.poll_calibration())
         self.maybe_calibrate()
         out.append(self.poll_calibration())
@@ -205,6 +210,73 @@ class Pipeline:
                 parts.append(f',"{name}":[{v[0]:.4g},{v[1]:.4g},{v[2]:.4g}]')
             self._cov_key, self._cov_text = key, "".join(parts)
         return self._cov_text
+
+    # -- orientation (issue 26): one hook, off unless use_orientation() turns it on ----------
+    def use_orientation(self, mode: str, has_gyro: bool = True) -> None:
+        """output.orientation: "yes" (the extra missing is a configuration error, one line),
+        "auto" (on when the extra is installed and the board has a gyro and an accelerometer;
+        else off, and ``orientation_off`` says why), "no"."""
+        from ..orientation import OrientationFilter, unavailable_reason
+        from ..specs import ACCEL
+        self.orient = None
+        if mode == "no":
+            self.orientation_off = "output.orientation: no"
+            return
+        why = None if (self.has_acc and has_gyro) else "the board has no gyroscope and accelerometer pair"
+        why = why or unavailable_reason()
+        if why is not None:
+            if mode == "yes":
+                from .config import ConfigError
+                raise ConfigError(f"output.orientation: yes: {why}")
+            self.orientation_off = why
+            return
+        spec = ACCEL.get(self.chips.get("accel", ""))
+        noise = None
+        if self.noise is not None and "accel" in self.noise:
+            noise = float(np.mean(self.noise["accel"]["white"])) * self.rate_hz ** 0.5
+        elif spec is not None:
+            noise = spec.noise_density_g_rthz * self.rate_hz ** 0.5
+        self._acc_tol = None if spec is None else spec.bias_tol_g
+        self.orient = OrientationFilter(self.rate_hz, self.has_mag, noise)
+        self._orient_cal = None
+        self.orientation_off = None
+
+    def orientation_rate_from(self, t_s) -> None:
+        """Replay: the filter integrates at the rate the recording's timestamps show (their
+        median step) when it differs from its header's rate_hz by more than 1 %; called with
+        the first block's times, before any sample reached the filter."""
+        if self.orient is None or len(t_s) < 3 or self.samples:
+            return
+        dt = float(np.median(np.diff(t_s)))
+        if dt > 0 and abs(1.0 / dt / self.rate_hz - 1.0) > 0.01:
+            log.info("orientation: the timestamps step %.6g s (%.6g Hz), the header says %.6g Hz: "
+                     "the filter integrates at %.6g Hz", dt, 1.0 / dt, self.rate_hz, 1.0 / dt)
+            self.orient.set_rate(1.0 / dt)
+
+    def _orientation(self, b, keep, tb, acc, gyro, mag, intervals):
+        """Feed the filter this batch's calibrated samples, every one of them (decimation thins
+        the stream only); returns its output for the kept rows, or None without a gyro."""
+        f, ap = self.orient, self.applied
+        if ap is not self._orient_cal:          # a new calibration: reset what depends on it
+            what = f.use_calibration(ap, self._acc_tol)
+            self._orient_cal = ap
+            if what:
+                log.info("orientation: reset the %s (calibration #%d)", what, ap.id)
+        if b.gyro is None:
+            return None
+        for iv in intervals:                    # imucald's still interval: the residual bias
+            if iv.gyro is not None and iv.gyro_cov is not None:
+                ti = float(iv.temp) if np.isfinite(iv.temp) else None
+                g = ap.apply_gyro(iv.gyro[None], ti, ap.apply_accel(iv.acc[None], ti))[0]
+                f.still_interval(g, np.sqrt(np.diag(iv.gyro_cov)))
+        if isinstance(keep, slice):
+            return f.update(acc, gyro, mag)
+        A = ap.apply_accel(b.acc, tb)
+        o = f.update(A, ap.apply_gyro(b.gyro, tb, A), None if b.mag is None else ap.apply_mag(b.mag, tb))
+        o["q"], o["lin_acc_g"] = o["q"][keep], o["lin_acc_g"][keep]
+        if o["mag_disturbed"] is not None:
+            o["mag_disturbed"] = o["mag_disturbed"][keep]
+        return o
 
     # -- poses ------------------------------------------------------------------------
     def _pose(self, iv) -> None:
@@ -475,6 +547,11 @@ class Pipeline:
         if self.reservoir is not None:
             d["mag_coverage"] = self.reservoir.coverage()
         d["thermal"] = self.thermal_status()
+        d["orientation"] = "on" if self.orient is not None else "off"     # issue 26
+        if self.orient is None:
+            d["orientation_off"] = self.orientation_off
+        else:
+            d["orientation_resets"] = self.orient.resets
         if self.events:
             d["last_event"] = self.events[-1]
         return d

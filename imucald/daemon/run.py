@@ -124,6 +124,7 @@ class Daemon:
                              executor=self.worker, persist=self._persist, chips=chips,
                              has_acc=self.board.has_acc)
         self.pipe.use_noise_file(cfg["noise"]["file"])
+        self.pipe.use_orientation(cfg["output"]["orientation"], self.board.has_acc)   # issue 26
         from .sensors import adopt_sensor
         self.fingerprint = self.board.fingerprint()
         self.sensor = adopt_sensor(sd, self.fingerprint)     # a swapped board: its own files
@@ -155,6 +156,7 @@ class Daemon:
                                        o["socket_mode"], o["socket_group"], o["client_buffer_bytes"]))
         for sk in self.sinks:
             sk.chips = self.board.chips()
+            sk.orientation_off = self.pipe.orientation_off
         self.control = ControlServer(self._path(rd, c["socket"]), self._command, c["socket_mode"],
                                      c["socket_group"])
         log.info("streaming %s on %s%s; control on %s", o["format"], self.sinks[0].path,

@@ -101,10 +101,18 @@ class OutBuffer:
 def sample_payload(rec: Dict[str, Any], now_s: float) -> Dict[str, Any]:
     """An IMU record as published: the stream's fields unchanged (``seq``, ``t`` s since the
     daemon started, ``acc_g``, ``gyro_dps``, ``mag_gauss``, ``temp_c``, ``still``, ``cal``, and
-    ``acc_var_g2``/``gyro_var_dps2`` when the daemon streams them) plus ``time``: Unix time
-    (s) at which the bridge read it."""
+    ``acc_var_g2``/``gyro_var_dps2`` when the daemon streams them; with orientation on ``q``
+    [w, x, y, z] body -> ENU, ``lin_acc_g``, ``heading``, ``incl_std_deg``, ``heading_std_deg``,
+    ``q_cov_rad2``) plus ``time``: Unix time (s) at which the bridge read it, and with ``q``
+    also ``roll_deg``, ``pitch_deg``, ``heading_deg`` (compass, from magnetic north or
+    arbitrary as ``heading`` says; :func:`imucald.client.attitude_deg`)."""
     out = {k: v for k, v in rec.items() if k != "class"}
     out["time"] = round(now_s, 6)
+    q = rec.get("q")
+    if q is not None:
+        from ..client import attitude_deg
+        r, p, h = attitude_deg(q)
+        out["roll_deg"], out["pitch_deg"], out["heading_deg"] = round(r, 3), round(p, 3), round(h, 3)
     return out
 
 
@@ -190,6 +198,8 @@ def info_payload(status: Dict[str, Any], version: Optional[Dict[str, Any]]) -> D
     if version:
         out["release"] = version.get("release")
         out["proto"] = f"{version.get('proto_major')}.{version.get('proto_minor')}"
+        if version.get("orientation"):
+            out["orientation"] = version["orientation"]
     return out
 
 
@@ -210,6 +220,12 @@ _HA_IMU = (
     ("acc_y", "acceleration y", "{{ value_json.acc_g[1] }}", "g", None),
     ("acc_z", "acceleration z", "{{ value_json.acc_g[2] }}", "g", None),
 )
+#: with orientation on (the info payload's ``orientation``)
+_HA_ORIENT = (
+    ("roll", "roll", "{{ value_json.roll_deg }}", "°", None),
+    ("pitch", "pitch", "{{ value_json.pitch_deg }}", "°", None),
+    ("heading", "heading", "{{ value_json.heading_deg }}", "°", None),
+)
 
 
 def discovery_messages(prefix: str, topics: Topics, info: Dict[str, Any]) -> List[Tuple[str, bytes]]:
@@ -220,7 +236,10 @@ def discovery_messages(prefix: str, topics: Topics, info: Dict[str, Any]) -> Lis
     device = {"identifiers": [f"imucald_{sid}"], "name": f"imucald {info.get('board')} {sid}",
               "model": info.get("board"), "manufacturer": "imucald", "sw_version": info.get("release")}
     out = []
-    for group, state_topic in ((_HA_HEALTH, topics.health), (_HA_IMU, topics.imu)):
+    groups = [(_HA_HEALTH, topics.health), (_HA_IMU, topics.imu)]
+    if info.get("orientation") == "on":
+        groups.append((_HA_ORIENT, topics.imu))
+    for group, state_topic in groups:
         for key, name, tmpl, unit, dclass in group:
             if key == "temp" and not info.get("chips"):
                 continue
@@ -232,7 +251,7 @@ def discovery_messages(prefix: str, topics: Topics, info: Dict[str, Any]) -> Lis
                 cfg["unit_of_measurement"] = unit
             if dclass:
                 cfg["device_class"] = dclass
-            if group is _HA_HEALTH or key == "temp":
+            if group is not _HA_IMU or key == "temp":
                 cfg["state_class"] = "measurement"
             out.append((f"{prefix.strip('/')}/sensor/imucald_{sid}/{key}/config", dumps(cfg)))
     return out

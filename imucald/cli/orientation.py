@@ -1,0 +1,65 @@
+"""``imucald apply ... --orientation FILE``: the orientation of a corrected recording as a table.
+
+The filter (imucald/orientation, the ``orientation`` extra) runs over the corrected samples at the
+recording's rate, in the daemon's batch size, and the table gets one row per sample:
+``t,qw,qx,qy,qz,lax,lay,laz,incl_std_deg,heading_std_deg`` (q body -> ENU, REP-103;
+lin_acc gravity-free, body frame, g; heading_std_deg empty when the heading is arbitrary), after
+``# `` lines naming the recording, the calibration and the heading reference.
+"""
+from __future__ import annotations
+
+import io
+import os
+
+import numpy as np
+
+from ..errors import CannotCreate, UserError
+
+__all__ = ["orientation_table", "write_orientation"]
+
+COLUMNS = "t,qw,qx,qy,qz,lax,lay,laz,incl_std_deg,heading_std_deg"
+
+
+def orientation_table(rec, cal, batch_s: float = 0.02):
+    """(rows (n, 10) with NaN where unknown, heading reference) for a corrected recording."""
+    from ..orientation import OrientationFilter
+    from ..specs import ACCEL, recording_chips
+    if rec.acc is None or rec.gyro is None:
+        raise UserError("--orientation needs accelerometer and gyro columns (ax..az, gx..gz)")
+    rate = rec.rate_hz
+    spec = ACCEL.get(recording_chips(rec.meta).get("accel", ""))
+    f = OrientationFilter(rate, rec.mag is not None,
+                          None if spec is None else spec.noise_density_g_rthz * rate ** 0.5)
+    f.use_calibration(cal, None if spec is None else spec.bias_tol_g)
+    n = len(rec)
+    out = np.full((n, 10), np.nan)
+    out[:, 0] = rec.t
+    step = max(1, int(round(batch_s * rate)))
+    heading = "arbitrary"
+    for i in range(0, n, step):
+        sl = slice(i, min(n, i + step))
+        o = f.update(rec.acc[sl], rec.gyro[sl], None if rec.mag is None else rec.mag[sl])
+        out[sl, 1:5], out[sl, 5:8] = o["q"], o["lin_acc_g"]
+        out[sl, 8] = o["incl_std_deg"]
+        if o["heading_std_deg"] is not None:
+            out[sl, 9] = o["heading_std_deg"]
+        heading = o["heading"]
+    return out, heading
+
+
+def write_orientation(rec, cal, path: str, source: str) -> str:
+    """Write the table atomically; returns the heading reference."""
+    from ..atomic import atomic_write_text
+    rows, heading = orientation_table(rec, cal)
+    buf = io.StringIO()
+    buf.write(f"# imucald orientation of {source} (calibration {cal.id}); q body -> ENU (REP-103); "
+              f"heading {heading}{' (magnetic north)' if heading == 'magnetic' else ' (6D: no magnetometer)'}\n")
+    buf.write(COLUMNS + "\n")
+    fmt = ["%.6f"] + ["%.6f"] * 4 + ["%.5f"] * 3 + ["%.3g"] * 2
+    for r in rows:
+        buf.write(",".join("" if not np.isfinite(v) else (f % v) for f, v in zip(fmt, r)) + "\n")
+    try:
+        atomic_write_text(os.fspath(path), buf.getvalue())
+    except OSError as e:
+        raise CannotCreate(f"--orientation {path}: cannot write: {e.strerror}") from None
+    return heading

@@ -1,0 +1,293 @@
+"""The orientation filter in the stream: a thin shell around VQF (the ``orientation`` extra).
+
+VQF (D. Laidig, T. Seel, "VQF: Highly accurate IMU orientation estimation with bias
+estimation and magnetic disturbance rejection", Information Fusion 91:187-204, 2023; pip
+``vqf``, MIT) was chosen over imufusion (x-io's Fusion) by accuracy on the BROAD trials in
+../shared (bench/orientation.py): 2.04 deg mean total / 0.59 deg inclination against 5.6 / 3.7.
+Its quaternion is [w, x, y, z], sensor frame -> ENU (VQF's earth frame is ENU, and its 9D
+heading is referenced to magnetic north), which is the stream's convention unchanged.
+
+One truth about the sensors (what wins, and why):
+
+* The filter is fed imucald's **calibrated** samples (acc in g -> m/s^2, gyro deg/s -> rad/s,
+  mag in gauss; VQF normalises acc and mag) at the board's sample rate, every sample
+  (output.decimate thins the stream, not the filter's input).
+* **Gyro bias**: the calibration's bias (from still poses, accepted only if it validates
+  better) is removed before the filter; VQF's rest and motion bias estimation then tracks
+  what is left (drift since the calibration, temperature).  Its estimate is *relative to the
+  calibration*, so a new gyro calibration resets it to zero with the new calibration's bias
+  standard error as its uncertainty (:meth:`OrientationFilter.use_calibration`).
+* **Stillness**: imucald's detector (moving variance against the measured noise) decides the
+  stream's ``still`` flag and the calibration's poses; VQF's own rest detection (thresholds on
+  its low-passed gyro and acc, 2 deg/s and 0.5 m/s^2, over 1.5 s) decides when VQF learns its
+  bias at rest.  A still interval imucald closes hands VQF its gyro mean, corrected by the
+  calibration in force, with the mean's standard error (:meth:`OrientationFilter.still_interval`):
+  it averages the whole interval rather than VQF's 1.5 s window.
+* **Magnetic disturbance**: VQF's detector wins (imucald has no per-sample one; its magnetometer
+  calibration's held-out error enters the heading standard deviation instead); the stream
+  carries VQF's flag as ``mag_disturbed``.
+* A new magnetometer or accelerometer calibration resets the filter's state (the magnetic
+  reference and the attitude VQF learnt from the old correction are not valid any more); the
+  residual gyro bias survives an accelerometer or magnetometer change.  A swapped sensor
+  starts a new daemon pipeline, hence a new filter.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Dict, Optional
+
+import numpy as np
+
+from ..errors import EX_CONFIG, UserError
+from . import quality
+from .quat import gravity_free_g, qmul
+
+__all__ = ["OrientationFilter", "OrientationUnavailable", "load_vqf", "unavailable_reason",
+           "MISSING_EXTRA", "G_MS2"]
+
+#: standard gravity, m/s^2 per g (the unit the accelerometer columns are in)
+G_MS2 = 9.80665
+#: the one-line message when the extra is missing (the fix named)
+MISSING_EXTRA = ("orientation needs the 'orientation' extra (the vqf package), which is not "
+                 "installed: pip install 'imucald[orientation]' (on a Raspberry Pi first "
+                 "sudo apt install g++ python3-dev: vqf is built there from source)")
+
+
+class OrientationUnavailable(UserError):
+    """Orientation was asked for and the extra is not installed (a restart cannot fix it)."""
+
+    exit_code = EX_CONFIG
+
+
+def load_vqf():
+    """The vqf module, or OrientationUnavailable with the one-line fix."""
+    try:
+        import vqf
+        vqf.VQF
+    except (ImportError, AttributeError):
+        raise OrientationUnavailable(MISSING_EXTRA) from None
+    return vqf
+
+
+def unavailable_reason() -> Optional[str]:
+    """None when the filter can run here, else why not (the extra is missing)."""
+    try:
+        load_vqf()
+    except OrientationUnavailable as e:
+        return str(e)
+    return None
+
+
+def _part_key(p) -> Optional[str]:
+    """Identity of a calibration part's correction (its parameters), None when absent."""
+    if p is None:
+        return None
+    return repr(sorted((k, np.asarray(v, float).round(12).tolist()) for k, v in p.params.items()))
+
+
+class OrientationFilter:
+    """VQF over batches of calibrated samples; see the module docstring for what wins where.
+
+    ``update`` returns, per batch: ``q`` (n, 4) [w, x, y, z] body -> ENU; ``lin_acc_g`` (n, 3)
+    gravity-free specific force, body frame, g; ``mag_disturbed`` (n,) bool or None;
+    ``heading`` "magnetic" or "arbitrary"; ``incl_std_deg``, ``heading_std_deg`` (None when
+    arbitrary) and ``cov`` (sensor_msgs/Imu orientation_covariance, rad^2)."""
+
+    def __init__(self, rate_hz: float, has_mag: bool, acc_noise_g: Optional[float] = None,
+                 params: Optional[Dict[str, Any]] = None):
+        vqf = load_vqf()
+        self.rate_hz = float(rate_hz)
+        self.has_mag = bool(has_mag)
+        self.acc_noise_g = acc_noise_g
+        #: VQF's defaults unless overridden (its parameter names, e.g. tauAcc)
+        self._params = dict(params or {})
+        self.f = vqf.VQF(1.0 / self.rate_hz, **self._params)
+        p = self.f.params
+        self.tau_acc_s, self.tau_mag_s = float(p["tauAcc"]), float(p["tauMag"])
+        self._sigma0_rad_s = math.radians(float(p["biasSigmaInit"]))
+        self.acc_bias_se_g: Optional[np.ndarray] = None
+        self._acc_var: Optional[float] = None      #: sum of acc_bias_se_g squared, g^2
+        self.mag_rel_floor = 0.0
+        self._keys = (None, None, None)
+        self.resets = 0
+        self._clear_quality()
+
+    def _clear_quality(self) -> None:
+        self._lin_lp = np.zeros(2)           #: tau_acc low-pass of the horizontal gravity-free acc, g
+        self._mnorm = None                   #: slow mean of |m|, gauss
+        self._mvar = 0.0                     #: tau_mag mean of (|m|/mean - 1)^2
+        self._rejected_s = 0.0
+        self._mag_seen = False
+        self._last_mag: Optional[np.ndarray] = None
+
+    def set_rate(self, rate_hz: float) -> None:
+        """A new sample rate (before the first sample: the state is started afresh)."""
+        vqf = load_vqf()
+        self.rate_hz = float(rate_hz)
+        self.f = vqf.VQF(1.0 / self.rate_hz, **self._params)
+        self._keys = (None, None, None)
+        self._clear_quality()
+
+    # -- the calibration in force ---------------------------------------------------------
+    def use_calibration(self, cal, acc_bias_tol_g=None) -> Optional[str]:
+        """Take the calibration in force; returns what was reset (None: nothing).
+
+        acc_bias_tol_g: the accelerometer's datasheet zero-g tolerance (g, per axis), used
+        (as N(0, tol/2), the simulator's prior) while there is no accelerometer calibration."""
+        a, g, m = (getattr(cal, k, None) for k in ("accel", "gyro", "mag"))
+        keys = (_part_key(a), _part_key(g), _part_key(m))
+        se = None
+        if a is not None and "bias_g" in a.stderr:
+            se = np.asarray(a.stderr["bias_g"], float)
+        elif a is None and acc_bias_tol_g is not None:
+            se = np.asarray(acc_bias_tol_g, float) / 2.0
+        self.acc_bias_se_g = se
+        self._acc_var = None if se is None else float(np.sum(se[np.isfinite(se)] ** 2))
+        self.mag_rel_floor = float((m.quality or {}).get("heldout_rel_rms", 0.0) or 0.0) if m is not None else 0.0
+        old, self._keys = self._keys, keys
+        if old == keys:
+            return None
+        what = []
+        if old[0] != keys[0] or old[2] != keys[2]:
+            if old != (None, None, None):
+                b, s = self.f.getBiasEstimate()
+                self.f.resetState()
+                self._clear_quality()
+                if old[1] == keys[1]:             # the residual gyro bias is still valid
+                    self.f.setBiasEstimate(np.asarray(b, float), float(s))
+                what.append("filter state (new accelerometer/magnetometer calibration)")
+        if old[1] != keys[1]:
+            sg = self._sigma0_rad_s
+            if g is not None and "bias_dps" in g.stderr:
+                s = np.asarray(g.stderr["bias_dps"], float)
+                if np.all(np.isfinite(s)):
+                    sg = math.radians(float(np.max(s)))
+            self.f.setBiasEstimate(np.zeros(3), max(sg, 1e-6))
+            what.append("residual gyro bias (new gyro calibration)")
+        if not what:
+            return None
+        self.resets += 1
+        return "; ".join(what)
+
+    #: take imucald's still intervals as bias measurements (bench/orientation.py --compare-still)
+    use_still_intervals = True
+
+    def still_interval(self, gyro_mean_dps, gyro_se_dps) -> None:
+        """A still interval closed: its mean calibrated gyro reading is the residual bias."""
+        if not self.use_still_intervals:
+            return
+        b = np.asarray(gyro_mean_dps, float)
+        if not np.all(np.isfinite(b)):
+            return
+        se = float(np.max(gyro_se_dps)) if gyro_se_dps is not None and np.all(np.isfinite(gyro_se_dps)) else 0.01
+        self.f.setBiasEstimate(np.radians(b), max(math.radians(se), 1e-6))
+
+    # -- the batch ------------------------------------------------------------------------
+    def update(self, acc_g, gyro_dps, mag_gauss=None) -> Dict[str, Any]:
+        acc = np.asarray(acc_g, float)
+        gyro = np.asarray(gyro_dps, float)
+        n = len(acc)
+        allok = math.isfinite(float(acc.sum()) + float(gyro.sum()))     # the usual case, cheaply
+        ok = None if allok else (np.isfinite(acc).all(1) & np.isfinite(gyro).all(1))
+        mag = None
+        if self.has_mag and mag_gauss is not None:
+            mag = np.asarray(mag_gauss, float)
+            good = None if math.isfinite(float(mag.sum())) else np.isfinite(mag).all(1)
+            if good is None:
+                self._last_mag = mag[-1].copy()
+            elif not good.all():                   # sample-and-hold over rows without a reading
+                mag = mag.copy()
+                idx = np.where(good, np.arange(n), -1)
+                np.maximum.accumulate(idx, out=idx)
+                have = idx >= 0
+                mag[have] = mag[idx[have]]
+                if self._last_mag is not None:
+                    mag[~have] = self._last_mag
+                    have[:] = True
+                good = have
+            if good is not None and good.any():
+                self._last_mag = mag[good][-1].copy()
+            if good is not None and not good.all():
+                mag = None                         # none seen yet: these rows go without
+        sig = self._sigma0_rad_s
+        dist = None
+        if allok:
+            q, lin, dist, sig = self._run(acc, gyro, mag)
+        else:
+            q, lin = np.full((n, 4), np.nan), np.full((n, 3), np.nan)
+            if self.has_mag:
+                dist = np.zeros(n, bool)
+            if ok.any():
+                q[ok], lin[ok], d, sig = self._run(acc[ok], gyro[ok], None if mag is None else mag[ok])
+                if d is not None:
+                    dist[ok] = d
+        if self.has_mag and dist is None:
+            dist = np.zeros(n, bool)
+        magnetic = self.has_mag and self._mag_seen
+        tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),
+                                   self.acc_noise_g, self.tau_acc_s, self.rate_hz)
+        if magnetic:
+            rel = max(math.sqrt(self._mvar), self.mag_rel_floor)
+            hv = quality.heading_var_rad2(sig, rel, self._dip_rad, self.tau_mag_s, self._rejected_s)
+        else:
+            hv = quality.ARBITRARY_HEADING_VAR_RAD2
+        return {"q": q, "lin_acc_g": lin, "mag_disturbed": dist,
+                "heading": "magnetic" if magnetic else "arbitrary",
+                "incl_std_deg": math.degrees(math.sqrt(tv)),
+                "heading_std_deg": math.degrees(math.sqrt(hv)) if magnetic else None,
+                "cov": quality.ros_covariance(tv, hv), "bias_sigma_dps": math.degrees(sig)}
+
+    def _run(self, acc, gyro, mag):
+        """VQF over rows that are all finite: (q, lin_acc_g, mag_disturbed or None, bias sigma)."""
+        a = np.ascontiguousarray(acc * G_MS2)        # VQF takes C-ordered m/s^2 and rad/s
+        w = np.ascontiguousarray(np.radians(gyro))
+        if mag is not None:
+            o = self.f.updateBatch(w, a, np.ascontiguousarray(mag))
+            q, dist = o["quat9D"], o["magDistDetected"]
+            self._mag_seen = True
+        else:
+            o = self.f.updateBatch(w, a)
+            q, dist = o["quat6D"] if not self._mag_seen else self._q9_from_6d(o["quat6D"]), None
+        lin = gravity_free_g(q, acc)
+        self._track(q, lin, mag, dist)
+        return q, lin, dist, float(o["biasSigma"][-1])
+
+    def _q9_from_6d(self, q6):
+        """Rows fed without a magnetometer reading after one was seen: the 6D attitude turned
+        by the filter's current heading offset (VQF's delta, about the vertical)."""
+        d = self.f.getDelta()
+        dq = np.array([math.cos(d / 2), 0.0, 0.0, math.sin(d / 2)])
+        return qmul(dq, q6)
+
+    def _track(self, q, lin, mag, dist) -> None:
+        """The filter-state figures the standard deviations use, once per batch (scalar
+        arithmetic on the batch's last attitude: a batch turns the board by a few degrees at
+        most, a second-order error in a tau_acc low-pass)."""
+        n = len(q)
+        k = 1.0 - math.exp(-n / (self.rate_hz * self.tau_acc_s))
+        e = _rotate1(q[-1].tolist(), lin.mean(0).tolist())
+        self._lin_lp[0] += k * (e[0] - self._lin_lp[0])
+        self._lin_lp[1] += k * (e[1] - self._lin_lp[1])
+        if mag is None:
+            return
+        ml = mag[-1].tolist()               # one reading a batch (magnetometers run at 10-100 Hz)
+        m = math.sqrt(ml[0] * ml[0] + ml[1] * ml[1] + ml[2] * ml[2])
+        if self._mnorm is None:
+            self._mnorm = m
+        self._mnorm += (1.0 - math.exp(-n / (self.rate_hz * 20.0))) * (m - self._mnorm)
+        km = 1.0 - math.exp(-n / (self.rate_hz * self.tau_mag_s))
+        self._mvar += km * ((m / self._mnorm - 1.0) ** 2 - self._mvar)
+        me = _rotate1(q[-1].tolist(), ml)
+        self._dip_rad = math.atan2(-me[2], math.hypot(me[0], me[1]))
+        self._rejected_s = (self._rejected_s + n / self.rate_hz) if dist[-1] else 0.0
+
+    _dip_rad = 0.0
+
+
+def _rotate1(q, v):
+    """One vector v (list) by one quaternion q (list [w, x, y, z]), body -> ENU, in floats."""
+    w, x, y, z = q
+    a, b, c = v
+    return (a * (1 - 2 * (y * y + z * z)) + b * 2 * (x * y - w * z) + c * 2 * (x * z + w * y),
+            a * 2 * (x * y + w * z) + b * (1 - 2 * (x * x + z * z)) + c * 2 * (y * z - w * x),
+            a * 2 * (x * z - w * y) + b * 2 * (y * z + w * x) + c * (1 - 2 * (x * x + y * y)))

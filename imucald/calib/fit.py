@@ -123,15 +123,19 @@ def heldout_residuals(model: NormModel, theta: np.ndarray, raw: np.ndarray, targ
     pred = np.zeros(N)
     z0 = None
     pm, psd, nv = prior if prior is not None else (None, None, 1.0)
-    for g in groups:
+    from .loo import fold_thetas            # all folds at once; LM below where one is not solved
+    full = Problem(model, raw, target, lo=lo, hi=hi, prior_mean=pm, prior_std=psd, noise_var=nv)
+    solved = fold_thetas(full, full.reduce(theta), groups)
+    for g, th in zip(groups, solved):
         keep = np.ones(N, bool)
         keep[g] = False
         prob = Problem(model, raw[keep], target, lo=lo, hi=hi, prior_mean=pm, prior_std=psd,
                        noise_var=nv)
-        if z0 is None:
-            z0 = prob.reduce(theta)
-        z, _, _ = _lm_converge(prob, z0, max_iter=60, ftol=1e-12)
-        th = prob.expand(z)
+        if th is None:
+            if z0 is None:
+                z0 = prob.reduce(theta)
+            z, _, _ = _lm_converge(prob, z0, max_iter=60, ftol=1e-12)
+            th = prob.expand(z)
         out[g] = model.residual(th, raw[g], target)
         if var is not None:
             J = model.jacobian(th, raw[keep], target)[1][:, prob.free]

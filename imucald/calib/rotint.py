@@ -113,10 +113,10 @@ class _Windows:
             self.wdt2[r] = float(coef @ coef)
             self.T[r] = t[b] - t[a]
 
-    def integrate(self, K):
-        """(Delta (R, 3, 3), S (R, 3, 3, 3)): the rotation over each window and
-        S[:, :, a, b] = sum_k P_k[:, a] vd_k[b] (rad)."""
-        vd = self.vd * _D2R
+    def integrate(self, K, idx=None):
+        """(Delta (R, 3, 3), S (R, 3, 3, 3)): the rotation over each window (those ``idx``
+        when given) and S[:, :, a, b] = sum_k P_k[:, a] vd_k[b] (rad)."""
+        vd = (self.vd if idx is None else self.vd[idx]) * _D2R
         P = _prefix_rotations(np.einsum("ij,rlj->rli", K, vd))
         S = np.einsum("rlia,rlb->riab", P, vd)
         return P[:, -1], S

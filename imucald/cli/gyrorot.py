@@ -10,14 +10,15 @@ import numpy as np
 _AX = "xyz"
 
 
-def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None):
+def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, slices=None):
     """(GyroRotFit or None, why none): the accelerometer calibrated on ``poses`` (triangular9,
     MAP with the datasheet prior; or ``acc_cal``, a FitResult already fitted on them, as
     ``calibrate --sensor all`` shares its accelerometer part) with its thermal terms fitted
     on ``pieces`` (the detector's still pieces, each at its own temperature), then the
     rotations between the recording's still intervals (found with the same detector
     settings).  mag_cal: the magnetometer's rotation-cloud FitResult when already fitted
-    (None: fitted here, mag_sym)."""
+    (None: fitted here, mag_sym); slices: the poses' sample ranges when known (None: the
+    detector is run again with the same settings)."""
     from ..calib.fit import fit_norm
     from ..calib.gyrorot import fit_gyro_rotations
     from ..calib.poses import detect_static
@@ -30,8 +31,9 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None):
     if acc_cal is None:
         acc_cal = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, chip=chips[0])
     acc, theta, tnote = _gravity_reference(rec, poses, pieces, acc_cal, chips[0], args.seed)
-    slices = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz, window_s=args.window_s,
-                           k=args.threshold_k, min_still_s=args.min_still_s)
+    if slices is None:
+        slices = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz, window_s=args.window_s,
+                               k=args.threshold_k, min_still_s=args.min_still_s)
     rng = rec.meta.get("gyro_range_dps")
     try:
         rng = float(rng) if rng is not None else (GYRO[chips[1]].range_dps if chips[1] in GYRO else None)

@@ -119,23 +119,23 @@ def heldout_residuals(model: NormModel, theta: np.ndarray, raw: np.ndarray, targ
     if folds is None:
         folds = N if N <= 60 else 10
     groups = np.array_split(np.arange(N), folds)
+    from .loo import heldout_by_update      # all folds at once (calib/loo.py); None: refit each
+    quick = heldout_by_update(model, theta, raw, target, groups, lo, hi, prior, var)
+    if quick is not None:
+        return quick
     out = np.zeros(N)
     pred = np.zeros(N)
     z0 = None
     pm, psd, nv = prior if prior is not None else (None, None, 1.0)
-    from .loo import fold_thetas            # all folds at once; LM below where one is not solved
-    full = Problem(model, raw, target, lo=lo, hi=hi, prior_mean=pm, prior_std=psd, noise_var=nv)
-    solved = fold_thetas(full, full.reduce(theta), groups)
-    for g, th in zip(groups, solved):
+    for g in groups:
         keep = np.ones(N, bool)
         keep[g] = False
         prob = Problem(model, raw[keep], target, lo=lo, hi=hi, prior_mean=pm, prior_std=psd,
                        noise_var=nv)
-        if th is None:
-            if z0 is None:
-                z0 = prob.reduce(theta)
-            z, _, _ = _lm_converge(prob, z0, max_iter=60, ftol=1e-12)
-            th = prob.expand(z)
+        if z0 is None:
+            z0 = prob.reduce(theta)
+        z, _, _ = _lm_converge(prob, z0, max_iter=60, ftol=1e-12)
+        th = prob.expand(z)
         out[g] = model.residual(th, raw[g], target)
         if var is not None:
             J = model.jacobian(th, raw[keep], target)[1][:, prob.free]

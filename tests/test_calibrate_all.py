@@ -53,8 +53,8 @@ def test_all_gives_the_separate_commands_results_on_the_real_xsens(xsens_merged,
     each reported standard error (measured: accel identical, gyro K 1.2e-3 of its std
     error: the gyro's gravity directions come from the shared accelerometer fit, not the
     lighter one --sensor gyro makes for itself); one file with both parts.
-    Fails when the accelerometer part is fitted without its coloured-noise weights (checked:
-    bias differs by 0.2-1.3 std errors) or when the gyro is fed the raw accelerometer."""
+    Fails when the gyro's gravity directions come from an uncalibrated accelerometer (checked:
+    K 178 std errors off)."""
     out = tmp_path / "cal.yaml"
     all_ = json.loads(cli("calibrate", xsens_merged, "--sensor", "all", "--json", "-o", out).stdout)
     acc = json.loads(cli("calibrate", xsens_merged, "--sensor", "accel", "--json").stdout)
@@ -84,7 +84,7 @@ def test_one_file_from_an_emulated_9dof_session_is_applied_by_replay(nine_dof, t
     replay started from it streams every sample corrected by all three (calibration id 1 on
     each sample, values equal to the file's corrections of the raw readings, to the stream's
     printed digits).  The magnetometer part is --sensor mag's fit.  Fails when a part is left
-    out of the file (checked: dropping mag leaves mag_gauss raw, 0.2 gauss off)."""
+    out of the file (checked: the mag part dropped from -o)."""
     from imucald.calibration import load
     from imucald.recording import read_recording, write_recording
     out = tmp_path / "calibration.yaml"

@@ -172,9 +172,10 @@ def test_rotation_scan_predicts_the_gravity_directions_of_a_sample_by_sample_com
 
 def test_gyro_heldout_update_gives_the_refits_figures(nine_dof):
     """The held-out gravity-direction figures from the fold update (first step from the full
-    fit, then steps on the fold's rotations down to FOLD_STEP_TOL) equal those of a
-    Gauss-Newton fit per fold from scratch within 2e-5 deg: that tolerance's change of E
-    moves a direction carried through pi rad by 1.8e-5 deg (measured 1.4e-7 deg).  The
+    fit, then steps on the fold's rotations until one is below FOLD_STEP_TOL) equal those of
+    a Gauss-Newton fit per fold from scratch within 1.8e-4 deg: that tolerance's change of E
+    moves a direction carried through pi rad by 1.8e-4 deg, a bound on what the last step
+    leaves (measured 8.6e-7 deg); the figures are printed to 0.001 deg.  The
     accelerometer is left uncalibrated here, so that the folds' K move far (degrees of
     gravity-direction error): the hard case.  Fails with the first step alone (checked:
     0.004 deg off)."""
@@ -188,7 +189,7 @@ def test_gyro_heldout_update_gives_the_refits_figures(nine_dof):
     a, b = fits[0].heldout, fits[1].heldout
     assert a["evaluated"] == b["evaluated"] >= 10
     for k in ("raw_mean_deg", "raw_max_deg", "cal_mean_deg", "cal_max_deg"):
-        assert abs(a[k] - b[k]) < 2e-5, k
+        assert abs(a[k] - b[k]) < 1.8e-4, k
     assert a["better"] == b["better"]
 
 

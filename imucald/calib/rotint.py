@@ -61,18 +61,23 @@ def _prefix_products(a, b):
     if nb * m > L:                              # pad with identities
         a = np.concatenate([a, np.ones((R, nb * m - L), complex)], 1)
         b = np.concatenate([b, np.zeros((R, nb * m - L), complex)], 1)
-    a, b = a.reshape(R, nb, m), b.reshape(R, nb, m)
+    # sample-in-block first, so that each step reads and writes contiguous (R, nb) slices;
+    # the conjugates each step needs are taken once
+    a = np.ascontiguousarray(a.reshape(R, nb, m).transpose(2, 0, 1))
+    b = np.ascontiguousarray(b.reshape(R, nb, m).transpose(2, 0, 1))
+    ac, bc = a.conj(), b.conj()
     oa, ob = np.empty_like(a), np.empty_like(b)
-    pa, pb = oa[:, :, 0], ob[:, :, 0] = a[:, :, 0], b[:, :, 0]
+    pa, pb = oa[0], ob[0] = a[0], b[0]
     for j in range(1, m):
-        pa, pb = oa[:, :, j], ob[:, :, j] = _cmul(pa, pb, a[:, :, j], b[:, :, j])
+        pa, pb = oa[j], ob[j] = pa * a[j] - pb * bc[j], pa * b[j] + pb * ac[j]
     if nb > 1:
-        ta, tb = oa[:, :, -1], ob[:, :, -1]
+        ta, tb = oa[-1], ob[-1]                     # (R, nb): each block's total
         qa, qb = np.empty_like(ta), np.empty_like(tb)
         pa, pb = qa[:, 0], qb[:, 0] = ta[:, 0], tb[:, 0]
         for k in range(1, nb - 1):
             pa, pb = qa[:, k], qb[:, k] = _cmul(pa, pb, ta[:, k], tb[:, k])
-        oa[:, 1:], ob[:, 1:] = _cmul(qa[:, :-1, None], qb[:, :-1, None], oa[:, 1:], ob[:, 1:])
+        oa[:, :, 1:], ob[:, :, 1:] = _cmul(qa[None, :, :-1], qb[None, :, :-1], oa[:, :, 1:], ob[:, :, 1:])
+    oa, ob = oa.transpose(1, 2, 0), ob.transpose(1, 2, 0)
     return oa.reshape(R, -1)[:, :L], ob.reshape(R, -1)[:, :L]
 
 

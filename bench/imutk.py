@@ -10,9 +10,10 @@ of wall time over the rounds, and of the child's CPU time):
 * ``accel``, ``gyro``, ``all``: ``calibrate REC --sensor ...`` on the merged recording
   (accelerometer and gyro on their common timestamps, built as bench/real_gap.py builds it,
   written to a temporary imucald recording);
-* with ``--before DIR`` (a checkout of an older commit, e.g. ``git worktree add /tmp/base
-  bd2ec0f``, or ``git archive bd2ec0f | tar -x -C /tmp/base``): the same commands with that tree's imucald, in the same rounds; its ``all`` is
-  ``--sensor accel`` then ``--sensor gyro`` (two commands: ``--sensor all`` did not exist);
+* with ``--before DIR`` (a checkout of an older commit, e.g. ``git archive bd2ec0f | tar -x
+  -C /tmp/base``): the same commands with that tree's imucald, in the same rounds; its
+  ``all`` is ``--sensor accel`` then ``--sensor gyro`` (two commands: ``--sensor all`` did
+  not exist);
 * with ``IMUTK_CALIB=/path/to/test_imu_calib`` set: IMU-TK's own app on the two files.
   IMU-TK is not installed here and is never vendored.  To build it (Ubuntu/Debian):
   ``apt-get install libeigen3-dev libceres-dev libqt5opengl5-dev freeglut3-dev libboost-dev``,

@@ -2,7 +2,6 @@
 a Calibration, and the faster paths it runs on: the rotation integration's scan and the
 held-out figures without refits (each checked against the computation it replaces)."""
 import json
-import os
 import subprocess
 import sys
 from datetime import datetime

@@ -149,8 +149,7 @@ def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any
     if progress:
         progress("imucald: gyro: bias from the still poses; scale, misalignment and g-sensitivity "
                  "from the rotations between them")
-    rot, why = fit_rotations(rec, poses, args, pieces, acc_cal=acc_fit, mag_cal=mag_fit,
-                             slices=pose_slices(rec, poses))
+    rot, why = fit_rotations(rec, poses, args, pieces, acc_cal=acc_fit, mag_cal=mag_fit)
     tf = None
     if args.method != "ga-paper":
         tf = fit_thermal("gyro", pieces, cal, None, None, args.thermal_min_span, args.seed)
@@ -164,18 +163,6 @@ def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any
         d["thermal"] = thermal_json("gyro", tf)
         lines += thermal_lines("gyro", tf)
     return {"part": part, "json": d, "lines": lines, "thermal": tf}
-
-
-def pose_slices(rec, poses) -> Optional[List[slice]]:
-    """The sample ranges of ``poses`` (found in ``rec``): each pose starts at its t0 and holds
-    n samples; None when that does not give back every pose's t0 and t1 (repeated time
-    stamps), and the detector is then run again."""
-    import numpy as np
-    i0 = np.searchsorted(rec.t, poses.t0, "left")
-    i1 = i0 + np.asarray(poses.n, int)
-    if len(i0) and (i1[-1] > len(rec.t) or np.any(rec.t[i0] != poses.t0) or np.any(rec.t[i1 - 1] != poses.t1)):
-        return None
-    return [slice(int(a), int(b)) for a, b in zip(i0, i1)]
 
 
 def _print_lines(sensor: str, cal) -> List[str]:

@@ -3,7 +3,7 @@ the rotations between the still poses (calib/gyrorot.py), printed, as JSON, and 
 calibration file."""
 from __future__ import annotations
 
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -17,8 +17,8 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
     on ``pieces`` (the detector's still pieces, each at its own temperature), then the
     rotations between the recording's still intervals (found with the same detector
     settings).  mag_cal: the magnetometer's rotation-cloud FitResult when already fitted
-    (None: fitted here, mag_sym); slices: the poses' sample ranges when known (None: the
-    detector is run again with the same settings)."""
+    (None: fitted here, mag_sym); slices: the poses' sample ranges (None: read back from
+    ``poses``, :func:`pose_slices`, else the detector is run again with the same settings)."""
     from ..calib.fit import fit_norm
     from ..calib.gyrorot import fit_gyro_rotations
     from ..calib.poses import detect_static
@@ -31,6 +31,8 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
     if acc_cal is None:
         acc_cal = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, chip=chips[0])
     acc, theta, tnote = _gravity_reference(rec, poses, pieces, acc_cal, chips[0], args.seed)
+    if slices is None:
+        slices = pose_slices(rec, poses)
     if slices is None:
         slices = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz, window_s=args.window_s,
                                k=args.threshold_k, min_still_s=args.min_still_s)
@@ -53,6 +55,17 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
             return fm, ""
         fit.reference += " (field directions left out: they scatter beyond their noise)"
     return fit, ""
+
+
+def pose_slices(rec, poses) -> Optional[List[slice]]:
+    """The sample ranges of ``poses`` (found in ``rec``): each pose starts at its t0 and holds
+    n samples; None when that does not give back every pose's t0 and t1 (repeated time
+    stamps), and the detector is then run again."""
+    i0 = np.searchsorted(rec.t, poses.t0, "left")
+    i1 = i0 + np.asarray(poses.n, int)
+    if len(i0) and (i1[-1] > len(rec.t) or np.any(rec.t[i0] != poses.t0) or np.any(rec.t[i1 - 1] != poses.t1)):
+        return None
+    return [slice(int(a), int(b)) for a, b in zip(i0, i1)]
 
 
 def _gravity_reference(rec, poses, pieces, acc_cal, chip, seed):

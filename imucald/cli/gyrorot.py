@@ -29,7 +29,8 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
         return None, f"{len(poses)} still poses: the accelerometer needs 10 to give gravity directions"
     chips = BOARDS.get(rec.meta.get("board", ""), (None, None, None))
     if acc_cal is None:
-        acc_cal = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, chip=chips[0])
+        acc_cal = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, chip=chips[0],
+                           heldout=False)      # only its theta and covariance are used
     acc, theta, tnote = _gravity_reference(rec, poses, pieces, acc_cal, chips[0], args.seed)
     if slices is None:
         slices = pose_slices(rec, poses)

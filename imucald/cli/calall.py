@@ -56,10 +56,12 @@ def cmd_calibrate_all(args, kind: str, rec) -> int:
 
 
 def _part_name(sensor: str, part) -> str:
+    th = part.thermal or {}
+    tw = ", thermal terms" if th.get("order") or th.get("scale_poly") is not None else ""
     if sensor != "gyro":
-        return f"{sensor} ({part.model}{', thermal' if part.thermal else ''})"
+        return f"{sensor} ({part.model}{tw})"
     extra = [w for k, w in (("matrix", "K"), ("g_sens_dps_per_g", "G")) if k in part.params]
-    return "gyro (bias" + "".join(f", {w}" for w in extra) + (", thermal" if part.thermal else "") + ")"
+    return "gyro (bias" + "".join(f", {w}" for w in extra) + tw + ")"
 
 
 def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Optional
 
-from .calibration import Calibration, SensorCal
+from .calibration import Calibration, SensorCal, build_calibration
 from .calib.poses import PoseSet, poses_from_recording
 from .recording import Recording
 
@@ -23,6 +23,7 @@ def fit(poses: PoseSet, model: str = "triangular9", method: str = "ga", seed: Op
     from still poses; returns a Calibration for ``board`` (default: the recording's)."""
     from .calib.fit import fit_gyro_bias, fit_norm
     from .specs import BOARDS
+    meta = poses.meta if board is None or board == poses.meta.get("board") else {"board": board}
     board = board or poses.meta.get("board", "unknown")
     chip = BOARDS.get(board, (None,))[0]
     f = fit_norm(poses.acc, model, method, pose_cov=poses.acc_cov, rng=seed, chip=chip)
@@ -33,4 +34,4 @@ def fit(poses: PoseSet, model: str = "triangular9", method: str = "ga", seed: Op
     tr = None
     if t is not None and (t == t).any():
         tr = (round(float(t[t == t].min()), 2), round(float(t[t == t].max()), 2))
-    return Calibration(board, {}, id=1, temperature_range_c=tr, **parts)
+    return build_calibration(parts, board=board, meta=meta, temperature_range_c=tr)

@@ -424,6 +424,28 @@ class Calibration:
                    None if pv is None else _provisional(pv, "provisional"), d.get("sensor", ""))
 
 
+def build_calibration(parts: Mapping[str, Optional["SensorCal"]], board: Optional[str] = None,
+                      chips: Optional[Mapping[str, str]] = None, meta: Optional[Mapping[str, Any]] = None,
+                      id: int = 1, created: Optional[str] = None,
+                      temperature_range_c: Optional[Tuple[float, float]] = None) -> Calibration:
+    """The one builder of a :class:`Calibration` (the API, ``calibrate -o`` and the daemon's
+    job all call it).  ``parts``: sensor -> SensorCal (None entries are left out).  Board
+    and chips: given, else from a recording's ``meta`` (its board; its recorded chips, else
+    the board's usual ones, specs.recording_chips), else "unknown" and {}.  ``created``:
+    ISO 8601 UTC, now unless given ("" for a candidate not yet in force)."""
+    if meta is not None:
+        board = board or meta.get("board", "unknown")
+        if chips is None:
+            from .specs import recording_chips
+            chips = recording_chips(meta)
+    if created is None:
+        from datetime import datetime, timezone
+        created = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    return Calibration(board or "unknown", dict(chips or {}), id=id, created=created,
+                       temperature_range_c=temperature_range_c,
+                       **{s: p for s, p in parts.items() if p is not None})
+
+
 # --- files ----------------------------------------------------------------------------
 
 def save(cal: Calibration, path) -> None:

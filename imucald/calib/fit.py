@@ -119,6 +119,10 @@ def heldout_residuals(model: NormModel, theta: np.ndarray, raw: np.ndarray, targ
     if folds is None:
         folds = N if N <= 60 else 10
     groups = np.array_split(np.arange(N), folds)
+    from .loo import heldout_by_update      # all folds at once (calib/loo.py); None: refit each
+    quick = heldout_by_update(model, theta, raw, target, groups, lo, hi, prior, var)
+    if quick is not None:
+        return quick
     out = np.zeros(N)
     pred = np.zeros(N)
     z0 = None

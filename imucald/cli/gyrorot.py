@@ -3,18 +3,22 @@ the rotations between the still poses (calib/gyrorot.py), printed, as JSON, and 
 calibration file."""
 from __future__ import annotations
 
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 
 _AX = "xyz"
 
 
-def fit_rotations(rec, poses, args, pieces=None):
+def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, slices=None):
     """(GyroRotFit or None, why none): the accelerometer calibrated on ``poses`` (triangular9,
-    MAP with the datasheet prior) with its thermal terms fitted on ``pieces`` (the detector's
-    still pieces, each at its own temperature), then the rotations between the recording's
-    still intervals (found with the same detector settings)."""
+    MAP with the datasheet prior; or ``acc_cal``, a FitResult already fitted on them, as
+    ``calibrate --sensor all`` shares its accelerometer part) with its thermal terms fitted
+    on ``pieces`` (the detector's still pieces, each at its own temperature), then the
+    rotations between the recording's still intervals (found with the same detector
+    settings).  mag_cal: the magnetometer's rotation-cloud FitResult when already fitted
+    (None: fitted here, mag_sym); slices: the poses' sample ranges (None: read back from
+    ``poses``, :func:`pose_slices`, else the detector is run again with the same settings)."""
     from ..calib.fit import fit_norm
     from ..calib.gyrorot import fit_gyro_rotations
     from ..calib.poses import detect_static
@@ -24,21 +28,26 @@ def fit_rotations(rec, poses, args, pieces=None):
     if len(poses) < 10:
         return None, f"{len(poses)} still poses: the accelerometer needs 10 to give gravity directions"
     chips = BOARDS.get(rec.meta.get("board", ""), (None, None, None))
-    acc_cal = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, chip=chips[0])
+    if acc_cal is None:
+        acc_cal = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, chip=chips[0],
+                           heldout=False)      # only its theta and covariance are used
     acc, theta, tnote = _gravity_reference(rec, poses, pieces, acc_cal, chips[0], args.seed)
-    slices = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz, window_s=args.window_s,
-                           k=args.threshold_k, min_still_s=args.min_still_s)
+    if slices is None:
+        slices = pose_slices(rec, poses)
+    if slices is None:
+        slices = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz, window_s=args.window_s,
+                               k=args.threshold_k, min_still_s=args.min_still_s)
     rng = rec.meta.get("gyro_range_dps")
     try:
         rng = float(rng) if rng is not None else (GYRO[chips[1]].range_dps if chips[1] in GYRO else None)
     except ValueError:
         rng = None
-    frame = ("triangular9", theta, acc_cal.info["covariance"])
+    frame = (acc_cal.model, theta, acc_cal.info["covariance"])
     fit = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, chip=chips[1], range_dps=rng, acc_frame=frame)
     if fit is None:
         return None, "fewer than 3 clean rotations between consecutive still poses"
     fit.reference += tnote
-    mag = _calibrated_mag(rec, args.seed)
+    mag = _calibrated_mag(rec, args.seed, mag_cal)
     if mag is not None:     # the field direction too, when it agrees with its noise model
         fm = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, mag=mag, chip=chips[1], range_dps=rng,
                                 acc_frame=frame)
@@ -47,6 +56,17 @@ def fit_rotations(rec, poses, args, pieces=None):
             return fm, ""
         fit.reference += " (field directions left out: they scatter beyond their noise)"
     return fit, ""
+
+
+def pose_slices(rec, poses) -> Optional[List[slice]]:
+    """The sample ranges of ``poses`` (found in ``rec``): each pose starts at its t0 and holds
+    n samples; None when that does not give back every pose's t0 and t1 (repeated time
+    stamps), and the detector is then run again."""
+    i0 = np.searchsorted(rec.t, poses.t0, "left")
+    i1 = i0 + np.asarray(poses.n, int)
+    if len(i0) and (i1[-1] > len(rec.t) or np.any(rec.t[i0] != poses.t0) or np.any(rec.t[i1 - 1] != poses.t1)):
+        return None
+    return [slice(int(a), int(b)) for a, b in zip(i0, i1)]
 
 
 def _gravity_reference(rec, poses, pieces, acc_cal, chip, seed):
@@ -61,24 +81,27 @@ def _gravity_reference(rec, poses, pieces, acc_cal, chip, seed):
     if pieces is not None and rec.temp is not None and len(pieces) >= 10:
         tf = fit_thermal("accel", pieces, acc_cal, chip, pieces_colour_inflation(rec, poses, pieces), 0.0, seed)
     if tf is None or not (tf.order or tf.scale_poly is not None):
-        A, c = get_model("triangular9").affine(acc_cal.theta)
+        A, c = get_model(acc_cal.model).affine(acc_cal.theta)
         return rec.acc @ np.asarray(A, float).T + np.asarray(c, float), acc_cal.theta, ""
     part = thermal_part("accel", acc_cal, tf)
     return (part.apply(rec.acc, rec.temp), np.asarray(tf.base, float),
             f" (accelerometer with its thermal terms, {tf.name}, at each sample's temperature)")
 
 
-def _calibrated_mag(rec, seed):
+def _calibrated_mag(rec, seed, cal=None):
     """The recording's magnetometer corrected by its own rotation-cloud calibration
-    (mag_sym), or None (no magnetometer, or the cloud does not determine one)."""
+    (``cal``, else mag_sym fitted here), or None (no magnetometer, or the cloud does not
+    determine one)."""
     if rec.mag is None:
         return None
-    from ..calib.magcal import calibrate_rotation
     from ..calibration import SensorCal
-    res = calibrate_rotation(rec.mag, "mag_sym", "lm", rng=seed)
-    if not res["determined"]:
-        return None
-    return SensorCal.from_fit(res["calibration"]).apply(rec.mag)
+    if cal is None:
+        from ..calib.magcal import calibrate_rotation
+        res = calibrate_rotation(rec.mag, "mag_sym", "lm", rng=seed)
+        if not res["determined"]:
+            return None
+        cal = res["calibration"]
+    return SensorCal.from_fit(cal).apply(rec.mag)
 
 
 def _row(v, fmt):

@@ -130,6 +130,9 @@ def cmd_calibrate(args) -> int:
     columns = args.columns.split(",") if args.columns else None
     kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
     sensor = args.sensor
+    if sensor == "all":         # every part the recording supports, into one file (cli/calall.py)
+        from .calall import cmd_calibrate_all
+        return cmd_calibrate_all(args, kind, obj)
     if sensor is None:      # a magnetometer-only recording: calibrate the magnetometer
         sensor = "mag" if kind == "recording" and obj.acc is None and obj.mag is not None else "accel"
     model = args.model or DEFAULT_MODEL[sensor]
@@ -318,17 +321,12 @@ def _write_calibration(path: str, meta, part, thermal=None) -> None:
     """--output: ``part`` (a fit: its part, see _file_part) as a calibration file (the
     daemon's and imucald.load_calibration's format), written atomically; board and chips
     from the input's meta (chips: the recorded ones, else the board's usual), created now."""
-    from datetime import datetime, timezone
-
-    from ..calibration import Calibration, SensorCal, save
-    from ..specs import recording_chips
+    from ..calibration import SensorCal, build_calibration, save
     if not isinstance(part, SensorCal):
         part = _file_part(part, thermal)
     tr = None if thermal is None else (round(thermal.t_min_c, 2), round(thermal.t_max_c, 2))
-    now = datetime.now(timezone.utc).isoformat(timespec="seconds")
     try:
-        save(Calibration(meta.get("board", "unknown"), recording_chips(meta), id=1, created=now,
-                         temperature_range_c=tr, **{part.sensor: part}), path)
+        save(build_calibration({part.sensor: part}, meta=meta, temperature_range_c=tr), path)
     except OSError as e:
         raise CannotCreate(f"--output {path}: cannot write: {e.strerror}") from None
 

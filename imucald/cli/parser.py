@@ -66,8 +66,8 @@ def _add_calibrate(c) -> None:
     from ..stillness_defaults import STILLNESS_DEFAULTS as _ST
     from .offline import SENSORS
     c.add_argument("input", help="recording, pose file, or raw table (with --columns)")
-    c.add_argument("--sensor", choices=SENSORS, help="default accel; mag for a recording with "
-                   "magnetometer columns only")
+    c.add_argument("--sensor", choices=(*SENSORS, "all"), help="default accel; mag for a recording with "
+                   "magnetometer columns only; all: every part the recording supports, in one file")
     c.add_argument("--method", default="ga", choices=_choices("calibration.method"))
     c.add_argument("--model", help="accel: triangular9 (default), diag6, full12, cosine[-o|-s|-os|-om|-sm], "
                                    "auto (order by leave-one-pose-out error); "

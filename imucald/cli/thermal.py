@@ -19,9 +19,9 @@ def fit_thermal(sensor: str, poses, fit, chip: Optional[str], infl, min_span_c: 
     """The thermal fit of ``sensor`` on the still poses (None: no temperatures), started
     from the constant fit ``fit`` (calib.fit.FitResult).  From a recording the poses are the
     detector's pieces (calib.poses.poses_and_pieces), not the joined placements."""
-    from ..calib.thermal import fit_bias_series, fit_norm_thermal
     if poses.temp is None or not np.any(np.isfinite(poses.temp)):
         return None
+    from ..calib.thermal import fit_bias_series, fit_norm_thermal
     if sensor == "gyro":
         var = np.einsum("nii->ni", poses.gyro_cov) if poses.gyro_cov is not None else np.full((len(poses), 3), 1e-4)
         return fit_bias_series(poses.temp, poses.gyro, np.maximum(var, 1e-12), min_span_c, rng=seed)
@@ -50,8 +50,8 @@ def pieces_colour_inflation(rec, poses, pieces):
     """The accelerometer's coloured-noise inflation of each piece (calib/noise.py), read from
     the Allan model of the longest pose, as the constant fit's is."""
     from ..calib.noise import colour_inflation_per_pose
-    if len(poses) == 0 or len(pieces) == 0:
-        return None
+    if len(poses) == 0 or len(pieces) == 0 or rec.temp is None:
+        return None         # (no temperatures: no thermal fit to weigh)
     i = int(np.argmax(poses.t1 - poses.t0))
     i0, i1 = np.searchsorted(rec.t, [poses.t0[i], poses.t1[i]])
     return colour_inflation_per_pose(rec.acc[i0:i1], rec.rate_hz, pieces.n / rec.rate_hz)[0]

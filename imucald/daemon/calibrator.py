@@ -26,7 +26,7 @@ from ..calib.gate import ALPHA, Decision, fitted_poses, gate_accel, gate_gyro_bi
 from ..calib.magcal import SphereReservoir as MagReservoir
 from ..calib.magcal import coverage, flat_axis
 from ..calib.models import MagModel, Triangular9
-from ..calibration import Calibration, SensorCal
+from ..calibration import Calibration, SensorCal, build_calibration
 from ..calib.metrics import rms
 from ..npstats import median
 
@@ -72,7 +72,7 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     mp = job.get("mag_points")
     if mp is not None and len(mp) >= 30:
         _mag(np.asarray(mp, float), job, cur, parts, accept, notes)
-    candidate = Calibration(cur.board, dict(cur.chips), **parts)
+    candidate = build_calibration(parts, cur.board, cur.chips, id=0, created="")   # not in force yet
     return JobResult(candidate, accept, time.perf_counter() - t_start, notes)
 
 

@@ -1,0 +1,152 @@
+"""The whole calibration of the IMU-TK Xsens MTi recording, timed as a user runs it, as a
+ratio to ``python -c "import numpy"`` measured in the same run (issue 27).
+
+Commands (fresh processes, interleaved: one of each per round, the rounds repeated; medians
+of wall time over the rounds, and of the child's CPU time):
+
+* ``numpy``: ``python -c "import numpy"``, the baseline;
+* ``accel (Xsens file)``: ``calibrate xsens_acc.mat --columns t,ax,ay,az --nominal-offset 32768
+  --nominal-scale 4069.76`` (the README's command on the raw IMU-TK file);
+* ``accel``, ``gyro``, ``all``: ``calibrate REC --sensor ...`` on the merged recording
+  (accelerometer and gyro on their common timestamps, built as bench/real_gap.py builds it,
+  written to a temporary imucald recording);
+* with ``--before DIR`` (a checkout of an older commit, e.g. ``git archive bd2ec0f | tar -x
+  -C /tmp/base``): the same commands with that tree's imucald, in the same rounds; its
+  ``all`` is ``--sensor accel`` then ``--sensor gyro`` (two commands: ``--sensor all`` did
+  not exist);
+* with ``IMUTK_CALIB=/path/to/test_imu_calib`` set: IMU-TK's own app on the two files.
+  IMU-TK is not installed here and is never vendored.  To build it (Ubuntu/Debian):
+  ``apt-get install libeigen3-dev libceres-dev libqt5opengl5-dev freeglut3-dev libboost-dev``,
+  ``git clone https://github.com/Kyle-ak/imu_tk`` (BSD; needs Eigen 3, Ceres Solver, and Qt,
+  OpenGL and GLUT for its visualisation library), then ``mkdir build && cd build && cmake
+  -DCMAKE_BUILD_TYPE=Release .. && make``; the app is ``bin/test_imu_calib ACC GYRO`` (it
+  writes test_imu_acc.calib and test_imu_gyro.calib in its working directory: a temporary one here).
+
+Then the agreement of ``--sensor all`` with the separate commands: the largest difference of
+each parameter over its reported standard error.  The byte code of each tree is compiled
+first (``compileall``), as an installed package has it.
+Usage: python bench/imutk.py [--rounds N] [--before DIR]
+"""
+import argparse
+import compileall
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+from _common import ROOT
+
+REAL = os.path.join(ROOT, "..", "shared", "data", "real", "imutk_xsens_mti")
+ACC = os.path.join(REAL, "xsens_acc.mat")
+GYRO = os.path.join(REAL, "xsens_gyro.mat")
+RAW = ["--columns", "t,ax,ay,az", "--nominal-offset", "32768", "--nominal-scale", "4069.76"]
+
+
+def run(argv, tree=None, cwd=None):
+    """(wall s, CPU s of the child, stdout) of one command; ``tree``: the checkout whose
+    imucald it runs (PYTHONPATH and working directory)."""
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = tree
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    p = subprocess.run(argv, capture_output=True, cwd=cwd or tree or ROOT, env=env)
+    wall = time.perf_counter() - t
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if p.returncode:
+        raise SystemExit(f"{' '.join(argv)}: exit {p.returncode}: {p.stderr.decode().strip()[-300:]}")
+    return wall, (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime), p.stdout
+
+
+def commands(merged, before):
+    py = sys.executable
+    cal = [py, "-m", "imucald.cli", "calibrate"]
+    out = [("numpy", [[py, "-c", "import numpy"]], None)]
+    for label, tree in (("", ROOT),) + ((("before ", before),) if before else ()):
+        out.append((f"{label}accel (Xsens file)", [cal + [ACC, *RAW, "--json"]], tree))
+        for s in ("accel", "gyro"):
+            out.append((f"{label}{s}", [cal + [merged, "--sensor", s, "--json"]], tree))
+        if label:
+            out.append((f"{label}all (accel + gyro)", [cal + [merged, "--sensor", s, "--json"]
+                                                        for s in ("accel", "gyro")], tree))
+        else:
+            out.append(("all", [cal + [merged, "--sensor", "all", "--json"]], tree))
+    imutk = os.environ.get("IMUTK_CALIB")
+    if imutk:
+        out.append(("IMU-TK test_imu_calib", [[imutk, ACC, GYRO]], None))
+    return out
+
+
+def agreement(docs):
+    """Largest |all - separate| / reported standard error, per part."""
+    import numpy as np
+    a, sa, sg = docs["all"], docs["accel"], docs["gyro"]
+    rows = []
+    for g in sa["params"]:
+        d = np.abs(np.subtract(a["accel"]["params"][g], sa["params"][g])) / np.asarray(sa["stderr"][g])
+        rows.append((f"accel {g}", float(d.max())))
+    ra, rg = a["gyro"]["rotations"], sg["rotations"]
+    for k, se in (("matrix", "matrix_stderr"), ("g_sens_dps_per_g", "g_sens_stderr")):
+        if ra.get(k) is not None and rg.get(k) is not None:
+            d = np.abs(np.subtract(ra[k], rg[k])) / np.asarray(rg[se])
+            rows.append((f"gyro {k}", float(d.max())))
+    d = np.abs(np.subtract(a["gyro"]["file"]["bias_dps"], sg["file"]["bias_dps"])) / np.asarray(
+        sg["stderr"]["bias_dps"])
+    rows.append(("gyro file bias_dps", float(d.max())))
+    for k in ("cal_mean_deg", "cal_max_deg"):
+        rows.append((f"gyro held-out {k} (deg, absolute)", abs(ra["heldout"][k] - rg["heldout"][k])))
+    return rows
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--before", help="a checkout of an older commit, timed in the same rounds")
+    a = ap.parse_args()
+    if not os.path.exists(ACC):
+        print(f"skipped: {ACC} is absent (../shared is not beside the checkout)")
+        return 0
+    sys.path.insert(0, os.path.join(ROOT, "bench"))
+    from real_gap import xsens
+    from imucald.recording import write_recording
+    for tree in (ROOT, a.before):
+        if tree:
+            compileall.compile_dir(os.path.join(tree, "imucald"), quiet=1)
+    with tempfile.TemporaryDirectory() as d:
+        merged = os.path.join(d, "xsens_merged.csv")
+        write_recording(xsens(), merged)
+        cmds = commands(merged, a.before and os.path.abspath(a.before))
+        for _, argvs, tree in cmds:               # warm the file cache
+            run(argvs[0], tree, d)
+        times = {name: [] for name, _, _ in cmds}
+        docs = {}
+        for _ in range(a.rounds):
+            for name, argvs, tree in cmds:
+                w = c = 0.0
+                for argv in argvs:
+                    dw, dc, out = run(argv, tree, d)
+                    w, c = w + dw, c + dc
+                    if name in ("accel", "gyro", "all") and out.strip():
+                        docs[name] = json.loads(out)
+                times[name].append((w, c))
+    base = statistics.median(t[0] for t in times["numpy"])
+    base_cpu = statistics.median(t[1] for t in times["numpy"])
+    print(f"IMU-TK Xsens MTi (51175 samples at 100 Hz): {a.rounds} interleaved rounds, medians; "
+          f"baseline python -c 'import numpy' {base * 1e3:.0f} ms wall, {base_cpu * 1e3:.0f} ms CPU")
+    print(f"{'command':<28} {'wall ms':>8} {'x numpy':>8} {'CPU ms':>7} {'x numpy':>8}")
+    for name, _, _ in cmds:
+        w = statistics.median(t[0] for t in times[name])
+        c = statistics.median(t[1] for t in times[name])
+        print(f"{name:<28} {w * 1e3:>8.0f} {w / base:>8.2f} {c * 1e3:>7.0f} {c / base_cpu:>8.2f}")
+    print("--sensor all against the separate commands (|difference| / reported standard error):")
+    for k, v in agreement(docs):
+        print(f"  {k:<44} {v:.2e}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -151,8 +151,9 @@ class Decision:
         for k in ("consistency_chi2", "consistency_max", "consistency_p", "consistency_dof", "p_worse"):
             if getattr(self, k) is not None:
                 d[k] = getattr(self, k)
-        # JSON has no NaN: a figure that does not exist (no pose to score) is null
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+        # JSON has no NaN, and the stream omits a field rather than send null (gpsd's habit):
+        # a figure that does not exist (no pose to score) is left out
+        return {k: v for k, v in d.items() if not (isinstance(v, float) and not math.isfinite(v))}
 
     def text(self, scale: float = 1.0, unit: str = "", what: str = "poses") -> str:
         """The figures and, in numbers, why: '0.912 mg cross-validated vs 58.3 mg raw on 10

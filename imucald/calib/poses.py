@@ -20,7 +20,8 @@ from ..recording import Recording
 from .stillness import StillnessDetector
 from ..npstats import median
 
-__all__ = ["PoseSet", "detect_static", "detect_intervals", "poses_from_recording", "poses_and_pieces",
+__all__ = ["PoseSet", "detect_static", "detect_intervals", "detect", "poses_from_recording",
+           "poses_and_pieces", "still_report", "no_still_message",
            "read_poses", "write_poses", "POSES_MAGIC"]
 
 POSES_MAGIC = "# imucald poses v1"
@@ -44,6 +45,8 @@ class PoseSet:
     mag_cov: Optional[np.ndarray] = None
     temp: Optional[np.ndarray] = None            #: mean temperature, degC (N,)
     meta: Dict[str, str] = field(default_factory=dict)
+    #: the whole-file detector that found the poses (repeats, rejected stretches), or None
+    detector: object = field(default=None, repr=False, compare=False)
 
     def __len__(self):
         return len(self.acc)
@@ -60,17 +63,21 @@ def detect_static(t: np.ndarray, acc: np.ndarray, gyro: Optional[np.ndarray] = N
     """Index slices of the still intervals: the streaming detector
     (:class:`imucald.calib.stillness.StillnessDetector`, whose docstring gives the
     criterion and the defaults) run over the whole file, then flushed.  ``params`` are
-    its keyword arguments (window_s, k, min_still_s, max_pose_s, trim_s, max_turn_deg).
-    The pieces the streaming detector cuts from one long still run (every
-    ``max_pose_s``, so that a daemon reports a resting board) are joined again here."""
-    return merge_cut(detect_intervals(t, acc, gyro, rate_hz, **params)[0])
+    its keyword arguments (window_s, k, min_still_s, max_pose_s, trim_s, max_turn_deg,
+    chip).  The pieces the streaming detector cuts from one long still run (every
+    ``max_pose_s``, so that a daemon reports a resting board) are joined again here.
+    A slice covers the repeated rows inside it too (:mod:`imucald.calib.repeats`)."""
+    ivs, _, det = detect(t, acc, gyro, rate_hz, **params)
+    return merge_cut(ivs, None if det is None else det.repeats.keep)
 
 
-def merge_cut(intervals) -> List[slice]:
-    """Slices of intervals, contiguous pieces (cut at max_pose_s) joined."""
+def merge_cut(intervals, keep: Optional[np.ndarray] = None) -> List[slice]:
+    """Slices of intervals, contiguous pieces (cut at max_pose_s) joined; with ``keep``
+    (the distinct rows), pieces separated only by repeated rows are contiguous."""
     out: List[slice] = []
     for iv in intervals:
-        if out and out[-1].stop == iv.i0:
+        if out and (out[-1].stop == iv.i0 or (keep is not None and out[-1].stop < iv.i0
+                                               and not keep[out[-1].stop:iv.i0].any())):
             out[-1] = slice(out[-1].start, iv.i1)
         else:
             out.append(slice(iv.i0, iv.i1))
@@ -79,11 +86,22 @@ def merge_cut(intervals) -> List[slice]:
 
 def detect_intervals(t, acc, gyro=None, rate_hz=None, temp=None, **params):
     """(intervals, samples dropped as non-finite or absurd) for a whole file."""
+    ivs, dropped, _ = detect(t, acc, gyro, rate_hz, temp, **params)
+    return ivs, dropped
+
+
+def detect(t, acc, gyro=None, rate_hz=None, temp=None, **params):
+    """(intervals, samples dropped as non-finite or absurd, the detector) for a whole file:
+    its repeated samples found first (:func:`imucald.calib.repeats.find_repeats`), the
+    detector run on the distinct ones at their effective rate (``det.repeats``; the
+    stretches it rejected: ``det.rejected``, ``det.rejected_counts``).  The detector is
+    None for fewer than 4 rows."""
+    from .repeats import find_repeats
     t = np.asarray(t, float)
     if len(t) < 4:
-        return [], 0
-    rate = rate_hz or 1.0 / max(float(median(np.diff(t))), 1e-9)
-    det = StillnessDetector(rate, **params)
+        return [], 0, None
+    rep = find_repeats(t, acc, rate_hz)
+    det = StillnessDetector(rep.nominal_hz, repeats=rep, **params)
     out = []
     # the streaming detector over consecutive chunks: its decisions do not depend on how the
     # stream is cut, and its working arrays (~300 bytes a row) stay those of one chunk
@@ -92,7 +110,7 @@ def detect_intervals(t, acc, gyro=None, rate_hz=None, temp=None, **params):
         out += det.update(t[sl], acc[sl], None if gyro is None else gyro[sl],
                           None if temp is None else temp[sl])[1]
     out += det.flush()
-    return out, det.dropped
+    return out, det.dropped, det
 
 
 def _mean_cov(x: np.ndarray):
@@ -116,15 +134,70 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
     if rec.acc is None:
         raise UserError("the recording has no accelerometer columns (ax, ay, az): "
                         "poses are detected from the accelerometer")
-    ivs, dropped = detect_intervals(rec.t, rec.acc, rec.gyro, rec.rate_hz, **kw)
-    ps = poses_from_slices(rec, merge_cut(ivs))
-    pieces = poses_from_slices(rec, [slice(iv.i0, iv.i1) for iv in ivs])
+    if "chip" not in kw:
+        from ..specs import recording_chips
+        kw = dict(kw, chip=recording_chips(rec.meta).get("accel"))
+    ivs, dropped, det = detect(rec.t, rec.acc, rec.gyro, rec.rate_hz, **kw)
+    keep = None if det is None else det.repeats.keep
+    ps = poses_from_slices(rec, merge_cut(ivs, keep), keep)
+    pieces = poses_from_slices(rec, [slice(iv.i0, iv.i1) for iv in ivs], keep)
     if dropped:
         ps.meta["dropped_samples"] = pieces.meta["dropped_samples"] = str(dropped)
+    if det is not None:
+        ps.detector = pieces.detector = det
     return ps, pieces
 
 
-def poses_from_slices(rec: Recording, slices: List[slice]) -> PoseSet:
+def still_report(det) -> List[str]:
+    """Lines for the user about a whole-file detection: repeated samples and the effective
+    rate (one line, when any), and the quiet stretches rejected, by reason."""
+    out = []
+    if det is None:
+        return out
+    s = det.repeats.summary()
+    if s:
+        out.append(s)
+    rc = det.rejected_counts
+    if rc:
+        names = {"short": "shorter than the minimum", "few": "too few distinct samples",
+                 "noise": "noisier than the chip can be at rest", "norm": "|mean| not ~1 g"}
+        ex = {}
+        for r in det.rejected:
+            ex.setdefault(r["kind"], r)
+        out.append("quiet stretches not counted as poses: " + "; ".join(
+            f"{rc[k]} {names.get(k, k)} (e.g. {ex[k]['t0_s']:.1f}-{ex[k]['t1_s']:.1f} s: {ex[k]['reason']})"
+            if k in ex else f"{rc[k]} {names.get(k, k)}" for k in rc))
+    return out
+
+
+def no_still_message(path: str, det, n_found: int = 0) -> str:
+    """One line: the recording has no still moment (or too few), and why."""
+    if det is None:
+        return f"{path}: too few samples to find a still moment"
+    cap = det.floor_cap
+    fl = det._core.floor_a if det._core is not None else None
+    what = "no still moment" if n_found == 0 else f"only {n_found} still poses"
+    why = ""
+    rc = det.rejected_counts
+    if rc:
+        k = max(rc, key=rc.get)
+        r = next(x for x in reversed(det.rejected) if x["kind"] == k)
+        why = f"; {sum(rc.values())} quiet stretches rejected, e.g. at {r['t0_s']:.1f} s: {r['reason']}"
+        if k == "norm":
+            why += " (is the file in g? --nominal-scale converts counts)"
+    elif cap is not None and fl is not None and det._core._hist_a.size:
+        q = float(np.percentile(det._core._hist_a, 5))
+        kc = det._core.k * cap
+        why = (f"; the quietest 1 s windows scatter {np.sqrt(q / 3) * 1e3:.3g} mg per axis, "
+               f"{np.sqrt(q / kc):.3g}x the most a still {det.chip or 'accelerometer'} can "
+               f"({np.sqrt(kc / 3) * 1e3:.3g} mg at {det.rate:.3g} Hz)")
+    return (f"{path}: {what} found{why}: hold the board still for a few seconds in each "
+            f"orientation")
+
+
+def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.ndarray] = None) -> PoseSet:
+    """Each slice's rows averaged; with ``keep`` only the distinct ones (repeated samples
+    are not measurements: counted, they would shrink the standard errors)."""
     N = len(slices)
     acc = np.zeros((N, 3))
     acov = np.zeros((N, 3, 3))
@@ -138,6 +211,8 @@ def poses_from_slices(rec: Recording, slices: List[slice]) -> PoseSet:
     mcov = np.zeros((N, 3, 3)) if rec.mag is not None else None
     tp = np.zeros(N) if rec.temp is not None else None
     for i, s in enumerate(slices):
+        if keep is not None and not keep[s].all():
+            s = s.start + np.flatnonzero(keep[s])
         a = rec.acc[s]
         n[i] = len(a)
         acc[i], scov[i] = _mean_cov(a)

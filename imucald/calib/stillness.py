@@ -44,12 +44,16 @@ import numpy as np
 from ..npstats import median
 from .stillfloor import FLOOR_WINDOWS, floors as _floors, onset as _onset
 
-__all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS"]
+__all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS", "still_limits"]
 
 from ..stillness_defaults import STILLNESS_DEFAULTS as DEFAULTS
 WARMUP_WINDOWS = 8
+#: fewest distinct samples a pose holds (its covariance has n - 1 degrees of freedom)
+MIN_EFFECTIVE = 5
+#: rejected stretches kept for the report (their count by reason is kept whole)
+MAX_REJECTED = 1000
 ABSURD = 1e6
-_CH = ("t", "acc", "gyro", "temp", "mag", "fresh")
+_CH = ("t", "acc", "gyro", "temp", "mag", "fresh", "oi")
 
 
 @dataclass
@@ -68,12 +72,23 @@ class StaticInterval:
     i1: int = -1                  #: one past the last sample
 
 
-class StillnessDetector:
+class _Core:
+    """The detector on distinct samples at their effective rate (:class:`StillnessDetector`
+    feeds it)."""
+
     def __init__(self, rate_hz: float, window_s: float = DEFAULTS["window_s"],
                  k: float = DEFAULTS["k"], min_still_s: float = DEFAULTS["min_still_s"],
                  max_pose_s: float = DEFAULTS["max_pose_s"], trim_s: float = DEFAULTS["trim_s"],
-                 max_turn_deg: float = DEFAULTS["max_turn_deg"]):
+                 max_turn_deg: float = DEFAULTS["max_turn_deg"], floor_cap: float = np.inf,
+                 rest_norm_g=(0.0, np.inf)):
         self.rate = float(rate_hz)
+        self.floor_cap = float(floor_cap)
+        self.rest_norm_g = tuple(rest_norm_g)
+        self.min_still_s = float(min_still_s)
+        #: stretches that were quiet but did not make a pose: dicts t0_s, t1_s, n, reason, kind
+        #: (the last MAX_REJECTED), and the count of each kind since start
+        self.rejected: List[dict] = []
+        self.rejected_counts: Dict[str, int] = {}
         self.w = max(3, int(round(window_s * rate_hz)))
         self.window_s = self.w / self.rate
         self.k, self.max_turn_deg = float(k), float(max_turn_deg)
@@ -118,7 +133,9 @@ class StillnessDetector:
         # of the FLOOR_WINDOWS windows up to it (itself included), its bias the median mean
         # rate of the quiet ones among them
         hist_a = np.concatenate([self._hist_a, b[:, :, :3].var(1, ddof=1).sum(1)])
-        fas = _floors(hist_a, m)
+        # the learnt floor, capped by the chip's noise bound (a recording without a still
+        # moment learns its floor from motion)
+        fas = np.minimum(_floors(hist_a, m), self.floor_cap)
         hist_g = np.concatenate([self._hist_g, b[:, :, 3:].mean(1)]) if gy else None
         n0 = len(hist_a) - m
         for j in range(m):
@@ -166,13 +183,16 @@ class StillnessDetector:
         return var.sum(1), s1[:, 3:] / cnt + ref[3:], s1[:, :3] / cnt + ref[:3], full_w
 
     # -- streaming --------------------------------------------------------------------
-    def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
+    def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None, oi=None):
         """Feed one batch; returns (quiet flag per sample of the batch, intervals completed).
 
         The quiet flag is the trailing-window test (during the warm-up, with the floor
-        known so far); poses are emitted up to a window after their end."""
+        known so far); poses are emitted up to a window after their end.  ``oi``: each
+        row's index in the caller's stream (default: the rows counted here)."""
         acc = np.asarray(acc, float)
         n = len(acc)
+        if oi is None:
+            oi = np.arange(self._seen, self._seen + n)
         x = acc if gyro is None else np.concatenate([acc, np.asarray(gyro, float)], 1)
         good = (np.abs(x) < ABSURD).all(1)              # False for NaN and inf too
         if not good.all():
@@ -190,7 +210,7 @@ class StillnessDetector:
         new = {"t": np.asarray(t, float), "acc": acc,
                "gyro": None if gyro is None else np.asarray(gyro, float),
                "temp": None if temp is None else np.asarray(temp, float), "mag": mag,
-               "fresh": mag_fresh, "good": good & full, "ok": good, "va": va, "gm": gm, "am": am}
+               "fresh": mag_fresh, "oi": np.asarray(oi), "good": good & full, "ok": good, "va": va, "gm": gm, "am": am}
         if not self._pend:
             self._pend_i0 = self._seen
         self._seen += n
@@ -350,18 +370,41 @@ class StillnessDetector:
             # short moving average first leaves the first half's mean by 5 sigma
             end = max(0, _onset(acc) - self.trim_n)
         if end - start < self.min_n:
+            if end > start:
+                self._reject(t[start], t[end - 1], end - start, "short",
+                             f"still {(t[end - 1] - t[start]) + 1 / self.rate:.2f} s, under the "
+                             f"{self.min_still_s:g} s minimum")
             return None
         sl = slice(start, end)
         t, acc = t[sl], acc[sl]
-        gyro, temp, mag, fresh = cat("gyro"), cat("temp"), cat("mag"), cat("fresh")
+        gyro, temp, mag, fresh, oi = cat("gyro"), cat("temp"), cat("mag"), cat("fresh"), cat("oi")
         m = acc.mean(0)
         d = acc - m
         sc = d.T @ d / (len(acc) - 1)
+        n = len(acc)
+        dur = float(t[-1] - t[0]) + 1.0 / self.rate
+        norm = float(np.sqrt(m @ m))
+        if dur < self.min_still_s * (1 - 1e-9):
+            self._reject(t[0], t[-1], n, "short", f"still {dur:.2f} s, under the {self.min_still_s:g} s minimum")
+            return None
+        if n < MIN_EFFECTIVE:
+            self._reject(t[0], t[-1], n, "few", f"{n} distinct samples, under the {MIN_EFFECTIVE} a pose needs")
+            return None
+        if np.trace(sc) > self.k * self.floor_cap:
+            self._reject(t[0], t[-1], n, "noise",
+                         f"scatter {np.sqrt(np.trace(sc) / 3) * 1e3:.3g} mg per axis, above the chip's bound "
+                         f"{np.sqrt(self.k * self.floor_cap / 3) * 1e3:.3g} mg")
+            return None
+        if not self.rest_norm_g[0] <= norm <= self.rest_norm_g[1]:
+            self._reject(t[0], t[-1], n, "norm",
+                         f"|mean| {norm:.3g} g, not {self.rest_norm_g[0]:.3g}..{self.rest_norm_g[1]:.3g} g "
+                         f"(a sensor at rest reads ~1 g)")
+            return None
         tmp = float("nan")
         if temp is not None and np.isfinite(temp[sl]).any():
             tmp = float(np.nanmean(temp[sl]))
         iv = StaticInterval(m, sc / len(acc), sc, len(acc), float(t[0]), float(t[-1]), tmp,
-                            i0=self._run_i0 + start, i1=self._run_i0 + end)
+                            i0=int(oi[sl][0]), i1=int(oi[sl][-1]) + 1)
         if gyro is not None:
             g = gyro[sl]
             iv.gyro = g.mean(0)
@@ -374,3 +417,172 @@ class StillnessDetector:
             if f.any():
                 iv.mag = mm[f].mean(0)
         return iv
+
+    def _reject(self, t0, t1, n, kind, reason) -> None:
+        self.rejected_counts[kind] = self.rejected_counts.get(kind, 0) + 1
+        self.rejected.append({"t0_s": float(t0), "t1_s": float(t1), "n": int(n), "kind": kind,
+                              "reason": reason})
+        del self.rejected[:-MAX_REJECTED]
+
+
+# --- absolute limits: what a sensor at rest can read -----------------------------------------
+
+#: a part's noise may exceed its datasheet's typical density: the floor is capped at this many
+#: times the datasheet variance (measured: the real MPU-6050s of ../shared read 1.8x in summed
+#: variance, z the noisiest; hand tremor adds 1.3-3.2x inside a window, which k covers)
+CAP_FACTOR = 4.0
+#: noise bandwidth a logger sees at least, Hz: a chip filters at its own output rate, not at
+#: the logger's, so a logger reading a 100 Hz part at 3 Hz sees the part's full (aliased) noise;
+#: consumer parts' default bandwidths are >= ~50 Hz (MPU-6050 DLPF 0: 260 Hz, ADXL345 at its
+#: 100 Hz default ODR: 50 Hz)
+MIN_NOISE_BW_HZ = 50.0
+#: density assumed for an accelerometer not in imucald.specs: the MPU-6050's 400 ug/rtHz, near
+#: the noisiest consumer parts (ADXL345 430, ICM-20948 230, LSM9DS1 ~?: datasheets); 2x it
+#: (4x the variance, CAP_FACTOR) still rejects a hand tumble (bench/stillness_rates.py)
+GENERIC_DENSITY_G_RTHZ = 400e-6
+#: |mean| band of a pose for an unknown chip, g: 1 g +- 0.35 (a generic part's prior box:
+#: +-0.25 g offset, 15 % scale, summed with margin)
+GENERIC_REST_TOL_G = 0.35
+
+
+def still_limits(chip: Optional[str], rate_hz: float):
+    """(floor cap, |mean| band) for an accelerometer at rest sampled at ``rate_hz``
+    (effective, distinct samples).  Floor cap: the summed per-sample variance of the three
+    axes a still part can show, g^2: CAP_FACTOR x 3 x density^2 x max(rate / 2,
+    MIN_NOISE_BW_HZ) with the datasheet density (imucald.specs), else GENERIC_DENSITY_G_RTHZ.
+    Band: 1 g +- 1.5 x (scale tolerance + |zero-g tolerance|) (at least 0.1 g), else
+    +- GENERIC_REST_TOL_G."""
+    from ..specs import ACCEL
+    spec = ACCEL.get(chip or "")
+    nd = spec.noise_density_g_rthz if spec is not None else GENERIC_DENSITY_G_RTHZ
+    cap = CAP_FACTOR * 3.0 * nd ** 2 * max(rate_hz / 2.0, MIN_NOISE_BW_HZ)
+    if spec is not None:
+        tol = max(0.1, 1.5 * (spec.scale_tol + float(np.linalg.norm(spec.bias_tol_g))))
+    else:
+        tol = GENERIC_REST_TOL_G
+    return cap, (1.0 - tol, 1.0 + tol)
+
+
+# --- the detector: repeated samples out, then the core ---------------------------------------
+
+#: the streaming detector decides whether the stream holds repeated samples after this many
+#: rows spanning this many seconds (or DECIDE_MAX_ROWS rows); a whole file is judged at once
+DECIDE_ROWS, DECIDE_S, DECIDE_MAX_ROWS = 64, 10.0, 4096
+
+
+class StillnessDetector:
+    """The stillness detector (criterion and defaults: module docstring).
+
+    Repeated samples (:mod:`imucald.calib.repeats`) are dropped before anything is judged,
+    and the detector runs at the effective rate of the distinct samples: a whole file's are
+    found by the caller (``repeats``), a stream's from its first DECIDE_S seconds (the rows
+    wait, undecided and not quiet, until then).  ``chip``: the accelerometer (specs.ACCEL
+    name, else the generic bounds of :func:`still_limits`).  Intervals index the caller's
+    rows (i0, i1)."""
+
+    def __init__(self, rate_hz: float, window_s: float = DEFAULTS["window_s"],
+                 k: float = DEFAULTS["k"], min_still_s: float = DEFAULTS["min_still_s"],
+                 max_pose_s: float = DEFAULTS["max_pose_s"], trim_s: float = DEFAULTS["trim_s"],
+                 max_turn_deg: float = DEFAULTS["max_turn_deg"], chip: Optional[str] = None,
+                 repeats=None):
+        self.nominal_rate = float(rate_hz)
+        self._kw = dict(window_s=window_s, k=k, min_still_s=min_still_s, max_pose_s=max_pose_s,
+                        trim_s=trim_s, max_turn_deg=max_turn_deg)
+        self.chip = chip
+        self.repeats = None          #: the repeats.Repeats the detector runs on, once decided
+        self._core: Optional[_Core] = None
+        self._wait: List[tuple] = []
+        self._wait_n = 0
+        self._seen = 0
+        self._held = False
+        self._prev = None            # (t, acc row) of the last row fed
+        self._last_q = False
+        if repeats is not None:
+            self._start(repeats)
+
+    # what the core knows, before it exists: nothing
+    dropped = property(lambda self: self._core.dropped if self._core else 0)
+    floor_a = property(lambda self: self._core.floor_a if self._core else None)
+    bias_g = property(lambda self: self._core.bias_g if self._core else None)
+    rate = property(lambda self: self._core.rate if self._core else self.nominal_rate)
+    floor_cap = property(lambda self: self._core.floor_cap if self._core else None)
+    rejected = property(lambda self: self._core.rejected if self._core else [])
+    rejected_counts = property(lambda self: self._core.rejected_counts if self._core else {})
+
+    def _start(self, rep) -> None:
+        self.repeats = rep
+        self._held = bool(rep.held)
+        rate = rep.rate_hz if rep.rate_changed else self.nominal_rate
+        cap, band = still_limits(self.chip, rate)
+        self._core = _Core(rate, floor_cap=cap, rest_norm_g=band, **self._kw)
+
+    def _decide(self) -> None:
+        from .repeats import find_repeats
+        t = np.concatenate([w[0] for w in self._wait])
+        acc = np.concatenate([w[1] for w in self._wait])
+        self._start(find_repeats(t, acc, self.nominal_rate))
+        wait, self._wait, self._wait_n = self._wait, [], 0
+        self._seen -= sum(len(w[0]) for w in wait)
+        self._pre = [self._feed(*w) for w in wait]
+
+    def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
+        """Feed one batch; returns (quiet flag per sample of the batch, intervals completed)."""
+        if self._core is None:
+            t = np.asarray(t, float)
+            self._wait.append((t, np.asarray(acc, float), gyro, temp, mag, mag_fresh))
+            self._wait_n += len(t)
+            self._seen += len(t)
+            t0 = self._wait[0][0][0] if len(self._wait[0][0]) else 0.0
+            span = float(t[-1] - t0) if len(t) else 0.0
+            if not ((self._wait_n >= DECIDE_ROWS and span >= DECIDE_S) or self._wait_n >= DECIDE_MAX_ROWS):
+                return np.zeros(len(t), bool), []
+            self._decide()
+            ivs = [iv for _, got in self._pre for iv in got]
+            q = self._pre[-1][0]
+            self._pre = []
+            return q, ivs
+        return self._feed(t, acc, gyro, temp, mag, mag_fresh)
+
+    def _feed(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
+        t = np.asarray(t, float)
+        acc = np.asarray(acc, float)
+        n = len(t)
+        if not n:
+            return np.zeros(0, bool), []
+        same = np.zeros(n, bool)
+        st = np.zeros(n, bool)
+        if self._prev is not None:
+            same[0] = bool(np.all(acc[0] == self._prev[1]))
+            st[0] = t[0] == self._prev[0]
+        same[1:] = np.all(acc[1:] == acc[:-1], axis=1)
+        st[1:] = t[1:] == t[:-1]
+        self._prev = (t[-1], acc[-1].copy())
+        drop = same & (st | self._held)
+        oi = np.arange(self._seen, self._seen + n)
+        self._seen += n
+        if not drop.any():
+            q, ivs = self._core.update(t, acc, gyro, temp, mag, mag_fresh, oi=oi)
+            if len(q):
+                self._last_q = bool(q[-1])
+            return q, ivs
+        keep = ~drop
+        pick = lambda a: None if a is None else np.asarray(a)[keep]
+        qk, ivs = self._core.update(t[keep], acc[keep], pick(gyro), pick(temp), pick(mag),
+                                    pick(mag_fresh), oi=oi[keep])
+        # a dropped row has the flag of the distinct sample it repeats
+        pos = np.cumsum(keep) - 1
+        q = np.where(pos >= 0, qk[np.maximum(pos, 0)] if len(qk) else False, self._last_q)
+        if len(qk):
+            self._last_q = bool(qk[-1])
+        return q.astype(bool), ivs
+
+    def flush(self) -> List[StaticInterval]:
+        """End of stream: judge what waits (with the floor known so far) and close the run."""
+        out: List[StaticInterval] = []
+        if self._core is None:
+            if not self._wait_n:
+                return []
+            self._decide()
+            out = [iv for _, got in self._pre for iv in got]
+            self._pre = []
+        return out + self._core.flush()

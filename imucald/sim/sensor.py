@@ -28,7 +28,8 @@ from .poses import axis_angle
 from ..specs import ACCEL, BOARDS, GYRO, MAG
 
 __all__ = ["Truth", "draw_truth", "pose_sigma", "simulate_pose_means", "Session",
-           "simulate_session", "temperature_profile"]
+           "simulate_session", "simulate_tumble", "temperature_profile", "hold_samples",
+           "duplicate_rows"]
 
 _T9 = Triangular9()
 
@@ -173,7 +174,7 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
                      truth: Optional[Truth] = None, temp_kind: str = "warmup",
                      temp0_c: float = 22.0, temp_rise_c: float = 6.0,
                      effects: Sequence[Effect] = (), move_accel_g: float = 0.2,
-                     quantise: bool = True, tremor_dps: float = 0.0,
+                     quantise: bool = True, tremor_dps: Union[float, Sequence[float]] = 0.0,
                      tremor_lever_m: float = 0.025, latitude_deg: float = 48.0) -> Session:
     """Raw sample stream for a board moved through ``rotations``.
 
@@ -191,6 +192,8 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
     rate and the accelerometer the gravity-direction wobble, plus the tangential
     acceleration of a point ``tremor_lever_m`` from the pivot (2.5 cm gives the
     accelerometer 1.3-3x its noise variance at 1.5 deg/s, as real hand poses show).
+    A sequence gives each pose its own (over its hold and the move after it): e.g. 10 bench
+    poses (0) then 10 hand-held ones (1.5).
     """
     rng = as_rng(rng)
     truth = truth or draw_truth(board, rng)
@@ -233,8 +236,20 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
     w_dps = np.concatenate(ws)
     a_world = np.concatenate(accs)
     n = len(R)
-    if tremor_dps > 0:
+    per_pose = np.ndim(tremor_dps) > 0
+    if per_pose and len(tremor_dps) != N:
+        raise ValueError(f"tremor_dps: {len(tremor_dps)} values for {N} poses")
+    if per_pose and np.any(np.asarray(tremor_dps, float) > 0):
+        # each pose's tremor over its hold and the move that follows it (bench poses: 0)
+        env = np.repeat(np.asarray(tremor_dps, float),
+                        [sum(len(x) for x in Rs[2 * i:2 * i + 2]) for i in range(N)])
+        rate_dps, _ = hand_tremor(n, rate_hz, 1.0, rng)
+        rate_dps *= env[:, None]
+        ang = np.cumsum(np.radians(rate_dps), 0) / rate_hz
+        ang -= ang.mean(0)
+    elif not per_pose and tremor_dps > 0:
         rate_dps, ang = hand_tremor(n, rate_hz, tremor_dps, rng)
+    if (per_pose and np.any(np.asarray(tremor_dps, float) > 0)) or (not per_pose and tremor_dps > 0):
         sk = np.zeros((n, 3, 3))                     # small-angle body rotation I + [ang]x
         sk[:, 0, 1], sk[:, 0, 2], sk[:, 1, 2] = -ang[:, 2], ang[:, 1], -ang[:, 0]
         sk -= np.transpose(sk, (0, 2, 1))
@@ -243,6 +258,20 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
         alpha = np.gradient(np.radians(rate_dps), dt, axis=0)          # rad/s^2, body
         lever = np.cross(alpha, np.array([tremor_lever_m, 0.0, 0.0])) / 9.80665   # g, body
         a_world = a_world + np.einsum("nij,nj->ni", R, lever)
+    return _sense(board, truth, R, w_dps, a_world, rotations, holds, rate_hz, rng, temp_kind,
+                  temp0_c, temp_rise_c, effects, quantise, latitude_deg)
+
+
+def _sense(board, truth, R, w_dps, a_world, rotations, holds, rate_hz, rng, temp_kind, temp0_c,
+           temp_rise_c, effects, quantise, latitude_deg) -> Session:
+    """The sensors on a trajectory: body->world rotations R (n, 3, 3), body rates w_dps
+    (n, 3) and world linear acceleration a_world (n, 3, g), sampled at rate_hz: the error
+    model, effects, white noise, quantisation and clipping."""
+    an, gn, mn = BOARDS[board]
+    aspec, gspec = ACCEL[an], GYRO[gn]
+    mspec = MAG[mn] if mn else None
+    n = len(R)
+    dt = 1.0 / rate_hz
     t = np.arange(n) * dt
     f = np.einsum("nji,nj->ni", R, a_world + np.array([0.0, 0.0, 1.0]))  # R^T (a + up)
     temp = temperature_profile(t, temp_kind, temp0_c, temp_rise_c)
@@ -290,3 +319,68 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
         meta["mag_range_gauss"] = f"{mspec.range_gauss:g}"
     rec = Recording(t=t, acc=acc, gyro=gyro, mag=mag, temp=temp, meta=meta)
     return Session(rec, truth, holds, np.asarray(rotations), f, w_dps)
+
+
+def simulate_tumble(board: str, rng: RngLike = None, rate_hz: float = 5.0, duration_s: float = 120.0,
+                    speed_dps: Tuple[float, float] = (15.0, 60.0), truth: Optional[Truth] = None,
+                    quantise: bool = True) -> Session:
+    """A board turned slowly by hand without ever stopping: the body rate's direction wanders
+    smoothly and its magnitude stays within ``speed_dps`` (a slow hand tumble; no still
+    moment), with a small hand-like linear acceleration (<= 0.05 g).  Sampled at
+    ``rate_hz`` (real loggers of such tumbles: 3-10 Hz).  Session.hold is empty."""
+    rng = as_rng(rng)
+    truth = truth or draw_truth(board, rng)
+    # simulated finely (200 Hz) so the attitude integrates well, then sampled at rate_hz
+    fine = 200.0
+    nf = int(round(duration_s * fine))
+    tf = np.arange(nf) / fine
+    nk = 8                                          # a few slow sinusoids per axis, 0.02-0.3 Hz
+    fr = rng.uniform(0.02, 0.3, size=(nk, 3))
+    ph = rng.uniform(0, 2 * np.pi, size=(nk, 3))
+    amp = rng.normal(size=(nk, 3))
+    d = (amp[None] * np.sin(2 * np.pi * fr[None] * tf[:, None, None] + ph[None])).sum(1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)                 # direction (never 0 speed)
+    sp = np.interp(np.sin(2 * np.pi * rng.uniform(0.01, 0.05) * tf + rng.uniform(0, 6.3)),
+                   [-1, 1], list(speed_dps))
+    w_f = d * sp[:, None]                                          # deg/s, body
+    R = np.empty((nf, 3, 3))
+    Rc = axis_angle(rng.normal(size=3), rng.uniform(0, np.pi))
+    for i in range(nf):
+        R[i] = Rc
+        wv = np.radians(w_f[i]) / fine
+        ang = np.linalg.norm(wv)
+        if ang > 0:
+            Rc = Rc @ axis_angle(wv / ang, ang)
+    acc_f = 0.05 * np.sin(2 * np.pi * 0.5 * tf[:, None] + rng.uniform(0, 6.3, 3)[None])
+    idx = np.round(np.arange(0, duration_s, 1.0 / rate_hz) * fine).astype(int)
+    idx = idx[idx < nf]
+    return _sense(board, truth, R[idx], w_f[idx], acc_f[idx], R[idx[:1]], [], rate_hz, rng,
+                  "constant", 22.0, 0.0, (), quantise, 48.0)
+
+
+def hold_samples(rec: Recording, logger_rate_hz: float, phase: float = 0.0) -> Recording:
+    """Sample-and-hold: the recording (the chip's output at its rate) read by a logger at
+    ``logger_rate_hz`` (faster), each row the chip's latest sample: every value is held
+    logger_rate / rate times (2.5: alternately 2 and 3; an FXOS8700 at ~104 Hz read at
+    400 Hz: 3-4).  ``phase``: the logger's first read, in chip sample periods (0..1)."""
+    rate = rec.rate_hz
+    tl = np.arange(0.0, float(rec.t[-1]) + 1.0 / rate, 1.0 / logger_rate_hz)
+    idx = np.floor((tl - rec.t[0]) * rate + phase + 1e-9).astype(int)
+    keep = idx < len(rec.t)
+    tl, idx = tl[keep], idx[keep]
+    pick = lambda a: None if a is None else np.asarray(a)[idx]
+    meta = dict(rec.meta, rate_hz=f"{logger_rate_hz:g}")
+    return Recording(t=tl, acc=pick(rec.acc), gyro=pick(rec.gyro), mag=pick(rec.mag),
+                     temp=pick(rec.temp), meta=meta)
+
+
+
+
+
+
+def duplicate_rows(rec: Recording, times: int = 2) -> Recording:
+    """Every row written ``times`` times, timestamps included (a logger bug seen in the wild)."""
+    idx = np.repeat(np.arange(len(rec.t)), times)
+    pick = lambda a: None if a is None else np.asarray(a)[idx]
+    return Recording(t=rec.t[idx], acc=pick(rec.acc), gyro=pick(rec.gyro), mag=pick(rec.mag),
+                     temp=pick(rec.temp), meta=dict(rec.meta))

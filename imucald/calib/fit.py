@@ -189,25 +189,32 @@ def select_model(raw: np.ndarray, pose_cov: Optional[np.ndarray] = None, target:
     Returns (name, {model: held-out RMS, g}) and, under '_se', that standard error."""
     scores: Dict[str, float] = {}
     se: Dict[str, float] = {}
+    held = {}
     for name in candidates:
         m = get_model(name)
-        if len(raw) < int(m.free_mask.sum()) + 1:      # what fit_norm needs (skipped: too few poses)
-            continue
+        kf = int(m.free_mask.sum())
+        if len(raw) < kf + 1:
+            # fewer poses than free parameters + 1: with the datasheet prior (MAP) the terms
+            # the poses cannot determine are held at the prior; tried when the poses determine
+            # at least the smallest candidate (skipped otherwise)
+            if m.sensor != "accel" or len(raw) < min(int(get_model(c).free_mask.sum()) for c in candidates) + 1:
+                continue
+            held[name] = kf + 1
         cal = fit_norm(raw, m, "lm", pose_cov=pose_cov, target=target, chip=chip,
-                       noise_inflation=noise_inflation)
+                       noise_inflation=noise_inflation, _min_poses=1 if name in held else None)
         r2 = np.asarray(cal.info["heldout_residuals"]) ** 2
         scores[name] = float(cal.heldout_rms)
         se[name] = float(np.std(r2, ddof=1) / (2 * max(cal.heldout_rms, 1e-300) * np.sqrt(len(r2))))
     low = min(scores, key=scores.get)
     best = next(n for n in candidates if n in scores and scores[n] <= scores[low] + se[low])
-    return best, {**scores, "_se": se[low]}
+    return best, {**scores, "_se": se[low], "_held_at_prior": held}
 
 
 def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
              pose_cov: Optional[np.ndarray] = None, target: float = 1.0, rng=None,
              bounds: Optional[Tuple[np.ndarray, np.ndarray]] = None, heldout: bool = True,
              chip: Optional[str] = None, noise_inflation=None, prior: bool = True,
-             **method_kw) -> FitResult:
+             _min_poses: Optional[int] = None, **method_kw) -> FitResult:
     """Fit a norm model to pose means raw (N, 3) and report it.
 
     pose_cov: covariance of each pose mean (N, 3, 3) from within-pose scatter; each
@@ -229,14 +236,21 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
     if isinstance(model, str) and model == "auto":
         name, scores = select_model(raw, pose_cov, target, chip, noise_inflation=noise_inflation)
         se = scores.pop("_se")
+        held = scores.pop("_held_at_prior")
         selection = {"chosen": name, "heldout_rms_g": scores, "standard_error_g": se,
                      "rule": "simplest model within one standard error of the lowest "
                              "leave-one-pose-out RMS"}
+        if held:
+            # candidates fitted with fewer poses than they need: their undetermined terms
+            # are held at the datasheet prior (named in the fit's flags)
+            selection["held_at_prior"] = sorted(held)
+        if name in held:
+            _min_poses = 1
         model = name
     model = get_model(model) if isinstance(model, str) else model
     free = model.free_mask
     kf = int(free.sum())
-    if N < kf + 1:
+    if N < (kf + 1 if _min_poses is None else _min_poses):
         from ..errors import UserError
         raise UserError(f"{N} poses cannot determine the {kf} parameters of "
                         f"{model.name}: collect at least {kf + 1} (about 25 recommended)")

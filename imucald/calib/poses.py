@@ -173,10 +173,10 @@ def still_report(det) -> List[str]:
 def no_still_message(path: str, det, n_found: int = 0) -> str:
     """One line: the recording has no still moment (or too few), and why."""
     if det is None:
-        return f"{path}: too few samples to find a still moment"
+        return f"{path}: no still moment: only 0 still poses found (too few samples)"
     cap = det.floor_cap
     fl = det._core.floor_a if det._core is not None else None
-    what = "no still moment" if n_found == 0 else f"only {n_found} still poses"
+    what = "no still moment: only 0 still poses" if n_found == 0 else f"only {n_found} still poses"
     why = ""
     rc = det.rejected_counts
     if rc:

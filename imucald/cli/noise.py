@@ -46,18 +46,29 @@ def cmd_noise(args) -> int:
         rate = float(args.rate_hz)
     if not 0 < args.confidence < 1:
         raise UserError(f"--confidence {args.confidence}: give a fraction, e.g. 0.95")
+    keep = slice(None)
+    ref = next((getattr(rec, a) for a in ("acc", "gyro", "mag") if getattr(rec, a) is not None), None)
+    if ref is not None and i1 - i0 > 3:
+        # repeated rows (sample-and-hold, duplicated rows) are not samples: the figures come
+        # from the distinct ones at their effective rate (README: repeated samples)
+        from ..calib.repeats import find_repeats
+        rep = find_repeats(rec.t[i0:i1], np.asarray(ref[i0:i1], float), rate)
+        if rep.repeated:
+            keep = rep.keep
+            rate = rate * float(keep.mean()) if args.rate_hz else rep.rate_hz
+            eprint(f"imucald: warning: {args.recording}: {rep.summary()}")
     figs = {}
     for sensor, (attr, axes) in _AXES.items():
         x = getattr(rec, attr)
         if x is None or (args.sensor and sensor not in args.sensor):
             continue
-        x = np.asarray(x[i0:i1], float)
+        x = np.asarray(x[i0:i1], float)[keep]
         if not np.all(np.isfinite(x)):
             raise UserError(f"{args.recording}: {sensor} has non-finite values in the stretch used")
         figs[sensor] = characterise(x, rate, axes, args.confidence, args.tau_min_s, args.tau_max_s)
     if not figs:
         raise UserError(f"{args.recording}: no accel, gyro or mag columns to characterise")
-    dur = (i1 - i0) / rate
+    dur = float(rec.t[i1 - 1] - rec.t[i0]) if isinstance(keep, np.ndarray) else (i1 - i0) / rate
     span = f"samples {i0}..{i1 - 1} ({dur:.0f} s at {rate:.2f} Hz)"
     doc = figures_document(figs, rate, os.path.basename(args.recording), dur)
     doc["stretch"] = {"first_sample": int(i0), "samples": int(i1 - i0),

@@ -121,6 +121,33 @@ def _check_mag_span(path: str, mag) -> None:
                         f"(README: magnetometer only)")
 
 
+def _accel_model_order(path, model, n_poses, default, det, progress):
+    """(poses needed, model to fit): each model needs one pose more than its free parameters
+    (diag6 7, triangular9 10, full12 13; ``auto`` the smallest candidate's).  An explicit
+    model is judged by its own count; the default (triangular9, no --model) with fewer poses
+    than it needs but enough for a smaller model becomes ``auto`` (said on stderr); fewer
+    poses than any model needs: one line, exit 2 (no still moment at all: why)."""
+    from ..calib.fit import AUTO_MODELS
+    from ..calib.models import get_model
+    from ..calib.poses import no_still_message
+    k = lambda m: int(get_model(m).free_mask.sum())
+    need = min(k(m) for m in AUTO_MODELS) + 1 if model == "auto" else k(model) + 1
+    smallest = min(k(m) for m in AUTO_MODELS) + 1
+    if n_poses == 0:
+        raise UserError(no_still_message(path, det, 0))
+    if n_poses >= need:
+        return need, model
+    if default and n_poses >= smallest:
+        _eprint(f"imucald: {n_poses} still poses: fewer than the {need} the default {model} needs; "
+                f"choosing the model by held-out error among those the poses determine (--model auto)")
+        return smallest, "auto"
+    hint = (f"; with {n_poses} poses use --model auto or diag6 (offset + scale, needs {smallest})"
+            if n_poses >= smallest else "")
+    raise UserError(f"{path}: only {n_poses} still poses found; the {k(model) if model != 'auto' else smallest - 1}"
+                    f"-parameter model {model} needs at least {need} (about 25 recommended), well spread "
+                    f"over the sphere{hint}")
+
+
 def cmd_calibrate(args) -> int:
     import numpy as np
     from ..calib.fit import fit_gyro_bias, fit_norm
@@ -153,14 +180,19 @@ def cmd_calibrate(args) -> int:
     # at its own temperature (the thermal fit: a one-placement warm-up is one pose but many pieces)
     poses, pieces = poses_and_pieces(rec, window_s=args.window_s, k=args.threshold_k,
                                      min_still_s=args.min_still_s) if rec is not None else (obj, obj)
+    det = poses.detector
+    if det is not None and det.repeats.summary():
+        # repeated rows (sample-and-hold, duplicated rows) are not measurements: said once
+        _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
     infl_pieces = None
     chip = infl = None
     if sensor == "accel":
-        if len(poses) < 10:
-            raise UserError(f"{args.input}: only {len(poses)} still poses found; the 9-parameter "
-                            f"model needs at least 10 (about 25 recommended), well spread over the sphere")
+        need, model = _accel_model_order(args.input, model, len(poses), args.model is None, det, progress)
         _check_rest_norms(args.input, poses)
         if progress:
+            from ..calib.poses import still_report
+            for line in still_report(det)[1:]:
+                progress(f"imucald: {line}")
             progress(f"imucald: {len(poses)} still poses; fitting {model} with {args.method}")
         kw = {"progress": progress} if args.method == "ga-paper" and progress else {}
         from ..specs import BOARDS
@@ -266,7 +298,10 @@ def _print_cal(sensor: str, cal) -> None:
         if ms is not None:
             print(f"  model {ms['chosen']} chosen by leave-one-pose-out RMS ("
                   + ", ".join(f"{m} {v * unit[1]:.4f} {unit[0]}" for m, v in ms["heldout_rms_g"].items())
-                  + f"; one standard error {ms['standard_error_g'] * unit[1]:.4f} {unit[0]})")
+                  + f"; one standard error {ms['standard_error_g'] * unit[1]:.4f} {unit[0]})"
+                  + (f"; {', '.join(ms['held_at_prior'])} fitted with fewer poses than their parameters "
+                     f"+ 1: the terms the poses do not determine held at the datasheet prior"
+                     if ms.get("held_at_prior") else ""))
         if "path_error_20s_std_m" in cal.info:
             pe = cal.info["path_error_20s_std_m"]
             print(f"  paper 000 path error after 20 s (STD over poses): raw {pe['raw']:.3g} m, "

@@ -80,7 +80,7 @@ class Pipeline:
         self._next_mag_seen = 0
         st = cfg["stillness"]
         self.det = StillnessDetector(rate_hz, st["window_s"], st["k"], st["min_still_s"],
-                                     st["max_pose_s"], st["trim_s"])
+                                     st["max_pose_s"], st["trim_s"], chip=(chips or {}).get("accel"))
         self.acc = PoseAccumulator(cfg["poses"]["merge_angle_deg"], cfg["poses"]["max_poses"])
         #: every still interval with its temperature, for the thermal terms (daemon/thermallog.py)
         self.thermal_log = ThermalLog()
@@ -121,7 +121,7 @@ class Pipeline:
         if any(k.startswith("stillness.") for k in changed):
             st = cfg["stillness"]
             self.det = StillnessDetector(self.rate_hz, st["window_s"], st["k"], st["min_still_s"],
-                                         st["max_pose_s"], st["trim_s"])
+                                         st["max_pose_s"], st["trim_s"], chip=self.applied.chips.get("accel"))
         if any(k.startswith("poses.") for k in changed):
             self.acc.merge_cos = np.cos(np.radians(cfg["poses"]["merge_angle_deg"]))
             self.acc.max_poses = cfg["poses"]["max_poses"]

@@ -302,15 +302,19 @@ def test_duplicated_rows_are_dropped_with_one_warning(tmp_path, capsys):
 def test_a_slow_tumble_without_a_still_moment_is_refused_in_one_line(tmp_path, capsys, rate, board):
     """A board turned by hand without stopping, logged at 3-10 Hz: `calibrate` exits 2 with
     one line saying there is no still moment (and how far from still the quietest windows
-    are).  Seen to catch: with the floor not capped by the chip's noise (floor_cap = inf) the
-    detector learnt its floor from the motion and found 6-22 'still poses' per tumble (issue
-    20: '11 still poses', exit 0)."""
+    are).  Seen to catch: with the floor not capped by the chip's noise (still_limits' cap =
+    inf) the detector learnt its floor from the motion, found 'still poses' and calibrate
+    exited 0 on all three (issue 20: '11 still poses', exit 0); the main code of issue 20
+    found 6-22 per 120 s tumble."""
     from imucald.cli import main
     from imucald.recording import write_recording
     from imucald.sim.sensor import simulate_tumble
     p = tmp_path / "tumble.csv"
-    write_recording(simulate_tumble(board, np.random.default_rng(int(rate) + 40), rate_hz=rate,
-                                    duration_s=150).recording, str(p))
+    rec = simulate_tumble(board, np.random.default_rng(int(rate) + 40), rate_hz=rate, duration_s=150).recording
+    # accelerometer (+ magnetometer) only, as the real 3-5 Hz tumbles of issue 20: no gyro to
+    # see the turning
+    rec.gyro = None
+    write_recording(rec, str(p))
     assert main(["calibrate", str(p), "--method", "lm"]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "no still moment" in err, err
@@ -319,9 +323,9 @@ def test_a_slow_tumble_without_a_still_moment_is_refused_in_one_line(tmp_path, c
 def test_bench_then_hand_held_session_finds_all_20_poses():
     """10 bench poses (no tremor) then 10 hand-held ones (1.5 deg/s tremor): 20 of 20.  The
     bench poses teach the detector a floor without tremor, so a rule that lets the gyro vote
-    on stillness rejects every hand-held pose.  Seen to catch: making the gyro vote (the
-    window variance summed over accelerometer and gyro columns in _window_stats) found
-    10 + 0 poses."""
+    on stillness rejects the hand-held poses.  Seen to catch: making the gyro vote (its window
+    variance summed into the one the floor is learnt from and judged on, _blocks and
+    _window_stats over all six columns) found 0 + 0 poses."""
     rng = np.random.default_rng(20)
     s = simulate_session("mpu6050", random_pose_set(20, rng), rng, hold_s=(2.0, 4.0), move_s=(1.5, 3.0),
                          lead_s=0.0, tremor_dps=[0.0] * 10 + [1.5] * 10)
@@ -332,7 +336,7 @@ def test_bench_then_hand_held_session_finds_all_20_poses():
     sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
     mids = np.array([(rec.t[x.start] + rec.t[x.stop - 1]) / 2 for x in sl])
     found = [bool(np.any((mids > h0) & (mids < h1))) for h0, h1 in s.hold]
-    assert sum(found[:10]) == 10 and sum(found[10:]) == 10, found
+    assert sum(found[:10]) == 10 and sum(found[10:]) == 10, (sum(found[:10]), sum(found[10:]))
     assert len(sl) == 20
 
 

@@ -372,3 +372,27 @@ def test_repeat_detection_does_not_fire_on_quantised_noise():
     h = hold_samples(rec, 2 * rec.rate_hz)
     r2 = find_repeats(h.t, h.acc, h.rate_hz)
     assert r2.held and abs(r2.rate_hz / rec.rate_hz - 1) < 0.05
+
+
+@pytest.mark.parametrize("batch_n", [9, 50])
+def test_streaming_finds_the_poses_of_the_whole_file_in_a_held_stream(batch_n):
+    """The daemon and replay feed the detector in batches: it decides from the first 10 s
+    that the stream is held (3x) and then finds the poses the whole-file call finds, at the
+    effective rate.  Seen to catch: a streaming decision that ignored the hold (_decide
+    starting the core with held=False) ran at 300 Hz on the held rows."""
+    from imucald.calib.poses import detect
+    from imucald.sim.sensor import hold_samples
+    s = _bench_session(15, n_poses=5, hold=6.0)
+    h = hold_samples(s.recording, 3 * s.recording.rate_hz)
+    ivs, _, det = detect(h.t, h.acc, h.gyro, h.rate_hz)
+    whole = merge_cut(ivs, det.repeats.keep)
+    det2 = StillnessDetector(h.rate_hz)
+    got = []
+    for i in range(0, len(h.t), batch_n):
+        sl = slice(i, i + batch_n)
+        q, iv = det2.update(h.t[sl], h.acc[sl], h.gyro[sl])
+        assert len(q) == len(h.t[sl])
+        got += iv
+    got += det2.flush()
+    assert merge_cut(got, det.repeats.keep) == whole and len(whole) == 5
+    assert det2.repeats.held and abs(det2.rate - 100.0) < 1.0

@@ -465,9 +465,11 @@ def still_limits(chip: Optional[str], rate_hz: float):
 
 # --- the detector: repeated samples out, then the core ---------------------------------------
 
-#: the streaming detector decides whether the stream holds repeated samples after this many
-#: rows spanning this many seconds (or DECIDE_MAX_ROWS rows); a whole file is judged at once
-DECIDE_ROWS, DECIDE_S, DECIDE_MAX_ROWS = 64, 10.0, 4096
+#: the streaming detector decides whether the stream holds repeated samples once it has
+#: DECIDE_ROWS rows spanning DECIDE_S seconds (or DECIDE_MAX_ROWS rows): before the core's
+#: warm-up ends (WARMUP_WINDOWS windows) at usual rates, so no pose waits for the decision;
+#: a whole file is judged at once
+DECIDE_ROWS, DECIDE_S, DECIDE_MAX_ROWS = 16, 7.0, 4096
 
 
 class StillnessDetector:
@@ -475,10 +477,12 @@ class StillnessDetector:
 
     Repeated samples (:mod:`imucald.calib.repeats`) are dropped before anything is judged,
     and the detector runs at the effective rate of the distinct samples: a whole file's are
-    found by the caller (``repeats``), a stream's from its first DECIDE_S seconds (the rows
-    wait, undecided and not quiet, until then).  ``chip``: the accelerometer (specs.ACCEL
-    name, else the generic bounds of :func:`still_limits`).  Intervals index the caller's
-    rows (i0, i1)."""
+    found by the caller (``repeats``); a stream's from its first DECIDE_S seconds, which
+    meanwhile run through a core at the nominal rate (its live flags are returned, its poses
+    wait for the decision); when the stream turns out held (or its rate not the nominal one)
+    those rows are judged again by a core at the effective rate.  ``chip``: the
+    accelerometer (specs.ACCEL name, else the generic bounds of :func:`still_limits`).
+    Intervals index the caller's rows (i0, i1)."""
 
     def __init__(self, rate_hz: float, window_s: float = DEFAULTS["window_s"],
                  k: float = DEFAULTS["k"], min_still_s: float = DEFAULTS["min_still_s"],
@@ -491,57 +495,75 @@ class StillnessDetector:
         self.chip = chip
         self.repeats = None          #: the repeats.Repeats the detector runs on, once decided
         self._core: Optional[_Core] = None
-        self._wait: List[tuple] = []
+        self._wait: List[tuple] = []     # rows seen before the decision
         self._wait_n = 0
+        self._waiting: List[StaticInterval] = []   # poses the provisional core found meanwhile
         self._seen = 0
         self._held = False
         self._prev = None            # (t, acc row) of the last row fed
         self._last_q = False
         if repeats is not None:
             self._start(repeats)
+        else:
+            self._start_core(self.nominal_rate, False)
 
-    # what the core knows, before it exists: nothing
-    dropped = property(lambda self: self._core.dropped if self._core else 0)
-    floor_a = property(lambda self: self._core.floor_a if self._core else None)
-    bias_g = property(lambda self: self._core.bias_g if self._core else None)
-    rate = property(lambda self: self._core.rate if self._core else self.nominal_rate)
-    floor_cap = property(lambda self: self._core.floor_cap if self._core else None)
-    rejected = property(lambda self: self._core.rejected if self._core else [])
-    rejected_counts = property(lambda self: self._core.rejected_counts if self._core else {})
+    # what the core knows
+    dropped = property(lambda self: self._core.dropped)
+    floor_a = property(lambda self: self._core.floor_a)
+    bias_g = property(lambda self: self._core.bias_g)
+    rate = property(lambda self: self._core.rate)
+    floor_cap = property(lambda self: self._core.floor_cap)
+    rejected = property(lambda self: self._core.rejected)
+    rejected_counts = property(lambda self: self._core.rejected_counts)
+
+    @property
+    def undecided(self) -> bool:
+        return self.repeats is None
+
+    def _start_core(self, rate: float, held: bool) -> None:
+        self._held = bool(held)
+        cap, band = still_limits(self.chip, rate)
+        self._core = _Core(rate, floor_cap=cap, rest_norm_g=band, **self._kw)
+        self._seen, self._prev, self._last_q = 0, None, False
 
     def _start(self, rep) -> None:
         self.repeats = rep
-        self._held = bool(rep.held)
-        rate = rep.rate_hz if rep.rate_changed else self.nominal_rate
-        cap, band = still_limits(self.chip, rate)
-        self._core = _Core(rate, floor_cap=cap, rest_norm_g=band, **self._kw)
+        self._start_core(rep.rate_hz if rep.rate_changed else self.nominal_rate, rep.held)
 
-    def _decide(self) -> None:
+    def _decide(self, final: bool = False):
+        """Judge the waiting rows; returns the intervals to emit now."""
         from .repeats import find_repeats
-        t = np.concatenate([w[0] for w in self._wait])
-        acc = np.concatenate([w[1] for w in self._wait])
-        self._start(find_repeats(t, acc, self.nominal_rate))
         wait, self._wait, self._wait_n = self._wait, [], 0
-        self._seen -= sum(len(w[0]) for w in wait)
-        self._pre = [self._feed(*w) for w in wait]
+        waiting, self._waiting = self._waiting, []
+        t = np.concatenate([w[0] for w in wait])
+        acc = np.concatenate([w[1] for w in wait])
+        rep = find_repeats(t, acc, self.nominal_rate)
+        if not (rep.held or rep.rate_changed):
+            self.repeats = rep              # the provisional core was right: keep it
+            return waiting, None
+        self._start(rep)                    # judged again, at the effective rate
+        out, q = [], None
+        for w in wait:
+            q, got = self._feed(*w)
+            out += got
+        return out, q
 
     def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
         """Feed one batch; returns (quiet flag per sample of the batch, intervals completed)."""
-        if self._core is None:
-            t = np.asarray(t, float)
-            self._wait.append((t, np.asarray(acc, float), gyro, temp, mag, mag_fresh))
-            self._wait_n += len(t)
-            self._seen += len(t)
-            t0 = self._wait[0][0][0] if len(self._wait[0][0]) else 0.0
-            span = float(t[-1] - t0) if len(t) else 0.0
-            if not ((self._wait_n >= DECIDE_ROWS and span >= DECIDE_S) or self._wait_n >= DECIDE_MAX_ROWS):
-                return np.zeros(len(t), bool), []
-            self._decide()
-            ivs = [iv for _, got in self._pre for iv in got]
-            q = self._pre[-1][0]
-            self._pre = []
-            return q, ivs
-        return self._feed(t, acc, gyro, temp, mag, mag_fresh)
+        if not self.undecided:
+            return self._feed(t, acc, gyro, temp, mag, mag_fresh)
+        t = np.asarray(t, float)
+        acc = np.asarray(acc, float)
+        self._wait.append((t, acc, gyro, temp, mag, mag_fresh))
+        self._wait_n += len(t)
+        q, got = self._feed(t, acc, gyro, temp, mag, mag_fresh)
+        self._waiting += got
+        t0 = next((w[0][0] for w in self._wait if len(w[0])), None)
+        span = float(t[-1] - t0) if len(t) and t0 is not None else 0.0
+        if (self._wait_n >= DECIDE_ROWS and span >= DECIDE_S) or self._wait_n >= DECIDE_MAX_ROWS:
+            out, q2 = self._decide()
+            return (q if q2 is None else q2), out
+        return q, []
 
     def _feed(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
         t = np.asarray(t, float)
@@ -579,10 +601,6 @@ class StillnessDetector:
     def flush(self) -> List[StaticInterval]:
         """End of stream: judge what waits (with the floor known so far) and close the run."""
         out: List[StaticInterval] = []
-        if self._core is None:
-            if not self._wait_n:
-                return []
-            self._decide()
-            out = [iv for _, got in self._pre for iv in got]
-            self._pre = []
+        if self.undecided and self._wait_n:
+            out, _ = self._decide(final=True)
         return out + self._core.flush()

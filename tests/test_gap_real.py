@@ -77,12 +77,18 @@ def test_sunsided_ten_minutes_unmoved_accel_drifts_gyro_none_mag_not_diagnosable
     assert res["mode"] == "time_series" and res["orientations"] == 1
     a, g = res["sensors"]["accel"], res["sensors"]["gyro"]
     # 0.22 degC of temperature: thermal effects untested; the accelerometer's y bias moves
-    # by a straight line over the 10 minutes (about -0.56 mg), which closes the gap
-    assert a["verdict"] == "bias_drift" and a["explained"] == "closed"
+    # over the 10 minutes (about -0.56 mg), which closes the gap.  Issue 20: gap works on the
+    # distinct samples (this loader's 100 Hz grid repeats 61 % of its rows); there the move is
+    # best a smooth wandering bias (the raw log's minute means of y: 66.17, 66.01, 65.82, ...
+    # 65.60 mg, fast first), the straight line still significant at step 1
+    assert a["verdict"] == "wandering_bias" and a["explained"] == "closed"
     c, se = _coef(a, "bias_drift")
     assert c[1] / se[1] < -4                         # y: clear of its standard error
     assert abs(c[0]) / se[0] < 3                     # x: within its noise
-    # the gyro's block means scatter as its twin says (Allan colour included)
-    assert g["verdict"] == "none"
+    # the gyro's x bias drifts: the raw log's minute means go 4.542 -> 4.526 deg/s over the 10
+    # minutes (-2.7e-5 deg/s/s, each mean +-0.0016); on the held rows gap saw none (issue 20)
+    assert g["verdict"] == "bias_drift"
+    c, se = _coef(g, "bias_drift")
+    assert c[0] / se[0] < -4 and -6e-5 < c[0] < -1.5e-5
     # the board never turned: the magnetometer cannot be fitted, and the output says why
     assert "mag" not in res["sensors"] and any("mag: not diagnosed" in n for n in res["notes"])

@@ -552,6 +552,13 @@ class Pipeline:
             d["orientation_off"] = self.orientation_off
         else:
             d["orientation_resets"] = self.orient.resets
+        # the still-pose detector: the rate it judges at (distinct samples), repeated rows
+        # found, and the quiet stretches that did not make a pose, by reason (issue 20)
+        det = self.det
+        d["stillness"] = {"effective_rate_hz": round(det.rate, 3),
+                          "repeats": None if det.repeats is None else (det.repeats.summary() or None),
+                          "rejected": dict(det.rejected_counts),
+                          "last_rejected": det.rejected[-1]["reason"] if det.rejected else None}
         if self.events:
             d["last_event"] = self.events[-1]
         return d

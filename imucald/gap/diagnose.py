@@ -114,12 +114,30 @@ def _mag(rec, sl, pose_mag, pose_var, pose_idx, acc_theta, skip, sims, rng) -> D
     return r
 
 
+def distinct_samples(rec: Recording) -> Recording:
+    """The recording without its repeated rows (sample-and-hold, duplicated rows: issue 20,
+    :mod:`imucald.calib.repeats`), at the effective rate: noise and block statistics need
+    distinct samples.  Unchanged when none is repeated."""
+    from ..calib.repeats import find_repeats
+    ref = rec.acc if rec.acc is not None else rec.mag
+    if ref is None or len(rec.t) < 4:
+        return rec
+    rep = find_repeats(rec.t, ref, rec.rate_hz)
+    if not rep.repeated:
+        return rec
+    k = rep.keep
+    pick = lambda a: None if a is None else np.asarray(a)[k]
+    return Recording(t=rec.t[k], acc=pick(rec.acc), gyro=pick(rec.gyro), mag=pick(rec.mag),
+                     temp=pick(rec.temp), meta=dict(rec.meta, rate_hz=f"{rep.rate_hz:.6g}"))
+
+
 def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int = 200,
              seed: int = 0, name: str = "recording") -> Dict[str, object]:
     """Diagnose every sensor present (or the ones asked for); returns the JSON object."""
     rng = np.random.default_rng(seed)
     if rec.acc is None:
         raise GapError(f"{name}: no accelerometer columns: still poses are found from the accelerometer")
+    rec = distinct_samples(rec)
     avail = [s for s, a in (("accel", rec.acc), ("gyro", rec.gyro), ("mag", rec.mag)) if a is not None]
     sensors = list(sensors or avail)
     for s in sensors:

@@ -72,6 +72,9 @@ def mag_points(rec, slices: Sequence[slice], pose_mag: Optional[np.ndarray], pos
         parts_t.append(rec.t[ri])
         parts_T.append(rec.temp[ri] if use_temp else None)
         parts_a.append(acc_dir(rec.acc[ri]))
+    if not parts_x:             # no still pose means and no rotation: nothing to fit (diagnosable says)
+        return np.zeros((0, 3)), np.zeros(0), {}, {"still_pose_means": 0, "rotation_points": 0,
+                                                   "rotation_samples": int(len(moving))}
     x = np.vstack(parts_x)
     var = np.concatenate(parts_v)
     t = np.concatenate(parts_t)

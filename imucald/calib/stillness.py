@@ -33,6 +33,21 @@ so the result does not depend on how the stream is cut in batches.
 
 Non-finite samples, and samples with any value beyond ``ABSURD`` (1e6: no IMU range
 comes near), are never still and never averaged; they are counted in ``dropped``.
+
+Distinct samples (issue 20): repeated rows (sample-and-hold, duplicated rows;
+:mod:`imucald.calib.repeats`) are dropped before anything above is computed, and ``rate``
+is the effective rate of the distinct samples, so windows, the onset cut (which compares
+a moving mean with sd / sqrt(10), i.e. assumes independent samples) and every pose's
+covariance see independent samples.
+
+Still in absolute terms (issue 20), :func:`still_limits`: the learnt floor is capped by
+what the chip can show at rest (datasheet density, or a generic one, over the noise
+bandwidth), so a recording without a still moment cannot learn its floor from motion; and
+a run makes a pose only when it lasts ``min_still_s`` by its timestamps, holds
+``MIN_EFFECTIVE`` (5) distinct samples, scatters no more than k x the cap and reads
+|mean| within the chip's band around 1 g.  Runs that fail are kept in ``rejected`` with
+the reason (``rejected_counts`` by kind: short, few, noise, norm).  Measured error rates:
+bench/stillness_rates.py (docs/changes/issue-20a.md).
 """
 from __future__ import annotations
 

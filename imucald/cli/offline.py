@@ -222,7 +222,8 @@ def cmd_calibrate(args) -> int:
                 raise UserError("--model eq6 needs the still samples: give a recording")
             from ..calib.poses import detect_static
             sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
-            samples = np.concatenate([rec.gyro[s] for s in sl])
+            keep = det.repeats.keep if det is not None else np.ones(len(rec.t), bool)
+            samples = np.concatenate([rec.gyro[s][keep[s]] for s in sl])     # distinct samples
         cal = fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
     rot = why = None
     if sensor == "gyro" and rec is not None:    # scale/misalignment from the rotations between poses

@@ -396,3 +396,28 @@ def test_streaming_finds_the_poses_of_the_whole_file_in_a_held_stream(batch_n):
     got += det2.flush()
     assert merge_cut(got, det.repeats.keep) == whole and len(whole) == 5
     assert det2.repeats.held and abs(det2.rate - 100.0) < 1.0
+
+
+def test_a_turn_about_gravity_without_a_gyro_is_seen_by_the_magnetometer():
+    """A hold during which the board turns 10 deg about gravity (the accelerometer reads the
+    same; no gyro, as issue 20's accelerometer + magnetometer tumbles) is not a pose: the
+    magnetometer's field direction turns; the reason is reported.  Seen to catch: without
+    the magnetometer check (_mag_turn) the turning stretch was a pose (8 of 8)."""
+    from imucald.calib.poses import detect
+    from imucald.sim.poses import axis_angle
+    rng = np.random.default_rng(16)
+    s = simulate_session("9dof", random_pose_set(8, rng), rng, hold_s=5.0, move_s=2.0)
+    rec = s.recording
+    h0, h1 = s.hold[3]
+    mag = rec.mag.copy()
+    inside = np.flatnonzero((rec.t >= h0) & (rec.t <= h1))
+    up = rec.acc[inside].mean(0)
+    centre = mag[inside].mean(0) - s.truth.mag_hard_iron_gauss
+    for j, i in enumerate(inside):          # the field turns about the gravity direction
+        R = axis_angle(up, np.radians(10.0) * (j / len(inside) - 0.5))
+        mag[i] = s.truth.mag_hard_iron_gauss + R @ (mag[i] - s.truth.mag_hard_iron_gauss - centre) + R @ centre
+    base = merge_cut(detect(rec.t, rec.acc, None, rec.rate_hz, mag=rec.mag, chip="adxl345")[0])
+    ivs, _, det = detect(rec.t, rec.acc, None, rec.rate_hz, mag=mag, chip="adxl345")
+    assert len(base) == 8 and len(merge_cut(ivs)) == 7
+    turn = [r for r in det.rejected if r["kind"] == "turn"]
+    assert turn and h0 - 1 <= turn[0]["t0_s"] <= h1 and "magnetometer turned" in turn[0]["reason"]

@@ -90,7 +90,7 @@ def detect_intervals(t, acc, gyro=None, rate_hz=None, temp=None, **params):
     return ivs, dropped
 
 
-def detect(t, acc, gyro=None, rate_hz=None, temp=None, **params):
+def detect(t, acc, gyro=None, rate_hz=None, temp=None, mag=None, **params):
     """(intervals, samples dropped as non-finite or absurd, the detector) for a whole file:
     its repeated samples found first (:func:`imucald.calib.repeats.find_repeats`), the
     detector run on the distinct ones at their effective rate (``det.repeats``; the
@@ -108,7 +108,7 @@ def detect(t, acc, gyro=None, rate_hz=None, temp=None, **params):
     for i in range(0, len(t), DETECT_CHUNK):
         sl = slice(i, i + DETECT_CHUNK)
         out += det.update(t[sl], acc[sl], None if gyro is None else gyro[sl],
-                          None if temp is None else temp[sl])[1]
+                          None if temp is None else temp[sl], None if mag is None else mag[sl])[1]
     out += det.flush()
     return out, det.dropped, det
 
@@ -137,7 +137,7 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
     if "chip" not in kw:
         from ..specs import recording_chips
         kw = dict(kw, chip=recording_chips(rec.meta).get("accel"))
-    ivs, dropped, det = detect(rec.t, rec.acc, rec.gyro, rec.rate_hz, **kw)
+    ivs, dropped, det = detect(rec.t, rec.acc, rec.gyro, rec.rate_hz, mag=rec.mag, **kw)
     keep = None if det is None else det.repeats.keep
     ps = poses_from_slices(rec, merge_cut(ivs, keep), keep)
     pieces = poses_from_slices(rec, [slice(iv.i0, iv.i1) for iv in ivs], keep)
@@ -160,7 +160,8 @@ def still_report(det) -> List[str]:
     rc = det.rejected_counts
     if rc:
         names = {"short": "shorter than the minimum", "few": "too few distinct samples",
-                 "noise": "noisier than the chip can be at rest", "norm": "|mean| not ~1 g"}
+                 "noise": "noisier than the chip can be at rest", "norm": "|mean| not ~1 g",
+                 "turn": "turning (magnetometer)"}
         ex = {}
         for r in det.rejected:
             ex.setdefault(r["kind"], r)

@@ -46,7 +46,8 @@ bandwidth), so a recording without a still moment cannot learn its floor from mo
 a run makes a pose only when it lasts ``min_still_s`` by its timestamps, holds
 ``MIN_EFFECTIVE`` (5) distinct samples, scatters no more than k x the cap and reads
 |mean| within the chip's band around 1 g.  Runs that fail are kept in ``rejected`` with
-the reason (``rejected_counts`` by kind: short, few, noise, norm).  Measured error rates:
+the reason (``rejected_counts`` by kind: short, few, noise, norm, and turn: with a
+magnetometer, a field direction that turns within the stretch, :func:`_mag_turn`).  Rates:
 bench/stillness_rates.py (docs/changes/issue-20a.md).
 """
 from __future__ import annotations
@@ -415,6 +416,11 @@ class _Core:
                          f"|mean| {norm:.3g} g, not {self.rest_norm_g[0]:.3g}..{self.rest_norm_g[1]:.3g} g "
                          f"(a sensor at rest reads ~1 g)")
             return None
+        if mag is not None:
+            why = _mag_turn(np.asarray(mag, float)[sl], None if fresh is None else np.asarray(fresh, bool)[sl])
+            if why:
+                self._reject(t[0], t[-1], n, "turn", why)
+                return None
         tmp = float("nan")
         if temp is not None and np.isfinite(temp[sl]).any():
             tmp = float(np.nanmean(temp[sl]))
@@ -438,6 +444,39 @@ class _Core:
         self.rejected.append({"t0_s": float(t0), "t1_s": float(t1), "n": int(n), "kind": kind,
                               "reason": reason})
         del self.rejected[:-MAX_REJECTED]
+
+
+#: a stretch whose magnetometer field direction turns more than this (or 5 of its noise
+#: standard deviations) between its first and last thirds is turning, not still: a rotation
+#: about gravity is invisible to the accelerometer (issue 20's 3-5 Hz hand tumbles carry a
+#: magnetometer and no gyro); tremor averages out over a third of a pose
+MAG_TURN_DEG = 1.0
+
+
+def _mag_turn(m: np.ndarray, fresh: Optional[np.ndarray]) -> Optional[str]:
+    """Why the magnetometer says the stretch turned (None when it does not, or cannot tell).
+    Only new readings count (fresh, finite, changed: a held magnetometer repeats)."""
+    ok = np.all(np.isfinite(m), axis=1)
+    if fresh is not None:
+        ok &= fresh
+    ch = np.r_[True, np.any(np.diff(m, axis=0) != 0, axis=1)]
+    x = m[ok & ch]
+    n3 = len(x) // 3
+    if n3 < 2:
+        return None
+    a, b = x[:n3].mean(0), x[-n3:].mean(0)
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if not (na > 0 and nb > 0):
+        return None
+    ang = float(np.arccos(np.clip(a @ b / (na * nb), -1.0, 1.0)))
+    d2 = np.diff(x, 2, axis=0)
+    s2 = float(np.mean(d2 ** 2)) * 3 / 6.0 if len(d2) else 0.0     # summed per-sample variance
+    noise = np.sqrt(2.0 * s2 / n3) / (0.5 * (na + nb))
+    lim = max(np.radians(MAG_TURN_DEG), 5.0 * noise)
+    if ang > lim:
+        return (f"the magnetometer turned {np.degrees(ang):.2g} deg within it (limit "
+                f"{np.degrees(lim):.2g} deg): turning about gravity, which the accelerometer cannot see")
+    return None
 
 
 # --- absolute limits: what a sensor at rest can read -----------------------------------------

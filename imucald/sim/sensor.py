@@ -323,10 +323,10 @@ def _sense(board, truth, R, w_dps, a_world, rotations, holds, rate_hz, rng, temp
 
 def simulate_tumble(board: str, rng: RngLike = None, rate_hz: float = 5.0, duration_s: float = 120.0,
                     speed_dps: Tuple[float, float] = (15.0, 60.0), truth: Optional[Truth] = None,
-                    quantise: bool = True) -> Session:
+                    quantise: bool = True, move_accel_g: float = 0.05) -> Session:
     """A board turned slowly by hand without ever stopping: the body rate's direction wanders
     smoothly and its magnitude stays within ``speed_dps`` (a slow hand tumble; no still
-    moment), with a small hand-like linear acceleration (<= 0.05 g).  Sampled at
+    moment), with a small hand-like linear acceleration (``move_accel_g``, 0.5 Hz).  Sampled at
     ``rate_hz`` (real loggers of such tumbles: 3-10 Hz).  Session.hold is empty."""
     rng = as_rng(rng)
     truth = truth or draw_truth(board, rng)
@@ -351,7 +351,7 @@ def simulate_tumble(board: str, rng: RngLike = None, rate_hz: float = 5.0, durat
         ang = np.linalg.norm(wv)
         if ang > 0:
             Rc = Rc @ axis_angle(wv / ang, ang)
-    acc_f = 0.05 * np.sin(2 * np.pi * 0.5 * tf[:, None] + rng.uniform(0, 6.3, 3)[None])
+    acc_f = move_accel_g * np.sin(2 * np.pi * 0.5 * tf[:, None] + rng.uniform(0, 6.3, 3)[None])
     idx = np.round(np.arange(0, duration_s, 1.0 / rate_hz) * fine).astype(int)
     idx = idx[idx < nf]
     return _sense(board, truth, R[idx], w_f[idx], acc_f[idx], R[idx[:1]], [], rate_hz, rng,

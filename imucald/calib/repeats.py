@@ -70,6 +70,8 @@ class Repeats:
 
     @property
     def rate_changed(self) -> bool:
+        if not (self.rate_hz > 0 and self.nominal_hz > 0):
+            return False                    # timestamps that do not advance: the rate given stays
         return self.repeated > 0 or abs(self.rate_hz / self.nominal_hz - 1) > RATE_MISMATCH
 
     def summary(self) -> str:
@@ -166,5 +168,7 @@ def find_repeats(t: np.ndarray, x: np.ndarray, rate_hz: Optional[float] = None) 
     rate = nominal
     if eff > 0 and (dropped or (nominal > 0 and abs(eff / nominal - 1) > RATE_MISMATCH) or nominal <= 0):
         rate = eff
+    if not rate > 0:            # timestamps that never advance: no rate to be had (as before: 1e9)
+        rate = 1e9
     return Repeats(keep, bool(held), dropped, int(tt.sum()), int(dup_rows.sum()), chance,
                    float(rate), float(nominal if nominal > 0 else rate))

@@ -269,7 +269,7 @@ def test_sample_and_hold_keeps_every_pose_and_its_standard_errors(factor):
 def test_duplicated_rows_are_dropped_with_one_warning(tmp_path, capsys):
     """Every row written twice with its timestamp: one warning line with the count; the
     calibration's standard errors and `noise`'s rate are those of the distinct samples.
-    Seen to catch: without the duplicate check the standard errors were 1/sqrt(2) = 0.71x and
+    Seen to catch: without the duplicate check the bias standard errors were 0.75x and
     noise reported 200 Hz for a 100 Hz recording."""
     import json
     from imucald.cli import main

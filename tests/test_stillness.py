@@ -343,7 +343,7 @@ def test_bench_then_hand_held_session_finds_all_20_poses():
 def test_rejected_stretches_name_their_reason():
     """A hold whose mean is not ~1 g (here scaled to 0.55 g, as issue 20's tumble pose) is
     not a pose and is reported with that reason; the others count.  Seen to catch: without
-    the |mean| check the 0.55 g stretch was a pose (13 of 12)."""
+    the |mean| check the 0.55 g stretch was a pose (12 found, not 11)."""
     from imucald.calib.poses import detect
     s = _bench_session(13, hold=4.0)
     rec = s.recording

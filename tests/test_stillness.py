@@ -291,6 +291,9 @@ def test_duplicated_rows_are_dropped_with_one_warning(tmp_path, capsys):
             assert not warn, c.err
     se = lambda d: np.concatenate([d["stderr"][g] for g in ("scale", "bias_g")])
     assert np.allclose(se(out[b]), se(out[a]), rtol=0.02)
+    st = out[b]["stillness"]
+    assert st["repeated_rows"] == st["duplicated_timestamps"] == len(s.recording) and not st["held"]
+    assert out[a]["stillness"]["repeated_rows"] == 0
     rates = []
     for p in (a, b):
         assert main(["noise", str(p), "--json", "--sensor", "accel"]) == 0

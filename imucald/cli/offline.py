@@ -239,6 +239,11 @@ def cmd_calibrate(args) -> int:
         _write_calibration(args.output, poses.meta, part, tf)
     if args.json:
         d = cal.to_json()
+        if det is not None:     # the still-pose detection behind the fit (issue 20)
+            rp = det.repeats
+            d["stillness"] = {"effective_rate_hz": round(float(det.rate), 4), "repeated_rows": int(rp.repeated),
+                              "held": bool(rp.held), "duplicated_timestamps": int(rp.duplicated_t),
+                              "rejected": dict(det.rejected_counts)}
         if rec is not None and sensor == "gyro":
             from .gyrorot import rotation_json
             d["rotations"] = rotation_json(rot, why)

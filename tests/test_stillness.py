@@ -424,3 +424,18 @@ def test_a_turn_about_gravity_without_a_gyro_is_seen_by_the_magnetometer():
     assert len(base) == 8 and len(merge_cut(ivs)) == 7
     turn = [r for r in det.rejected if r["kind"] == "turn"]
     assert turn and h0 - 1 <= turn[0]["t0_s"] <= h1 and "magnetometer turned" in turn[0]["reason"]
+
+
+def test_simulate_writes_what_real_loggers_do(tmp_path):
+    """`simulate --logger-rate` (sample-and-hold) and `--duplicate-rows`: the rows as a
+    logger writes them, the distinct samples those of the chip."""
+    from imucald.calib.repeats import find_repeats
+    from imucald.cli import main
+    from imucald.recording import read_recording
+    p, q = tmp_path / "held.csv", tmp_path / "dup.csv"
+    assert main(["simulate", "-o", str(p), "--poses", "3", "--hold", "3", "--logger-rate", "300"]) == 0
+    assert main(["simulate", "-o", str(q), "--poses", "3", "--hold", "3", "--duplicate-rows"]) == 0
+    h, d = read_recording(str(p)), read_recording(str(q))
+    rh, rd = find_repeats(h.t, h.acc, h.rate_hz), find_repeats(d.t, d.acc, d.rate_hz)
+    assert h.rate_hz == 300 and rh.held and abs(rh.hold_factor - 3) < 0.01 and abs(rh.rate_hz - 100) < 0.5
+    assert rd.duplicated_rows == len(d.t) // 2 and abs(rd.rate_hz - 100) < 0.5

@@ -56,8 +56,18 @@ def cmd_simulate(args) -> int:
                              temp_kind=args.temp_profile, temp_rise_c=args.temp_rise,
                              tremor_dps=args.tremor_dps)
     s.recording.meta["seed"] = str(args.seed)
+    out = s.recording
+    if getattr(args, "logger_rate", None):
+        from ..sim.sensor import hold_samples
+        if args.logger_rate <= args.rate:
+            raise UserError(f"--logger-rate {args.logger_rate:g}: must exceed --rate {args.rate:g} "
+                            f"(the logger reads faster than the chip updates)")
+        out = hold_samples(out, args.logger_rate)
+    if getattr(args, "duplicate_rows", False):
+        from ..sim.sensor import duplicate_rows
+        out = duplicate_rows(out)
     try:
-        write_recording(s.recording, args.output)
+        write_recording(out, args.output)
     except OSError as e:
         raise CannotCreate(f"-o {args.output}: cannot write: {e.strerror}") from None
     if args.truth:
@@ -76,7 +86,8 @@ def cmd_simulate(args) -> int:
         except OSError as e:
             raise CannotCreate(f"--truth {args.truth}: cannot write: {e.strerror}") from None
     _eprint(f"imucald: wrote {args.output}: {args.board}, {len(R)} poses, "
-            f"{len(s.recording)} samples at {args.rate:g} Hz ({s.recording.t[-1]:.0f} s)")
+            f"{len(s.recording)} samples at {args.rate:g} Hz ({s.recording.t[-1]:.0f} s)"
+            + (f", {len(out)} rows as logged" if out is not s.recording else ""))
     return 0
 
 

@@ -59,6 +59,11 @@ def _add_simulate(s) -> None:
                    "e.g. thermal_bias, accel.nonlinearity=0.002, gyro.g_sensitivity, mag.thermal_bias; "
                    "'none' for a baseline-only recording (repeatable)")
     s.add_argument("--magnitude", type=float, help="magnitude of the single --effect (default: datasheet)")
+    s.add_argument("--logger-rate", type=positive_float, metavar="HZ",
+                   help="sample-and-hold: a logger reads the chip (at --rate) at HZ, repeating its latest "
+                        "sample (e.g. --rate 100 --logger-rate 385: each value 3-4 times)")
+    s.add_argument("--duplicate-rows", action="store_true",
+                   help="write every row twice, timestamp included (a logger fault seen in the wild)")
     s.set_defaults(func=_command("offline", "cmd_simulate"))
 
 

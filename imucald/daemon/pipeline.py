@@ -98,6 +98,7 @@ class Pipeline:
         self.force = False
         self.samples = 0
         self.last_still = False
+        self._repeats_said = None        #: the detector whose repeated-samples decision was logged
         # bounded: a daemon runs for months and adds an event per pose
         self.history: Deque[Dict[str, Any]] = deque(maxlen=100)
         self.events: Deque[str] = deque(maxlen=100)     # human log lines for status
@@ -136,6 +137,13 @@ class Pipeline:
         n = len(b.t)
         if n:
             still, intervals = self.det.update(b.t, b.acc, b.gyro, b.temp, b.mag, b.mag_fresh)
+            if self.det.repeats is not None and self._repeats_said is not self.det:
+                self._repeats_said = self.det       # said once per detector (issue 20)
+                msg = self.det.repeats.summary()
+                if msg:                             # counted over the stream's first seconds
+                    msg = f"input, first {len(self.det.repeats.keep)} rows: {msg}"
+                    log.warning("%s", msg)
+                    self.events.append(msg)
             self.samples += n
             self.t_last = float(b.t[-1])
             self.last_still = bool(still[-1])

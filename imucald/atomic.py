@@ -2,14 +2,72 @@
 
 A crash (or kill -9) at any point leaves either the old file or the new one,
 never a torn mix.
+
+Only a regular file (or a symlink to one) is ever replaced, or a name that does not
+exist yet: a device node, a FIFO, a socket or a directory at the path is refused with
+:class:`NotAFile` (exit 73), checked before the temporary file is made and again just
+before the rename (run as root, ``-o /dev/full`` used to replace the device node with an
+ordinary file).  ``-`` is standard output.
 """
 from __future__ import annotations
 
 import os
+import stat
+import sys
 import tempfile
+from typing import BinaryIO, Optional
+
+from .errors import CannotCreate
+
+__all__ = ["NotAFile", "check_output", "atomic_write_bytes", "atomic_write_text", "GrowingFile",
+           "fsync_dir"]
 
 
-def atomic_write_bytes(path: str, data: bytes, mode: int = 0o644) -> None:
+class NotAFile(CannotCreate):
+    """The output path names something other than a regular file (exit 73)."""
+
+
+_KIND = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+         (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"),
+         (stat.S_ISDIR, "a directory"))
+
+
+def check_output(path: str, flag: str = "") -> None:
+    """Raise NotAFile unless ``path`` is ``-``, absent, or a regular file (a symlink to one
+    counts: the link itself is what a rename replaces)."""
+    if path == "-":
+        return
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise CannotCreate(f"{flag + ' ' if flag else ''}{path}: cannot check: {e.strerror}") from None
+    if stat.S_ISREG(st.st_mode):
+        return
+    kind = next((k for f, k in _KIND if f(st.st_mode)), "not a regular file")
+    hint = (f"give a file name, e.g. {os.path.join(path, 'out')}" if stat.S_ISDIR(st.st_mode) else
+            "imucald writes only regular files (through a temporary file and a rename); use - for "
+            "standard output, e.g. -o - > PATH or -o - | reader")
+    raise NotAFile(f"{flag + ' ' if flag else ''}{path}: is {kind}, not a regular file; it is left "
+                   f"alone: {hint}")
+
+
+def fsync_dir(d: str) -> None:
+    dfd = os.open(d, os.O_RDONLY)
+    try:
+        os.fsync(dfd)
+    finally:
+        os.close(dfd)
+
+
+def atomic_write_bytes(path: str, data: bytes, mode: int = 0o644, flag: str = "") -> None:
+    if path == "-":
+        out = sys.stdout.buffer
+        out.write(data)
+        out.flush()
+        return
+    check_output(path, flag)
     d = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=d)
     try:
@@ -18,6 +76,7 @@ def atomic_write_bytes(path: str, data: bytes, mode: int = 0o644) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, mode)
+        check_output(path, flag)        # again: something may have appeared meanwhile
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -25,12 +84,84 @@ def atomic_write_bytes(path: str, data: bytes, mode: int = 0o644) -> None:
         except FileNotFoundError:
             pass
         raise
-    dfd = os.open(d, os.O_RDONLY)
-    try:
-        os.fsync(dfd)
-    finally:
-        os.close(dfd)
+    fsync_dir(d)
 
 
-def atomic_write_text(path: str, text: str, mode: int = 0o644) -> None:
-    atomic_write_bytes(path, text.encode("utf-8"), mode)
+def atomic_write_text(path: str, text: str, mode: int = 0o644, flag: str = "") -> None:
+    atomic_write_bytes(path, text.encode("utf-8"), mode, flag)
+
+
+class GrowingFile:
+    """A file written as data comes (``record``): its first bytes go to a temporary file in
+    the same directory, which is fsynced and renamed to ``path`` at once (so the name shows a
+    valid file from then on, and an old file there is replaced only when writing has
+    started); later writes are appended and flushed, and fsynced at most every ``fsync_s``
+    seconds.  A kill -9 or a power cut loses at most the last ``fsync_s`` s of data and
+    leaves a file whose last line may be cut (the readers drop it with a warning).
+    ``-`` writes to standard output."""
+
+    def __init__(self, path: str, head: bytes, flag: str = "", fsync_s: float = 1.0,
+                 mode: int = 0o644, clock=None):
+        import time
+        self.path, self.fsync_s = path, fsync_s
+        self._clock = clock or time.monotonic
+        if path == "-":
+            self._fh: Optional[BinaryIO] = sys.stdout.buffer
+            self._fd = None
+            self._fh.write(head)
+            self._fh.flush()
+            self._last = self._clock()
+            return
+        check_output(path, flag)
+        d = os.path.dirname(os.path.abspath(path))
+        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=d)
+        try:
+            view = memoryview(head)
+            while view:
+                view = view[os.write(fd, view):]
+            os.fsync(fd)
+            os.fchmod(fd, mode)
+            check_output(path, flag)
+            os.replace(tmp, path)
+        except BaseException:
+            os.close(fd)
+            try:
+                os.unlink(tmp)
+            except FileNotFoundError:
+                pass
+            raise
+        fsync_dir(d)
+        self._fd = fd
+        self._fh = os.fdopen(fd, "ab", buffering=0)
+        self._last = self._clock()
+
+    def write(self, data: bytes) -> None:
+        """Append ``data`` and hand it to the kernel now (a SIGKILL loses none of it);
+        fsync when ``fsync_s`` has passed since the last one."""
+        if self._fd is None:
+            self._fh.write(data)
+            self._fh.flush()
+        else:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(self._fd, view):]
+        now = self._clock()
+        if now - self._last >= self.fsync_s:
+            self.sync()
+
+    def sync(self) -> None:
+        if self._fd is not None:
+            os.fsync(self._fd)
+        self._last = self._clock()
+
+    def close(self) -> None:
+        if self._fh is None:
+            return
+        try:
+            if self._fd is not None:
+                os.fsync(self._fd)
+                self._fh.close()
+            else:
+                self._fh.flush()
+        finally:
+            self._fh = None

@@ -67,3 +67,54 @@ def os_error_line(e: OSError, what: str = "") -> str:
     reason = e.strerror or str(e)
     parts = [p for p in (str(name), what) if p]
     return f"{': '.join(parts)}: {reason}" if parts else reason
+
+
+def snippet(text, limit: int = 40, quote: bool = True) -> str:
+    """``text`` (str or bytes) quoted for a one-line message: at most ``limit`` characters
+    of it, control characters and NUL escaped (a run of one repeated control character
+    as ``\\x00*N``, not N copies), ``...`` when cut.  Messages quote input only through
+    this, so a hostile file can neither flood a log line nor inject a newline or a
+    terminal escape into it."""
+    if isinstance(text, (bytes, bytearray)):
+        text = bytes(text[:4 * limit + 4]).decode("utf-8", errors="replace")
+    out, n, i, cut = [], 0, 0, False
+    s = str(text)
+    while i < len(s):
+        if n >= limit:
+            cut = True
+            break
+        c = s[i]
+        if c.isprintable() and c != "\\" and c != "'":
+            out.append(c)
+            i += 1
+        else:
+            j = i
+            while j < len(s) and s[j] == c:
+                j += 1
+            esc = "\\\\" if c == "\\" else "\\'" if c == "'" else \
+                (f"\\x{ord(c):02x}" if ord(c) < 0x100 else f"\\u{ord(c):04x}")
+            run = j - i
+            if run > 3 and c not in "\\'":
+                out.append(f"{esc}*{run}")
+                i = j
+            else:
+                out.append(esc)
+                i += 1
+        n += 1
+    q = "'" if quote else ""
+    return q + "".join(out) + q + ("..." if cut else "")
+
+
+#: errnos of a write that failed for want of room or a working device: an I/O error (74),
+#: which may pass (free some space); the others (permission, no such directory) are 73
+_IO_ERRNOS = frozenset({5, 28, 30, 122})      # EIO, ENOSPC, EROFS, EDQUOT
+
+
+def write_failure(e: OSError, flag: str, path: str) -> UserError:
+    """The one-line error for writing ``path`` (given by ``flag``) failing with ``e``:
+    IOFailure (74) for disk full, a read-only file system, EIO or a quota, as the README's
+    exit-code table says; CannotCreate (73) otherwise; a refusal (CannotCreate) as it is."""
+    if isinstance(e, UserError):
+        return e
+    cls = IOFailure if getattr(e, "errno", None) in _IO_ERRNOS else CannotCreate
+    return cls(f"{flag + ' ' if flag else ''}{path}: cannot write: {e.strerror or e}")

@@ -39,13 +39,13 @@ from typing import Dict, Iterator, List, Optional, TextIO, Union
 
 import numpy as np
 
-from .errors import UserError
+from .errors import UserError, snippet
 from . import tables
 from .tables import TableSpec, collect, decode_line, iter_blocks
 from .npstats import median
 
 __all__ = ["Recording", "RecordingError", "RecordingReader", "open_recording", "iter_recording",
-           "read_recording", "write_recording", "MAGIC", "COLUMNS", "PLAUSIBLE_LIMIT"]
+           "read_recording", "write_recording", "RecordingWriter", "read_small", "BOM", "MAGIC", "COLUMNS", "PLAUSIBLE_LIMIT"]
 
 MAGIC = "# imucald recording v1"
 COLUMNS = ["t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz", "temp"]
@@ -95,11 +95,14 @@ class Recording:
 _FMT = {"t": "%.6f", "acc": "%.7f", "gyro": "%.5f", "mag": "%.6f", "temp": "%.3f"}
 
 
-def write_recording(rec: Recording, path: Union[str, os.PathLike, TextIO]) -> None:
-    """Write a recording; to a path it is written atomically (temp file, fsync, rename)."""
-    meta = dict(rec.meta)
-    meta.setdefault("board", "unknown")
-    meta.setdefault("rate_hz", f"{rec.rate_hz:g}")
+def _head(meta: Dict[str, str], columns: List[str]) -> str:
+    out = [MAGIC]
+    out += [f"# {k}: {v}" for k, v in meta.items()]
+    out.append(",".join(columns))
+    return "\n".join(out) + "\n"
+
+
+def _rows_text(rec: Recording) -> str:
     parts, fmts = [rec.t[:, None]], [_FMT["t"]]
     for g in ("acc", "gyro", "mag"):
         a = getattr(rec, g)
@@ -109,19 +112,46 @@ def write_recording(rec: Recording, path: Union[str, os.PathLike, TextIO]) -> No
     if rec.temp is not None:
         parts.append(np.asarray(rec.temp, float)[:, None])
         fmts.append(_FMT["temp"])
-    data = np.hstack(parts)
     buf = io.StringIO()
-    buf.write(MAGIC + "\n")
-    for k, v in meta.items():
-        buf.write(f"# {k}: {v}\n")
-    buf.write(",".join(rec.columns()) + "\n")
-    np.savetxt(buf, data, fmt=",".join(fmts))
-    text = buf.getvalue()
+    np.savetxt(buf, np.hstack(parts), fmt=",".join(fmts))
+    return buf.getvalue()
+
+
+def write_recording(rec: Recording, path: Union[str, os.PathLike, TextIO], flag: str = "") -> None:
+    """Write a recording; to a path it is written atomically (temp file, fsync, rename), to
+    ``-`` on standard output; a path that is not a regular file is refused (atomic.NotAFile)."""
+    meta = dict(rec.meta)
+    meta.setdefault("board", "unknown")
+    meta.setdefault("rate_hz", f"{rec.rate_hz:g}")
+    text = _head(meta, rec.columns()) + _rows_text(rec)
     if hasattr(path, "write"):
         path.write(text)
         return
     from .atomic import atomic_write_text
-    atomic_write_text(os.fspath(path), text)
+    atomic_write_text(os.fspath(path), text, flag=flag)
+
+
+class RecordingWriter:
+    """A recording written as it is sampled (``imucald record``): the header first, then
+    each block of rows appended as it comes, fsynced at most every ``fsync_s`` s
+    (atomic.GrowingFile).  Whatever ends the process (Ctrl-C, SIGTERM, SIGKILL, a power
+    cut), the file holds a valid recording of what was sampled, but for the last
+    ``fsync_s`` s after a power cut and a last line the readers drop with a warning."""
+
+    def __init__(self, path: str, meta: Dict[str, str], columns: List[str], flag: str = "-o",
+                 fsync_s: float = 1.0):
+        from .atomic import GrowingFile
+        self.columns = list(columns)
+        self.rows = 0
+        self._file = GrowingFile(path, _head(meta, self.columns).encode(), flag, fsync_s)
+
+    def write(self, rec: Recording) -> None:
+        if len(rec):
+            self._file.write(_rows_text(rec).encode())
+            self.rows += len(rec)
+
+    def close(self) -> None:
+        self._file.close()
 
 
 #: No MEMS sensor reads anywhere near this in g, deg/s, gauss or degC (the widest full-scale
@@ -132,15 +162,116 @@ _LIMIT_NOTE = " (|value| > 1e6 g, deg/s, gauss or degC)"
 _MAX_HEADER_LINE = 1 << 16
 
 
+#: a recording, raw table or pose file given as a stream (``-``, a pipe or FIFO) is read once
+#: into a temporary file, at most this many bytes, and waits at most STREAM_IDLE_S for data
+MAX_STREAM_BYTES = 1 << 30
+STREAM_IDLE_S = 10.0
+_SPOOLED: Dict[str, str] = {}
+BOM = b"\xef\xbb\xbf"
+
+
+def _idle_s() -> float:
+    try:
+        v = float(os.environ.get("IMUCALD_STREAM_IDLE_S", STREAM_IDLE_S))
+        return v if 0 < v < 1e6 else STREAM_IDLE_S
+    except ValueError:
+        return STREAM_IDLE_S
+
+
+def _spool(path: str, error) -> str:
+    """Read the stream ``path`` (``-`` = stdin) once into a temporary file (removed at exit)
+    and return its name, so every later open (the kind sniffed, then the file parsed) reads
+    the same bytes.  A FIFO with no writer, or a stream idle for STREAM_IDLE_S, is an error."""
+    import atexit
+    import select
+    import tempfile
+    if path in _SPOOLED:
+        return _SPOOLED[path]
+    idle = _idle_s()
+    if path == "-":
+        if os.isatty(0):
+            raise error("-: standard input is a terminal: pipe or redirect a file into it "
+                        "(imucald calibrate - < session.csv)")
+        fd, own = os.dup(0), True
+    else:
+        try:
+            fd, own = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC), True
+        except OSError as e:
+            raise error(f"{path}: cannot open: {e.strerror}") from None
+    tmp = tempfile.NamedTemporaryFile(prefix="imucald-stream-", suffix=".tmp", delete=False)
+    _SPOOLED[path] = tmp.name
+    atexit.register(lambda n=tmp.name: os.path.exists(n) and os.unlink(n))
+    poll = select.poll()
+    poll.register(fd, select.POLLIN | select.POLLHUP)
+    total = 0
+    try:
+        with tmp:
+            while True:
+                if not poll.poll(idle * 1000):
+                    what = "no writer opened it" if total == 0 else "its writer stopped writing"
+                    raise error(f"{path}: nothing to read for {idle:g} s ({what}; a stream is read "
+                                f"once, to its end): start the writer first, or give a file")
+                try:
+                    data = os.read(fd, 1 << 20)
+                except BlockingIOError:
+                    continue
+                if not data:
+                    break
+                total += len(data)
+                if total > MAX_STREAM_BYTES:
+                    raise error(f"{path}: a stream of more than {MAX_STREAM_BYTES >> 20} MiB: save "
+                                f"it to a file and give the file")
+                tmp.write(data)
+    except BaseException:
+        del _SPOOLED[path]
+        os.unlink(tmp.name)
+        raise
+    finally:
+        if own:
+            os.close(fd)
+    return tmp.name
+
+
 def _open_binary(path: str, error=None):
-    """Open ``path`` for reading bytes, or raise the one-line error saying why not."""
+    """Open ``path`` for reading bytes, or raise the one-line error saying why not.  A
+    stream (``-`` for stdin, a pipe, a FIFO, a character device) is read once, whole, into
+    a temporary file (_spool): the opens after the first see the same bytes."""
+    import stat
     error = error or RecordingError
-    if os.path.isdir(path):
+    if path == "-":
+        return open(_spool(path, error), "rb")
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise error(f"{path}: cannot open: {e.strerror}") from None
+    if stat.S_ISDIR(st.st_mode):
         raise error(f"{path}: is a directory; give the file inside it")
+    if not stat.S_ISREG(st.st_mode):
+        if stat.S_ISFIFO(st.st_mode) or stat.S_ISCHR(st.st_mode):
+            return open(_spool(path, error), "rb")
+        raise error(f"{path}: is not a regular file, pipe or FIFO (a socket or device): give a file")
     try:
         return open(path, "rb")
     except OSError as e:
         raise error(f"{path}: cannot open: {e.strerror}") from None
+
+
+#: the largest small text file read whole (pose files, calibration and configuration files)
+MAX_SMALL_BYTES = 16 << 20
+
+
+def read_small(path: str, error=None, what: str = "this file", limit: int = MAX_SMALL_BYTES) -> bytes:
+    """The bytes of a file read whole (at most ``limit``; a UTF-8 BOM dropped), or the one-line
+    error naming it."""
+    error = error or RecordingError
+    with _open_binary(path, error) as fh:
+        try:
+            raw = fh.read(limit + 1)
+        except OSError as e:
+            raise error(f"{path}: cannot read: {e.strerror}") from None
+    if len(raw) > limit:
+        raise error(f"{path}: larger than {limit >> 20} MiB, far beyond {what}: is it the right file?")
+    return raw[len(BOM):] if raw.startswith(BOM) else raw
 
 
 class RecordingReader:
@@ -174,12 +305,15 @@ class RecordingReader:
     def _read_header(self) -> None:
         path = self.path
         self._offset = 0
-        raw = self._fh.readline(len(MAGIC) + 3)
-        if raw.rstrip(b"\r\n") != MAGIC.encode():
-            found = raw.rstrip(b"\r\n").decode("utf-8", errors="replace")
+        raw = self._fh.readline(len(MAGIC) + 3 + len(BOM))
+        if raw.startswith(BOM):         # a UTF-8 byte-order mark (Windows editors): skipped
+            raw = raw[len(BOM):]
+            self._offset = len(BOM)
+        first = raw.rstrip(b"\r\n")
+        if first != MAGIC.encode():
             raise RecordingError(f"{path}:1: not an imucald recording (expected {MAGIC!r}, "
-                                 f"found {found[:40]!r})")
-        self._offset = len(raw)
+                                 f"found {snippet(first)})")
+        self._offset += len(raw)
         meta: Dict[str, str] = {}
         where: Dict[str, int] = {}
         lineno, header = 1, None
@@ -210,11 +344,11 @@ class RecordingReader:
         except ValueError:
             rate = None
         if rate is None or not (0 < rate < np.inf):
-            raise RecordingError(f"{path}:{where['rate_hz']}: header rate_hz={meta['rate_hz']!r} is "
+            raise RecordingError(f"{path}:{where['rate_hz']}: header rate_hz={snippet(meta['rate_hz'])} is "
                                  f"not a number of samples per second > 0 (e.g. '# rate_hz: 100')")
         bad = [c for c in header if c not in COLUMNS]
         if bad:
-            raise RecordingError(f"{path}:{hl}: unknown column {bad[0][:40]!r}; allowed: "
+            raise RecordingError(f"{path}:{hl}: unknown column {snippet(bad[0])}; allowed: "
                                  f"{', '.join(COLUMNS)}")
         if header[0] != "t":
             raise RecordingError(f"{path}:{hl}: the first column must be t")

@@ -22,11 +22,22 @@ from typing import BinaryIO, Iterator, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .errors import UserError
+from .errors import UserError, snippet
 
-__all__ = ["CHUNK_BYTES", "TableSpec", "iter_blocks", "decode_line", "collect"]
+__all__ = ["CHUNK_BYTES", "MAX_LINE_BYTES", "TableSpec", "iter_blocks", "decode_line", "collect",
+           "warn"]
 
 CHUNK_BYTES = 1 << 20     #: bytes per block: ~15-25 k rows, ~2 MB of float64 at 11 columns
+#: the longest line a table may hold: a row of 11 numbers is ~100 bytes; a longer line is
+#: binary or damaged, and is refused at once instead of being gathered in memory (a 50 MB
+#: line cost 674 MB before this bound)
+MAX_LINE_BYTES = 1 << 16
+
+
+def warn(msg: str) -> None:
+    """One warning line on stderr (readers: a cut last line, a NUL tail ignored)."""
+    import sys
+    print(f"imucald: warning: {msg}", file=sys.stderr, flush=True)
 
 
 class TableSpec:
@@ -67,37 +78,117 @@ def iter_blocks(fh: BinaryIO, spec: TableSpec, lineno: int, offset: int, prev_t:
                 chunk_bytes: int = CHUNK_BYTES) -> Iterator[np.ndarray]:
     """Yield (k, ncol) float64 arrays of the rows of ``fh`` from line ``lineno`` (1-based) on.
 
-    ``offset`` is the byte offset of that line in the file (for error messages).
+    ``offset`` is the byte offset of that line in the file (for error messages).  Bounded:
+    a line longer than MAX_LINE_BYTES is an error; a tail of NUL bytes (what a power cut
+    leaves on many file systems, or ``truncate -s +2G``) is skipped with one warning after
+    checking, block by block, that nothing but NUL follows; a last line cut short (no
+    newline at the end, not a valid row: an interrupted recording) is dropped with one
+    warning.
     """
     rest = b""
     while True:
         data = fh.read(chunk_bytes)
-        buf = rest + data
+        buf = rest + data if rest else data
         if not buf:
+            return
+        nul = buf.find(b"\0")
+        if nul >= 0:
+            start = buf.rfind(b"\n", 0, nul) + 1       # the line the NULs start in
+            before = buf[:start]
+            if before:
+                yield from _rows(before, spec, lineno, offset, prev_t)
+                lineno += before.count(b"\n")
+                offset += len(before)
+            _nul_tail(fh, spec, buf[start:], lineno, offset, chunk_bytes)
             return
         if data:
             cut = buf.rfind(b"\n") + 1
             if cut == 0:            # no newline within the block: keep reading
+                if len(buf) > MAX_LINE_BYTES:
+                    spec.fail(lineno, f"line longer than {MAX_LINE_BYTES} bytes (from byte offset "
+                                      f"{offset}): not a text table; the file is binary or damaged "
+                                      f"(cut the damaged part)")
                 rest = buf
                 continue
             block, rest = buf[:cut], buf[cut:]
+            if len(rest) > MAX_LINE_BYTES:
+                rest_ln = lineno + block.count(b"\n")
+                spec.fail(rest_ln, f"line longer than {MAX_LINE_BYTES} bytes (from byte offset "
+                                   f"{offset + cut}): not a text table; the file is binary or "
+                                   f"damaged (cut the damaged part)")
         else:
             block, rest = buf, b""
-        try:
-            text = block.decode("utf-8")
-        except UnicodeDecodeError as e:
-            raise spec.error(_not_utf8(spec.path, block, e, lineno, offset)) from None
-        rows = _parse_fast(text, spec, prev_t)
-        if rows is None:
-            rows = _parse_slow(text, spec, lineno, prev_t)
-        if len(rows):
-            if spec.tcol is not None:
+            if not block.endswith(b"\n"):
+                head = block[:block.rfind(b"\n") + 1]
+                if head:
+                    for rows in _rows(head, spec, lineno, offset, prev_t):
+                        if spec.tcol is not None and len(rows):
+                            prev_t = rows[-1, spec.tcol]
+                        yield rows
+                    lineno += head.count(b"\n")
+                    offset += len(head)
+                yield from _last_line(block[len(head):], spec, lineno, offset, prev_t)
+                return
+        for rows in _rows(block, spec, lineno, offset, prev_t):
+            if spec.tcol is not None and len(rows):
                 prev_t = rows[-1, spec.tcol]
             yield rows
         lineno += block.count(b"\n")
         offset += len(block)
         if not data:
             return
+
+
+def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float):
+    """The rows of one block of whole lines (a generator of at most one array)."""
+    try:
+        text = block.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise spec.error(_not_utf8(spec.path, block, e, lineno, offset)) from None
+    rows = _parse_fast(text, spec, prev_t)
+    if rows is None:
+        rows = _parse_slow(text, spec, lineno, prev_t)
+    if len(rows):
+        yield rows
+
+
+def _last_line(raw: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float):
+    """The file's last line, which has no newline: kept when it is a valid row, else (an
+    interrupted write) dropped with one warning."""
+    try:
+        rows = list(_rows(raw, spec, lineno, offset, prev_t))
+    except UserError as e:
+        warn(f"{spec.path}:{lineno}: the last line is cut short (no newline at the end of the "
+             f"file: an interrupted recording?) and is ignored: {str(e).split(': ', 2)[-1]}")
+        return
+    yield from rows
+
+
+def _nul_tail(fh: BinaryIO, spec: TableSpec, head: bytes, lineno: int, offset: int,
+              chunk_bytes: int) -> None:
+    """From ``head`` (the start of the line the first NUL byte is in) on, the rest of the
+    file must be NUL bytes, perhaps after a cut line: then it is skipped with one warning;
+    anything else after the NULs is an error naming its offset.  Read block by block:
+    bounded memory, and time at the speed of reading."""
+    nul = head.find(b"\0")
+    cut = head[:nul]
+    total = len(head) - nul
+    pos = offset + len(head)
+    tail = head[nul:]
+    while True:
+        junk = tail.strip(b"\0")
+        if junk:
+            at = pos - len(tail) + tail.find(junk[:1])
+            spec.fail(lineno, f"NUL bytes from byte offset {offset + nul}, then other data at "
+                              f"offset {at}: the file is damaged (cut it at offset {offset + nul})")
+        tail = fh.read(chunk_bytes)
+        if not tail:
+            break
+        total += len(tail)
+        pos += len(tail)
+    what = f"a cut line ({snippet(cut)}) and " if cut.strip() else ""
+    warn(f"{spec.path}:{lineno}: {what}{total} NUL bytes from byte offset {offset + len(cut)} to the "
+         f"end (an interrupted write, e.g. a power cut) are ignored; the rows before are used")
 
 
 def _parse_fast(text: str, spec: TableSpec, prev_t: float) -> Optional[np.ndarray]:
@@ -149,7 +240,7 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
             try:
                 v = float(p)
             except ValueError:
-                spec.fail(ln, f"column {spec.names[j]}: {p.strip()[:40]!r} is not a number")
+                spec.fail(ln, f"column {spec.names[j]}: {snippet(p.strip())} is not a number")
             row.append(v)
         for j, v in enumerate(row):
             if not spec.checked[j]:
@@ -158,7 +249,7 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
                 spec.fail(ln, f"column {spec.names[j]}: {v} is not a finite number (repair or "
                               f"delete this line)")
             if not abs(v - spec.centre[j]) <= spec.halfwidth[j]:
-                spec.fail(ln, f"column {spec.names[j]}: {parts[j].strip()[:40]} is beyond what "
+                spec.fail(ln, f"column {spec.names[j]}: {snippet(parts[j].strip(), quote=False)} is beyond what "
                               f"a sensor reads{spec.limit_note} (repair or delete this line)")
         if spec.tcol is not None:
             t = row[spec.tcol]

@@ -22,7 +22,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..errors import UserError
-from ..recording import (COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, _open_binary,
+from ..recording import (BOM, COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, _open_binary,
                          read_recording)
 from ..npstats import median
 from ..tables import TableSpec, collect, decode_line, iter_blocks
@@ -35,7 +35,9 @@ _SENSOR = {"ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"}
 
 def _first_line(path: str) -> str:
     with _open_binary(path, UserError) as fh:
-        return fh.readline(4096).decode("utf-8", errors="replace").rstrip("\r\n")
+        raw = fh.readline(4096)
+    return raw[len(BOM):].decode("utf-8", errors="replace").rstrip("\r\n") if raw.startswith(BOM) \
+        else raw.decode("utf-8", errors="replace").rstrip("\r\n")
 
 
 def _numeric(parts) -> bool:
@@ -75,8 +77,14 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
                      limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
     with _open_binary(path, UserError) as fh:
         lineno, offset = 1, 0
+        if fh.read(len(BOM)) == BOM:        # a UTF-8 byte-order mark: skipped
+            offset = len(BOM)
+        fh.seek(offset)
         while True:             # skip blank, comment and header lines before the first numbers
             raw = fh.readline(1 << 16)
+            if lineno > 1000 or (len(raw) >= 1 << 16 and not raw.endswith(b"\n")):
+                raise UserError(f"{path}:{lineno}: no row of {len(cols)} numbers in the first "
+                                f"{lineno} lines: not a numeric table ({','.join(cols)})")
             if not raw:
                 raise UserError(f"{path}: no numeric rows (expected {len(cols)} numbers per line: "
                                 f"{','.join(cols)})")
@@ -91,6 +99,9 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
             if all(k in idx for k in ks):
                 groups.append((g, [idx[k] for k in ks]))
         n, c = collect(iter_blocks(fh, spec, lineno, offset), groups, fh, offset)
+    if not n:
+        raise UserError(f"{path}: no whole numeric rows (expected {len(cols)} numbers per line: "
+                        f"{','.join(cols)})")
     for g in ("acc", "gyro", "mag"):
         if g in c:
             c[g] -= nominal_offset

@@ -262,20 +262,34 @@ def write_poses(ps: PoseSet, path: str) -> None:
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
+def _cut_last_line(path: str, lines, n: int):
+    """A last line without a newline that is not a whole pose row is dropped, with a warning."""
+    from ..tables import warn
+    last = lines[-1].split(",")
+    try:
+        [float(p) for p in last]
+        if n > 2 and len(last) == len(lines[-2].split(",")):
+            return lines
+    except ValueError:
+        pass
+    if n > 2 and not lines[-1].startswith("#"):
+        warn(f"{path}:{n}: the last line is cut short (no newline at the end of the file) and is ignored")
+        return lines[:-1]
+    return lines
+
+
 def read_poses(path: str) -> PoseSet:
     """Read a pose file written by :func:`write_poses`.  Errors name file and line.
 
     Every value must be a finite number within :data:`imucald.recording.PLAUSIBLE_LIMIT`
     (``temp`` may be ``nan``: unknown), ``n`` a positive integer and the deviations
     ``s*`` >= 0."""
-    from ..recording import PLAUSIBLE_LIMIT
+    from ..recording import PLAUSIBLE_LIMIT, read_small
     from ..tables import decode_line
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read()
-    except OSError as e:
-        raise UserError(f"{path}: cannot open: {e.strerror}") from None
+    raw = read_small(path, UserError, "a pose file")
     lines = decode_line(path, raw, 1, 0).splitlines()
+    if lines and not raw.endswith(b"\n"):
+        lines = _cut_last_line(path, lines, len(lines))
     if not lines or lines[0].strip() != POSES_MAGIC:
         raise UserError(f"{path}:1: not an imucald pose file (expected {POSES_MAGIC!r})")
     meta = {}

@@ -61,8 +61,12 @@ def _existing_ancestor(path: str) -> str:
 
 
 def output_file(path: str, flag: str) -> None:
-    """``path`` can be written as a file: not a directory, in a directory that exists
-    and is writable."""
+    """``path`` can be written as a file: ``-`` (standard output), or a regular file or a
+    name not yet taken (never a device node, FIFO, socket or directory: atomic.check_output),
+    in a directory that exists and is writable."""
+    if path == "-":
+        return
+    from ..atomic import check_output
     if os.path.isdir(path):
         raise CannotCreate(f"{flag} {path}: is a directory; give a file name, e.g. "
                            f"{os.path.join(path, 'out' + _ext(flag))}")
@@ -72,6 +76,7 @@ def output_file(path: str, flag: str) -> None:
         raise CannotCreate(f"{flag} {path}: directory {d} {what} (create it first: mkdir -p {d})")
     if not os.access(d, os.W_OK | os.X_OK):
         raise CannotCreate(f"{flag} {path}: directory {d} is not writable by this user")
+    check_output(path, flag)
 
 
 def _ext(flag: str) -> str:
@@ -99,6 +104,12 @@ def check_args(args) -> None:
         output_file(args.truth, "--truth")
     if cmd == "calibrate" and args.output:
         output_file(args.output, "--output")
+    if cmd == "noise":
+        for p, f in ((args.output, "-o"), (args.kalibr, "--kalibr")):
+            if p:
+                output_file(p, f)
+        if args.output == "-" and args.kalibr == "-":
+            raise UserError("-o - and --kalibr -: only one of them can go to standard output")
     if cmd == "gap" and args.report:
         output_dir(args.report, "--report")
     if cmd == "replay" and args.state_dir:

@@ -1,7 +1,7 @@
 """``imucald probe`` and ``record``: talking to a board (real I2C or emulated)."""
 from __future__ import annotations
 
-from ..errors import CannotCreate, DeviceUnavailable
+from ..errors import DeviceUnavailable, write_failure
 from ._common import eprint as _eprint
 
 
@@ -34,48 +34,148 @@ def cmd_probe(args) -> int:
     return 0
 
 
+def _stop_on_signals():
+    """SIGINT and SIGTERM end ``record`` after the block in hand is written (the first
+    one; a second one interrupts at once).  Returns the list the signal number lands in."""
+    import signal
+    got = []
+
+    def handler(signum, frame):
+        if got:
+            raise KeyboardInterrupt
+        got.append(signum)
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, handler)
+    return got
+
+
 def cmd_record(args) -> int:
+    """Samples are written as they come (recording.RecordingWriter): the header once the
+    board runs, then every batch, fsynced each second, so an interrupted recording (Ctrl-C,
+    SIGTERM, SIGKILL, a power cut) is a valid one of what was sampled."""
     import numpy as np
 
-    from ..recording import Recording, write_recording
     from .boards import open_board
     from .faults import faults_from_options
     board, bus, desc = open_board(args.board, args.rate, "yes" if args.emulate else "auto", args.bus,
                                   speed=1.0 if args.realtime else None,
                                   seed=args.seed, poses=args.poses, faults=faults_from_options(args.fault),
                                   mag=args.mag, tour=dict(tremor_dps=args.tremor_dps))
+    stop = _stop_on_signals()
     board.start()
     _eprint(f"imucald: recording {args.seconds:g} s from {desc} at {board.rate_hz:g} Hz")
-    parts = []
-    while not parts or parts[-1].t.size == 0 or parts[-1].t[-1] < args.seconds - 1e-9 \
-            or board.stats.samples == 0:
-        b = board.read_batch()
-        if len(b):
-            parts.append(b)
-        elif board.clock.now() - board.t0 > args.seconds + 5:
-            raise DeviceUnavailable(f"no samples from {desc} for {args.seconds + 5:.0f} s "
-                            f"(last fault: {getattr(board, 'last_fault', 'none')})")
-    cat = lambda k: np.concatenate([getattr(p, k) for p in parts])
-    keep = cat("t") < args.seconds
     meta = {"board": board.name, "rate_hz": f"{board.rate_hz:g}", "source": f"imucald record: {desc}",
             "chips": ",".join(f"{k}={v}" for k, v in board.chips().items())}
-    mag = cat("mag")[keep] if board.has_mag else None
-    if mag is not None and np.isnan(mag).any():      # before the first magnetometer reading
-        first = int(np.argmax(~np.isnan(mag[:, 0])))
-        mag[:first] = mag[first]
-    acc, gyro = (cat("acc")[keep], cat("gyro")[keep]) if board.has_acc else (None, None)
-    temp = cat("temp")[keep]
     if not board.has_acc:       # gy273: the QMC5883L's temperature has no calibrated offset
         meta["temp"] = "relative (QMC5883L, offset not calibrated)"
-        temp = None if np.isnan(temp).all() else temp
-    rec = Recording(t=cat("t")[keep], acc=acc, gyro=gyro, mag=mag, temp=temp, meta=meta)
+    head, writer = [], None
+    last = {"mag": None, "temp": None}
     try:
-        write_recording(rec, args.output)
+        while not stop:
+            b = board.read_batch()
+            if not len(b):
+                if board.clock.now() - board.t0 > args.seconds + 5 and board.stats.samples == 0:
+                    raise DeviceUnavailable(f"no samples from {desc} for {args.seconds + 5:.0f} s "
+                                            f"(last fault: {getattr(board, 'last_fault', 'none')})")
+                continue
+            keep = b.t < args.seconds
+            if keep.any():
+                head.append(b if keep.all() else _cut(b, keep))
+            done = not keep.all()
+            if writer is None:
+                # the columns are known once the magnetometer has read (its rows before are
+                # filled with its first reading) or after the first second
+                mag_seen = not board.has_mag or any(np.isfinite(h.mag).all(axis=1).any() for h in head)
+                if not done and not (mag_seen and head) and (not head or head[-1].t[-1] - head[0].t[0] < 1.0):
+                    continue
+                if not head:
+                    break
+                writer, cols_temp = _open_writer(args.output, meta, board, head, last)
+            for h in head:
+                writer.write(_as_recording(h, board, cols_temp, last))
+            head = []
+            if done:
+                break
+        if writer is None and head:
+            writer, cols_temp = _open_writer(args.output, meta, board, head, last)
+            for h in head:
+                writer.write(_as_recording(h, board, cols_temp, last))
+    except KeyboardInterrupt:
+        stop.append(2)
     except OSError as e:
-        raise CannotCreate(f"-o {args.output}: cannot write: {e.strerror}") from None
+        raise write_failure(e, "-o", args.output) from None
+    finally:
+        if writer is not None:
+            try:
+                writer.close()
+            except OSError:
+                pass
     st = board.stats
-    _eprint(f"imucald: wrote {args.output}: {len(rec)} samples; gaps {st.gaps} ({st.missing} samples "
+    rows = writer.rows if writer is not None else 0
+    why = {2: " (interrupted: SIGINT)", 15: " (stopped: SIGTERM)"}.get(stop[0] if stop else 0, "")
+    _eprint(f"imucald: wrote {args.output}{why}: {rows} samples; gaps {st.gaps} ({st.missing} samples "
             f"lost), re-initialisations {st.reinits}, bus faults {st.bus_faults}, retries "
             f"{bus.stats.retries}")
-    return 0
+    return 128 + stop[0] if stop else 0
 
+
+def _cut(b, keep):
+    from dataclasses import replace
+    f = lambda a: None if a is None else a[keep]
+    return replace(b, t=b.t[keep], seq=b.seq[keep], acc=b.acc[keep], gyro=b.gyro[keep],
+                   temp=b.temp[keep], mag=f(b.mag), mag_fresh=f(b.mag_fresh))
+
+
+def _open_writer(path, meta, board, head, last):
+    """The writer, its columns chosen from the first batches (``head``): temp only when the
+    board reads one (a gy273 with an HMC5883L does not).  ``last`` gets the first finite
+    magnetometer reading and temperature: the rows before them are filled with them."""
+    import numpy as np
+    from ..recording import Recording, RecordingWriter
+    temp = np.concatenate([h.temp for h in head])
+    if board.has_mag:
+        mag = np.concatenate([h.mag for h in head])
+        ok = np.isfinite(mag).all(axis=1)
+        last["mag"] = mag[np.argmax(ok)] if ok.any() else np.zeros(3)
+    last["temp"] = temp[np.argmax(np.isfinite(temp))] if np.isfinite(temp).any() else None
+    cols_temp = board.has_acc or last["temp"] is not None
+    if not cols_temp:
+        meta.pop("temp", None)
+    probe = Recording(t=np.zeros(0), acc=np.zeros((0, 3)) if board.has_acc else None,
+                      gyro=np.zeros((0, 3)) if board.has_acc else None,
+                      mag=np.zeros((0, 3)) if board.has_mag else None,
+                      temp=np.zeros(0) if cols_temp else None)
+    try:
+        return RecordingWriter(path, meta, probe.columns(), "-o"), cols_temp
+    except OSError as e:
+        raise write_failure(e, "-o", path) from None
+
+
+def _fill(a, last):
+    """``a`` with its non-finite rows replaced by the last finite one before (or, at the
+    start, the first finite one): the magnetometer before its first reading, a temperature
+    the chip did not give."""
+    import numpy as np
+    a = np.array(a, float)
+    bad = ~np.isfinite(a) if a.ndim == 1 else ~np.isfinite(a).all(axis=1)
+    if not bad.any():
+        return a, a[-1]
+    good = np.flatnonzero(~bad)
+    if last is None:
+        if not len(good):
+            return a, None
+        last = a[good[0]]
+    idx = np.maximum.accumulate(np.where(bad, -1, np.arange(len(a))))
+    out = np.where((idx < 0)[:, None] if a.ndim == 2 else idx < 0, last, a[np.maximum(idx, 0)])
+    return out, out[-1]
+
+
+def _as_recording(b, board, cols_temp, last):
+    from ..recording import Recording
+    mag = temp = None
+    if board.has_mag:
+        mag, last["mag"] = _fill(b.mag, last["mag"])
+    if cols_temp:
+        temp, last["temp"] = _fill(b.temp, last["temp"])
+    return Recording(t=b.t, acc=b.acc if board.has_acc else None, gyro=b.gyro if board.has_acc else None,
+                     mag=mag, temp=temp)

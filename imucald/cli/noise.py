@@ -73,11 +73,16 @@ def cmd_noise(args) -> int:
     doc = figures_document(figs, rate, os.path.basename(args.recording), dur)
     doc["stretch"] = {"first_sample": int(i0), "samples": int(i1 - i0),
                       "t_start_s": float(rec.t[i0]), "t_end_s": float(rec.t[i1 - 1])}
-    if args.output:
-        atomic_write_text(args.output, "# imucald noise figures (README: Noise figures)\n" +
-                          yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=110))
-    if args.kalibr:
-        atomic_write_text(args.kalibr, kalibr_text(doc["kalibr"]))
+    from ..errors import write_failure
+    for path, flag, text in ((args.output, "-o", lambda: "# imucald noise figures (README: Noise "
+                              "figures)\n" + yaml.safe_dump(doc, sort_keys=False,
+                                                            default_flow_style=None, width=110)),
+                             (args.kalibr, "--kalibr", lambda: kalibr_text(doc["kalibr"]))):
+        if path:
+            try:
+                atomic_write_text(path, text(), flag=flag)
+            except OSError as e:
+                raise write_failure(e, flag, path) from None
     if args.plot:
         _plot(figs, args.plot, args.recording)
     if args.json:

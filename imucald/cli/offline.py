@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 
-from ..errors import CannotCreate, UserError
+from ..errors import UserError, write_failure
 from ._common import eprint as _eprint
 
 SENSORS = ("accel", "gyro", "mag")
@@ -67,9 +67,9 @@ def cmd_simulate(args) -> int:
         from ..sim.sensor import duplicate_rows
         out = duplicate_rows(out)
     try:
-        write_recording(out, args.output)
+        write_recording(out, args.output, "-o")
     except OSError as e:
-        raise CannotCreate(f"-o {args.output}: cannot write: {e.strerror}") from None
+        raise write_failure(e, "-o", args.output) from None
     if args.truth:
         from ..atomic import atomic_write_text
         tr = s.truth
@@ -82,9 +82,9 @@ def cmd_simulate(args) -> int:
                      mag_soft_iron=tr.mag_soft_iron.tolist(), field_gauss=tr.field_gauss,
                      dip_deg=tr.dip_deg)
         try:
-            atomic_write_text(args.truth, json.dumps(d, indent=1) + "\n")
+            atomic_write_text(args.truth, json.dumps(d, indent=1) + "\n", flag="--truth")
         except OSError as e:
-            raise CannotCreate(f"--truth {args.truth}: cannot write: {e.strerror}") from None
+            raise write_failure(e, "--truth", args.truth) from None
     _eprint(f"imucald: wrote {args.output}: {args.board}, {len(R)} poses, "
             f"{len(s.recording)} samples at {args.rate:g} Hz ({s.recording.t[-1]:.0f} s)"
             + (f", {len(out)} rows as logged" if out is not s.recording else ""))
@@ -380,7 +380,7 @@ def _write_calibration(path: str, meta, part, thermal=None) -> None:
     try:
         save(build_calibration({part.sensor: part}, meta=meta, temperature_range_c=tr), path)
     except OSError as e:
-        raise CannotCreate(f"--output {path}: cannot write: {e.strerror}") from None
+        raise write_failure(e, "--output", path) from None
 
 
 def get_free(cal) -> int:

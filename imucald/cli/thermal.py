@@ -9,7 +9,7 @@ from typing import List, Optional
 
 import numpy as np
 
-from ..errors import CannotCreate, UserError
+from ..errors import UserError, write_failure
 from ._common import eprint
 
 UNIT = {"accel": ("g", "mg", 1e3), "gyro": ("dps", "deg/s", 1.0), "mag": ("gauss", "mG", 1e3)}
@@ -146,9 +146,9 @@ def cmd_apply(args) -> int:
     meta["corrected"] = f"{','.join(got)} by calibration {cal.id} ({args.calibration})"
     out = Recording(rec.t, acc, gyro, mag, rec.temp, meta)
     try:
-        write_recording(out, args.output)
+        write_recording(out, args.output, "-o")
     except OSError as e:
-        raise CannotCreate(f"-o {args.output}: cannot write: {e.strerror}") from None
+        raise write_failure(e, "-o", args.output) from None
     eprint(f"imucald: wrote {args.output}: {len(rec)} samples, {', '.join(got)} corrected")
     if getattr(args, "orientation", None):          # issue 26: cli/orientation.py
         from .orientation import write_orientation

@@ -8,7 +8,7 @@ from typing import Any, Dict, Mapping, Tuple
 
 import numpy as np
 
-from .errors import UserError
+from .errors import UserError, snippet
 
 #: per-parameter flags a fit may report
 FLAGS = ("determined", "undetermined", "at_bound", "at_bound+undetermined")
@@ -19,7 +19,9 @@ class CalibrationError(UserError):
 
 
 def _fail(path: str, problem: str, fix: str):
-    raise CalibrationError(f"{path}: {problem}; {fix}")
+    """The one-line error: the key path and the problem quoted bounded and escaped (a file
+    that is not a calibration, e.g. a symlink to /etc/shadow, must not be echoed)."""
+    raise CalibrationError(f"{snippet(path, 60, quote=False)}: {snippet(problem, 120, quote=False)}; {fix}")
 
 
 def _keys(d: Mapping, path: str, required: set, optional: set) -> None:

@@ -19,7 +19,7 @@ from typing import BinaryIO, Optional
 
 from .errors import CannotCreate
 
-__all__ = ["NotAFile", "check_output", "atomic_write_bytes", "atomic_write_text", "GrowingFile",
+__all__ = ["NotAFile", "check_output", "read_own_file", "atomic_write_bytes", "atomic_write_text", "GrowingFile",
            "fsync_dir"]
 
 
@@ -89,6 +89,42 @@ def atomic_write_bytes(path: str, data: bytes, mode: int = 0o644, flag: str = ""
 
 def atomic_write_text(path: str, text: str, mode: int = 0o644, flag: str = "") -> None:
     atomic_write_bytes(path, text.encode("utf-8"), mode, flag)
+
+
+def read_own_file(path: str, max_bytes: int, error=CannotCreate) -> bytes:
+    """The bytes of a state file (at most ``max_bytes``): opened without following a
+    symbolic link, and only if it is a regular file owned by this process's user; else
+    ``error`` (a UserError class) saying which, without a byte of the file in it."""
+    import errno
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise error(f"{path}: is a symbolic link; a state file must be a regular file "
+                        f"(imucald never follows a link there)") from None
+        raise error(f"{path}: cannot open: {e.strerror}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = next((k for f, k in _KIND if f(st.st_mode)), "not a regular file")
+            raise error(f"{path}: is {kind}; a state file must be a regular file")
+        if st.st_uid != os.geteuid():
+            raise error(f"{path}: is owned by uid {st.st_uid}, not by imucald's user (uid "
+                        f"{os.geteuid()}); a state file must be imucald's own")
+        if st.st_size > max_bytes:
+            raise error(f"{path}: {st.st_size} bytes, more than the {max_bytes} a state file may hold")
+        chunks, n = [], 0
+        while n <= max_bytes:
+            b = os.read(fd, max_bytes + 1 - n)
+            if not b:
+                break
+            chunks.append(b)
+            n += len(b)
+        if n > max_bytes:
+            raise error(f"{path}: more than the {max_bytes} bytes a state file may hold")
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
 
 
 class GrowingFile:

@@ -457,25 +457,25 @@ def save(cal: Calibration, path) -> None:
     atomic_write_text(os.fspath(path), text)
 
 
-def load(path) -> Calibration:
-    """Read and validate a calibration file; CalibrationError names the file and key."""
-    import yaml
+def load(path, data: Optional[bytes] = None) -> Calibration:
+    """Read and validate a calibration file (or its bytes ``data``, already read); the
+    hardened YAML loader (yamlsafe: size, depth, no aliases); CalibrationError names the
+    file and key."""
+    from .yamlsafe import load as load_yaml, load_file
     p = os.fspath(path)
-    try:
-        with open(p, encoding="utf-8") as fh:
-            doc = yaml.safe_load(fh)
-    except OSError as e:
-        raise CalibrationError(f"{p}: cannot read: {e.strerror}") from None
-    except yaml.YAMLError as e:
-        raise CalibrationError(f"{p}: not valid YAML ({' '.join(str(e).split())})") from None
-    except UnicodeDecodeError as e:
-        raise CalibrationError(f"{p}: byte 0x{e.object[e.start]:02x} at offset {e.start} is not UTF-8") from None
-    except RecursionError:
-        raise CalibrationError(f"{p}: not valid YAML (nested too deeply)") from None
+    if data is None:
+        doc = load_file(p, CalibrationError, max_bytes=MAX_CALIBRATION_BYTES)
+    else:
+        doc = load_yaml(data, p, CalibrationError, max_bytes=MAX_CALIBRATION_BYTES)
     try:
         return Calibration.from_dict(doc)
     except CalibrationError as e:
         raise CalibrationError(f"{p}: {e}") from None
+
+
+#: the largest calibration file read: one with every sensor, thermal terms and quality
+#: figures is ~5 KB
+MAX_CALIBRATION_BYTES = 1 << 20
 
 
 def apply(cal: Calibration, accel_g=None, gyro_dps=None, mag_gauss=None, temp_c=None

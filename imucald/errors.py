@@ -84,7 +84,7 @@ def snippet(text, limit: int = 40, quote: bool = True) -> str:
             cut = True
             break
         c = s[i]
-        if c.isprintable() and c != "\\" and c != "'":
+        if c.isprintable() and c != "\\" and (c != "'" or not quote):
             out.append(c)
             i += 1
         else:

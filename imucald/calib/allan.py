@@ -299,15 +299,9 @@ def read_figures(path: str) -> Dict[str, Dict[str, np.ndarray]]:
     """The white densities (per-sample variance = density^2 rate) and AVAR coefficients of
     a noise-figures file, by sensor: {"accel": {"white": (3,), "avar_coef": (3, 3)}, ...}.
     A bad file raises a one-line UserError naming the file and key."""
-    import yaml
     from ..errors import UserError
-    try:
-        with open(path, encoding="utf-8") as fh:
-            doc = yaml.safe_load(fh)
-    except OSError as e:
-        raise UserError(f"noise.file: cannot read {path}: {e.strerror}") from None
-    except yaml.YAMLError as e:
-        raise UserError(f"noise.file: {path} is not valid YAML ({' '.join(str(e).split())[:120]})") from None
+    from ..yamlsafe import load_file
+    doc = load_file(path, UserError, max_bytes=1 << 20, what="noise.file: ")
     if not isinstance(doc, dict) or doc.get("format") != FIGURES_FORMAT:
         raise UserError(f"{path}: format: not {FIGURES_FORMAT!r}; write it with `imucald noise REC -o FILE`")
     out: Dict[str, Dict[str, np.ndarray]] = {}

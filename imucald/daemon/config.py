@@ -15,7 +15,7 @@ import copy
 import re
 from typing import Any, Dict, List, Optional, Tuple
 
-from ..errors import EX_CONFIG, UserError
+from ..errors import EX_CONFIG, UserError, snippet
 from ..stillness_defaults import STILLNESS_DEFAULTS as _STILL  # one set of stillness defaults
 
 __all__ = ["ConfigError", "FlagError", "DEFAULTS", "load_config", "validate", "set_override",
@@ -129,6 +129,9 @@ _BOOL, _INT, _FLOAT = "tag:yaml.org,2002:bool", "tag:yaml.org,2002:int", "tag:ya
 
 
 _LOADER = None
+#: the largest configuration file read (the shipped one is ~10 KB); with the YAML limits
+#: (yamlsafe: no aliases, depth 32) a reload's parse is bounded in time and memory
+MAX_CONFIG_BYTES = 256 << 10
 
 
 def _loader():
@@ -178,7 +181,8 @@ def _scan(text: str, path: str) -> Tuple[Dict[str, int], Dict[str, str]]:
     lines: Dict[str, int] = {}
     plain: Dict[str, str] = {}
     import yaml
-    node = yaml.compose(text, Loader=_loader())
+    from ..yamlsafe import compose
+    node = compose(text, path, ConfigError, base=_loader(), max_bytes=MAX_CONFIG_BYTES)
 
     def walk(n, prefix):
         if not isinstance(n, yaml.MappingNode):
@@ -212,14 +216,19 @@ def _lines(text: str) -> Dict[str, int]:
         return {}
 
 
+def _quote(value: Any) -> str:
+    """A value for a message: bounded and escaped (errors.snippet)."""
+    return snippet(value) if isinstance(value, str) else snippet(repr(value), quote=False)
+
+
 def _check(key: str, value: Any, where: str, plain: Optional[str] = None) -> Any:
     if key not in SCHEMA:
         sec = key.split(".")[0]
         known = sorted(k for k in SCHEMA if k.startswith(sec + "."))
         allowed = ", ".join(known) if known else ", ".join(sorted({k.split(".")[0] for k in SCHEMA}))
-        raise ConfigError(f"{where}unknown key '{key}'; allowed: {allowed}")
+        raise ConfigError(f"{where}unknown key {snippet(key)}; allowed: {allowed}")
     default, kind, allowed = SCHEMA[key]
-    bad = lambda what: ConfigError(f"{where}{key}: {value!r} {what}")
+    bad = lambda what: ConfigError(f"{where}{key}: {_quote(value)} {what}")
     opt = kind.endswith("?")
     k = kind.rstrip("?")
     if value is None:
@@ -277,11 +286,11 @@ def validate(cfg: Dict[str, Any], path: str = "", lines: Optional[Dict[str, int]
     for sec, body in cfg.items():
         where = f"{path}:{lines.get(str(sec), '?')}: " if path else ""
         if sec not in DEFAULTS:
-            raise ConfigError(f"{where}unknown section '{sec}'; allowed: {', '.join(DEFAULTS)}")
+            raise ConfigError(f"{where}unknown section {snippet(str(sec))}; allowed: {', '.join(DEFAULTS)}")
         if body is None:
             continue
         if not isinstance(body, dict):
-            raise ConfigError(f"{where}section '{sec}' must be a mapping of keys")
+            raise ConfigError(f"{where}section {snippet(str(sec))} must be a mapping of keys")
         for k, v in body.items():
             key = f"{sec}.{k}"
             w = f"{path}:{lines.get(key, '?')}: " if path else ""
@@ -365,18 +374,13 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
 def parse_yaml(raw: bytes, path: str) -> Tuple[Any, Dict[str, int], Dict[str, str]]:
     """(data, key lines, unquoted scalars) of a configuration file's bytes; ConfigError
     (one line, file:line) for bytes that are not UTF-8, invalid YAML or a duplicate key."""
-    import yaml
+    from ..yamlsafe import load
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: {len(raw)} bytes, more than the {MAX_CONFIG_BYTES >> 10} KiB a "
+                          f"configuration may hold: is it the right file?")
     text = _decode(raw, path)
-    try:
-        lines, plain = _scan(text, path)
-        data = yaml.load(text, Loader=_loader())
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        line = f":{mark.line + 1}" if mark is not None else ""
-        prob = getattr(e, "problem", None) or str(e).splitlines()[0]
-        raise ConfigError(f"{path}{line}: not valid YAML: {prob}") from None
-    except RecursionError:
-        raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
+    lines, plain = _scan(text, path)
+    data = load(text, path, ConfigError, base=_loader(), max_bytes=MAX_CONFIG_BYTES)
     return data, lines, plain
 
 
@@ -385,7 +389,7 @@ def load_config(path: Optional[str]) -> Dict[str, Dict[str, Any]]:
         return validate({})
     try:
         with open(path, "rb") as fh:
-            raw = fh.read()
+            raw = fh.read(MAX_CONFIG_BYTES + 1)
     except OSError as e:
         raise ConfigError(f"{path}: cannot read the configuration: {e.strerror}") from None
     data, lines, plain = parse_yaml(raw, path)
@@ -406,7 +410,7 @@ def apply_overrides(cfg: Dict[str, Dict[str, Any]], overrides: List[Tuple[str, A
     if path is not None:
         try:
             with open(path, "rb") as fh:
-                lines = _lines(_decode(fh.read(), path))
+                lines = _lines(_decode(fh.read(MAX_CONFIG_BYTES), path))
         except (OSError, ConfigError):
             pass
     check_consistency(cfg, path or "", lines, flags)

@@ -200,8 +200,7 @@ class Daemon:
             if now - last_status >= 1.0:
                 notify(f"STATUS={self._status_line()}")
                 last_status = now
-            if self.reload:
-                self.reload = False
+            if self.reload or self._reloading is not None:
                 self._reload()
             if self.duration_s is not None and b.clock.now() - t_start >= self.duration_s:
                 break
@@ -280,20 +279,46 @@ class Daemon:
             return {"class": "RELOAD", "scheduled": True}
         raise AssertionError(cmd)
 
+    _reloading = None
+
     def _reload(self) -> None:
         """SIGHUP / reload: re-read the configuration with the command line's overrides;
         every reloadable key takes effect at once, the others are named as needing a
-        restart.  A file that does not load leaves the running configuration as it is."""
-        from .config import SCHEMA, apply_overrides, load_config, needs_restart
+        restart.  A file that does not load leaves the running configuration as it is.
+        The file is parsed on a thread of its own (its size, depth and aliases bounded by
+        yamlsafe), so sampling, the sockets and the signals carry on meanwhile; the loop
+        applies the result once the thread is done."""
+        import threading
+        t = self._reloading
+        if t is None:
+            self.reload = False
+            box: list = []
+            t = threading.Thread(target=self._reload_parse, args=(box,), name="imucald-reload",
+                                 daemon=True)
+            t.box = box
+            self._reloading = t
+            t.start()
+            return
+        if t.is_alive():
+            return
+        self._reloading = None
+        if t.box:
+            self._reload_apply(t.box[0])
+
+    def _reload_parse(self, box: list) -> None:
+        from .config import apply_overrides, load_config
         try:
             new = load_config(self.config_path)
             apply_overrides(new, self.overrides, self.config_path)
+            box.append(new)
         except UserError as e:
             log.error("reload failed, keeping the running configuration: %s", " ".join(str(e).split()))
-            return
         except Exception as e:          # a reload must never stop the sampler
-            log.error("reload failed (%s: %s), keeping the running configuration", type(e).__name__, e)
-            return
+            log.error("reload failed (%s: %s), keeping the running configuration", type(e).__name__,
+                      " ".join(str(e).split())[:200])
+
+    def _reload_apply(self, new) -> None:
+        from .config import SCHEMA, needs_restart
         get = lambda c, k: c[k.split(".")[0]][k.split(".")[1]]
         changed = [k for k in SCHEMA if get(new, k) != get(self.cfg, k)]
         now = [k for k in changed if not needs_restart(k)]

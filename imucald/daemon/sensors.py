@@ -45,18 +45,19 @@ def _now() -> str:
 
 
 def _read_sensor(state_dir: str) -> Optional[Dict[str, Any]]:
-    import yaml
+    from ..atomic import read_own_file
+    from ..errors import UserError
+    from ..yamlsafe import load
     p = os.path.join(state_dir, SENSOR_FILE)
-    if not os.path.exists(p):
+    if not os.path.lexists(p):
         return None
     try:
-        with open(p, encoding="utf-8") as fh:
-            d = yaml.safe_load(fh)
+        d = load(read_own_file(p, 1 << 16, UserError), p, UserError)
         if isinstance(d, dict) and isinstance(d.get("id"), str):
             return d
         why = "no id"
-    except (OSError, yaml.YAMLError) as e:
-        why = " ".join(str(e).split())[:80]
+    except UserError as e:
+        why = " ".join(str(e).split())[:160]
     from .state import set_aside
     set_aside(p, f"unreadable sensor record ({why})")
     return None
@@ -87,11 +88,12 @@ def _move_files(src: str, dst: str, names=(*SENSOR_FILES, SENSOR_FILE)) -> int:
 
 def _calibration_sensor(path: str) -> Optional[str]:
     """The ``sensor`` id a calibration file names ('' if none, None if unreadable)."""
-    import yaml
+    from ..atomic import read_own_file
+    from ..errors import UserError
+    from ..yamlsafe import load
     try:
-        with open(path, encoding="utf-8") as fh:
-            d = yaml.safe_load(fh)
-    except (OSError, yaml.YAMLError):
+        d = load(read_own_file(path, 1 << 20, UserError), path, UserError)
+    except UserError:
         return None
     s = d.get("sensor", "") if isinstance(d, dict) else None
     return s if isinstance(s, str) else None

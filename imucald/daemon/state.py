@@ -15,8 +15,10 @@ from typing import Dict, Optional
 import numpy as np
 
 from ..calib.poses import PoseSet, read_poses, write_poses
-from ..calibration import Calibration, CalibrationError, load, save
+from ..atomic import read_own_file
+from ..calibration import MAX_CALIBRATION_BYTES, Calibration, CalibrationError, load, save
 from ..errors import UserError
+from ..recording import MAX_SMALL_BYTES
 
 __all__ = ["save_calibration", "load_calibration", "save_poses", "load_poses",
            "set_aside"]
@@ -55,10 +57,10 @@ def load_calibration(state_dir: str, board: Optional[str] = None,
     """The saved calibration, or None.  A file that fails validation, or that was made
     for another board or chip (when ``board`` is given), is set aside with the reason."""
     path = os.path.join(state_dir, "calibration.yaml")
-    if not os.path.exists(path):
+    if not os.path.lexists(path):
         return None
     try:
-        cal = load(path)
+        cal = load(path, read_own_file(path, MAX_CALIBRATION_BYTES, CalibrationError))
     except CalibrationError as e:
         set_aside(path, f"unreadable calibration ({str(e).splitlines()[0]})")
         return None
@@ -77,9 +79,10 @@ def load_poses(state_dir: str, name: str = "poses.csv") -> Optional[PoseSet]:
     """The saved poses (``name``: poses.csv, or thermal.csv: the thermal log), or None; an
     unreadable file is set aside."""
     path = os.path.join(state_dir, name)
-    if not os.path.exists(path):
+    if not os.path.lexists(path):
         return None
     try:
+        read_own_file(path, MAX_SMALL_BYTES, UserError)     # a link, not ours: set aside unread
         ps = read_poses(path)
         if ps.acc_sample_cov is None:
             raise UserError("no within-pose deviations")

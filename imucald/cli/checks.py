@@ -11,7 +11,25 @@ import os
 
 from ..errors import CannotCreate, UserError
 
-__all__ = ["positive_float", "non_negative_float", "at_least", "check_args", "output_file", "output_dir"]
+__all__ = ["positive_float", "non_negative_float", "at_least", "check_args", "output_file", "output_dir",
+           "LIMITS", "number_in", "count_in", "SIM_MAX_SAMPLES"]
+
+#: The stated limits of the arguments that imply memory or time (docs/changes/issue-21.md):
+#: a value beyond is refused in one line before anything runs.  (low, high, unit)
+LIMITS = {
+    "rate": (0.0, 10000.0, "Hz"),         # beyond every supported chip's output rate (8 kHz)
+    "seconds": (0.0, 1e7, "s"),           # record: 116 days (written as it comes: no memory)
+    "hold": (0.0, 3600.0, "s"),
+    "move": (0.0, 3600.0, "s"),
+    "speed": (0.0, 1000.0, "x"),          # the emulator at 1 kHz x 1000 is 1 M samples/s of CPU
+    "duration": (0.0, 1e9, "s"),
+    "tremor": (0.0, 100.0, "deg/s"),      # a hand's is 0.5-2
+    "window": (0.0, 3600.0, "s"),
+    "temp_rise": (-150.0, 150.0, "degC"),
+}
+#: simulate: the most samples one simulation may hold (~450 bytes each in memory at its
+#: peak: 1 M samples ~ 450 MB, ~15 s on a Pi 4 core)
+SIM_MAX_SAMPLES = 1_000_000
 
 
 def positive_float(text: str) -> float:
@@ -34,6 +52,36 @@ def non_negative_float(text: str) -> float:
     if not math.isfinite(v) or v < 0:
         raise argparse.ArgumentTypeError(f"{text} is not a number >= 0")
     return v
+
+
+def number_in(lo: float, hi: float, unit: str = "", low_open: bool = True):
+    """argparse type: a finite number in (lo, hi] (or [lo, hi] with low_open=False)."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not math.isfinite(v) or (v <= lo if low_open else v < lo):
+            raise argparse.ArgumentTypeError(f"{text} is not a number {'>' if low_open else '>='} {lo:g}")
+        if v > hi:
+            raise argparse.ArgumentTypeError(f"{text} is beyond the limit of {hi:g}{' ' + unit if unit else ''} "
+                                             f"(docs: limits)")
+        return v
+    parse.__name__ = f"number in {lo:g}..{hi:g}"
+    return parse
+
+
+def count_in(n: int, hi: int, why: str = ""):
+    """argparse type: an integer in n..hi."""
+    low = at_least(n, why)
+
+    def parse(text: str) -> int:
+        v = low(text)
+        if v > hi:
+            raise argparse.ArgumentTypeError(f"{v} is beyond the limit of {hi}")
+        return v
+    parse.__name__ = f"integer {n}..{hi}"
+    return parse
 
 
 def at_least(n: int, why: str = ""):
@@ -114,8 +162,32 @@ def check_args(args) -> None:
         output_dir(args.report, "--report")
     if cmd == "replay" and args.state_dir:
         output_dir(args.state_dir, "--state-dir")
+    if cmd == "simulate":
+        _check_simulation_size(args)
     if cmd == "record":
         from ..drivers.rates import rate_problem
         why = rate_problem(args.board, args.rate)
         if why:
             raise UserError(f"--rate {args.rate:g}: {why}")
+
+
+def _check_simulation_size(args) -> None:
+    """simulate: poses x (hold + move) x rate samples, against SIM_MAX_SAMPLES."""
+    if getattr(args, "euler", None):
+        try:
+            dims = [int(v) for v in args.euler.split(",")]
+        except ValueError:
+            return                      # cmd_simulate says what is wrong with it
+        if len(dims) != 3 or min(dims) < 1:
+            return
+        if max(dims) > 1000 or dims[0] * dims[1] * dims[2] > 10000:
+            raise UserError(f"--euler {args.euler}: {dims[0] * dims[1] * dims[2]} poses is beyond the "
+                            f"limit of 10000 (each at most 1000)")
+        poses = dims[0] * dims[1] * dims[2]
+    else:
+        poses = args.poses
+    n = poses * (args.hold + args.move) * args.rate
+    if n > SIM_MAX_SAMPLES:
+        raise UserError(f"simulate: {poses} poses x ({args.hold:g} s hold + {args.move:g} s move) x "
+                        f"{args.rate:g} Hz is {n:.3g} samples, beyond the limit of {SIM_MAX_SAMPLES:,} "
+                        f"(~450 bytes each in memory): lower --rate, --hold, --move or --poses")

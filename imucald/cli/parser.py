@@ -17,7 +17,12 @@ import importlib
 from typing import Optional
 
 from .. import __version__
-from .checks import at_least, non_negative_float, positive_float
+from .checks import LIMITS, at_least, count_in, number_in, positive_float
+
+
+def _lim(name: str):
+    lo, hi, unit = LIMITS[name]
+    return number_in(lo, hi, unit, low_open=lo == 0.0)
 
 
 def _choices(key: str):
@@ -44,15 +49,16 @@ def _add_simulate(s) -> None:
     from ..specs import BOARDS as SIM_BOARDS
     s.add_argument("-o", "--output", required=True, help="recording file to write")
     s.add_argument("--board", default="mpu6050", choices=list(SIM_BOARDS))
-    s.add_argument("--poses", type=at_least(1), default=30, help="number of well-spread orientations")
+    s.add_argument("--poses", type=count_in(1, 10000), default=30, help="number of well-spread orientations")
     s.add_argument("--euler", help="paper 000 pose set NX,NY,NZ instead of --poses")
-    s.add_argument("--rate", type=positive_float, default=100.0, help="sample rate, Hz")
-    s.add_argument("--hold", type=positive_float, default=10.0, help="mean still time per pose, s")
-    s.add_argument("--move", type=positive_float, default=3.0, help="mean move time between poses, s")
+    s.add_argument("--rate", type=_lim("rate"), default=100.0, help="sample rate, Hz")
+    s.add_argument("--hold", type=_lim("hold"), default=10.0, help="mean still time per pose, s")
+    s.add_argument("--move", type=_lim("move"), default=3.0, help="mean move time between poses, s")
     s.add_argument("--temp-profile", default="warmup", choices=["warmup", "ramp", "heatcool", "constant"])
-    s.add_argument("--temp-rise", type=float, default=6.0, help="temperature change, degC")
+    s.add_argument("--temp-rise", type=number_in(*LIMITS["temp_rise"][:2], "degC", low_open=False), default=6.0,
+                   help="temperature change, degC")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--tremor-dps", type=non_negative_float, default=0.0,
+    s.add_argument("--tremor-dps", type=number_in(0, LIMITS["tremor"][1], "deg/s", low_open=False), default=0.0,
                    help="hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
     s.add_argument("--truth", help="also write the true parameters as JSON here")
     s.add_argument("--effect", action="append", help="inject an unmodelled effect: NAME or NAME=MAGNITUDE, "
@@ -87,10 +93,10 @@ def _add_calibrate(c) -> None:
     c.add_argument("--nominal-offset", type=float, default=0.0,
                    help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit")
     c.add_argument("--rate-hz", type=positive_float, help="raw table without a t column: sample rate")
-    c.add_argument("--window-s", type=positive_float, default=_ST["window_s"], help="still detector window, s")
+    c.add_argument("--window-s", type=_lim("window"), default=_ST["window_s"], help="still detector window, s")
     c.add_argument("--threshold-k", type=positive_float, default=_ST["k"],
                    help="still when the accelerometer's moving variance < k x its noise floor")
-    c.add_argument("--min-still-s", type=positive_float, default=_ST["min_still_s"],
+    c.add_argument("--min-still-s", type=_lim("window"), default=_ST["min_still_s"],
                    help="shortest still interval, s")
     c.add_argument("--thermal-min-span", type=positive_float, default=10.0, metavar="DEGC",
                    help="accel and gyro: fit a bias polynomial in temperature (order 0-3 by held-out "
@@ -123,14 +129,14 @@ def _add_record(r) -> None:
     r.add_argument("--mag", default="auto", choices=_choices("sensor.magnetometer"),
                    help="9dof/gy273 magnetometer: found by ID (auto) or forced; emulated: auto = "
                         "HMC5883L on 9dof, QMC5883L on gy273")
-    r.add_argument("--seconds", type=positive_float, default=10.0)
-    r.add_argument("--rate", type=positive_float, default=100.0, help="sample rate, Hz")
+    r.add_argument("--seconds", type=_lim("seconds"), default=10.0)
+    r.add_argument("--rate", type=_lim("rate"), default=100.0, help="sample rate, Hz")
     r.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1)")
     r.add_argument("--emulate", action="store_true", help="use the emulated board even if a bus exists")
     r.add_argument("--realtime", action="store_true", help="emulator runs in wall-clock time")
-    r.add_argument("--poses", type=at_least(1), default=30, help="emulator: orientations to move through")
+    r.add_argument("--poses", type=count_in(1, 10000), default=30, help="emulator: orientations to move through")
     r.add_argument("--seed", type=int, default=0, help="emulator: seed")
-    r.add_argument("--tremor-dps", type=non_negative_float, default=0.0,
+    r.add_argument("--tremor-dps", type=number_in(0, LIMITS["tremor"][1], "deg/s", low_open=False), default=0.0,
                    help="emulator: hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
     r.add_argument("--fault", action="append", help="emulator fault, e.g. nack=0.01, reset=0x68@3 "
                                                     "(repeatable; see the README)")
@@ -151,7 +157,7 @@ def _add_run(rn) -> None:
     rn.add_argument("--board", choices=_choices("sensor.board"))
     rn.add_argument("--mag", choices=_choices("sensor.magnetometer"),
                     help="9dof/gy273 magnetometer (overrides sensor.magnetometer)")
-    rn.add_argument("--rate", type=positive_float, help="sample rate, Hz")
+    rn.add_argument("--rate", type=_lim("rate"), help="sample rate, Hz")
     rn.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N")
     rn.add_argument("--format", choices=_choices("output.format"))
     rn.add_argument("--fifo", help="also stream to this FIFO")
@@ -162,13 +168,13 @@ def _add_run(rn) -> None:
     g = rn.add_mutually_exclusive_group()
     g.add_argument("--emulate", action="store_true", help="use the emulated board")
     g.add_argument("--no-emulate", action="store_true", help="never fall back to the emulator")
-    rn.add_argument("--speed", type=positive_float, default=1.0, help="emulator: time runs this much faster")
+    rn.add_argument("--speed", type=_lim("speed"), default=1.0, help="emulator: time runs this much faster")
     rn.add_argument("--seed", type=int, default=0, help="emulator: seed")
-    rn.add_argument("--tremor-dps", type=non_negative_float, default=1.0,
+    rn.add_argument("--tremor-dps", type=number_in(0, LIMITS["tremor"][1], "deg/s", low_open=False), default=1.0,
                     help="emulator: hand tremor RMS per gyro axis, deg/s (default 1: a hand-held "
                          "tour with 1.5-4 s holds; 0: a board set down on a bench)")
     rn.add_argument("--fault", action="append", help="emulator fault (as for record)")
-    rn.add_argument("--duration", type=positive_float, help="stop after this many (sensor-clock) seconds")
+    rn.add_argument("--duration", type=_lim("duration"), help="stop after this many (sensor-clock) seconds")
     rn.add_argument("--echo", action="store_true", help="print one stream line per second")
     rn.set_defaults(func=_command("service", "cmd_run"))
 
@@ -210,7 +216,8 @@ def _add_gap(gp) -> None:
                     help="sensor(s) to diagnose (default: all present)")
     gp.add_argument("--json", action="store_true", help="print one JSON object")
     gp.add_argument("--report", help="write plots to this directory (needs the plots extra)")
-    gp.add_argument("--sims", type=at_least(20, " (p-values need some resolution)"), default=200, help="twin re-simulations")
+    gp.add_argument("--sims", type=count_in(20, 5000, " (p-values need some resolution)"), default=200,
+                    help="twin re-simulations (20..5000)")
     gp.add_argument("--seed", type=int, default=0)
     gp.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,temp")
     gp.add_argument("--nominal-scale", type=float, default=1.0)
@@ -243,13 +250,13 @@ def _add_noise(nz) -> None:
 
 def _add_mqtt(mq) -> None:
     daemon_opts(mq, state=False)
-    mq.add_argument("--duration", type=positive_float, help="stop after this many seconds")
+    mq.add_argument("--duration", type=_lim("duration"), help="stop after this many seconds")
     mq.set_defaults(func=_command("mqtt", "cmd_mqtt"))
 
 
 def _add_demo(d) -> None:
     d.add_argument("--seed", type=int, default=1)
-    d.add_argument("--poses", type=at_least(10, " (the 9-parameter fit scored by leave-one-pose-out)"), default=25)
+    d.add_argument("--poses", type=count_in(10, 1000, " (the 9-parameter fit scored by leave-one-pose-out)"), default=25)
     d.set_defaults(func=_command("offline", "cmd_demo"))
 
 

@@ -128,7 +128,12 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
         cfg = _cfg(tmp_path, broker.port, sample_rate_hz=20, discovery="true")
         cmd = [PY, "-m", "imucald.cli", "mqtt", "--config", str(cfg), "--runtime-dir", str(rt)]
         bridge = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True)
-        got_cal = sub.wait(lambda: any(c.get("applied") for c in sub.of(f"{sid}/event/cal")), 90)
+        # an applied calibration whose event carries its standard errors: the bridge adds them
+        # when the calibration in force is still that one as it reads the event; on a loaded
+        # machine it can read the stream so late that a newer one is already in force (that
+        # event then has none), so the wait is for such an event, not for the first applied
+        got_cal = sub.wait(lambda: any(c.get("applied") and "accel" in c
+                                       for c in sub.of(f"{sid}/event/cal")), 180)
         sub.wait(lambda: any(h["calibration_id"] for h in sub.of(f"{sid}/health")), 5)
         sub.wait(lambda: sum(m["cal"] >= 1 and m["still"] for m in sub.of(f"{sid}/imu")) >= 20, 10)
         bridge.send_signal(signal.SIGTERM)
@@ -153,12 +158,12 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
     assert np.all(d[inside] != 5), "a sample inside an interval although its predecessor was published"
     assert np.mean(d == 5) > 0.9, np.unique(d, return_counts=True)
     assert all({"acc_g", "gyro_dps", "temp_c", "t", "time", "cal"} <= set(m) for m in imu)
-    cal = [c for c in sub.of(f"{sid}/event/cal") if c.get("applied")][0]
+    cal = [c for c in sub.of(f"{sid}/event/cal") if c.get("applied") and "accel" in c][0]
     assert cal["accel_heldout_rms_g"] < cal["accel_heldout_rms_before_g"]
     se = cal["accel"]["stderr"]
     assert set(se) == {"alpha", "scale", "bias_g"} and all(0 < s < 0.01 for s in se["bias_g"])
-    full = sub.of(f"{sid}/calibration")[-1]
-    assert full["id"] == cal["id"] and full["accel"]["params"]["bias_g"]
+    full = [f for f in sub.of(f"{sid}/calibration") if f["id"] == cal["id"]]
+    assert full and full[-1]["accel"]["params"]["bias_g"]
     # after that calibration the published samples are corrected: |a| = 1 g when still
     still = np.array([m["acc_g"] for m in imu if m["still"] and m["cal"] >= cal["id"]])
     assert len(still) >= 20 and abs(np.median(np.linalg.norm(still, axis=1)) - 1) < 0.01

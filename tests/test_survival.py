@@ -282,7 +282,8 @@ def test_worker_killed_mid_calibration_and_the_daemon_carries_on(tmp_path):
         for _ in range(3):                           # kill every worker seen, as the OOM killer would
             control(rt, "recalibrate")
             w = []
-            for _ in range(200):                     # the worker starts a moment after the reply
+            t_end = time.monotonic() + 60            # the worker starts a moment after the reply
+            while time.monotonic() < t_end:          # (a condition, not a count: under load)
                 w = [pid for pid, c in children(p.pid) if "imucald.daemon.worker" in c]
                 if w or not control(rt, "status")["calibrating"]:
                     break
@@ -299,7 +300,9 @@ def test_worker_killed_mid_calibration_and_the_daemon_carries_on(tmp_path):
         wait_until(lambda: control(rt, "recalibrate").get("started"), timeout=60, step=0.2)
         wait_until(lambda: not control(rt, "status")["calibrating"], timeout=120)
         s = control(rt, "status")
-        assert s["worker"]["started"] == n0 + 1 and s["worker"]["died"] == killed
+        # (at least one: the emulated tour goes on at 20x, so on a loaded machine the daemon's
+        # own calibrations, every 5 new poses, start workers of their own meanwhile)
+        assert s["worker"]["started"] >= n0 + 1 and s["worker"]["died"] == killed
         assert "calibration failed" not in s["last_event"]
     finally:
         err = stop(p)

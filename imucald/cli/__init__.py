@@ -51,7 +51,11 @@ def main(argv: Optional[List[str]] = None) -> int:
         eprint(f"imucald: error: {_one_line(e)}")
         return e.exit_code
     except OSError as e:            # disk full, read-only, EIO: said in one line
-        if isinstance(e, BrokenPipeError):
+        if isinstance(e, BrokenPipeError):      # the reader of our stdout went away (| head)
+            try:                                 # nothing more to say, and no "Exception
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # ignored" at exit
+            except (OSError, ValueError):
+                pass
             return 0
         eprint(f"imucald: error: {_one_line(os_error_line(e))}")
         return EX_IOERR

@@ -102,6 +102,8 @@ def cmd_record(args) -> int:
                 writer.write(_as_recording(h, board, cols_temp, last))
     except KeyboardInterrupt:
         stop.append(2)
+    except BrokenPipeError:         # -o - and the reader went away (| head): a normal end
+        raise
     except OSError as e:
         raise write_failure(e, "-o", args.output) from None
     finally:

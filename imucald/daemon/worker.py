@@ -187,8 +187,11 @@ def main(argv=None) -> int:
         res = ("ok", fn(*args, **kwargs))
     except Exception as e:           # the job's failure, in one line for the daemon's log
         res = ("error", f"{type(e).__name__}: {' '.join(str(e).split())}")
-    out.write(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
-    out.flush()
+    try:
+        out.write(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
+        out.flush()
+    except (BrokenPipeError, ConnectionResetError):     # the daemon died meanwhile: no one to
+        os._exit(3)                                     # tell, nothing to print (no traceback)
     return 0
 
 

@@ -218,7 +218,12 @@ def _lines(text: str) -> Dict[str, int]:
 
 def _quote(value: Any) -> str:
     """A value for a message: bounded and escaped (errors.snippet)."""
-    return snippet(value) if isinstance(value, str) else snippet(repr(value), quote=False)
+    if isinstance(value, str):
+        return snippet(value)
+    import reprlib
+    r = reprlib.Repr()               # bounded however the value nests (never the whole of it)
+    r.maxlevel, r.maxlist, r.maxdict, r.maxstring, r.maxother = 3, 6, 6, 40, 40
+    return snippet(r.repr(value), 80, quote=False)
 
 
 def _check(key: str, value: Any, where: str, plain: Optional[str] = None) -> Any:

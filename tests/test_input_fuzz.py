@@ -11,6 +11,7 @@ import json
 import math
 import os
 import socket
+import stat
 import tempfile
 
 import numpy as np
@@ -25,6 +26,7 @@ from imucald.calibration import Calibration, CalibrationError, SensorCal, load  
 from imucald.daemon import control as ctl  # noqa: E402
 from imucald.daemon.config import SCHEMA, ConfigError, parse_yaml, validate  # noqa: E402
 from imucald.errors import UserError  # noqa: E402
+from imucald.recording import read_recording  # noqa: E402
 
 N = 2000
 FUZZ = settings(max_examples=N, deadline=None, derandomize=True, database=None,
@@ -428,3 +430,119 @@ def test_hostile_requests_to_a_running_daemon(tmp_path):
             p.send_signal(signal.SIGTERM)
         err = p.communicate(timeout=60)[1]
     assert p.returncode == 0 and "Traceback" not in err, err
+
+
+# --- YAML aliases and output paths (issue 21) ------------------------------------------------
+
+def _alias_bomb(depth: int, fan: int, where: str) -> str:
+    sec, key = where.split(".")
+    lines = [f"{sec}:", f"  {key}: &a0 [" + ", ".join(["lol"] * fan) + "]"]
+    lines += [f"  k{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * fan) + "]" for i in range(1, depth)]
+    return "\n".join(lines) + "\n"
+
+
+@settings(max_examples=200, deadline=None, derandomize=True, database=None)
+@given(depth=st.integers(1, 12), fan=st.integers(1, 12),
+       where=st.sampled_from(["sensor.board", "mqtt.host", "log.level", "nope.x", "sensor.nope"]))
+def test_config_yaml_aliases_are_refused_before_any_expansion(depth, fan, where):
+    """Billion laughs of any depth and fan-out (up to 12^12 leaves), under a known or an
+    unknown key: refused at the first alias (or, depth 1, no alias: the value's own error),
+    in one line naming c.yaml:LINE; tracemalloc peak < 5 MB."""
+    import tracemalloc
+    text = _alias_bomb(depth, fan, where)
+    tracemalloc.start()
+    try:
+        with pytest.raises(ConfigError) as e:
+            data, lines, plain = parse_yaml(text.encode(), "c.yaml")
+            validate(data, "c.yaml", lines, plain)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    _one_line(e.value, "c.yaml")
+    if depth > 1:
+        assert str(e.value).startswith("c.yaml:3: a YAML alias (*a0)"), str(e.value)
+    assert peak < 5 << 20 and len(str(e.value)) < 400
+
+
+@settings(max_examples=100, deadline=None, derandomize=True, database=None)
+@given(depth=st.integers(2, 10), fan=st.integers(2, 10), key=st.sampled_from(["chips", "board", "accel", "x"]))
+def test_calibration_yaml_aliases_are_refused(depth, fan, key):
+    """The same bombs in a calibration file (e.g. chips.accel): one line naming the alias."""
+    body = _alias_bomb(depth, fan, f"{key}.accel")
+    path = _file("calibration.yaml", (yaml.safe_dump(_SMALL, sort_keys=False) + body).encode())
+    with pytest.raises(CalibrationError) as e:
+        load(path)
+    _one_line(e.value, path)
+    assert "a YAML alias (*a0) is not accepted" in str(e.value)
+
+
+_KINDS = ["absent", "file", "dir", "fifo", "socket", "link-file", "link-fifo", "link-dir", "dangling",
+          "devnull"]
+
+
+@settings(max_examples=120, deadline=None, derandomize=True, database=None)
+@given(kind=st.sampled_from(_KINDS), how=st.sampled_from(["atomic", "recording", "growing"]),
+       data=st.binary(max_size=64))
+def test_output_paths_only_ever_replace_a_regular_file(kind, how, data):
+    """Whatever is at an output path: written (it was absent, a regular file or a link to one:
+    the path is then a regular file with the data) or refused with NotAFile (exit 73), the
+    thing left as it was; no temporary file left either way."""
+    import shutil
+    import socket as so
+    from imucald.atomic import GrowingFile, NotAFile, atomic_write_bytes
+    from imucald.recording import Recording, write_recording
+    d = tempfile.mkdtemp(dir=_DIR)
+    p = os.path.join(d, "out")
+    s = None
+    target = {"link-file": "f", "link-fifo": "q", "link-dir": "dd", "dangling": "none"}.get(kind)
+    if kind == "devnull":
+        p = os.devnull
+    elif kind in ("file",):
+        open(p, "w").write("old")
+    elif kind == "dir":
+        os.mkdir(p)
+    elif kind == "fifo":
+        os.mkfifo(p)
+    elif kind == "socket":
+        s = so.socket(so.AF_UNIX)
+        s.bind(p)
+    elif target:
+        t = os.path.join(d, target)
+        if kind == "link-file":
+            open(t, "w").write("old")
+        elif kind == "link-fifo":
+            os.mkfifo(t)
+        elif kind == "link-dir":
+            os.mkdir(t)
+        os.symlink(t, p)
+    before = os.lstat(p) if os.path.lexists(p) else None
+    try:
+        if how == "atomic":
+            atomic_write_bytes(p, data)
+            expect = data
+        elif how == "recording":
+            write_recording(Recording(t=np.arange(3) * 0.01, acc=np.zeros((3, 3))), p)
+            expect = None
+        else:
+            g = GrowingFile(p, b"head\n")
+            g.write(data)
+            g.close()
+            expect = b"head\n" + data
+        assert kind in ("absent", "file", "link-file", "dangling"), kind
+        st_ = os.lstat(p)
+        assert stat.S_ISREG(st_.st_mode)
+        if expect is not None:
+            assert open(p, "rb").read() == expect
+        else:
+            assert read_recording(p).t.size == 3
+    except NotAFile as e:
+        _one_line(e, p)
+        assert kind in ("dir", "fifo", "socket", "link-fifo", "link-dir", "devnull"), kind
+        after = os.lstat(p)
+        assert (after.st_ino, stat.S_IFMT(after.st_mode)) == (before.st_ino, stat.S_IFMT(before.st_mode))
+    finally:
+        if s is not None:
+            s.close()
+        left = [f for f in os.listdir(d) if f.endswith(".tmp")]
+        shutil.rmtree(d, ignore_errors=True)
+    assert not left, left

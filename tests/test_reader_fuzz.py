@@ -117,3 +117,36 @@ def test_table_reader_fuzz(body, cols, scale, rate):
         for a in (rec.acc, rec.gyro, rec.temp):
             assert a is None or (len(a) == len(rec) and np.isfinite(a).all()
                                  and (np.abs(a) <= 1e6 * (1 + 1e-12)).all())
+
+
+# --- trailing garbage (issue 21): a cut last line, NUL tails, binary junk ----------------------
+
+_GOOD_ROWS = b"".join(f"{i * 0.01:.2f},0.01,-0.02,1.0\n".encode() for i in range(30))
+_TAILS = [b"", b"0.30,0.01", b"0.30,0.0", b"0.3", b"\x00" * 5000, b"0.30,0.01\x00\x00\x00",
+          b"\x00\x00junk", b"\xff\xfe", b"\n\n", b"# c", b"0.30,1e999", b"1" * 70000]
+
+
+@settings(max_examples=300, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(tail=st.lists(st.one_of(st.sampled_from(_TAILS), st.binary(max_size=40)), max_size=3).map(b"".join),
+       chunk=st.sampled_from([64, 1 << 20]))
+def test_trailing_garbage_is_dropped_with_a_warning_or_a_one_line_error(tail, chunk, capsys):
+    """After 30 good rows, any tail: the 30 rows (+ whole valid rows of the tail) or the
+    one-line error; a tail that is NUL bytes only, or one cut row (no newline, not a valid
+    row), keeps exactly the 30 rows with exactly one warning line naming the file."""
+    from imucald.recording import RecordingReader
+    path = _file(f"{MAGIC}\n# board: x\n# rate_hz: 100\nt,ax,ay,az\n".encode() + _GOOD_ROWS + tail)
+
+    def read():
+        with RecordingReader(path) as r:
+            return r.read(chunk_bytes=chunk)
+    rec = _expect_result_or_user_error(read, path)
+    err = capsys.readouterr().err
+    warns = [ln for ln in err.splitlines() if ln.startswith("imucald: warning:")]
+    assert all(path in w and "\n" not in w for w in warns) and len(warns) <= 1
+    if rec is not None:
+        assert len(rec) >= 30 and np.array_equal(rec.t[:30], np.round(np.arange(30) * 0.01, 2))
+    nul_only = tail and not tail.strip(b"\x00")
+    cut = tail in (b"0.30,0.01", b"0.30,0.0", b"0.3")
+    if nul_only or cut:
+        assert rec is not None and len(rec) == 30 and len(warns) == 1, (tail[:20], err)

@@ -200,7 +200,7 @@ def test_yaml_bomb_at_start_and_by_sighup_one_line_and_the_daemon_streams_on(tmp
     one line, exit 78; by SIGHUP to a running daemon one log line, status still answers, the
     stream carries on, SIGTERM ends it with 0, peak RSS < 300 MB.  Seen failing with aliases
     accepted (yamlsafe.compose_node's refusal removed): the value's repr grew without bound
-    and the test's timeout fired."""
+    and the bomb reached sensor.board's check ('[...] is not allowed', not the alias)."""
     bomb = tmp_path / "bomb.yaml"
     bomb.write_text(_bomb())
     rc, out, err = run_main(capsys, "run", "--emulate", "--config", bomb, "--runtime-dir", tmp_path / "r0",
@@ -245,7 +245,7 @@ def _try(fn):
 ])
 def test_calibration_file_aliases_and_depth_are_refused(tmp_path, text, msg):
     """A calibration file with an alias or nested 40 deep: one line naming file:line.  Seen
-    failing with yaml.safe_load (an alias accepted; the depth a RecursionError message)."""
+    failing with the alias refusal removed ('id: missing': the alias accepted)."""
     from imucald.calibration import CalibrationError, load
     p = tmp_path / "calibration.yaml"
     p.write_text(text)
@@ -281,8 +281,8 @@ def test_a_symlinked_state_file_is_set_aside_unread_and_nothing_of_it_is_echoed(
 def test_a_recording_ending_in_a_cut_line_or_nul_bytes_is_read_with_one_warning(tmp_path, sim, capsys):
     """A cut last line (a power cut while logging) and a sparse 64 MB tail of NUL bytes: the
     rows before are used with one warning line each; NULs followed by other data are an error
-    naming the offset.  Seen failing with the NUL scan removed (the whole tail gathered as one
-    'line': a MemoryError or an error rejecting the file)."""
+    naming the offset.  Seen failing with the NUL scan removed (the file refused: 'line longer
+    than 65536 bytes')."""
     text = sim.read_bytes()
     n = len(read_recording(str(sim)))
     cut = tmp_path / "cut.csv"

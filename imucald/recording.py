@@ -256,6 +256,11 @@ def _open_binary(path: str, error=None):
         raise error(f"{path}: cannot open: {e.strerror}") from None
 
 
+#: the header's rate_hz and the t column's median step over the first RATE_CHECK_ROWS rows
+#: must agree within this factor (clock error and jitter are a few %; a wrong header is 2x+)
+RATE_TOLERANCE = 1.25
+RATE_CHECK_ROWS = 1000
+
 #: the largest small text file read whole (pose files, calibration and configuration files)
 MAX_SMALL_BYTES = 16 << 20
 
@@ -358,7 +363,7 @@ class RecordingReader:
             n = sum(c in header for c in cols)
             if n not in (0, 3):
                 raise RecordingError(f"{path}:{hl}: columns {','.join(cols)} must come together")
-        self.meta, self.header, self._hl = meta, header, hl
+        self.meta, self.header, self._hl, self._where = meta, header, hl, where
         half = [np.inf] + [PLAUSIBLE_LIMIT] * (len(header) - 1)
         self._spec = TableSpec(path, header, RecordingError, comma_only=True, skip="#",
                                halfwidth=half, tcol=0, limit_note=_LIMIT_NOTE)
@@ -373,8 +378,44 @@ class RecordingReader:
         if self._started:
             raise ValueError("a RecordingReader reads its samples once")
         self._started = True
-        return iter_blocks(self._fh, self._spec, self._hl + 1, self._offset,
-                           chunk_bytes=chunk_bytes or tables.CHUNK_BYTES)
+        return self._rate_checked(iter_blocks(self._fh, self._spec, self._hl + 1, self._offset,
+                                              chunk_bytes=chunk_bytes or tables.CHUNK_BYTES))
+
+    def _rate_checked(self, blocks: Iterator[np.ndarray]) -> Iterator[np.ndarray]:
+        """The blocks, the first RATE_CHECK_ROWS rows' median time step checked against the
+        header's rate_hz (a header contradicting the t column made every window the
+        stillness detector sized from it wrong: 'only 0 still poses found')."""
+        head: List[np.ndarray] = []
+        n = 0
+        checked = False
+        for b in blocks:
+            if checked:
+                yield b
+                continue
+            head.append(b)
+            n += len(b)
+            if n >= RATE_CHECK_ROWS:
+                self._check_rate(np.concatenate([h[:, 0] for h in head])[:RATE_CHECK_ROWS])
+                checked = True
+                yield from head
+                head = []
+        if not checked:
+            if n >= 3:
+                self._check_rate(np.concatenate([h[:, 0] for h in head]))
+            yield from head
+
+    def _check_rate(self, t: np.ndarray) -> None:
+        dt = np.diff(t)
+        dt = dt[dt > 0]
+        if len(dt) < 2:
+            return
+        step = float(median(dt))
+        rate = float(self.meta["rate_hz"])
+        if not (1 / RATE_TOLERANCE <= rate * step <= RATE_TOLERANCE):
+            raise RecordingError(
+                f"{self.path}:{self._where['rate_hz']}: header rate_hz={self.meta['rate_hz']} but the t "
+                f"column steps by {step:.6g} s (median of the first rows: {1 / step:.4g} Hz): correct the "
+                f"header ('# rate_hz: {1 / step:.4g}') or the t column")
 
     def _empty(self):
         return RecordingError(f"{self.path}:{self._hl}: no samples after the column header")

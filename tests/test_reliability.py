@@ -386,3 +386,16 @@ def test_arguments_implying_memory_or_time_are_bounded(tmp_path, capsys, argv, m
     at once.  Seen failing with the limits removed from parser.py (positive_float again)."""
     rc, out, err = run_main(capsys, *[a.replace("{d}", str(tmp_path)) for a in argv])
     assert rc == 2 and msg in one_line(err), err
+
+
+def test_a_rate_hz_header_contradicting_the_t_column_is_one_line(tmp_path, sim, capsys):
+    """rate_hz: 10 on a 100 Hz recording: one line naming the header's line and the rate the t
+    column shows (it was 'only 0 still poses found').  Seen failing with _check_rate
+    returning at once."""
+    bad = tmp_path / "rate.csv"
+    bad.write_text(sim.read_text().replace("# rate_hz: 100\n", "# rate_hz: 10\n"))
+    rc, out, err = run_main(capsys, "calibrate", bad)
+    assert rc == 2 and f"{bad}:3: header rate_hz=10 but the t column steps by 0.01 s" in one_line(err)
+    ok = tmp_path / "ok.csv"
+    ok.write_text(sim.read_text().replace("# rate_hz: 100\n", "# rate_hz: 104\n"))   # a 4 % clock error
+    assert len(read_recording(str(ok))) == len(read_recording(str(sim)))

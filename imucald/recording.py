@@ -160,11 +160,12 @@ class RecordingWriter:
 PLAUSIBLE_LIMIT = 1e6
 _LIMIT_NOTE = " (|value| > 1e6 g, deg/s, gauss or degC)"
 _MAX_HEADER_LINE = 1 << 16
+_MAX_HEADER_LINES = 1000
 
 
 #: a recording, raw table or pose file given as a stream (``-``, a pipe or FIFO) is read once
 #: into a temporary file, at most this many bytes, and waits at most STREAM_IDLE_S for data
-MAX_STREAM_BYTES = 1 << 30
+MAX_STREAM_BYTES = 512 << 20
 STREAM_IDLE_S = 10.0
 _SPOOLED: Dict[str, str] = {}
 BOM = b"\xef\xbb\xbf"
@@ -327,6 +328,9 @@ class RecordingReader:
             if s is None:
                 break
             lineno += 1
+            if lineno > _MAX_HEADER_LINES:
+                raise RecordingError(f"{path}:{lineno}: more than {_MAX_HEADER_LINES} header lines "
+                                     f"before the column header: not an imucald recording")
             if s.startswith("#"):
                 body = s[1:].strip()
                 if ":" not in body:

@@ -68,7 +68,7 @@ class Sub:
         self.c.loop_stop()
 
 
-def _status(rt, proc, timeout=15.0):
+def _status(rt, proc, timeout=60.0):
     """The daemon's status, once its control socket exists and listens (the socket file
     appears a moment before the daemon listens on it)."""
     wait_for(rt / "control.sock", proc)
@@ -134,8 +134,9 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
         # event then has none), so the wait is for such an event, not for the first applied
         got_cal = sub.wait(lambda: any(c.get("applied") and "accel" in c
                                        for c in sub.of(f"{sid}/event/cal")), 180)
-        sub.wait(lambda: any(h["calibration_id"] for h in sub.of(f"{sid}/health")), 5)
-        sub.wait(lambda: sum(m["cal"] >= 1 and m["still"] for m in sub.of(f"{sid}/imu")) >= 20, 10)
+        # (conditions with generous bounds: they return as soon as met; a loaded machine is slow)
+        sub.wait(lambda: any(h["calibration_id"] for h in sub.of(f"{sid}/health")), 60)
+        sub.wait(lambda: sum(m["cal"] >= 1 and m["still"] for m in sub.of(f"{sid}/imu")) >= 20, 60)
         bridge.send_signal(signal.SIGTERM)
         assert bridge.wait(10) == 0
         err = bridge.stderr.read()
@@ -184,16 +185,16 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
         sid2 = _status(rt2, d2)["sensor"]["id"]
         late = Sub(broker.port, topics=(f"imucald/{sid}/status", f"imucald/{sid2}/status",
                                         f"imucald/{sid}/health", "homeassistant/#"))
-        assert late.wait(lambda: late.of(f"{sid}/status") == ["offline"], 5)
+        assert late.wait(lambda: late.of(f"{sid}/status") == ["offline"], 30)
         retained = lambda: {t for t, _, r, _ in list(late.msgs) if r}
         assert late.wait(lambda: f"imucald/{sid}/health" in retained() and sum(
-            t.startswith(f"homeassistant/sensor/imucald_{sid}/") for t in retained()) >= 8, 5), retained()
+            t.startswith(f"homeassistant/sensor/imucald_{sid}/") for t in retained()) >= 8, 30), retained()
         b2 = subprocess.Popen([PY, "-m", "imucald.cli", "mqtt", "--config", str(cfg), "--runtime-dir",
                                str(rt2)], cwd=ROOT, stderr=subprocess.DEVNULL)
-        assert late.wait(lambda: "online" in late.of(f"{sid2}/status"), 20)
+        assert late.wait(lambda: "online" in late.of(f"{sid2}/status"), 60)
         b2.kill()
         b2.wait()
-        assert late.wait(lambda: late.of(f"{sid2}/status")[-1:] == ["offline"], 10)
+        assert late.wait(lambda: late.of(f"{sid2}/status")[-1:] == ["offline"], 30)
         late.close()
     finally:
         d2.kill()

@@ -23,6 +23,11 @@ __all__ = ["NotAFile", "check_output", "read_own_file", "atomic_write_bytes", "a
            "fsync_dir"]
 
 
+#: where ``-`` writes when the command's own report was moved to stderr (cli.checks), else
+#: sys.stdout
+STDOUT = None
+
+
 class NotAFile(CannotCreate):
     """The output path names something other than a regular file (exit 73)."""
 
@@ -63,7 +68,7 @@ def fsync_dir(d: str) -> None:
 
 def atomic_write_bytes(path: str, data: bytes, mode: int = 0o644, flag: str = "") -> None:
     if path == "-":
-        out = sys.stdout.buffer
+        out = (STDOUT or sys.stdout).buffer
         out.write(data)
         out.flush()
         return
@@ -142,7 +147,7 @@ class GrowingFile:
         self.path, self.fsync_s = path, fsync_s
         self._clock = clock or time.monotonic
         if path == "-":
-            self._fh: Optional[BinaryIO] = sys.stdout.buffer
+            self._fh: Optional[BinaryIO] = (STDOUT or sys.stdout).buffer
             self._fd = None
             self._fh.write(head)
             self._fh.flush()

@@ -399,3 +399,13 @@ def test_a_rate_hz_header_contradicting_the_t_column_is_one_line(tmp_path, sim, 
     ok = tmp_path / "ok.csv"
     ok.write_text(sim.read_text().replace("# rate_hz: 100\n", "# rate_hz: 104\n"))   # a 4 % clock error
     assert len(read_recording(str(ok))) == len(read_recording(str(sim)))
+
+
+def test_calibrate_to_standard_output_keeps_the_report_apart(sim, capsys):
+    """``calibrate -o -``: standard output is the calibration file alone (it loads), the report
+    goes to standard error.  Seen failing with the report left on stdout (the YAML after it:
+    not a calibration file)."""
+    from imucald.calibration import load
+    rc, out, err = run_main(capsys, "calibrate", sim, "-o", "-")
+    assert rc == 0 and out.startswith("# imucald calibration")
+    assert load("-", out.encode()).accel is not None and "bias" in err

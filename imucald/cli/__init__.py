@@ -43,6 +43,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    stdout = sys.stdout             # check_args may point it at stderr (-o -): put back after
     try:
         from .checks import check_args
         check_args(args)
@@ -69,6 +70,10 @@ def main(argv: Optional[List[str]] = None) -> int:
             raise
         eprint(f"imucald: error: {_one_line(e)}")
         return EX_UNAVAILABLE
+    finally:
+        sys.stdout = stdout
+        from .. import atomic
+        atomic.STDOUT = None
 
 
 def _one_line(e) -> str:

@@ -164,6 +164,11 @@ def check_args(args) -> None:
         output_dir(args.state_dir, "--state-dir")
     if cmd == "simulate":
         _check_simulation_size(args)
+    if cmd in ("calibrate", "noise") and "-" in (getattr(args, "output", None), getattr(args, "kalibr", None)):
+        import sys
+        from .. import atomic
+        atomic.STDOUT = sys.stdout  # the file goes to standard output alone; the report to stderr
+        sys.stdout = sys.stderr
     if cmd == "record":
         from ..drivers.rates import rate_problem
         why = rate_problem(args.board, args.rate)

@@ -28,8 +28,13 @@ __all__ = ["NotAFile", "check_output", "read_own_file", "atomic_write_bytes", "a
 STDOUT = None
 
 
-class NotAFile(CannotCreate):
-    """The output path names something other than a regular file (exit 73)."""
+class NotAFile(CannotCreate, OSError):
+    """The output path names something other than a regular file (exit 73).  Also an
+    OSError, so that a writer that retries failed writes (the daemon's state writer) treats
+    it as one: logged, retried, never the end of its thread."""
+
+    def __str__(self):
+        return str(self.args[0]) if self.args else ""
 
 
 _KIND = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
@@ -45,9 +50,7 @@ def check_output(path: str, flag: str = "") -> None:
     try:
         st = os.stat(path)
     except FileNotFoundError:
-        return
-    except OSError as e:
-        raise CannotCreate(f"{flag + ' ' if flag else ''}{path}: cannot check: {e.strerror}") from None
+        return                  # (any other OSError, e.g. ENOTDIR, is the caller's to report)
     if stat.S_ISREG(st.st_mode):
         return
     kind = next((k for f, k in _KIND if f(st.st_mode)), "not a regular file")

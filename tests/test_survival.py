@@ -274,13 +274,15 @@ def test_worker_killed_mid_calibration_and_the_daemon_carries_on(tmp_path):
     p, rt, st = start(tmp_path, "--speed", "20", "--seed", "2")
     try:
         wait_until(lambda: control(rt, "status")["poses"] >= 10, timeout=300, step=0.2)
-        # idle: no worker process, no multiprocessing resource tracker.  The first job's wall
-        # time, measured here, sets the later waits: the worker runs niced, so on a machine
-        # whose cores are busy (two `yes` hogs) a job takes minutes where it takes seconds
-        # on a quiet one (a fixed 120 s was too short under load)
+        # one whole job, timed: its wall time sets the later waits.  The worker runs niced,
+        # so on a machine whose cores are busy (two `yes` hogs) a job takes minutes where it
+        # takes seconds on a quiet one (a fixed 120 s timed out under load)
+        wait_until(lambda: not control(rt, "status")["calibrating"], timeout=900, step=0.2)
         t0 = time.monotonic()
+        wait_until(lambda: control(rt, "recalibrate").get("started"), timeout=900, step=0.2)
         wait_until(lambda: not control(rt, "status")["calibrating"], timeout=900, step=0.2)
         job_s = max(120.0, 10 * (time.monotonic() - t0))
+        # idle: no worker process, no multiprocessing resource tracker
         assert all("imucald.daemon.worker" not in c and "resource_tracker" not in c
                    for _, c in children(p.pid)) or control(rt, "status")["calibrating"]
         killed = 0

@@ -441,7 +441,7 @@ def _alias_bomb(depth: int, fan: int, where: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-@settings(max_examples=200, deadline=None, derandomize=True, database=None)
+@settings(max_examples=100, deadline=None, derandomize=True, database=None)
 @given(depth=st.integers(1, 12), fan=st.integers(1, 12),
        where=st.sampled_from(["sensor.board", "mqtt.host", "log.level", "nope.x", "sensor.nope"]))
 def test_config_yaml_aliases_are_refused_before_any_expansion(depth, fan, where):

@@ -126,7 +126,7 @@ _TAILS = [b"", b"0.30,0.01", b"0.30,0.0", b"0.3", b"\x00" * 5000, b"0.30,0.01\x0
           b"\x00\x00junk", b"\xff\xfe", b"\n\n", b"# c", b"0.30,1e999", b"1" * 70000]
 
 
-@settings(max_examples=300, deadline=None, derandomize=True,
+@settings(max_examples=150, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(tail=st.lists(st.one_of(st.sampled_from(_TAILS), st.binary(max_size=40)), max_size=3).map(b"".join),
        chunk=st.sampled_from([64, 1 << 20]))

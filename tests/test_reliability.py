@@ -409,3 +409,12 @@ def test_calibrate_to_standard_output_keeps_the_report_apart(sim, capsys):
     rc, out, err = run_main(capsys, "calibrate", sim, "-o", "-")
     assert rc == 0 and out.startswith("# imucald calibration")
     assert load("-", out.encode()).accel is not None and "bias" in err
+
+
+def test_a_configuration_that_is_a_fifo_is_refused_at_once(tmp_path, capsys):
+    """--config naming a FIFO nobody writes to: one line, exit 78 (start-up hung opening it).
+    Seen failing with open() in load_config (the test's own timeout)."""
+    fifo = tmp_path / "c.yaml"
+    os.mkfifo(fifo)
+    rc, out, err = run_main(capsys, "run", "--emulate", "--config", fifo, "--runtime-dir", tmp_path / "r")
+    assert rc == 78 and f"{fifo}: not a regular file" in one_line(err)

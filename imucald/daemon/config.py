@@ -392,13 +392,29 @@ def parse_yaml(raw: bytes, path: str) -> Tuple[Any, Dict[str, int], Dict[str, st
 def load_config(path: Optional[str]) -> Dict[str, Dict[str, Any]]:
     if path is None:
         return validate({})
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_CONFIG_BYTES + 1)
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read the configuration: {e.strerror}") from None
+    raw = _read_config(path)
     data, lines, plain = parse_yaml(raw, path)
     return validate(data, path, lines, plain)
+
+
+def _read_config(path: str) -> bytes:
+    """The file's bytes (at most MAX_CONFIG_BYTES + 1): a regular file only, opened without
+    blocking (a FIFO with no writer made start-up and SIGHUP hang)."""
+    import os
+    import stat
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read the configuration: {e.strerror}") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ConfigError(f"{path}: not a regular file: give the configuration file itself")
+        with os.fdopen(os.dup(fd), "rb") as fh:
+            return fh.read(MAX_CONFIG_BYTES + 1)
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read the configuration: {e.strerror}") from None
+    finally:
+        os.close(fd)
 
 
 def apply_overrides(cfg: Dict[str, Dict[str, Any]], overrides: List[Tuple[str, Any, str]],
@@ -414,8 +430,7 @@ def apply_overrides(cfg: Dict[str, Dict[str, Any]], overrides: List[Tuple[str, A
     lines: Dict[str, int] = {}
     if path is not None:
         try:
-            with open(path, "rb") as fh:
-                lines = _lines(_decode(fh.read(MAX_CONFIG_BYTES), path))
+            lines = _lines(_decode(_read_config(path), path))
         except (OSError, ConfigError):
             pass
     check_consistency(cfg, path or "", lines, flags)

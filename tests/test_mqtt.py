@@ -162,7 +162,7 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
     cal = [c for c in sub.of(f"{sid}/event/cal") if c.get("applied") and "accel" in c][0]
     assert cal["accel_heldout_rms_g"] < cal["accel_heldout_rms_before_g"]
     se = cal["accel"]["stderr"]
-    assert set(se) == {"alpha", "scale", "bias_g"} and all(0 < s < 0.01 for s in se["bias_g"])
+    assert set(se) == {"alpha", "scale", "bias_g"} and all(0 < s < 0.01 for s in se["bias_g"]), cal
     full = [f for f in sub.of(f"{sid}/calibration") if f["id"] == cal["id"]]
     assert full and full[-1]["accel"]["params"]["bias_g"]
     # after that calibration the published samples are corrected: |a| = 1 g when still

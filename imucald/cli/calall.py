@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 from typing import Any, Dict, List, Optional
 
-from ..errors import CannotCreate, UserError
+from ..errors import UserError, write_failure
 from ._common import eprint as _eprint
 
 #: the order parts are fitted in: the gyro uses the other two
@@ -190,8 +190,8 @@ def _write(path: str, meta, res, parts) -> None:
     from ..calibration import build_calibration, save
     try:
         save(build_calibration(parts, meta=meta, temperature_range_c=_temperature_range(res)), path)
-    except OSError as e:
-        raise CannotCreate(f"--output {path}: cannot write: {e.strerror}") from None
+    except OSError as e:            # disk full 74, cannot create 73 (errors.write_failure)
+        raise write_failure(e, "--output", path) from None
 
 
 __all__: List[str] = ["cmd_calibrate_all", "fit_all"]

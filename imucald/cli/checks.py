@@ -150,6 +150,8 @@ def check_args(args) -> None:
         output_file(args.output, "-o")
     if cmd == "simulate" and args.truth:
         output_file(args.truth, "--truth")
+    if cmd == "apply" and getattr(args, "orientation", None):
+        output_file(args.orientation, "--orientation")
     if cmd == "calibrate" and args.output:
         output_file(args.output, "--output")
     if cmd == "noise":

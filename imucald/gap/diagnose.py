@@ -53,6 +53,7 @@ from .gyrostill import split_at_time_gaps, trim_turns
 from .linear import gyro_diag
 from .magpath import diagnosable, mag_model, mag_points
 from .norm import norm_diag
+from .posenoise import pose_mean_variance
 from .saturation import saturated
 from .series import orientation_groups, within_pose_inflation
 from .single import diagnose_single
@@ -187,7 +188,12 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         wp = within_pose_inflation(rec.acc, [s_ for s_, k_ in zip(sl, keep) if k_])
         kap = max(kap, wp["inflation"])
         colour = dict(colour or {}, within_pose=wp)
-        pv = np.median(s2[keep]) / ps.n[keep] * kap
+        # the pose means' variance from within-pose statistics (gap/posenoise.py): below the
+        # white figure under hand tremor; the colour inflation applies to the white axes
+        pmv, pinfo = pose_mean_variance(rec.acc, [s_ for s_, k_ in zip(sl, keep) if k_])
+        white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
+        pv = np.mean(pmv * np.where(white_ax, kap, 1.0)[None, :], axis=1)
+        colour["pose_mean_variance"] = pinfo
         # the deployed fit: triangular9 with the datasheet prior (MAP), as `calibrate` fits it
         chip = BOARDS.get(rec.meta.get("board", ""), (None,))[0]
         r = norm_diag(ps.acc[keep], sub(ctx_all, keep), pv, Triangular9(), ACCEL_CANDIDATES, sims, rng,
@@ -222,7 +228,10 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         wp = within_pose_inflation(rec.gyro, [s_ for s_, k_ in zip(gsl, keep) if k_])
         kap_g = max(kap_g, wp["inflation"])
         colour_g = dict(colour_g or {}, within_pose=wp)
-        gvar = med[None, :] / gn[keep, None] * kap_g
+        gvar, pinfo = pose_mean_variance(rec.gyro, [s_ for s_, k_ in zip(gsl, keep) if k_])
+        white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
+        gvar = gvar * np.where(white_ax, kap_g, 1.0)[None, :]
+        colour_g["pose_mean_variance"] = pinfo
         ctx = sub(ctx_all, keep)
         # specific force in g from the calibrated accelerometer (raw directions carry the
         # accelerometer's own scale and bias errors into the g-sensitivity regressor)

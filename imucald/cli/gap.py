@@ -3,12 +3,16 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from ..errors import CannotCreate, UserError
 
 
 def gap_summary(res) -> str:
+    mode = res.get("mode")
     lines = [f"{res['poses_found']} still poses"
-             + (f" in {res['orientations']} orientation(s): time-series diagnosis" if res.get("mode") else "")
+             + (" (found from the magnetometer: no accelerometer)" if mode == "magnetometer_only" else
+                f" in {res['orientations']} orientation(s): time-series diagnosis" if mode else "")
              + (f"; left out as disturbed: {res['poses_left_out']}" if res.get("poses_left_out") else "")]
     for s, r in res["sensors"].items():
         u = r.get("unit", "")
@@ -39,6 +43,10 @@ def gap_summary(res) -> str:
                 lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {pk} = [{vals}]")
             elif ef.get("significant"):
                 lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {ef['params']}")
+        qn = r.get("points", {}).get("quiet_noise")
+        if qn:
+            lines.append(f"  magnetometer noise {np.round(np.asarray(qn['sigma']) * 1e3, 2).tolist()} mG per sample, "
+                         f"from {qn['source']}")
         for c in r.get("confusable", []):
             why = (f"correlation {c['canonical_correlation']}" if "canonical_correlation" in c
                    else c.get("why", ""))

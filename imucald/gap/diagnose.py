@@ -47,11 +47,11 @@ from ..calib.optim import Problem, lm
 from ..calib.poses import detect_static, poses_from_slices
 from ..errors import UserError
 from ..recording import Recording
-from ..specs import BOARDS
+from ..specs import BOARDS, MAG, recording_chips
 from .candidates import ACCEL_CANDIDATES, GYRO_CANDIDATES, MAG_CANDIDATES, hat_columns
 from .gyrostill import split_at_time_gaps, trim_turns
 from .linear import gyro_diag
-from .magpath import diagnosable, mag_model, mag_points
+from .magpath import diagnosable, mag_model, mag_points, mag_still_slices, quiet_noise
 from .norm import norm_diag
 from .posenoise import pose_mean_variance
 from .saturation import saturated
@@ -93,7 +93,7 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
     if "mag" in sensors and rec.mag is not None:
         use_temp = rec.temp is not None and np.all(np.isfinite(rec.temp)) and np.ptp(rec.temp) >= 0.5
         skip = {} if use_temp else {"thermal_bias": "no temperature", "thermal_scale": "no temperature"}
-        m = _mag(rec, sl, None, None, [], None, skip, sims, rng)
+        m = _mag(rec, sl, None, None, [], None, skip, sims, rng, _chip_mag_noise(rec))
         if m.get("verdict") is None:
             notes.append(f"mag: not diagnosed: {m['error']}")
         else:
@@ -102,9 +102,46 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
             "poses_left_out": [], "notes": notes}
 
 
-def _mag(rec, sl, pose_mag, pose_var, pose_idx, acc_theta, skip, sims, rng) -> Dict[str, object]:
+def _chip_mag_noise(rec) -> Optional[float]:
+    """The magnetometer's datasheet per-sample noise, gauss (None for an unknown chip)."""
+    chip = recording_chips(rec.meta).get("mag")
+    return MAG[chip].noise_gauss if chip in MAG else None
+
+
+def _mag_only(rec, sims, rng, name) -> Dict[str, object]:
+    """A magnetometer-only recording (issue 20): still stretches found from the magnetometer
+    itself, its noise from the quiet windows (free of the motion), the rotation points and
+    the still means against the deployed hard + soft iron model; no orientation regressor."""
+    chip_noise = _chip_mag_noise(rec)
+    m = rec.mag
+    qn = quiet_noise(m, rec.rate_hz, chip_noise)
+    sl = mag_still_slices(rec.t, m, rec.rate_hz, qn["sigma"])
+    notes = ["no accelerometer: still stretches found from the magnetometer; orientation "
+             "interference is not tested (it needs the specific force)"]
+    skip: Dict[str, str] = {"orientation_interference": "no accelerometer"}
+    use_temp = rec.temp is not None and np.all(np.isfinite(rec.temp)) and np.ptp(rec.temp) >= 0.5
+    if not use_temp:
+        skip.update({"thermal_bias": "no temperature", "thermal_scale": "no temperature"})
+        notes.append("no temperature column (or flat): temperature effects were skipped")
+    pm = np.array([m[s].mean(0) for s in sl]) if sl else None
+    n = np.array([s.stop - s.start for s in sl], float)
+    pv = float(np.mean(qn["sigma"] ** 2)) / n if sl else None
+    r = _mag(rec, sl, pm, pv, list(range(len(sl))), None, skip, sims, rng, chip_noise)
+    if r.get("verdict") is None:
+        raise GapError(f"{name}: magnetometer-only recording not diagnosable: {r['error']}")
+    r["points"]["quiet_noise"] = {k: v for k, v in qn.items() if k != "quiet_slices"}
+    r["points"]["quiet_noise"]["sigma"] = np.round(qn["sigma"], 6).tolist()
+    if "measured_sigma" in qn:
+        r["points"]["quiet_noise"]["measured_sigma"] = np.round(qn["measured_sigma"], 6).tolist()
+    return {"sensors": {"mag": r}, "poses_found": len(sl), "mode": "magnetometer_only",
+            "poses_left_out": [], "notes": notes}
+
+
+def _mag(rec, sl, pose_mag, pose_var, pose_idx, acc_theta, skip, sims, rng,
+         chip_noise=None) -> Dict[str, object]:
     """The magnetometer against the deployed hard + soft iron model (gap/magpath.py)."""
-    x, var, ctx, info = mag_points(rec, sl, pose_mag, pose_var, pose_idx, acc_theta, not skip)
+    x, var, ctx, info = mag_points(rec, sl, pose_mag, pose_var, pose_idx, acc_theta, "thermal_bias" not in skip,
+                                   chip_noise)
     why = diagnosable(x, var)
     if why:
         return {"verdict": None, "error": why, **info}
@@ -136,9 +173,14 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
              seed: int = 0, name: str = "recording") -> Dict[str, object]:
     """Diagnose every sensor present (or the ones asked for); returns the JSON object."""
     rng = np.random.default_rng(seed)
-    if rec.acc is None:
-        raise GapError(f"{name}: no accelerometer columns: still poses are found from the accelerometer")
     rec = distinct_samples(rec)
+    if rec.acc is None:
+        if rec.mag is None:
+            raise GapError(f"{name}: no accelerometer or magnetometer columns: nothing to diagnose")
+        for s in sensors or ["mag"]:
+            if s != "mag":
+                raise GapError(f"{name}: --sensor {s}: the recording has no {s} columns")
+        return _mag_only(rec, sims, rng, name)
     avail = [s for s, a in (("accel", rec.acc), ("gyro", rec.gyro), ("mag", rec.mag)) if a is not None]
     sensors = list(sensors or avail)
     for s in sensors:
@@ -248,7 +290,7 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         mvar = np.median(mv[keep] * ps.n[keep]) / ps.n[keep]
         t9 = Triangular9()
         th_a = lm(Problem(t9, ps.acc[keep])).theta
-        m = _mag(rec, sl, ps.mag[keep], mvar, np.flatnonzero(keep), th_a, skip, sims, rng)
+        m = _mag(rec, sl, ps.mag[keep], mvar, np.flatnonzero(keep), th_a, skip, sims, rng, _chip_mag_noise(rec))
         if m.get("verdict") is None:
             notes.append(f"mag: not diagnosed: {m['error']}")
         else:

@@ -6,7 +6,9 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..calib.models import NormModel
+from ..calib.fit import _mag_bounds
+from ..calib.models import MagModel, NormModel
+from ..calib.optim import sphere_fit
 from ..calib.optim import Problem, lm
 from ..calib.uncertainty import residual_variance
 from .candidates import Candidate
@@ -36,8 +38,18 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     precision, so what the gap sees is what the deployed fit leaves."""
     N = len(x)
     p0 = model.k
-    prob = Problem(model, x)
-    th = lm(prob).theta
+    if isinstance(model, MagModel):
+        # started from a sphere fit inside the calibration's search box: a hard iron several
+        # field radii off (the QMC5883L recording: 6x) is out of the default start's reach
+        c, rad = sphere_fit(x)
+        lo, hi = _mag_bounds(model, x, 1.0)
+        prob = Problem(model, x, lo=lo, hi=hi)
+        kd = min(model.kw, 3)
+        th0 = np.concatenate([[1.0 / rad] * kd, np.zeros(model.kw - kd), c])
+        th = lm(prob, z0=prob.reduce(th0)).theta
+    else:
+        prob = Problem(model, x)
+        th = lm(prob).theta
     var = residual_variance(model, th, x, pose_var)
     w = 1.0 / var
     pm = ps = lam = None

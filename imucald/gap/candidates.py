@@ -36,8 +36,28 @@ def _vec(eta):
     return np.asarray(eta, float)[:3]
 
 
+def _radial_cubic(e, f):
+    """delta = u * C(u), u = f / |f|, C the cubic form with coefficients ``e`` (10,)."""
+    u = f / np.linalg.norm(f, axis=1, keepdims=True)
+    x, y, z = u.T
+    mon = np.stack([x ** 3, y ** 3, z ** 3, x * x * y, x * x * z, y * y * x, y * y * z, z * z * x, z * z * y,
+                    x * y * z], 1)
+    return u * (mon @ e)[:, None]
+
+
+def _thermal2(e, dT):
+    """A bias linear plus quadratic in temperature (a warm-up's curvature), (N, 3)."""
+    e = np.asarray(e, float)
+    q = dT ** 2 - np.mean(dT ** 2)
+    return ef.thermal_bias(e[:3], dT) + ef.thermal_bias(e[3:6], q)
+
+
 ACCEL_CANDIDATES = [
     Candidate("thermal_bias", 3, lambda e, x, th, c: ef.thermal_bias(_vec(e), c["dT"]), units="g/degC"),
+    # with curvature: a variant of the same class, chosen by held-out error (issue 25: a bias
+    # that follows temperature along a curve left a linear fit "partially" explaining it)
+    Candidate("thermal_bias", 6, lambda e, x, th, c: _thermal2(e, c["dT"]),
+              units="g/degC (x, y, z), then g/degC^2 (x, y, z)"),
     Candidate("thermal_scale", 3, lambda e, x, th, c: ef.thermal_scale(_vec(e), x - th[6:9], c["dT"]),
               units="1/degC"),
     Candidate("nonlinearity", 3, lambda e, x, th, c: ef.nonlinearity(_vec(e), x - th[6:9]), units="g/g^2"),
@@ -47,6 +67,13 @@ ACCEL_CANDIDATES = [
               lambda e, x, th, c: _vec(e) * (x - th[6:9]) ** 2 + np.asarray(e, float)[3:]
               * (x - th[6:9])[:, [1, 2, 0]] * (x - th[6:9])[:, [2, 0, 1]],
               units="g/g^2 (x^2, y^2, z^2 on their own axes; then yz on x, zx on y, xy on z)"),
+    # the general second-order form (each axis any quadratic form of the input): norm-only
+    # data see only its radial part u . delta, a cubic form in the unit direction u (10
+    # monomials, 3 of them degree-1 on the sphere and absorbed by the bias); a variant of
+    # the same class, chosen by held-out error (issue 25: a full quadratic with nine cross
+    # terms per axis was "unexplained" against the 3- and 6-term forms)
+    Candidate("nonlinearity", 10, lambda e, x, th, c: _radial_cubic(np.asarray(e, float), x - th[6:9]),
+              units="g (radial cubic form in the unit input: xxx, yyy, zzz, xxy, xxz, yyx, yyz, zzx, zzy, xyz)"),
     Candidate("bias_drift", 3, lambda e, x, th, c: ef.bias_drift(_vec(e), c["dt"]), units="g/s"),
     # a wandering bias: piecewise linear in time with m + 1 equally spaced knots (m = 2, 3, 4,
     # the count chosen by held-out error), beyond the straight line of bias_drift
@@ -73,6 +100,8 @@ def hat_columns(t_s: np.ndarray) -> dict:
 #: a drifting hard iron, and interference that follows the orientation (``acc_dir``)
 MAG_CANDIDATES = [
     Candidate("thermal_bias", 3, lambda e, x, th, c: ef.thermal_bias(_vec(e), c["dT"]), units="gauss/degC"),
+    Candidate("thermal_bias", 6, lambda e, x, th, c: _thermal2(e, c["dT"]),
+              units="gauss/degC (x, y, z), then gauss/degC^2 (x, y, z)"),
     Candidate("thermal_scale", 3, lambda e, x, th, c: ef.thermal_scale(_vec(e), x - th[-3:], c["dT"]),
               units="1/degC"),
     Candidate("bias_drift", 3, lambda e, x, th, c: ef.bias_drift(_vec(e), c["dt"]), units="gauss/s"),

@@ -140,8 +140,8 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         # every visible candidate is refitted (cheap), so each reports its shrink and
         # parameters; it is significant only when the gap is, its score test passes
         # (Bonferroni), the nested test passes and the held-out residual falls
-        if p0 + c.q > N - MIN_DOF:
-            continue                              # too many parameters for this pose set
+        if p0 + d["q"] > N - MIN_DOF:
+            continue                              # too many visible parameters for this pose set
         z, chi2a, ea, twa, sd, q99 = refit([c])
         dchi = chi2 - chi2a
         pn, lpn = p_and_log10(max(dchi, 0.0), c.q)
@@ -173,6 +173,8 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
             other = d["cand"]
             if other.name == first or d["q"] == 0 or cand_of.get(other.name) is not other:
                 continue
+            if {first, other.name} == {"bias_drift", "wandering_bias"}:
+                continue                          # nested: the drift's line is in the wandering span
             if p0 + q_best + other.q > N - MIN_DOF:
                 continue
             z, chi2a, ea, twa, sd, q99 = refit([cand_of[first], other])

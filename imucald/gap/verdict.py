@@ -70,7 +70,20 @@ def decide(out: Dict[str, object], ratio: float, significant: bool, effects: Lis
         best = (min(closing, key=lambda ef: (ef["q"], ef["ratio_after"])) if closing
                 else min(sig, key=lambda ef: ef["ratio_after"]))
         chosen, ratio_after, closed = [best["name"]], best["ratio_after"], bool(best.get("closed"))
-        joint = second(best["name"]) if (second is not None and not closed) else None
+        joint = None
+        if second is not None and not closed:
+            # forward step from each of the three best single effects (a pair's members can
+            # each lose to a third form alone, e.g. a wandering bias soaking up part of a
+            # nonlinearity + thermal pair): the pair with the lowest held-out ratio is kept
+            firsts = sorted(sig, key=lambda ef: ef["ratio_after"])[:3]
+            if best not in firsts:
+                firsts.insert(0, best)
+            for f in firsts:
+                j = second(f["name"])
+                if j is not None and (joint is None or j["ratio_after"] < joint["ratio_after"]):
+                    joint = j
+            if joint is not None and joint["ratio_after"] >= ratio_after:
+                joint = None
         if joint is not None:
             out["joint"] = joint
             chosen, ratio_after, closed = list(joint["effects"]), joint["ratio_after"], joint["closed"]

@@ -127,6 +127,8 @@ def mag_points(rec, slices: Sequence[slice], pose_mag: Optional[np.ndarray], pos
         qn = quiet_noise(m[fresh], rate_hz=rec.rate_hz * fresh.mean(), chip_noise=chip_noise)
         sigma, source = qn["sigma"], qn["source"]
     moving = np.flatnonzero(fresh & ~still)
+    if use_temp:            # a reading without a temperature cannot carry the thermal regressors
+        moving = moving[np.isfinite(rec.temp[moving])]
     res = SphereReservoir()
     res.add(m[moving], tags=moving)
     rp, ri = res.points(), res.tags()
@@ -146,7 +148,7 @@ def mag_points(rec, slices: Sequence[slice], pose_mag: Optional[np.ndarray], pos
         parts_x.append(pose_mag)
         parts_v.append(np.maximum(pose_var, floor / np.array([s.stop - s.start for s in ps_sl])))
         parts_t.append(np.array([0.5 * (rec.t[s.start] + rec.t[s.stop - 1]) for s in ps_sl]))
-        parts_T.append(np.array([np.mean(rec.temp[s]) for s in ps_sl]) if use_temp else None)
+        parts_T.append(np.array([np.nanmean(rec.temp[s]) for s in ps_sl]) if use_temp else None)
         parts_a.append(acc_dir(np.array([rec.acc[s].mean(0) for s in ps_sl]) if have_acc else ps_sl))
     if len(rp):
         parts_x.append(rp)

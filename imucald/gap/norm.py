@@ -16,6 +16,7 @@ from .signif import p_and_log10, proj_sig, score
 from .stats import chi2_sf
 from .twin import hat_diag, heldout, lm_weighted, numjac, twin_rms
 from .verdict import ALPHA, decide
+from .wander import random_walk_fit
 from .where import norm_where
 from ..calib.metrics import rms
 
@@ -159,11 +160,38 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         fits[c.name] = (chi2a, ea, ra_after)
         cand_of[c.name] = c
         effects.append(entry)
+    # the wandering bias as a random walk (gap/wander.py): a variant of its class, kept when
+    # its held-out ratio is the lower
+    if "wandering_bias" not in names_skip and any(c.name == "wandering_bias" for c in cands):
+        _, B = numjac(lambda eta: 1.0 - model.norms(th, x - eta[None, :]), np.zeros(3), eps=np.full(3, 1e-5))
+        gp = random_walk_fit(r, J, var, B, ctx["t"], sims, rng, lam)
+        if gp is not None and gp["q"] > 0:
+            ra_gp = gp["nrms"] / gp["twin"]
+            old_w = next((ef for ef in effects if ef["name"] == "wandering_bias"), None)
+            if old_w is None or ra_gp < old_w["ratio_after"]:
+                edf = gp["edf"]
+                entry = {"name": "wandering_bias", "form": "random walk (REML strength, gap/wander.py)",
+                         "stochastic": True,
+                         "score_p_value": gp["p_value"], "nested_p_value": gp["p_value"],
+                         "visibility": 1.0, "ratio_after": ra_gp, "q": max(1, int(round(edf))),
+                         "closed": bool(ra_gp <= gp["twin_q99"]),
+                         "significant": bool(significant and gp["p_value"] < bonf and gp["nrms"] < nrms(e)),
+                         "params": {f"random_walk_intensity_{unit}^2/s": [gp["q"] * scale ** 2] * 3},
+                         "stderr": {},
+                         "random_walk": {"intensity_ci95": [None if v is None else v * scale ** 2
+                                                            for v in gp["q_ci95"]],
+                                         "likelihood_ratio": gp["lr"], "effective_parameters": round(edf, 2),
+                                         "allan_variance_slope_term": "q tau / 3 (IEEE 952 rate random walk)"}}
+                effects = [ef for ef in effects if ef["name"] != "wandering_bias"] + [entry]
+                fits.pop("wandering_bias", None)
+                cand_of.pop("wandering_bias", None)
     out["effects"] = effects
 
     def second(first: str):
         """With ``first`` modelled, the second effect that still explains a significant
         part (nested test) and lowers the held-out residual most; None when none does."""
+        if first not in fits:
+            return None                           # the random-walk form: no parametric pair
         chi2_best, e_best, _ = fits[first]
         q_best = cand_of[first].q
         if chi2_sf(chi2_best, N - p0 - q_best) >= ALPHA:

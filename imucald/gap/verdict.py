@@ -14,10 +14,12 @@ S < 0.5 as partially explained"):
   it (S < 0.5); ``partially_explained_by`` names them;
 * ``unexplained``: a gap, and no candidate passes its tests.
 
-The choice (:func:`decide`): among the significant candidates, the simplest (fewest
-parameters) that closes the gap; when none closes it, the one that closes most, and
-then a second effect only if it passes the same tests against the twin of the model
-that already holds the first.  Candidates whose projected signatures coincide with
+The choice (:func:`decide`): among the significant parametric candidates, the simplest
+(fewest parameters) that closes the gap; when none closes it, the one that closes most,
+and then a second effect (forward step from each of the three best singles) only if it
+passes the same tests against the twin of the model that already holds the first.  A
+stochastic form (the random-walk wandering bias, gap/wander.py) is chosen only when the
+parametric choice leaves most of the gap (shrink < 0.5) and the walk does better.  Candidates whose projected signatures coincide with
 a chosen one (canonical correlation > 0.98) are reported as confusable, with the
 recording that would separate them.
 """
@@ -63,7 +65,11 @@ def decide(out: Dict[str, object], ratio: float, significant: bool, effects: Lis
     ``closed``, ``ratio_after``); ``signatures``: projected signature by name;
     ``second(best)``: the joint fit of ``best`` with the best second effect (a dict
     with ``effects``, ``ratio_after``, ``closed``), or None when none passes."""
-    sig = [ef for ef in effects if ef.get("significant")]
+    allsig = [ef for ef in effects if ef.get("significant")]
+    # a stochastic form (the random-walk wandering bias) can follow anything smooth in time;
+    # it is chosen only when no parametric effect or pair does as well (below)
+    sig = [ef for ef in allsig if not ef.get("stochastic")]
+    stoch = [ef for ef in allsig if ef.get("stochastic")]
     ratio_after, chosen, closed = ratio, [], None
     if significant and sig:
         closing = [ef for ef in sig if ef.get("closed")]
@@ -87,6 +93,13 @@ def decide(out: Dict[str, object], ratio: float, significant: bool, effects: Lis
         if joint is not None:
             out["joint"] = joint
             chosen, ratio_after, closed = list(joint["effects"]), joint["ratio_after"], joint["closed"]
+    shrink_p = (ratio - ratio_after) / max(ratio - 1.0, 1e-9)
+    if significant and stoch and not closed and shrink_p < 0.5:
+        # the parametric choice leaves most of the gap: the random walk, when it does better
+        s_ = min(stoch, key=lambda ef: ef["ratio_after"])
+        if s_.get("closed") or s_["ratio_after"] < ratio_after:
+            out.pop("joint", None)
+            chosen, ratio_after, closed = [s_["name"]], s_["ratio_after"], bool(s_.get("closed"))
     elif not significant and ratio > float(out["twin_ratio_q99"]) * 1.05:
         # not significant by chi-square, yet the held-out ratio is out of the twin's range
         out["note"] = "held-out ratio above the twin's 99th percentile but chi-square not significant"

@@ -37,10 +37,11 @@ def gap_summary(res) -> str:
                      + (f" (log10 p = {r['log10_p_value']})" if r['p_value'] == 0 else ""))
         for ef in r["effects"]:
             if ef.get("significant") and ef.get("stderr"):
-                (pk, pv), = ef["params"].items()
-                se = list(ef["stderr"].values())[0]
-                vals = ", ".join(f"{a:.3g}+-{b:.2g}" for a, b in zip(pv, se))
-                lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {pk} = [{vals}]")
+                txt = []
+                for pk, pv in ef["params"].items():
+                    se = ef["stderr"][pk]
+                    txt.append(f"{pk} = [{', '.join(f'{a:.3g}+-{b:.2g}' for a, b in zip(pv, se))}]")
+                lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {'; '.join(txt)}")
             elif ef.get("significant"):
                 lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {ef['params']}")
         qn = r.get("points", {}).get("quiet_noise")

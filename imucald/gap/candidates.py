@@ -30,6 +30,8 @@ class Candidate:
     #: design columns (3N, q) for the linear gyro model
     columns: Optional[Callable] = None
     units: str = ""
+    #: the coefficients reported under several keys: [(units, count), ...] (None: one key)
+    parts: Optional[list] = None
 
 
 def _vec(eta):
@@ -56,8 +58,8 @@ ACCEL_CANDIDATES = [
     Candidate("thermal_bias", 3, lambda e, x, th, c: ef.thermal_bias(_vec(e), c["dT"]), units="g/degC"),
     # with curvature: a variant of the same class, chosen by held-out error (issue 25: a bias
     # that follows temperature along a curve left a linear fit "partially" explaining it)
-    Candidate("thermal_bias", 6, lambda e, x, th, c: _thermal2(e, c["dT"]),
-              units="g/degC (x, y, z), then g/degC^2 (x, y, z)"),
+    Candidate("thermal_bias", 6, lambda e, x, th, c: _thermal2(e, c["dT"]), units="g/degC",
+              parts=[("g/degC", 3), ("curvature_g/degC^2", 3)]),
     Candidate("thermal_scale", 3, lambda e, x, th, c: ef.thermal_scale(_vec(e), x - th[6:9], c["dT"]),
               units="1/degC"),
     Candidate("nonlinearity", 3, lambda e, x, th, c: ef.nonlinearity(_vec(e), x - th[6:9]), units="g/g^2"),
@@ -100,8 +102,8 @@ def hat_columns(t_s: np.ndarray) -> dict:
 #: a drifting hard iron, and interference that follows the orientation (``acc_dir``)
 MAG_CANDIDATES = [
     Candidate("thermal_bias", 3, lambda e, x, th, c: ef.thermal_bias(_vec(e), c["dT"]), units="gauss/degC"),
-    Candidate("thermal_bias", 6, lambda e, x, th, c: _thermal2(e, c["dT"]),
-              units="gauss/degC (x, y, z), then gauss/degC^2 (x, y, z)"),
+    Candidate("thermal_bias", 6, lambda e, x, th, c: _thermal2(e, c["dT"]), units="gauss/degC",
+              parts=[("gauss/degC", 3), ("curvature_gauss/degC^2", 3)]),
     Candidate("thermal_scale", 3, lambda e, x, th, c: ef.thermal_scale(_vec(e), x - th[-3:], c["dT"]),
               units="1/degC"),
     Candidate("bias_drift", 3, lambda e, x, th, c: ef.bias_drift(_vec(e), c["dt"]), units="gauss/s"),

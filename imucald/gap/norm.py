@@ -153,6 +153,13 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
                       "significant": bool(significant and d["p"] < bonf and pn < bonf
                                           and nrms(ea) < nrms(e)),
                       "params": {key: z[p0:].tolist()}, "stderr": {key: sd[p0:].tolist()}})
+        if c.parts:                                # several keys (e.g. slope and curvature)
+            o = p0
+            entry["params"], entry["stderr"] = {}, {}
+            for u, k in c.parts:
+                entry["params"][f"{c.name}_{u}"] = z[o:o + k].tolist()
+                entry["stderr"][f"{c.name}_{u}"] = sd[o:o + k].tolist()
+                o += k
         if c.name in fits:                         # a second variant of the same class
             if fits[c.name][2] <= ra_after:
                 continue

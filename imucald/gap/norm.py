@@ -124,6 +124,15 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         red = max(1.0, chi2a / max(N - len(z), 1))
         sd = np.sqrt(np.clip(np.diag(Ai), 0, None) * red)
         q99 = float(np.quantile(twl / twa, 0.99))
+        # Wald test of the added coefficients with the same scaled covariance (attribution
+        # discipline: an effect is named only when its coefficients are significant too)
+        # (of the last candidate's coefficients: in a pair, the one added)
+        o = len(z) - qs[-1]
+        Ca = Ai[o:, o:] * red
+        za = z[o:]
+        wald = float(za @ np.linalg.pinv(Ca, rcond=1e-10, hermitian=True) @ za)
+        rank = int(np.linalg.matrix_rank(Ca, tol=1e-10 * max(np.abs(Ca).max(), 1e-300)))
+        refit.wald = p_and_log10(wald, max(rank, 1))[0]
         return z, chi2a, ea, twa, sd, q99
 
     effects = []
@@ -144,13 +153,15 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         if p0 + d["q"] > N - MIN_DOF:
             continue                              # too many visible parameters for this pose set
         z, chi2a, ea, twa, sd, q99 = refit([c])
+        p_wald = refit.wald
         dchi = chi2 - chi2a
         pn, lpn = p_and_log10(max(dchi, 0.0), c.q)
         ra_after = nrms(ea) / twa      # against the augmented model's twin
         key = c.name + (f"_{c.units}" if c.units else "")
         entry.update({"ratio_after": ra_after, "nested_p_value": pn, "chi2_after": chi2a, "q": c.q,
                       "closed": bool(ra_after <= q99),
-                      "significant": bool(significant and d["p"] < bonf and pn < bonf
+                      "wald_p_value": p_wald,
+                      "significant": bool(significant and d["p"] < bonf and pn < bonf and p_wald < bonf
                                           and nrms(ea) < nrms(e)),
                       "params": {key: z[p0:].tolist()}, "stderr": {key: sd[p0:].tolist()}})
         if c.parts:                                # several keys (e.g. slope and curvature)
@@ -215,7 +226,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
             z, chi2a, ea, twa, sd, q99 = refit([cand_of[first], other])
             rr = nrms(ea) / twa
             pn, _ = p_and_log10(max(chi2_best - chi2a, 0.0), other.q)
-            if pn < bonf and nrms(ea) < nrms(e_best) and \
+            if pn < bonf and refit.wald < bonf and nrms(ea) < nrms(e_best) and \
                     (best_pair is None or rr < best_pair[1]):
                 best_pair = (other.name, rr, z, sd, pn, rr <= q99)
         if best_pair is None:

@@ -18,6 +18,10 @@ of an inner increment with Theta(n) is b tau).  a, b >= 0 are fitted by least sq
 the pooled increments at tau = n/8 .. n/2 of every pose, and each pose mean's variance
 is (a + b n) / n^2.
 
+The white part b is kept only where it is clear of twice its jackknife error or where
+the bounded part does not dominate (the estimate at least a quarter of the white figure):
+b >= 0 clipped from noise is biased upwards and b n dominates the extrapolation.
+
 Decision (stated error rate): the estimate replaces the white one (s^2 / n) only when it
 is below it beyond twice its jackknife standard error over poses (one-sided ~2 %);
 otherwise the white figure stands (its colour inflation is handled elsewhere).
@@ -66,15 +70,19 @@ def _nnls2(A: np.ndarray, y: np.ndarray) -> np.ndarray:
     return bz
 
 
-def _fit(rows, obs, ns, idx):
-    """a, b per axis from poses ``idx``; each pose's rows weighted by 1/n^2 (its increments'
-    scale grows with n, and the pose mean's variance is D / n^2)."""
-    C = obs[0].shape[1]
+def _fit(rows, obs, ns, idx, white=True):
+    """a, b per axis from poses ``idx`` (``white`` False: b = 0); each pose's rows scaled by
+    1/n (its increments' scale grows with n)."""
+    C = obs[idx[0]].shape[1]
     A = np.vstack([rows[i] / ns[i] for i in idx])
     out = np.zeros((2, C))
     for j in range(C):
         y = np.concatenate([obs[i][:, j] / ns[i] for i in idx])
-        out[:, j] = _nnls2(A, y)
+        if white:
+            out[:, j] = _nnls2(A, y)
+        else:
+            a = A[:, 0]
+            out[0, j] = max(float(a @ y) / float(a @ a), 0.0)
     return out
 
 
@@ -96,12 +104,25 @@ def pose_mean_variance(x: np.ndarray, slices: Sequence[slice]) -> Tuple[np.ndarr
         rows[i], obs[i] = _pose_rows(np.asarray(x[slices[i]], float))
     ab = _fit(rows, obs, ns, use)
     ref = np.median(ns[use])
+    m = len(use)
+    jk_ab = np.array([_fit(rows, obs, ns, [k for k in use if k != i]) for i in use])     # (m, 2, C)
+    jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
+    # the white part only where it is clear of its jackknife error: a b >= 0 clipped from
+    # noise is biased upwards, and b n dominates the extrapolation to the pose length
+    # (only where the bounded part dominates: the pose mean's variance below a quarter of
+    # the white figure, a tremor-filled gyro; an accelerometer keeps its white part)
+    ratio_ab = (ab[0] + ab[1] * ref) / ref ** 2 / (s2_pool / ref)
+    drop_b = (ab[1] < 2 * jse(jk_ab[:, 1])) & (ratio_ab < 0.25)
+    if drop_b.any():
+        ab0 = _fit(rows, obs, ns, use, white=False)
+        jk0 = np.array([_fit(rows, obs, ns, [k for k in use if k != i], white=False) for i in use])
+        ab[:, drop_b] = ab0[:, drop_b]
+        jk_ab[:, :, drop_b] = jk0[:, :, drop_b]
     est = lambda ab_: (ab_[0] + ab_[1] * ref) / ref ** 2          # (C,) at the median length
     # jackknife over poses: the standard error of the ratio to the white figure
     full = est(ab) / (s2_pool / ref)
-    jk = np.array([est(_fit(rows, obs, ns, [k for k in use if k != i])) / (s2_pool / ref) for i in use])
-    m = len(use)
-    se = np.sqrt((m - 1) / m * np.sum((jk - jk.mean(0)) ** 2, axis=0))
+    jk = np.array([est(a_) / (s2_pool / ref) for a_ in jk_ab])
+    se = jse(jk)
     lower = full + 2 * se < 1.0                              # clearly below white, per axis
     var = white.copy()
     for j in range(C):

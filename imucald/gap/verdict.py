@@ -12,7 +12,9 @@ S < 0.5 as partially explained"):
   or close at least half of it (S >= 0.5, ``explained: "mostly"``);
 * ``partially_explained``: a gap, and the best effect(s) close less than half of
   it (S < 0.5); ``partially_explained_by`` names them;
-* ``unexplained``: a gap, and no candidate passes its tests.
+* ``unexplained``: a gap, and no candidate passes its tests (coefficients significant by a
+  Wald test as well as the score and nested tests), or the best closes less than
+  ``PARTIAL_MIN`` (0.2) of it (``closest_form`` then names it, for the record).
 
 The choice (:func:`decide`): among the significant parametric candidates, the simplest
 (fewest parameters) that closes the gap; when none closes it, the one that closes most,
@@ -35,6 +37,8 @@ from .signif import canon
 __all__ = ["ALPHA", "decide", "verdict"]
 
 ALPHA = 0.01
+#: below this held-out shrink nothing is named, not even partially (issue 25 item 4)
+PARTIAL_MIN = 0.2
 CONFUSABLE_CC = 0.98    # canonical correlation above which two signatures look alike
 
 
@@ -51,6 +55,10 @@ def verdict(gap: bool, chosen: Sequence[str], ratio_before: float, ratio_after: 
         return {"verdict": name, "shrink": float(shrink), "explained": "closed"}
     if shrink >= 0.5:
         return {"verdict": name, "shrink": float(shrink), "explained": "mostly"}
+    if shrink < PARTIAL_MIN:
+        # attribution discipline: a shrink this small names nothing (the bench's out-of-library
+        # forms land here); the closest form is kept for the record
+        return {"verdict": "unexplained", "shrink": float(shrink), "closest_form": name}
     return {"verdict": "partially_explained", "shrink": float(shrink), "explained": "partially",
             "partially_explained_by": name}
 

@@ -159,9 +159,10 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         ra_after = nrms(ea) / twa      # against the augmented model's twin
         key = c.name + (f"_{c.units}" if c.units else "")
         entry.update({"ratio_after": ra_after, "nested_p_value": pn, "chi2_after": chi2a, "q": c.q,
+                      "lr": float(chi2 - chi2a),
                       "closed": bool(ra_after <= q99),
                       "wald_p_value": p_wald,
-                      "significant": bool(significant and d["p"] < bonf and pn < bonf and p_wald < bonf
+                      "significant": bool(significant and d["p"] < bonf and pn < bonf
                                           and nrms(ea) < nrms(e)),
                       "params": {key: z[p0:].tolist()}, "stderr": {key: sd[p0:].tolist()}})
         if c.parts:                                # several keys (e.g. slope and curvature)
@@ -192,6 +193,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
                          "stochastic": True,
                          "score_p_value": gp["p_value"], "nested_p_value": gp["p_value"],
                          "visibility": 1.0, "ratio_after": ra_gp, "q": max(1, int(round(edf))),
+                         "lr": gp["lr"],
                          "closed": bool(ra_gp <= gp["twin_q99"]),
                          "significant": bool(significant and gp["p_value"] < bonf and gp["nrms"] < nrms(e)),
                          "params": {f"random_walk_intensity_{unit}^2/s": [gp["q"] * scale ** 2] * 3},
@@ -217,7 +219,9 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         best_pair = None
         for d in tested:
             other = d["cand"]
-            if other.name == first or d["q"] == 0 or cand_of.get(other.name) is not other:
+            # every variant of a kept class (a smaller one may fit where the kept one has
+            # too many parameters for the pair)
+            if other.name == first or d["q"] == 0 or other.name not in cand_of:
                 continue
             if {first, other.name} == {"bias_drift", "wandering_bias"}:
                 continue                          # nested: the drift's line is in the wandering span
@@ -226,13 +230,16 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
             z, chi2a, ea, twa, sd, q99 = refit([cand_of[first], other])
             rr = nrms(ea) / twa
             pn, _ = p_and_log10(max(chi2_best - chi2a, 0.0), other.q)
-            if pn < bonf and refit.wald < bonf and nrms(ea) < nrms(e_best) and \
+            if pn < bonf and nrms(ea) < nrms(e_best) and \
                     (best_pair is None or rr < best_pair[1]):
-                best_pair = (other.name, rr, z, sd, pn, rr <= q99)
+                best_pair = (other.name, rr, z, sd, pn, rr <= q99, float(chi2 - chi2a), q_best + other.q,
+                             refit.wald)
         if best_pair is None:
             return None
         return {"effects": [first, best_pair[0]], "ratio_after": best_pair[1],
-                "nested_p_value": best_pair[4], "closed": bool(best_pair[5]), "params": best_pair[2][p0:].tolist(),
+                "nested_p_value": best_pair[4], "closed": bool(best_pair[5]), "lr": best_pair[6],
+                "wald_p_value": best_pair[8],
+                "q": best_pair[7], "params": best_pair[2][p0:].tolist(),
                 "stderr": best_pair[3][p0:].tolist()}
 
     chosen = decide(out, ratio, significant, effects,

@@ -21,7 +21,8 @@ The choice (:func:`decide`): among the significant parametric candidates, the si
 and then a second effect (forward step from each of the three best singles) only if it
 passes the same tests against the twin of the model that already holds the first.  A
 stochastic form (the random-walk wandering bias, gap/wander.py) is chosen only when the
-parametric choice leaves most of the gap (shrink < 0.5) and the walk does better.  Candidates whose projected signatures coincide with
+parametric choice leaves a gap and the walk's likelihood gain less Akaike's penalty beats
+the parametric choice's.  Candidates whose projected signatures coincide with
 a chosen one (canonical correlation > 0.98) are reported as confusable, with the
 recording that would separate them.
 """
@@ -101,17 +102,32 @@ def decide(out: Dict[str, object], ratio: float, significant: bool, effects: Lis
         if joint is not None:
             out["joint"] = joint
             chosen, ratio_after, closed = list(joint["effects"]), joint["ratio_after"], joint["closed"]
-    shrink_p = (ratio - ratio_after) / max(ratio - 1.0, 1e-9)
-    if significant and stoch and not closed and shrink_p < 0.5:
-        # the parametric choice leaves most of the gap: the random walk, when it does better
+    if significant and stoch and not closed:
+        # the parametric choice leaves a gap: the random walk when its likelihood gain, less
+        # Akaike's penalty (one variance parameter), beats the parametric choice's (its
+        # held-out "closure" alone is too easy: a strong walk predicts any misfit)
         s_ = min(stoch, key=lambda ef: ef["ratio_after"])
-        if s_.get("closed") or s_["ratio_after"] < ratio_after:
+        par = out.get("joint") or (best if chosen else None)
+        aic_par = (par["lr"] - 2 * par["q"]) if par is not None and "lr" in par else 0.0
+        if s_["lr"] - 2.0 > aic_par:
+            out["parametric_choice"] = {"effects": list(chosen), "ratio_after": float(ratio_after),
+                                        "aic_gain": float(aic_par), "random_walk_aic_gain": float(s_["lr"] - 2.0)}
             out.pop("joint", None)
             chosen, ratio_after, closed = [s_["name"]], s_["ratio_after"], bool(s_.get("closed"))
     elif not significant and ratio > float(out["twin_ratio_q99"]) * 1.05:
         # not significant by chi-square, yet the held-out ratio is out of the twin's range
         out["note"] = "held-out ratio above the twin's 99th percentile but chi-square not significant"
-    out.update(verdict(significant, chosen, ratio, ratio_after, closed))
+    res = verdict(significant, chosen, ratio, ratio_after, closed)
+    if res.get("explained") == "partially":
+        # attribution discipline: a partial explanation is named only when the chosen
+        # coefficients are significant by a Wald test too (covariance scaled by the excess
+        # that remains), at the Bonferroni level of the candidate tests
+        bonf = ALPHA / max(len(effects), 1)
+        src = out.get("joint") or next((ef for ef in allsig if ef["name"] == chosen[0]), {})
+        if src.get("wald_p_value", 0.0) >= bonf:
+            res = {"verdict": "unexplained", "shrink": res["shrink"], "closest_form": "+".join(chosen),
+                   "closest_form_wald_p_value": src.get("wald_p_value")}
+    out.update(res)
     out["ratio_after"] = float(ratio_after)
     confused = []
     for n in chosen:

@@ -42,7 +42,7 @@ import numpy as np
 from ..calib.coverage import cube_coverage
 from ..calib.fit import accel_prior
 from ..calib.models import Triangular9
-from ..calib.noise import colour_inflation
+from ..calib.noise import MIN_STRETCH_S, allan_model, colour_inflation
 from ..calib.optim import Problem, lm
 from ..calib.poses import detect_static, poses_from_slices
 from ..errors import UserError
@@ -100,6 +100,25 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
             ok["mag"] = m
     return {"sensors": ok, "poses_found": N, "orientations": n_orient, "mode": "time_series",
             "poses_left_out": [], "notes": notes}
+
+
+def _allan_compare(r, x_still, rate, unit) -> None:
+    """A random-walk wandering bias's intensity beside the Allan figures of the longest still
+    stretch (rate random walk: AVAR = q tau / 3, IEEE Std 952-1997 annex C), when it is long
+    enough (calib.noise.MIN_STRETCH_S)."""
+    ent = next((e for e in r.get("effects", []) if e.get("stochastic")), None)
+    if ent is None:
+        return
+    if x_still is None or len(x_still) / rate < MIN_STRETCH_S:
+        ent["random_walk"]["allan"] = (f"no still stretch of {MIN_STRETCH_S:.0f} s: the chip's random-walk "
+                                       f"term is not measured here")
+        return
+    c = allan_model(x_still, rate)[:, 2]
+    q_allan = (3 * c).tolist()
+    q = ent["params"][next(iter(ent["params"]))][0]
+    ent["random_walk"]["allan"] = {f"still_stretch_intensity_{unit}^2/s": q_allan,
+                                   "stretch_s": round(len(x_still) / rate, 1),
+                                   "walk_over_allan": (q / max(float(np.mean(q_allan)), 1e-300))}
 
 
 def _chip_mag_noise(rec) -> Optional[float]:
@@ -259,6 +278,7 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
                                             "bias these poses' means; they were left out of the fit: "
                                             "reduce vibration or raise the range"})
             r["verdict"] = "saturation" if r["verdict"] in ("none",) else f"saturation+{r['verdict']}"
+        _allan_compare(r, None if longest is None else rec.acc[longest], rate, "g")
         result["sensors"]["accel"] = r
     if "gyro" in sensors:
         # the gyro's own still stretch: the slow ends of turns the accelerometer-led

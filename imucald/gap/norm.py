@@ -22,7 +22,7 @@ from ..calib.metrics import rms
 
 __all__ = ["norm_diag", "MIN_DOF"]
 
-MIN_DOF = 10            #: residual degrees of freedom a candidate fit must leave
+MIN_DOF = 6            #: residual degrees of freedom a candidate fit must leave
 
 
 def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, model: NormModel,
@@ -138,6 +138,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     effects = []
     fits = {}
     cand_of: Dict[str, Candidate] = {}           # the kept variant of each name
+    fits_all: Dict[int, tuple] = {}               # every variant's single fit, by id
     for d in tested:
         c = d["cand"]
         entry = {"name": c.name, "score_chi2": round(d["stat"], 3), "score_p_value": d["p"],
@@ -172,6 +173,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
                 entry["params"][f"{c.name}_{u}"] = z[o:o + k].tolist()
                 entry["stderr"][f"{c.name}_{u}"] = sd[o:o + k].tolist()
                 o += k
+        fits_all[id(c)] = (chi2a, ea, ra_after)
         if c.name in fits:                         # a second variant of the same class
             if fits[c.name][2] <= ra_after:
                 continue
@@ -208,32 +210,35 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     out["effects"] = effects
 
     def second(first: str):
-        """With ``first`` modelled, the second effect that still explains a significant
-        part (nested test) and lowers the held-out residual most; None when none does."""
+        """With ``first`` modelled (any of its fitted variants), the second effect that still
+        explains a significant part (nested test) and lowers the held-out residual most;
+        None when none does."""
         if first not in fits:
             return None                           # the random-walk form: no parametric pair
-        chi2_best, e_best, _ = fits[first]
-        q_best = cand_of[first].q
-        if chi2_sf(chi2_best, N - p0 - q_best) >= ALPHA:
-            return None
         best_pair = None
-        for d in tested:
-            other = d["cand"]
-            # every variant of a kept class (a smaller one may fit where the kept one has
-            # too many parameters for the pair)
-            if other.name == first or d["q"] == 0 or other.name not in cand_of:
+        firsts = [d["cand"] for d in tested if d["cand"].name == first and id(d["cand"]) in fits_all]
+        for cf in firsts:
+            chi2_best, e_best, _ = fits_all[id(cf)]
+            q_best = cf.q
+            if chi2_sf(chi2_best, N - p0 - q_best) >= ALPHA:
                 continue
-            if {first, other.name} == {"bias_drift", "wandering_bias"}:
-                continue                          # nested: the drift's line is in the wandering span
-            if p0 + q_best + other.q > N - MIN_DOF:
-                continue
-            z, chi2a, ea, twa, sd, q99 = refit([cand_of[first], other])
-            rr = nrms(ea) / twa
-            pn, _ = p_and_log10(max(chi2_best - chi2a, 0.0), other.q)
-            if pn < bonf and nrms(ea) < nrms(e_best) and \
-                    (best_pair is None or rr < best_pair[1]):
-                best_pair = (other.name, rr, z, sd, pn, rr <= q99, float(chi2 - chi2a), q_best + other.q,
-                             refit.wald)
+            for d in tested:
+                other = d["cand"]
+                # every variant of a kept class (a smaller one may fit where the kept one has
+                # too many parameters for the pair)
+                if other.name == first or d["q"] == 0 or other.name not in cand_of:
+                    continue
+                if {first, other.name} == {"bias_drift", "wandering_bias"}:
+                    continue                      # nested: the drift's line is in the wandering span
+                if p0 + q_best + other.q > N - MIN_DOF:
+                    continue
+                z, chi2a, ea, twa, sd, q99 = refit([cf, other])
+                rr = nrms(ea) / twa
+                pn, _ = p_and_log10(max(chi2_best - chi2a, 0.0), other.q)
+                if pn < bonf and nrms(ea) < nrms(e_best) and \
+                        (best_pair is None or rr < best_pair[1]):
+                    best_pair = (other.name, rr, z, sd, pn, rr <= q99, float(chi2 - chi2a), q_best + other.q,
+                                 refit.wald)
         if best_pair is None:
             return None
         return {"effects": [first, best_pair[0]], "ratio_after": best_pair[1],

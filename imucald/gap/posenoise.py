@@ -20,7 +20,8 @@ is (a + b n) / n^2.
 
 The white part b is kept only where it is clear of twice its jackknife error or where
 the bounded part does not dominate (the estimate at least a quarter of the white figure):
-b >= 0 clipped from noise is biased upwards and b n dominates the extrapolation.
+b >= 0 clipped from noise is biased upwards and b n dominates the extrapolation; there
+the unconstrained least-squares split (unbiased, either sign) is used instead.
 
 Decision (stated error rate): the estimate replaces the white one (s^2 / n) only when it
 is below it beyond twice its jackknife standard error over poses (one-sided ~2 %);
@@ -78,7 +79,9 @@ def _fit(rows, obs, ns, idx, white=True):
     out = np.zeros((2, C))
     for j in range(C):
         y = np.concatenate([obs[i][:, j] / ns[i] for i in idx])
-        if white:
+        if white == "ls":
+            out[:, j] = np.linalg.lstsq(A, y, rcond=None)[0]
+        elif white:
             out[:, j] = _nnls2(A, y)
         else:
             a = A[:, 0]
@@ -114,8 +117,9 @@ def pose_mean_variance(x: np.ndarray, slices: Sequence[slice]) -> Tuple[np.ndarr
     ratio_ab = (ab[0] + ab[1] * ref) / ref ** 2 / (s2_pool / ref)
     drop_b = (ab[1] < 2 * jse(jk_ab[:, 1])) & (ratio_ab < 0.25)
     if drop_b.any():
-        ab0 = _fit(rows, obs, ns, use, white=False)
-        jk0 = np.array([_fit(rows, obs, ns, [k for k in use if k != i], white=False) for i in use])
+        # there the unconstrained least-squares split (unbiased, either sign) replaces it
+        ab0 = _fit(rows, obs, ns, use, white="ls")
+        jk0 = np.array([_fit(rows, obs, ns, [k for k in use if k != i], white="ls") for i in use])
         ab[:, drop_b] = ab0[:, drop_b]
         jk_ab[:, :, drop_b] = jk0[:, :, drop_b]
     est = lambda ab_: (ab_[0] + ab_[1] * ref) / ref ** 2          # (C,) at the median length
@@ -127,7 +131,7 @@ def pose_mean_variance(x: np.ndarray, slices: Sequence[slice]) -> Tuple[np.ndarr
     var = white.copy()
     for j in range(C):
         if lower[j]:
-            var[:, j] = (ab[0, j] + ab[1, j] * ns) / ns ** 2
+            var[:, j] = np.maximum((ab[0, j] + ab[1, j] * ns) / ns ** 2, 1e-3 * white[:, j])
     info.update({"method": "structure function" if lower.any() else "white",
                  "ratio_to_white": np.round(full, 4).tolist(), "ratio_stderr": np.round(se, 4).tolist(),
                  "bounded_part": ab[0].tolist(), "white_part": ab[1].tolist(),

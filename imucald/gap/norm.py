@@ -22,7 +22,7 @@ from ..calib.metrics import rms
 
 __all__ = ["norm_diag", "MIN_DOF"]
 
-MIN_DOF = 6            #: residual degrees of freedom a candidate fit must leave
+MIN_DOF = 10           #: residual degrees of freedom a candidate fit must leave
 
 
 def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, model: NormModel,

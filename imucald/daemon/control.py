@@ -16,11 +16,11 @@ grow the daemon.
 from __future__ import annotations
 
 import json
-import os
 import socket
 import time
 from typing import Callable, Dict, List, Optional
 
+from .unixsock import UnixServer
 
 __all__ = ["ControlServer", "request", "COMMANDS", "MAX_CLIENTS", "MAX_LINE", "MAX_OUT",
            "PER_POLL", "RATE_PER_S", "BURST"]
@@ -46,12 +46,11 @@ class _Conn:
         self.tokens, self.t, self.closing = BURST, now, False
 
 
-class ControlServer:
+class ControlServer(UnixServer):
     def __init__(self, path: str, handler: Callable[[str], Dict], mode: str = "0660",
                  group: Optional[str] = None, clock: Callable[[], float] = time.monotonic):
-        from .outputs import listen_unix     # here: the client side (status) stays without numpy
-        self.path, self.handler, self.clock = path, handler, clock
-        self.lsock = listen_unix(path, mode, group, 8, "control.socket")
+        self.handler, self.clock = handler, clock
+        super().__init__(path, mode, group, 8, "control.socket")
         self.conns: List[_Conn] = []
         self.refused = 0         #: connections refused (MAX_CLIENTS)
         self.dropped = 0         #: clients dropped for an over-long request line
@@ -166,14 +165,8 @@ class ControlServer:
         except Exception as e:          # a control request must never kill the sampler
             return {"class": "ERROR", "message": f"{cmd} failed: {' '.join(str(e).split())}"}
 
-    def close(self) -> None:
-        for c in self.conns:
-            c.sock.close()
-        self.lsock.close()
-        try:
-            os.unlink(self.path)
-        except OSError:
-            pass
+    def connections(self) -> List[_Conn]:
+        return self.conns
 
 
 def request(path: str, cmd: str, timeout: float = 5.0) -> Dict:

@@ -39,10 +39,8 @@ counted.
 from __future__ import annotations
 
 import errno
-import grp
 import json
 import os
-import socket
 import stat
 import struct
 from typing import List, Optional
@@ -50,6 +48,7 @@ from typing import List, Optional
 import numpy as np
 
 from .. import __version__
+from .unixsock import UnixServer, set_mode_group
 
 __all__ = ["encode_samples", "banner", "event", "SocketSink", "FifoSink", "BINARY_FORMAT",
            "BINARY_DTYPE", "BINARY_VERSION", "PROTO_MAJOR", "PROTO_MINOR", "CSV_HEADER",
@@ -268,75 +267,6 @@ def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str =
     return "".join(out).encode()
 
 
-def _chown_chmod(path: str, mode: str, group: Optional[str], key: str = "socket") -> None:
-    """Mode and group of a socket or FIFO just made; one line naming the setting and the fix
-    (exit 73, "cannot create": a restart cannot fix it, the unit does not retry it)."""
-    from ..errors import CannotCreate
-    try:
-        os.chmod(path, int(mode, 8))
-    except OSError as e:
-        raise CannotCreate(f"{key}: cannot set mode {mode} on {path}: {e.strerror}") from None
-    if group:
-        try:
-            gid = grp.getgrnam(group).gr_gid
-        except KeyError:
-            from .config import ConfigError
-            raise ConfigError(f"socket_group: group {group!r} does not exist (getent group lists "
-                              f"them; create it with groupadd or change the setting)") from None
-        try:
-            os.chown(path, -1, gid)
-        except OSError as e:
-            # EPERM: a process may give a file only to a group it is in (chown(2))
-            raise CannotCreate(
-                f"{key}: cannot give {path} to group {group!r} ({e.strerror}): this process "
-                f"(uid {os.getuid()}) is not in that group: add SupplementaryGroups={group} to the "
-                f"unit (systemctl edit imucald, or imucald@NAME) or choose a group it is in for "
-                f"{key.split('.')[0]}.socket_group") from None
-
-
-#: longest path a Unix socket address holds (sun_path is 108 bytes with its NUL, unix(7))
-UNIX_PATH_MAX = 107
-
-
-def check_socket_path(path: str, key: str) -> None:
-    """A socket can be created at ``path``: short enough, and not taken by a file that
-    is not a socket (``key`` names the setting, for the message)."""
-    from ..errors import CannotCreate
-    n = len(os.fsencode(path))
-    if n > UNIX_PATH_MAX:
-        raise CannotCreate(f"{key}: {path} is {n} bytes; a Unix socket path holds at most "
-                           f"{UNIX_PATH_MAX}: choose a shorter runtime.directory (--runtime-dir)")
-    if os.path.lexists(path) and not stat.S_ISSOCK(os.lstat(path).st_mode):
-        what = "a directory" if os.path.isdir(path) else "a file"
-        raise CannotCreate(f"{key}: {path} exists and is {what}, not a socket: move it away "
-                           f"or choose another {key}")
-
-
-def listen_unix(path: str, mode: str, group: Optional[str], backlog: int,
-                key: str = "socket") -> socket.socket:
-    """A non-blocking listening Unix stream socket at ``path`` (a stale one is replaced:
-    the daemon holds the runtime directory's lock, so no other instance is using it)."""
-    check_socket_path(path, key)
-    if os.path.lexists(path):
-        os.unlink(path)
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    try:
-        s.bind(path)
-    except OSError as e:
-        s.close()
-        from ..errors import CannotCreate
-        raise CannotCreate(f"{key}: cannot create the socket {path}: {e.strerror}") from None
-    try:
-        _chown_chmod(path, mode, group, key)
-    except Exception:
-        s.close()
-        os.unlink(path)
-        raise
-    s.listen(backlog)
-    s.setblocking(False)
-    return s
-
-
 class _Client:
     __slots__ = ("sock", "buf", "peer")
 
@@ -344,16 +274,16 @@ class _Client:
         self.sock, self.buf, self.peer = sock, bytearray(), peer
 
 
-class SocketSink:
+class SocketSink(UnixServer):
     """A listening Unix stream socket; any number of clients, each with a bounded buffer."""
 
     def __init__(self, path: str, fmt: str, board: str, mode: str = "0660",
                  group: Optional[str] = None, max_buffer: int = 1 << 20):
-        self.path, self.fmt, self.board, self.max_buffer = path, fmt, board, max_buffer
+        self.fmt, self.board, self.max_buffer = fmt, board, max_buffer
         self.chips: Optional[dict] = None     #: set by the daemon once the chips are identified
         #: None: orientation on; else why it is off (the banner says so); set by the daemon
         self.orientation_off: Optional[str] = "not started"
-        self.lsock = listen_unix(path, mode, group, 16, "output.socket")
+        super().__init__(path, mode, group, 16, "output.socket")
         self.clients: List[_Client] = []
         self.dropped = 0          #: clients dropped for falling behind
         self.disconnected = 0     #: clients that went away
@@ -401,14 +331,8 @@ class SocketSink:
             del c.buf[:n]
         return True
 
-    def close(self) -> None:
-        for c in self.clients:
-            c.sock.close()
-        self.lsock.close()
-        try:
-            os.unlink(self.path)
-        except OSError:
-            pass
+    def connections(self) -> List[_Client]:
+        return self.clients
 
 
 class FifoSink:
@@ -423,7 +347,7 @@ class FifoSink:
         if not os.path.exists(path):
             os.mkfifo(path)
             try:
-                _chown_chmod(path, mode, group, "output.fifo")
+                set_mode_group(path, mode, group, "output.fifo")
             except Exception:
                 os.unlink(path)
                 raise

@@ -90,7 +90,7 @@ class Daemon:
         self._lock_fds.append(fd)
 
     def run(self) -> int:
-        from .outputs import check_socket_path
+        from .unixsock import check_socket_path
         cfg = self.cfg
         sd, rd = self._dirs()
         o, c = cfg["output"], cfg["control"]

@@ -137,31 +137,10 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, e
     for every sample of the batch (',"key":value...'), NDJSON only (the covariances).
     ``orient``: the orientation filter's output for these rows (q, lin_acc_g, mag_disturbed,
     heading, incl_std_deg, heading_std_deg, cov; orientation/filter.py), or None when off."""
-    n = len(seq)
-    if n == 0:
+    if len(seq) == 0:
         return b""
     if fmt == "binary":
-        nan3 = np.full((n, 3), np.nan)
-        m = mag if mag is not None else nan3
-        flags = still.astype(np.uint8) | (np.uint8(FLAG_MAG) if mag is not None else np.uint8(0))
-        rec = np.zeros(n, dtype=BINARY_DTYPE)
-        rec["seq"], rec["t"], rec["cal"] = seq, t, cal_id
-        rec["acc"], rec["gyro"] = acc, gyro if gyro is not None else nan3
-        rec["temp"], rec["mag"] = temp if temp is not None else np.nan, m
-        if orient is None:
-            rec["q"], rec["lin_acc"], rec["incl_std"], rec["heading_std"] = np.nan, np.nan, np.nan, np.nan
-        else:
-            okq = np.all(np.isfinite(orient["q"]), 1)
-            flags = flags | np.where(okq, np.uint8(FLAG_ORIENT), np.uint8(0))
-            if orient["heading"] == "magnetic":
-                flags = flags | np.uint8(FLAG_HEADING_MAGNETIC)
-            if orient.get("mag_disturbed") is not None:
-                flags = flags | np.where(orient["mag_disturbed"], np.uint8(FLAG_MAG_DISTURBED), np.uint8(0))
-            h = orient.get("heading_std_deg")
-            rec["q"], rec["lin_acc"] = orient["q"], orient["lin_acc_g"]
-            rec["incl_std"], rec["heading_std"] = orient["incl_std_deg"], np.nan if h is None else h
-        rec["flags"] = flags
-        return rec.tobytes()
+        return _binary(seq, t, acc, gyro, temp, mag, still, cal_id, orient)
     if fmt == "ndjson" and orient is not None:
         extra = extra + orientation_extra(orient)
     if fmt == "ndjson" and gyro is not None and temp is not None:
@@ -169,50 +148,100 @@ def encode_samples(fmt: str, seq, t, acc, gyro, temp, mag, still, cal_id: int, e
         fast = _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id, extra, orient)
         if fast is not None:
             return fast
-    fin = lambda x: None if x is None else np.all(np.isfinite(x), axis=1)
-    okA, okG, okM = fin(acc), fin(gyro), fin(mag)
-    okT = None if temp is None else np.isfinite(temp)
-    A = np.round(acc, 6).tolist()
-    G = None if gyro is None else np.round(gyro, 5).tolist()
-    T = None if temp is None else np.round(temp, 3).tolist()
-    M = None if mag is None else np.round(mag, 6).tolist()
-    S = still.tolist()
-    Q = seq.tolist()
-    TT = np.round(t, 6).tolist()
-    if orient is not None:
-        okO = fin(orient["q"]) & fin(orient["lin_acc_g"])
-        OQ = np.round(orient["q"], 6).tolist()
-        OL = np.round(orient["lin_acc_g"], 5).tolist()
-    out = []
-    if fmt == "csv":
-        cell = lambda V, ok, i: V[i] if V is not None and ok[i] else ("", "", "")
-        if orient is not None:
-            h = orient.get("heading_std_deg")
-            sd = f"{orient['incl_std_deg']:.3g},{'' if h is None else format(h, '.3g')}"
-        for i in range(n):
-            a, g, m = cell(A, okA, i), cell(G, okG, i), cell(M, okM, i)
-            tc = T[i] if T is not None and okT[i] else ""
-            o = ""
-            if orient is not None:
-                o = (f",{OQ[i][0]},{OQ[i][1]},{OQ[i][2]},{OQ[i][3]},{OL[i][0]},{OL[i][1]},{OL[i][2]},{sd}"
-                     if okO[i] else ",,,,,,,,,")
-            out.append(f"{Q[i]},{TT[i]},{a[0]},{a[1]},{a[2]},{g[0]},{g[1]},{g[2]},"
-                       f"{m[0]},{m[1]},{m[2]},{tc},{int(S[i])},{cal_id}{o}\n")
-    else:
-        # one comprehension per field (a value that is not known contributes "")
-        aa = _vecs("acc_g", A, okA, n)
-        gg = _vecs("gyro_dps", G, okG, n)
-        mm = _vecs("mag_gauss", M, okM, n)
-        tt = [""] * n if T is None else [f',"temp_c":{x}' if ok else "" for x, ok in zip(T, okT)]
-        if orient is None:
-            oo = [""] * n
-        else:
-            oo = [f',"q":[{q[0]},{q[1]},{q[2]},{q[3]}],"lin_acc_g":[{la[0]},{la[1]},{la[2]}]' if ok else ""
-                  for q, la, ok in zip(OQ, OL, okO)]
-        tail = f',"cal":{cal_id}}}\n'
-        out = [f'{{"class":"IMU","seq":{q},"t":{ts}{a}{g}{m}{tc}{o}{extra},"still":{"true" if st else "false"}{tail}'
-               for q, ts, a, g, m, tc, o, st in zip(Q, TT, aa, gg, mm, tt, oo, S)]
+    c = _Columns(seq, t, acc, gyro, temp, mag, still, orient)
+    out = _csv_rows(c, cal_id, orient) if fmt == "csv" else _ndjson_rows(c, cal_id, extra)
     return "".join(out).encode()
+
+
+def _binary(seq, t, acc, gyro, temp, mag, still, cal_id: int, orient) -> bytes:
+    """Binary records (BINARY_DTYPE): NaN where a value is not known."""
+    n = len(seq)
+    nan3 = np.full((n, 3), np.nan)
+    m = mag if mag is not None else nan3
+    flags = still.astype(np.uint8) | (np.uint8(FLAG_MAG) if mag is not None else np.uint8(0))
+    rec = np.zeros(n, dtype=BINARY_DTYPE)
+    rec["seq"], rec["t"], rec["cal"] = seq, t, cal_id
+    rec["acc"], rec["gyro"] = acc, gyro if gyro is not None else nan3
+    rec["temp"], rec["mag"] = temp if temp is not None else np.nan, m
+    if orient is None:
+        rec["q"], rec["lin_acc"], rec["incl_std"], rec["heading_std"] = np.nan, np.nan, np.nan, np.nan
+    else:
+        okq = np.all(np.isfinite(orient["q"]), 1)
+        flags = flags | np.where(okq, np.uint8(FLAG_ORIENT), np.uint8(0))
+        if orient["heading"] == "magnetic":
+            flags = flags | np.uint8(FLAG_HEADING_MAGNETIC)
+        if orient.get("mag_disturbed") is not None:
+            flags = flags | np.where(orient["mag_disturbed"], np.uint8(FLAG_MAG_DISTURBED), np.uint8(0))
+        h = orient.get("heading_std_deg")
+        rec["q"], rec["lin_acc"] = orient["q"], orient["lin_acc_g"]
+        rec["incl_std"], rec["heading_std"] = orient["incl_std_deg"], np.nan if h is None else h
+    rec["flags"] = flags
+    return rec.tobytes()
+
+
+def _finite_rows(x):
+    """Per row: every value finite (None when the array is absent)."""
+    return None if x is None else np.all(np.isfinite(x), axis=1)
+
+
+class _Columns:
+    """A batch as rounded Python lists (the decimals the stream writes) with, per row,
+    whether each vector is known: the general path's input (CSV, and NDJSON with a value
+    that is not known)."""
+
+    def __init__(self, seq, t, acc, gyro, temp, mag, still, orient):
+        self.n = len(seq)
+        self.okA, self.okG, self.okM = _finite_rows(acc), _finite_rows(gyro), _finite_rows(mag)
+        self.okT = None if temp is None else np.isfinite(temp)
+        self.A = np.round(acc, 6).tolist()
+        self.G = None if gyro is None else np.round(gyro, 5).tolist()
+        self.T = None if temp is None else np.round(temp, 3).tolist()
+        self.M = None if mag is None else np.round(mag, 6).tolist()
+        self.S = still.tolist()
+        self.Q = seq.tolist()
+        self.TT = np.round(t, 6).tolist()
+        self.okO = self.OQ = self.OL = None
+        if orient is not None:
+            self.okO = _finite_rows(orient["q"]) & _finite_rows(orient["lin_acc_g"])
+            self.OQ = np.round(orient["q"], 6).tolist()
+            self.OL = np.round(orient["lin_acc_g"], 5).tolist()
+
+
+def _csv_rows(c: _Columns, cal_id: int, orient) -> List[str]:
+    """CSV lines; a value that is not known leaves its cells empty."""
+    cell = lambda V, ok, i: V[i] if V is not None and ok[i] else ("", "", "")
+    if orient is not None:
+        h = orient.get("heading_std_deg")
+        sd = f"{orient['incl_std_deg']:.3g},{'' if h is None else format(h, '.3g')}"
+    out = []
+    for i in range(c.n):
+        a, g, m = cell(c.A, c.okA, i), cell(c.G, c.okG, i), cell(c.M, c.okM, i)
+        tc = c.T[i] if c.T is not None and c.okT[i] else ""
+        o = ""
+        if orient is not None:
+            OQ, OL = c.OQ, c.OL
+            o = (f",{OQ[i][0]},{OQ[i][1]},{OQ[i][2]},{OQ[i][3]},{OL[i][0]},{OL[i][1]},{OL[i][2]},{sd}"
+                 if c.okO[i] else ",,,,,,,,,")
+        out.append(f"{c.Q[i]},{c.TT[i]},{a[0]},{a[1]},{a[2]},{g[0]},{g[1]},{g[2]},"
+                   f"{m[0]},{m[1]},{m[2]},{tc},{int(c.S[i])},{cal_id}{o}\n")
+    return out
+
+
+def _ndjson_rows(c: _Columns, cal_id: int, extra: str) -> List[str]:
+    """NDJSON lines, one comprehension per field (a value that is not known contributes "")."""
+    n = c.n
+    aa = _vecs("acc_g", c.A, c.okA, n)
+    gg = _vecs("gyro_dps", c.G, c.okG, n)
+    mm = _vecs("mag_gauss", c.M, c.okM, n)
+    tt = [""] * n if c.T is None else [f',"temp_c":{x}' if ok else "" for x, ok in zip(c.T, c.okT)]
+    if c.OQ is None:
+        oo = [""] * n
+    else:
+        oo = [f',"q":[{q[0]},{q[1]},{q[2]},{q[3]}],"lin_acc_g":[{la[0]},{la[1]},{la[2]}]' if ok else ""
+              for q, la, ok in zip(c.OQ, c.OL, c.okO)]
+    tail = f',"cal":{cal_id}}}\n'
+    return [f'{{"class":"IMU","seq":{q},"t":{ts}{a}{g}{m}{tc}{o}{extra},"still":{"true" if st else "false"}{tail}'
+            for q, ts, a, g, m, tc, o, st in zip(c.Q, c.TT, aa, gg, mm, tt, oo, c.S)]
 
 
 #: decimals written per column of [t, acc, gyro, temp, mag]: as np.round(x, d), which is
@@ -231,38 +260,26 @@ def _ndjson_known(seq, t, acc, gyro, temp, mag, still, cal_id: int, extra: str =
     usual case; a magnetometer row that is not fresh or not finite is left out), with a
     handful of numpy calls per batch rather than per field; None when the general path
     must look."""
+    # one array for everything: [t, acc, gyro, temp] (+ [q, lin_acc] with orientation), mag
+    cols = [t[:, None], acc, gyro, temp[:, None]]
     if orient is not None:
-        # one array for everything: [t, acc, gyro, temp, q, lin_acc, mag]
-        cols = [t[:, None], acc, gyro, temp[:, None], orient["q"], orient["lin_acc_g"]]
-        X = np.concatenate(cols + ([mag] if mag is not None else []), 1)
-        fin = np.isfinite(X)
-        if not fin[:, :15].all():
-            return None
-        R = (np.rint(X * _POW_Q[:X.shape[1]]) / _POW_Q[:X.shape[1]]).tolist()
-        okM = fin[:, 15:].all(1).tolist() if mag is not None else None
-        tail = f',"cal":{cal_id}}}\n'
-        out = []
-        for i, (q, r, st) in enumerate(zip(seq.tolist(), R, still.tolist())):
-            m = f',"mag_gauss":[{r[15]},{r[16]},{r[17]}]' if okM is not None and okM[i] else ""
-            out.append(f'{{"class":"IMU","seq":{q},"t":{r[0]},"acc_g":[{r[1]},{r[2]},{r[3]}],'
-                       f'"gyro_dps":[{r[4]},{r[5]},{r[6]}]{m},"temp_c":{r[7]},'
-                       f'"q":[{r[8]},{r[9]},{r[10]},{r[11]}],"lin_acc_g":[{r[12]},{r[13]},{r[14]}]{extra},'
-                       f'"still":{"true" if st else "false"}{tail}')
-        return "".join(out).encode()
-    cols = [t[:, None], acc, gyro, temp[:, None]] + ([mag] if mag is not None else [])
-    X = np.concatenate(cols, 1)
+        cols += [orient["q"], orient["lin_acc_g"]]
+    k = 8 if orient is None else 15                  # the columns that must be finite
+    X = np.concatenate(cols + ([mag] if mag is not None else []), 1)
     fin = np.isfinite(X)
-    if not fin[:, :8].all():
+    if not fin[:, :k].all():
         return None
-    P = _POW[:X.shape[1]]
+    P = (_POW if orient is None else _POW_Q)[:X.shape[1]]
     R = (np.rint(X * P) / P).tolist()
-    okM = fin[:, 8:].all(1).tolist() if mag is not None else None
+    okM = fin[:, k:].all(1).tolist() if mag is not None else None
     tail = f',"cal":{cal_id}}}\n'
     out = []
     for i, (q, r, st) in enumerate(zip(seq.tolist(), R, still.tolist())):
-        m = f',"mag_gauss":[{r[8]},{r[9]},{r[10]}]' if okM is not None and okM[i] else ""
+        m = f',"mag_gauss":[{r[k]},{r[k + 1]},{r[k + 2]}]' if okM is not None and okM[i] else ""
+        o = ("" if orient is None else
+             f',"q":[{r[8]},{r[9]},{r[10]},{r[11]}],"lin_acc_g":[{r[12]},{r[13]},{r[14]}]')
         out.append(f'{{"class":"IMU","seq":{q},"t":{r[0]},"acc_g":[{r[1]},{r[2]},{r[3]}],'
-                   f'"gyro_dps":[{r[4]},{r[5]},{r[6]}]{m},"temp_c":{r[7]}{extra},'
+                   f'"gyro_dps":[{r[4]},{r[5]},{r[6]}]{m},"temp_c":{r[7]}{o}{extra},'
                    f'"still":{"true" if st else "false"}{tail}')
     return "".join(out).encode()
 

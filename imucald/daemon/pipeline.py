@@ -452,12 +452,24 @@ class Pipeline:
         return self._apply(res, self._job_poses)
 
     def _apply(self, res: JobResult, ps) -> bytes:
-        ap, cand = self.applied, res.candidate
-        a, m = cand.accel, cand.mag
+        """A finished job: the parts its gate accepted replace those in force (one new
+        calibration, persisted), or nothing does; the CAL event says which and why."""
+        cand = res.candidate
         take = {k: v for k, v in res.accept.items() if v}
-        parts = []
         gates = res.notes.get("gate", {})
-        undet = _undetermined(a) if "accel" in take else None
+        undet = _undetermined(cand.accel) if "accel" in take else None
+        parts = self._outcome_texts(res, take, gates, undet)
+        # the gate's figures and reasons (calib/gate.py Decision), in the CAL event too
+        gate_ev = {k: d.to_dict() for k, d in gates.items()} or None
+        if not take:
+            return self._keep_applied(cand, gates, parts, gate_ev)
+        return self._take_parts(cand, take, gates, parts, gate_ev, undet, ps)
+
+    def _outcome_texts(self, res: JobResult, take, gates, undet) -> List[str]:
+        """One phrase per part of the job's outcome (the log line and the CAL reason); notes
+        the thermal fits for status."""
+        a, m = res.candidate.accel, res.candidate.mag
+        parts = []
         if a:
             parts.append(f"accel {gates['accel'].text(1e3, 'mg')} "
                          f"{'(applied)' if 'accel' in take else '(kept the current one)'}")
@@ -479,39 +491,51 @@ class Pipeline:
             parts.append(f"mag held-out {m.quality['heldout_rel_rms'] * 100:.2f} % vs "
                          f"{m.quality['heldout_rel_rms_before'] * 100:.2f} % "
                          f"(p = {gates['mag'].p_value:.2g}) {'(applied)' if 'mag' in take else '(kept)'}")
-        # the gate's figures and reasons (calib/gate.py Decision), in the CAL event too
-        gate_ev = {k: d.to_dict() for k, d in gates.items()} or None
-        if not take:
-            # a fit on a ready pose set did not replace the provisional one though scored
-            # out of sample on the poses it was not fitted on: it has been checked against
-            # the full set and stays, as final -- unless those poses disagree with it
-            confirmed = bool(a) and self._job_ready and ap.provisional is not None and _confirms(gates)
-            if confirmed:
-                self.applied = ap.replace(provisional=None)
-                self.persist("calibration", self.applied)
-            msg = (f"calibration not applied, #{ap.id} stays" +
-                   (" and is no longer provisional" if confirmed else "") + ": " + "; ".join(parts))
-            log.info(msg)
-            self.events.append(msg)
-            self.history.append({"applied": False, **_summary(cand)})
-            return event("CAL", self.fmt, id=ap.id, applied=False, reason=msg, gate=gate_ev)
-        now = datetime.now(timezone.utc).isoformat(timespec="seconds")
-        lo, hi = self.temp_range
-        temp = ps.temp if ps.temp is not None else np.full(len(ps), np.nan)
-        rows = np.column_stack([ps.acc, ps.n, temp, ps.t0, ps.t1]).round(7).tolist()
-        # provisional: the accelerometer part came from a pose set short of the readiness
-        # targets (min_poses, predicted uncertainty); the orientations still missing are named
+        return parts
+
+    def _keep_applied(self, cand: Calibration, gates, parts: List[str], gate_ev) -> bytes:
+        """Nothing taken: the calibration in force stays."""
+        ap = self.applied
+        # a fit on a ready pose set did not replace the provisional one though scored
+        # out of sample on the poses it was not fitted on: it has been checked against
+        # the full set and stays, as final -- unless those poses disagree with it
+        confirmed = bool(cand.accel) and self._job_ready and ap.provisional is not None and _confirms(gates)
+        if confirmed:
+            self.applied = ap.replace(provisional=None)
+            self.persist("calibration", self.applied)
+        msg = (f"calibration not applied, #{ap.id} stays" +
+               (" and is no longer provisional" if confirmed else "") + ": " + "; ".join(parts))
+        log.info(msg)
+        self.events.append(msg)
+        self.history.append({"applied": False, **_summary(cand)})
+        return event("CAL", self.fmt, id=ap.id, applied=False, reason=msg, gate=gate_ev)
+
+    def _provisional_after(self, cand: Calibration, take, gates, parts: List[str], n_poses: int):
+        """The new calibration's ``provisional`` entry: the accelerometer part came from a
+        pose set short of the readiness targets (min_poses, predicted uncertainty); the
+        orientations still missing are named."""
+        ap = self.applied
         prov = ap.provisional
         if "accel" in take:
             prov = None if self._job_ready else {
-                "poses": len(ps), "poses_for_final": self.cfg["calibration"]["min_poses"],
+                "poses": n_poses, "poses_for_final": self.cfg["calibration"]["min_poses"],
                 "missing_orientations": list(self._job_missing)}
-        elif a and self._job_ready and prov is not None and _confirms(gates):
-            # as below when nothing is taken: a fit on a ready pose set did no significantly
+        elif cand.accel and self._job_ready and prov is not None and _confirms(gates):
+            # as when nothing is taken: a fit on a ready pose set did no significantly
             # better, so the provisional accelerometer part stays, as final (the gyro or the
             # magnetometer part taken with it does not change that)
             prov = None
             parts.append(f"accel #{ap.id} is no longer provisional")
+        return prov
+
+    def _take_parts(self, cand: Calibration, take, gates, parts: List[str], gate_ev, undet, ps) -> bytes:
+        """The accepted parts replace those in force: a new calibration, persisted."""
+        ap = self.applied
+        now = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        lo, hi = self.temp_range
+        temp = ps.temp if ps.temp is not None else np.full(len(ps), np.nan)
+        rows = np.column_stack([ps.acc, ps.n, temp, ps.t0, ps.t1]).round(7).tolist()
+        prov = self._provisional_after(cand, take, gates, parts, len(ps))
         new = ap.replace(id=ap.id + 1, created=now, provisional=prov,
                          temperature_range_c=(round(lo, 2), round(hi, 2)) if np.isfinite(lo) else None,
                          # the poses the accelerometer part in force was fitted on (calib/gate.py
@@ -525,7 +549,7 @@ class Pipeline:
         log.info(msg)
         self.events.append(msg)
         self.history.append({"applied": True, "id": new.id, **_summary(cand)})
-        q = a.quality if a else {}
+        q, m = (cand.accel.quality if cand.accel else {}), cand.mag
         return event("CAL", self.fmt, id=new.id, applied=True, provisional=prov is not None,
                      missing_orientations=list(prov["missing_orientations"]) if prov else None,
                      undetermined=undet,

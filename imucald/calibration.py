@@ -13,9 +13,11 @@ Every part is an affine correction in the sensor frame, ``corrected = A raw + c`
 - gyro (``deg/s``): ``bias``: ``bias_dps`` (3), optionally ``matrix`` (9, row-major
   scale/misalignment M: corrected = M (raw - bias(T) - G a), calib/gyrorot.py fits it from
   the rotations between poses; each entry of M - I within +-0.5), ``g_sens_dps_per_g``
-  (9, row-major G, deg/s per g of calibrated specific force a; within +-10) and a thermal bias
-  polynomial ``bias_temp_poly_dps`` (K rows of 3, coefficient of (T - temp_ref_c)^k,
-  k = 1..K) with ``temp_ref_c``;
+  (9, row-major G, deg/s per g of calibrated specific force a; within +-10); its thermal
+  terms are a ``thermal`` block like every part's (below).  The older form, params
+  ``bias_temp_poly_dps`` (K rows of 3, coefficient of (T - temp_ref_c)^k, k = 1..K) with
+  ``temp_ref_c``, is still read: it becomes a ``thermal`` block when the part is made
+  (:func:`_legacy_gyro_thermal`), with the same corrections, and is saved in that form;
 - mag (``gauss``): ``mag_sym``/``mag_diag``/``mag_sphere``: ``hard_iron_gauss`` (3),
   ``soft_iron`` (upper triangle xx yy zz xy xz yz of W, det 1) and ``field_gauss``;
   corrected = W (raw - hard_iron), so a clean field has norm ``field_gauss``.
@@ -53,7 +55,15 @@ UNITS = {"accel": "g", "gyro": "deg/s", "mag": "gauss", "temperature": "degC", "
 SENSORS = ("accel", "gyro", "mag")
 _MAG_PARAMS = {"hard_iron_gauss": 3, "soft_iron": 6, "field_gauss": 0}
 _GYRO_REQUIRED = {"bias_dps": 3}
-_GYRO_OPTIONAL = {"matrix": 9, "g_sens_dps_per_g": 9, "bias_temp_poly_dps": -3, "temp_ref_c": 0}  # -3: (K, 3)
+#: -3: (K, 3); bias_temp_poly_dps and temp_ref_c: the older thermal form, read and migrated
+_GYRO_OPTIONAL = {"matrix": 9, "g_sens_dps_per_g": 9, "bias_temp_poly_dps": -3, "temp_ref_c": 0}
+_LEGACY_GYRO_THERMAL = ("bias_temp_poly_dps", "temp_ref_c")
+#: the temperature range of a migrated gyro thermal block: the older form recorded none and
+#: never clamped, so the block spans every temperature a file may hold (PARAM_LIMIT) and its
+#: corrections are the older form's at every temperature
+LEGACY_GYRO_RANGE_C = (-PARAM_LIMIT, PARAM_LIMIT)
+#: the ``note`` of a migrated block (imucald status and calibrate show it)
+LEGACY_GYRO_NOTE = "migrated from params.bias_temp_poly_dps (no fitted range recorded: not clamped)"
 #: plausible bounds: |M - I| (a gyro scale/misalignment matrix), |G| deg/s per g
 _GYRO_BOUNDS = {"matrix": (0.5, "scale and misalignment within 50 %"), "g_sens_dps_per_g": (10.0, "|G| <= 10 deg/s per g")}
 _SYM = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
@@ -93,6 +103,13 @@ class SensorCal:
     #: None, or the temperature terms: order, t_ref_c, t_min_c, t_max_c, bias_poly_<unit>
     #: ((order, 3) array), bias_poly_stderr_<unit>, scale_poly (accel, (1, 3)), note
     thermal: Optional[Mapping[str, Any]] = None
+
+    def __post_init__(self):
+        if self.sensor == "gyro" and any(k in self.params for k in _LEGACY_GYRO_THERMAL):
+            params, stderr, flags, thermal = _legacy_gyro_thermal(self.params, self.stderr, self.flags,
+                                                                  self.thermal, self.sensor)
+            for k, v in (("params", params), ("stderr", stderr), ("flags", flags), ("thermal", thermal)):
+                object.__setattr__(self, k, v)
 
     # -- construction ----------------------------------------------------------------
     @classmethod
@@ -208,13 +225,6 @@ class SensorCal:
         A, c = self.affine
         if self.thermal is not None:
             x = self.thermal_offset(x, temp_c)
-        if self.sensor == "gyro" and "bias_temp_poly_dps" in self.params:
-            if temp_c is None:
-                raise ValueError("gyro: this calibration has a thermal bias term: give temp_c")
-            dt = np.nan_to_num(np.asarray(temp_c, float) - float(self.params["temp_ref_c"]))
-            poly = self.params["bias_temp_poly_dps"].reshape(-1, 3)
-            drift = sum(np.outer(dt ** (k + 1), poly[k]) for k in range(len(poly)))
-            x = x - drift
         if acc_g is not None:
             x = self.g_offset(x, acc_g)
         return x @ A.T + c
@@ -261,9 +271,6 @@ class SensorCal:
             if k in params and np.max(np.abs(params[k] - (np.eye(3).ravel() if k == "matrix" else 0))) > lim:
                 _fail(f"{path}.params.{k}", f"{params[k].tolist()} is not plausible ({what})",
                       "check the row-major order and units, or remove it")
-        if ("bias_temp_poly_dps" in params) != ("temp_ref_c" in params):
-            _fail(f"{path}.params.temp_ref_c", "bias_temp_poly_dps and temp_ref_c go together",
-                  "give both or neither")
         sd = d.get("stderr", {})
         if not isinstance(sd, Mapping):
             _fail(f"{path}.stderr", f"expected a mapping, got {type(sd).__name__}", "or leave it out")
@@ -285,10 +292,7 @@ class SensorCal:
                 _fail(f"{path}.quality.{k}", f"{v!r} is not a finite number", "fix or remove it")
             quality[k] = v
         thermal = None if d.get("thermal") is None else _thermal(d["thermal"], f"{path}.thermal", sensor)
-        if thermal is not None and "bias_temp_poly_dps" in params:
-            _fail(f"{path}.thermal", "given together with params.bias_temp_poly_dps",
-                  "keep one of the two thermal terms (thermal: supersedes the older one)")
-        part = cls(sensor, model, params, stderr, flags, method, quality, thermal)
+        part = cls(sensor, model, params, stderr, flags, method, quality, thermal)    # migrates an older form
         A = part.affine[0]
         cond = np.linalg.cond(A) if np.isfinite(A).all() else math.inf
         if not cond <= MAX_CONDITION:
@@ -296,6 +300,38 @@ class SensorCal:
                   f"number {cond:.3g} > {MAX_CONDITION:g}): it would lose an axis",
                   "a scale of 0 or a degenerate soft iron is not a calibration: recalibrate")
         return part
+
+
+#: highest order of a thermal block (_calcheck._thermal)
+_MAX_THERMAL_ORDER = 3
+
+
+def _legacy_gyro_thermal(params, stderr, flags, thermal, path: str):
+    """A gyro part's older thermal form -- params ``bias_temp_poly_dps`` (K rows of 3, the
+    coefficients of (T - temp_ref_c)^k, k = 1..K, deg/s) with ``temp_ref_c`` -- as a
+    ``thermal`` block of order K about t_ref_c = temp_ref_c over LEGACY_GYRO_RANGE_C:
+    (params, stderr, flags, thermal) without the older keys.  The correction is the same:
+    raw - sum_k poly_k (T - temp_ref_c)^k, an unknown (NaN) temperature giving the bias at
+    temp_ref_c.  One difference: without any temperature (temp_c None) the older form raised;
+    a thermal block corrects as at t_ref_c."""
+    if ("bias_temp_poly_dps" in params) != ("temp_ref_c" in params):
+        _fail(f"{path}.params.temp_ref_c", "bias_temp_poly_dps and temp_ref_c go together",
+              "give both or neither")
+    if thermal is not None:
+        _fail(f"{path}.thermal", "given together with params.bias_temp_poly_dps",
+              "keep one of the two thermal terms (thermal: supersedes the older one)")
+    poly = np.asarray(params["bias_temp_poly_dps"], float).reshape(-1, 3)
+    if len(poly) > _MAX_THERMAL_ORDER:
+        _fail(f"{path}.params.bias_temp_poly_dps", f"{len(poly)} rows; a thermal bias polynomial "
+              f"has at most {_MAX_THERMAL_ORDER}", "keep the first 3 rows, or refit the thermal terms")
+    ref = float(params["temp_ref_c"])
+    th: Dict[str, Any] = {"order": len(poly), "t_ref_c": ref, "t_min_c": min(LEGACY_GYRO_RANGE_C[0], ref),
+                          "t_max_c": max(LEGACY_GYRO_RANGE_C[1], ref), "bias_poly_dps": poly}
+    if "bias_temp_poly_dps" in stderr:
+        th["bias_poly_stderr_dps"] = np.asarray(stderr["bias_temp_poly_dps"], float).reshape(-1, 3)
+    th["note"] = LEGACY_GYRO_NOTE
+    drop = lambda d: {k: v for k, v in d.items() if k not in _LEGACY_GYRO_THERMAL}
+    return drop(params), drop(stderr), drop(flags), th
 
 
 def _fit_flags(fit) -> Dict[str, Tuple[str, ...]]:

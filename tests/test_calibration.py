@@ -18,6 +18,8 @@ from imucald.calib.models import MagModel, Triangular9
 from imucald.calibration import Calibration, CalibrationError, SensorCal, load, save
 
 BOARD, CHIPS = "mpu6050", {"accel": "mpu6050", "gyro": "mpu6050"}
+#: the gyro's thermal bias polynomial: coefficients of (T - 25 degC)^1 and ^2, deg/s
+GYRO_POLY_DPS = [[0.01, -0.02, 0.005], [1e-4, 0, -2e-4]]
 
 
 def full_cal(board=BOARD, chips=CHIPS) -> Calibration:
@@ -33,10 +35,10 @@ def full_cal(board=BOARD, chips=CHIPS) -> Calibration:
         "note": "order 2 + scale: chosen by held-out error"})
     gyro = SensorCal("gyro", "bias", {
         "bias_dps": np.array([0.5, -1.0, 0.25]),
-        "matrix": np.array([1.01, 0.002, 0, 0, 0.99, 0, 0.001, 0, 1.0]),
-        "bias_temp_poly_dps": np.array([[0.01, -0.02, 0.005], [1e-4, 0, -2e-4]]),
-        "temp_ref_c": np.array(25.0)}, {"bias_dps": np.array([0.01, 0.01, np.nan])},
-        method="mean", quality={"heldout_rms_dps": 0.02})
+        "matrix": np.array([1.01, 0.002, 0, 0, 0.99, 0, 0.001, 0, 1.0])},
+        {"bias_dps": np.array([0.01, 0.01, np.nan])}, method="mean", quality={"heldout_rms_dps": 0.02},
+        thermal={"order": 2, "t_min_c": 15.0, "t_ref_c": 25.0, "t_max_c": 45.0,
+                 "bias_poly_dps": np.array(GYRO_POLY_DPS), "note": ""})
     mag = SensorCal("mag", "mag_sym", {"hard_iron_gauss": np.array([0.1, -0.05, 0.2]),
                                        "soft_iron": np.array([1.05, 0.97, 0.98, 0.01, -0.02, 0.005]),
                                        "field_gauss": np.array(0.48)},
@@ -74,11 +76,12 @@ def test_round_trip_and_apply(tmp_path):
     T[3] = np.nan
     dt = np.nan_to_num(T - 25)
     p = cal.gyro.params
-    want = (raw - p["bias_dps"] - np.outer(dt, p["bias_temp_poly_dps"][0])
-            - np.outer(dt ** 2, p["bias_temp_poly_dps"][1])) @ p["matrix"].reshape(3, 3).T
+    want = (raw - p["bias_dps"] - np.outer(dt, GYRO_POLY_DPS[0])
+            - np.outer(dt ** 2, GYRO_POLY_DPS[1])) @ p["matrix"].reshape(3, 3).T
     assert np.allclose(back.apply_gyro(raw, T), want, atol=1e-12)
-    with pytest.raises(ValueError, match="temp_c"):
-        back.apply_gyro(raw)
+    # no temperature at all: the bias at t_ref_c, as for an unknown one (the older
+    # params.bias_temp_poly_dps raised here; it is migrated to this form)
+    assert np.allclose(back.apply_gyro(raw), back.apply_gyro(raw, np.full(50, np.nan)), atol=1e-15)
     # mag: the corrected field of points on the distorted ellipsoid has norm field_gauss
     W = cal.mag.affine[0]
     h = rng.normal(size=(40, 3))
@@ -117,6 +120,70 @@ def test_a_version_1_state_file_is_converted():
     assert cal.mag.quality == {"points": 400, "heldout_rel_rms": 0.01}
 
 
+
+_OLD_GYRO_FILE = """\
+# imucald calibration: the gyro's thermal terms in the older form (params.bias_temp_poly_dps)
+format_version: 2
+id: 5
+created: '2026-01-01T00:00:00+00:00'
+board: mpu6050
+chips: {accel: mpu6050, gyro: mpu6050}
+units: {accel: g, gyro: deg/s, mag: gauss, temperature: degC, time: s}
+gyro:
+  model: bias
+  method: mean
+  params:
+    bias_dps: [0.5, -1.0, 0.25]
+    matrix: [1.01, 0.002, 0.0, 0.0, 0.99, 0.0, 0.001, 0.0, 1.0]
+    g_sens_dps_per_g: [0.01, 0.0, 0.0, 0.0, -0.02, 0.0, 0.0, 0.0, 0.03]
+    bias_temp_poly_dps: [[0.01, -0.02, 0.005], [1.0e-4, 0.0, -2.0e-4], [-3.0e-6, 1.0e-6, 0.0]]
+    temp_ref_c: 31.5
+  stderr:
+    bias_dps: [0.01, 0.01, 0.01]
+    bias_temp_poly_dps: [[1.0e-3, 1.0e-3, 1.0e-3], [1.0e-5, 1.0e-5, 1.0e-5], [1.0e-7, 1.0e-7, 1.0e-7]]
+"""
+
+
+def test_an_older_gyro_thermal_file_is_migrated_with_identical_corrections(tmp_path):
+    """A file with the older gyro thermal form (params bias_temp_poly_dps + temp_ref_c) loads
+    as a ``thermal`` block that corrects exactly as the older form did: raw - sum_k
+    poly_k (T - temp_ref_c)^k, never clamped, an unknown temperature giving the bias at
+    temp_ref_c; saving writes the thermal block and not the older keys.  Fails when the
+    migration is left out (the polynomial is dropped: errors of 0.30, 0.55 deg/s on x, y at 60 degC) or
+    the migrated block is given a finite range (clamping changes -40 and 125 degC)."""
+    src = tmp_path / "old.yaml"
+    src.write_text(_OLD_GYRO_FILE)
+    cal = load(src)
+    doc = yaml.safe_load(_OLD_GYRO_FILE)["gyro"]["params"]
+    poly, ref = np.array(doc["bias_temp_poly_dps"]), doc["temp_ref_c"]
+    M, G = np.reshape(doc["matrix"], (3, 3)), np.reshape(doc["g_sens_dps_per_g"], (3, 3))
+    rng = np.random.default_rng(3)
+    raw, acc = rng.normal(0, 5, (60, 3)), rng.normal(0, 1, (60, 3))
+    T = np.linspace(-40, 125, 60)
+    T[[7, 30]] = np.nan
+    for temp in (T, 60.0, np.nan):
+        dt = np.nan_to_num(np.broadcast_to(np.asarray(temp, float) - ref, (60,)))
+        drift = sum(np.outer(dt ** (k + 1), poly[k]) for k in range(len(poly)))
+        want = (raw - drift - acc @ G.T - np.asarray(doc["bias_dps"])) @ M.T     # the older form
+        assert np.allclose(cal.apply_gyro(raw, temp, acc), want, rtol=0, atol=1e-12)
+    th = cal.gyro.thermal
+    assert th["order"] == 3 and th["t_ref_c"] == ref and "bias_temp_poly_dps" not in cal.gyro.params
+    assert np.array_equal(th["bias_poly_stderr_dps"], np.array(yaml.safe_load(_OLD_GYRO_FILE)["gyro"]["stderr"]
+                                                                ["bias_temp_poly_dps"]))
+    save(cal, tmp_path / "new.yaml")
+    saved = yaml.safe_load((tmp_path / "new.yaml").read_text())["gyro"]
+    assert set(saved["params"]) == {"bias_dps", "matrix", "g_sens_dps_per_g"} and set(saved["stderr"]) == {"bias_dps"}
+    assert saved["thermal"]["bias_poly_dps"] == poly.tolist() and saved["thermal"]["t_ref_c"] == ref
+    again = load(tmp_path / "new.yaml")
+    assert again.to_dict() == cal.to_dict()
+    assert np.array_equal(again.apply_gyro(raw, T, acc), cal.apply_gyro(raw, T, acc))
+    # more rows than a thermal block holds: one line naming the key
+    d = yaml.safe_load(_OLD_GYRO_FILE)
+    d["gyro"]["params"]["bias_temp_poly_dps"].append([0.0, 0.0, 0.0])
+    d["gyro"].pop("stderr")
+    with pytest.raises(CalibrationError, match=r"^gyro\.params\.bias_temp_poly_dps: 4 rows"):
+        Calibration.from_dict(d)
+
 # --- every field corrupted, one at a time ---------------------------------------------
 
 def _leaves(d, path=()):
@@ -132,9 +199,10 @@ _REQUIRED = {("format_version",), ("id",), ("board",), ("units",), ("accel", "mo
              ("accel", "params"), ("gyro", "model"), ("gyro", "params"), ("mag", "model"),
              ("mag", "params")} | {("units", u) for u in _DOC["units"]} | {
     (s, "params", k) for s in ("accel", "mag") for k in _DOC[s]["params"]} | {
-    ("gyro", "params", "bias_dps"), ("gyro", "params", "temp_ref_c")} | {   # temp_ref_c: with the poly
-    (s, "thermal", k) for s in ("accel", "mag") for k in ("order", "t_min_c", "t_ref_c", "t_max_c")} | {
-    ("accel", "thermal", "bias_poly_g"), ("mag", "thermal", "bias_poly_gauss")} | {  # order > 0 needs them
+    ("gyro", "params", "bias_dps")} | {
+    (s, "thermal", k) for s in ("accel", "gyro", "mag") for k in ("order", "t_min_c", "t_ref_c", "t_max_c")} | {
+    ("accel", "thermal", "bias_poly_g"), ("gyro", "thermal", "bias_poly_dps"),
+    ("mag", "thermal", "bias_poly_gauss")} | {  # order > 0 needs them
     ("provisional", k) for k in _DOC["provisional"]}
 #: lists whose length is free (a shorter one is no corruption)
 _FREE_LENGTH = {("provisional", "missing_orientations")}
@@ -322,6 +390,7 @@ def test_thermal_block_checks_its_range_order_and_the_older_gyro_term():
     with pytest.raises(CalibrationError, match=r"^mag\.thermal\.bias_poly_gauss: 1 rows for order 2"):
         Calibration.from_dict(d)
     d = copy.deepcopy(_DOC)
+    d["gyro"]["params"].update(temp_ref_c=25.0, bias_temp_poly_dps=[[0.0, 0.0, 0.0]])
     d["gyro"]["thermal"] = {"order": 0, "t_min_c": 20, "t_ref_c": 25, "t_max_c": 30}
     with pytest.raises(CalibrationError, match=r"^gyro\.thermal: given together"):
         Calibration.from_dict(d)
@@ -337,6 +406,7 @@ def test_thermal_block_checks_its_range_order_and_the_older_gyro_term():
 def test_an_absurd_parameter_is_refused_not_turned_into_inf(key, value):
     # found by tests/test_input_fuzz.py: 1e308 loaded, and the correction gave inf/NaN
     d = copy.deepcopy(_DOC)
+    del d["gyro"]["thermal"]                  # the older gyro thermal form instead
     d["gyro"]["params"]["temp_ref_c"] = 25.0
     d["gyro"]["params"]["bias_temp_poly_dps"] = [[0.0, 0.0, 0.0]]
     Calibration.from_dict(d)

@@ -80,8 +80,7 @@ def thermal_parts(job: Dict[str, Any], cur: Calibration, parts: Dict[str, Sensor
             if dec.accept:
                 # only the bias (and its thermal terms) is refitted: the matrix and
                 # g-sensitivity of the part in force stay
-                kept = {k: v for k, v in g.params.items() if k not in ("bias_temp_poly_dps", "temp_ref_c")}
-                cand = SensorCal("gyro", g.model, {**kept, "bias_dps": np.asarray(tf.base, float)},
+                cand = SensorCal("gyro", g.model, {**g.params, "bias_dps": np.asarray(tf.base, float)},
                                  {**g.stderr, "bias_dps": np.asarray(tf.base_stderr, float)}, g.flags, "thermal",
                                  {**g.quality, "thermal_heldout_rms_dps": dec.rms_cv,
                                   "thermal_heldout_rms_before_dps": dec.rms_incumbent,

@@ -210,28 +210,78 @@ def select_model(raw: np.ndarray, pose_cov: Optional[np.ndarray] = None, target:
     return best, {**scores, "_se": se[low], "_held_at_prior": held}
 
 
-def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
-             pose_cov: Optional[np.ndarray] = None, target: float = 1.0, rng=None,
-             bounds: Optional[Tuple[np.ndarray, np.ndarray]] = None, heldout: bool = True,
-             chip: Optional[str] = None, noise_inflation=None, prior: bool = True,
-             _min_poses: Optional[int] = None, **method_kw) -> FitResult:
-    """Fit a norm model to pose means raw (N, 3) and report it.
+@dataclass
+class FitSetup:
+    """What the solver is given: the model chosen, its search box and prior, the noise level
+    the prior is weighed against (``noise_var``) and each pose's own covariance (or None)."""
+    model: NormModel
+    raw: np.ndarray
+    target: float
+    lo: np.ndarray
+    hi: np.ndarray
+    pose_cov: Optional[np.ndarray]      #: (N, 3, 3) times colour inflation, or None
+    use_prior: bool                     #: an accelerometer fit with the datasheet prior asked for
+    prior_mean: Optional[np.ndarray]    #: over the free parameters
+    prior_std: Optional[np.ndarray]     #: over the free parameters
+    prior_std_full: np.ndarray          #: over all parameters (inf: no prior)
+    noise_var: float
+    chip: Optional[str]
+    selection: Optional[Dict[str, object]]
 
-    pose_cov: covariance of each pose mean (N, 3, 3) from within-pose scatter; each
-    pose keeps its own (times ``noise_inflation``, scalar or (N,), the coloured-noise
-    factor of :mod:`imucald.calib.noise`).  Without it (or with NaNs) the residual
-    variance is used.  If the residuals scatter more than that noise explains
-    (chi-square / dof > 1: model error, drift), the variances are scaled up by that
-    ratio (``info['noise_model']['excess_scatter']``).
-    chip: accelerometer chip name (mpu6050, mpu9250, adxl345) for bounds and prior.
-    prior: the datasheet prior (MAP) for accelerometer models (not ga-paper, which
-    is the paper's protocol as written; magnetometer models have none).
-    model: a name, a model, or 'auto' (:func:`select_model`, reported in
-    ``info['model_selection']``).
-    """
-    t_start = time.perf_counter()
-    raw = np.asarray(raw, float)
-    N = len(raw)
+    def problem(self, noise_var: float) -> Problem:
+        return Problem(self.model, self.raw, self.target, lo=self.lo, hi=self.hi,
+                       prior_mean=self.prior_mean, prior_std=self.prior_std, noise_var=noise_var)
+
+
+@dataclass
+class NoiseFit:
+    """The solution with its noise model: per-pose residual variance (scaled up by the
+    excess scatter when the noise model is rejected) and the MAP estimate re-polished at
+    the noise actually seen."""
+    prob: Problem
+    res: OptimResult
+    theta: np.ndarray
+    residuals: np.ndarray
+    var: np.ndarray                     #: per-pose residual variance (sensor unit^2, on target)
+    source: str                         #: 'poses' or 'residuals'
+    jacobian: np.ndarray                #: (N, kf) over the free parameters
+    prior_precision: np.ndarray         #: (kf,) 0: no prior
+    noise_var: float
+    excess_scatter: float
+    chi2: float
+    dof: float
+
+
+@dataclass
+class Determination:
+    """The covariance of the estimate (all parameters), its standard errors and the
+    uncertainty with its determination flags."""
+    cov: np.ndarray
+    stderr: np.ndarray
+    uncertainty: Uncertainty
+
+
+@dataclass
+class Heldout:
+    residuals: np.ndarray               #: per pose, held out of the fit
+    predicted_std: np.ndarray           #: per pose, what the uncertainty predicts
+    normalised_rms: float               #: RMS of residuals / predicted_std (1: it holds)
+
+
+@dataclass
+class Report:
+    """The figures in the sensor's unit: parameters, standard errors, RMS in-sample and
+    held out, noise, and the report extras (``info``)."""
+    params: Dict[str, object]
+    stderr: Dict[str, object]
+    rms: float
+    heldout_rms: float
+    noise: float
+    info: Dict[str, object]
+
+
+def _choose_model(model, raw, pose_cov, target, chip, noise_inflation, min_poses):
+    """(model, selection or None, min_poses): 'auto' resolved by :func:`select_model`."""
     selection = None
     if isinstance(model, str) and model == "auto":
         name, scores = select_model(raw, pose_cov, target, chip, noise_inflation=noise_inflation)
@@ -245,12 +295,21 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
             # are held at the datasheet prior (named in the fit's flags)
             selection["held_at_prior"] = sorted(held)
         if name in held:
-            _min_poses = 1
+            min_poses = 1
         model = name
     model = get_model(model) if isinstance(model, str) else model
+    return model, selection, min_poses
+
+
+def _setup(raw, model, pose_cov, target, bounds, chip, noise_inflation, prior, min_poses
+           ) -> FitSetup:
+    """Model, search box, datasheet prior and the noise level the prior is weighed against."""
+    N = len(raw)
+    model, selection, min_poses = _choose_model(model, raw, pose_cov, target, chip,
+                                                noise_inflation, min_poses)
     free = model.free_mask
     kf = int(free.sum())
-    if N < (kf + 1 if _min_poses is None else _min_poses):
+    if N < (kf + 1 if min_poses is None else min_poses):
         from ..errors import UserError
         raise UserError(f"{N} poses cannot determine the {kf} parameters of "
                         f"{model.name}: collect at least {kf + 1} (about 25 recommended)")
@@ -273,13 +332,23 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
     else:   # the prior's weight needs a noise level: from a prior-less fit's residuals
         r0 = lm(Problem(model, raw, target, lo=lo, hi=hi)).data_fitness if use_prior else 0.0
         nv = max(r0 / max(N - kf, 1), 1e-30)
-    prob = Problem(model, raw, target, lo=lo, hi=hi, prior_mean=pmean, prior_std=pstd, noise_var=nv)
+    return FitSetup(model, raw, target, lo, hi, pc, use_prior, pmean, pstd, pstd_full, nv,
+                    chip, selection)
+
+
+def _solve(st: FitSetup, method: str, rng, method_kw) -> NoiseFit:
+    """Run the method, then the noise model: per-pose variance, excess scatter, and the
+    MAP estimate re-polished when the noise seen differs from the prior's weight."""
+    model, raw, target = st.model, st.raw, st.target
+    N, free, kf = len(raw), model.free_mask, int(model.free_mask.sum())
+    nv = st.noise_var
+    prob = st.problem(nv)
     res: OptimResult = run_method(method, prob, rng=rng, **method_kw)
     theta = res.theta
     # per-pose residual variance: each pose's own noise, else the residuals
     r = model.residual(theta, raw, target)
-    if pc is not None:
-        var = residual_variance(model, theta, raw, pc)
+    if st.pose_cov is not None:
+        var = residual_variance(model, theta, raw, st.pose_cov)
         source = "poses"
     else:
         var = np.full(N, float(r @ r) / max(N - kf, 1))
@@ -301,63 +370,133 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
     if prob.has_prior and res.method != "ga-paper" and abs(np.log(np.mean(var) / nv)) > 0.1:
         # the prior's weight follows the noise actually seen: re-polish the MAP estimate
         nv = float(np.mean(var))
-        prob = Problem(model, raw, target, lo=lo, hi=hi, prior_mean=pmean, prior_std=pstd,
-                       noise_var=nv)
+        prob = st.problem(nv)
         z, _, _ = _lm_converge(prob, prob.reduce(theta))
         theta = prob.expand(z)
         r = model.residual(theta, raw, target)
         J = model.jacobian(theta, raw, target)[1][:, free]
+    return NoiseFit(prob, res, theta, r, var, source, J, lam, nv, phi, chi2, dof)
+
+
+def _determination(st: FitSetup, nf: NoiseFit) -> Determination:
+    """Covariance (MAP), standard errors, CRLB and the determination flags."""
+    model, raw, theta, free = st.model, st.raw, nf.theta, st.model.free_mask
     at_bound = np.zeros(model.k, bool)
-    at_bound[free] = prob.at_bound(prob.reduce(theta))
-    unc = crlb(model, theta, raw, var)
+    at_bound[free] = nf.prob.at_bound(nf.prob.reduce(theta))
+    unc = crlb(model, theta, raw, nf.var)
     idx = np.flatnonzero(free)
     cov = np.zeros((model.k, model.k))
-    cov[np.ix_(idx, idx)] = map_covariance(J, var, nv, lam)
+    cov[np.ix_(idx, idx)] = map_covariance(nf.jacobian, nf.var, nf.noise_var, nf.prior_precision)
     stderr_flat = np.sqrt(np.clip(np.diag(cov), 0, None))
-    stderr_flat[~np.isfinite(unc.std) & ~np.isfinite(pstd_full)] = np.inf
-    if use_prior:       # ga-paper too: its data-only std is compared with the tolerance
-        unc.prior_std = pstd_full
+    stderr_flat[~np.isfinite(unc.std) & ~np.isfinite(st.prior_std_full)] = np.inf
+    if st.use_prior:       # ga-paper too: its data-only std is compared with the tolerance
+        unc.prior_std = st.prior_std_full
     unc.posterior_std = stderr_flat
-    unc.flags = determination(model, theta, raw, cov, pstd_full, at_bound, float(median(var)),
-                              target)
-    hprior = (pmean, pstd, nv) if lam.any() else None
-    if heldout:
-        ho, ho_sd = heldout_residuals(model, theta, raw, target, lo=prob.lo, hi=prob.hi,
-                                      prior=hprior, var=var)
-        ho_norm = rms(ho / ho_sd)
+    unc.flags = determination(model, theta, raw, cov, st.prior_std_full, at_bound,
+                              float(median(nf.var)), st.target)
+    return Determination(cov, stderr_flat, unc)
+
+
+def _heldout(st: FitSetup, nf: NoiseFit, heldout: bool) -> Heldout:
+    """Each pose's residual from a fit without it, and the std the uncertainty predicts."""
+    N = len(st.raw)
+    if not heldout:
+        return Heldout(np.full(N, np.nan), np.full(N, np.nan), float("nan"))
+    hprior = (st.prior_mean, st.prior_std, nf.noise_var) if nf.prior_precision.any() else None
+    ho, ho_sd = heldout_residuals(st.model, nf.theta, st.raw, st.target, lo=nf.prob.lo,
+                                  hi=nf.prob.hi, prior=hprior, var=nf.var)
+    return Heldout(ho, ho_sd, rms(ho / ho_sd))
+
+
+def _noise_info(st: FitSetup, nf: NoiseFit, ho: Heldout, det: Determination,
+                noise_inflation) -> Dict[str, object]:
+    """The report extras every norm fit carries: the noise model, held-out figures,
+    covariance and the model selection."""
+    if nf.prior_precision.any():
+        prior = "datasheet tolerances" + (f" ({st.chip})" if st.chip else " (generic)")
     else:
-        ho, ho_sd, ho_norm = np.full(N, np.nan), np.full(N, np.nan), float("nan")
+        prior = "none: ga-paper is paper 000 as written" if st.use_prior else "none"
     extra: Dict[str, object] = {
-        "noise_model": {"per_pose": source == "poses", "excess_scatter": round(phi, 4),
-                        "chi2": round(chi2, 3), "dof": round(dof, 2),
-                        "prior": ("datasheet tolerances" + (f" ({chip})" if chip else " (generic)"))
-                        if lam.any() else ("none: ga-paper is paper 000 as written" if use_prior
-                                           else "none")},
-        "heldout_normalised_rms": ho_norm, "heldout_residuals": ho, "covariance": cov,
-        "heldout_predicted_std": ho_sd}
+        "noise_model": {"per_pose": nf.source == "poses", "excess_scatter": round(nf.excess_scatter, 4),
+                        "chi2": round(nf.chi2, 3), "dof": round(nf.dof, 2), "prior": prior},
+        "heldout_normalised_rms": ho.normalised_rms, "heldout_residuals": ho.residuals,
+        "covariance": det.cov, "heldout_predicted_std": ho.predicted_std}
     if noise_inflation is not None:
-        k = np.broadcast_to(np.asarray(noise_inflation, float), (N,))
+        k = np.broadcast_to(np.asarray(noise_inflation, float), (len(st.raw),))
         extra["noise_model"]["colour_inflation_median"] = round(float(median(k)), 3)
-    if selection is not None:
-        extra["model_selection"] = selection
-    if isinstance(model, MagModel):
-        params, stderr = mag_report(model, theta, cov)
-        scale = params["field_gauss"]           # residuals are on the unit sphere
-        rr, hr, noise = rms(r) * scale, rms(ho) * scale, float(np.sqrt(median(var))) * scale
-    else:
-        params = model.unpack(theta)
-        stderr = {g: [None if not np.isfinite(stderr_flat[i]) else float(stderr_flat[i])
-                      for i in idx_g] for g, idx_g in model.groups.items()}
-        rr, hr, noise = rms(r), rms(ho), float(np.sqrt(median(var)))
-        # paper 000's equivalent-path error after 20 s, STD over poses (pose means held)
-        _, _, sd_raw = path_error([x[None] for x in raw], 10.0, 20.0)
-        _, _, sd_cal = path_error([x[None] for x in model.forward(theta, raw)], 10.0, 20.0)
-        extra["path_error_20s_std_m"] = {"raw": float(sd_raw[-1]), "calibrated": float(sd_cal[-1])}
-    fitness = float(model.fitness(theta, raw, target))
-    return FitResult(model.sensor, model.name, res.method, N, theta, params, stderr,
-                       fitness, rr, hr, unc.std, unc, noise, source, res.iterations,
-                       res.nfev, time.perf_counter() - t_start,
-                       {"optim": {k: v for k, v in res.info.items() if k != "iterations"}, **extra})
+    if st.selection is not None:
+        extra["model_selection"] = st.selection
+    return extra
+
+
+def _mag_figures(model: MagModel, nf: NoiseFit, ho: Heldout, det: Determination, extra) -> Report:
+    """Magnetometer: hard/soft iron under their names; residuals (on the unit sphere)
+    scaled to gauss by the fitted field."""
+    params, stderr = mag_report(model, nf.theta, det.cov)
+    scale = params["field_gauss"]
+    return Report(params, stderr, rms(nf.residuals) * scale, rms(ho.residuals) * scale,
+                  float(np.sqrt(median(nf.var))) * scale, extra)
+
+
+def _accel_figures(model: NormModel, raw: np.ndarray, nf: NoiseFit, ho: Heldout,
+                   det: Determination, extra) -> Report:
+    """Accelerometer: parameters by group, in g, and paper 000's equivalent-path error."""
+    params = model.unpack(nf.theta)
+    se = det.stderr
+    stderr = {g: [None if not np.isfinite(se[i]) else float(se[i]) for i in idx_g]
+              for g, idx_g in model.groups.items()}
+    # paper 000's equivalent-path error after 20 s, STD over poses (pose means held)
+    _, _, sd_raw = path_error([x[None] for x in raw], 10.0, 20.0)
+    _, _, sd_cal = path_error([x[None] for x in model.forward(nf.theta, raw)], 10.0, 20.0)
+    extra["path_error_20s_std_m"] = {"raw": float(sd_raw[-1]), "calibrated": float(sd_cal[-1])}
+    return Report(params, stderr, rms(nf.residuals), rms(ho.residuals),
+                  float(np.sqrt(median(nf.var))), extra)
+
+
+def _report(st: FitSetup, nf: NoiseFit, det: Determination, ho: Heldout,
+            noise_inflation) -> Report:
+    extra = _noise_info(st, nf, ho, det, noise_inflation)
+    if isinstance(st.model, MagModel):
+        return _mag_figures(st.model, nf, ho, det, extra)
+    return _accel_figures(st.model, st.raw, nf, ho, det, extra)
+
+
+def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
+             pose_cov: Optional[np.ndarray] = None, target: float = 1.0, rng=None,
+             bounds: Optional[Tuple[np.ndarray, np.ndarray]] = None, heldout: bool = True,
+             chip: Optional[str] = None, noise_inflation=None, prior: bool = True,
+             _min_poses: Optional[int] = None, **method_kw) -> FitResult:
+    """Fit a norm model (accelerometer or magnetometer) to pose means raw (N, 3) and report it.
+
+    pose_cov: covariance of each pose mean (N, 3, 3) from within-pose scatter; each
+    pose keeps its own (times ``noise_inflation``, scalar or (N,), the coloured-noise
+    factor of :mod:`imucald.calib.noise`).  Without it (or with NaNs) the residual
+    variance is used.  If the residuals scatter more than that noise explains
+    (chi-square / dof > 1: model error, drift), the variances are scaled up by that
+    ratio (``info['noise_model']['excess_scatter']``).
+    chip: accelerometer chip name (mpu6050, mpu9250, adxl345) for bounds and prior.
+    prior: the datasheet prior (MAP) for accelerometer models (not ga-paper, which
+    is the paper's protocol as written; magnetometer models have none).
+    model: a name, a model, or 'auto' (:func:`select_model`, reported in
+    ``info['model_selection']``).
+
+    The steps: setup (model, box, prior) -> solve (with the noise model) ->
+    determination (covariance, flags) -> held-out -> report.
+    """
+    t_start = time.perf_counter()
+    raw = np.asarray(raw, float)
+    st = _setup(raw, model, pose_cov, target, bounds, chip, noise_inflation, prior, _min_poses)
+    nf = _solve(st, method, rng, method_kw)
+    det = _determination(st, nf)
+    ho = _heldout(st, nf, heldout)
+    rep = _report(st, nf, det, ho, noise_inflation)
+    res = nf.res
+    fitness = float(st.model.fitness(nf.theta, raw, target))
+    return FitResult(st.model.sensor, st.model.name, res.method, len(raw), nf.theta, rep.params,
+                     rep.stderr, fitness, rep.rms, rep.heldout_rms, det.uncertainty.std,
+                     det.uncertainty, rep.noise, nf.source, res.iterations, res.nfev,
+                     time.perf_counter() - t_start,
+                     {"optim": {k: v for k, v in res.info.items() if k != "iterations"}, **rep.info})
 
 
 def _mag_bounds(model: MagModel, raw: np.ndarray, target: float):

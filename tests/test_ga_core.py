@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from imucald.calib.models import Full12, Triangular9
-from imucald.calib.optim import Problem, _ga_core, _lm_converge, _starts, ga, hga, lm
+from imucald.calib.ga import ga, ga_core, hga
+from imucald.calib.lsq import Problem, closed_form_starts, lm, lm_converge
 from imucald.sim.poses import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_pose_means
 from imucald.specs import ACCEL
@@ -44,8 +45,8 @@ def test_ga_core_alone_with_paper_budget_beats_the_sphere_fit(seed):
     raw = _case(seed)
     best = lm(Problem(T9, raw))
     p = Problem(T9, raw)
-    z, f, _ = _ga_core(p, p.lo, p.hi, 1, np.random.default_rng(seed))
-    sphere_start = _starts(p)[1]
+    z, f, _ = ga_core(p, p.lo, p.hi, 1, np.random.default_rng(seed))
+    sphere_start = closed_form_starts(p)[1]
     assert f[0] - best.fitness < p.fitness(sphere_start) - best.fitness
 
 
@@ -79,7 +80,7 @@ def test_ga_core_point_alone_reaches_the_global_basin():
     m, th, raw = _full12_cap_case()
     p = Problem(m, raw)
     f_truth = float(p.fitness(th))
-    z, _, _ = _ga_core(p, p.lo, p.hi, 1, np.random.default_rng(1), pop=100, max_gen=60,
+    z, _, _ = ga_core(p, p.lo, p.hi, 1, np.random.default_rng(1), pop=100, max_gen=60,
                        stall_gen=20, mig_interval=10)
-    _, f, _ = _lm_converge(p, z[0])
+    _, f, _ = lm_converge(p, z[0])
     assert f <= f_truth

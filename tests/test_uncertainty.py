@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from imucald.calib.models import Triangular9
-from imucald.calib.optim import Problem, _lm_converge
+from imucald.calib.lsq import Problem, lm_converge
 from imucald.calib.uncertainty import crlb, residual_variance
 from imucald.sim.poses import euler_pose_set, random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth
@@ -26,7 +26,7 @@ def test_crlb_matches_monte_carlo_spread_of_the_ml_estimate():
     for i in range(n):
         raw = raw0 + rng.normal(scale=SIGMA, size=raw0.shape)
         prob = Problem(T9, raw)
-        z, _, _ = _lm_converge(prob, truth.copy())
+        z, _, _ = lm_converge(prob, truth.copy())
         est[i] = z
     bound = _bound(truth, raw0).std
     ratio = est.std(0, ddof=1) / bound

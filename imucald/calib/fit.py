@@ -17,7 +17,8 @@ from ..rng import as_rng
 from .metrics import path_error, rms
 from .models import (MagModel, NormModel, get_model, gyro_bias_eq6_fitness, gyro_bias_mean,
                      gyro_bias_scatter_se, mag_report)
-from .optim import OptimResult, Problem, _lm_converge, lm, run_method, sphere_fit
+from .lsq import lm_converge
+from .optim import OptimResult, Problem, lm, run_method, sphere_fit
 from .uncertainty import Uncertainty, crlb, determination, map_covariance, residual_variance
 from ..npstats import median
 
@@ -134,7 +135,7 @@ def heldout_residuals(model: NormModel, theta: np.ndarray, raw: np.ndarray, targ
                        noise_var=nv)
         if z0 is None:
             z0 = prob.reduce(theta)
-        z, _, _ = _lm_converge(prob, z0, max_iter=60, ftol=1e-12)
+        z, _, _ = lm_converge(prob, z0, max_iter=60, ftol=1e-12)
         th = prob.expand(z)
         out[g] = model.residual(th, raw[g], target)
         if var is not None:
@@ -371,7 +372,7 @@ def _solve(st: FitSetup, method: str, rng, method_kw) -> NoiseFit:
         # the prior's weight follows the noise actually seen: re-polish the MAP estimate
         nv = float(np.mean(var))
         prob = st.problem(nv)
-        z, _, _ = _lm_converge(prob, prob.reduce(theta))
+        z, _, _ = lm_converge(prob, prob.reduce(theta))
         theta = prob.expand(z)
         r = model.residual(theta, raw, target)
         J = model.jacobian(theta, raw, target)[1][:, free]
@@ -533,7 +534,7 @@ def fit_gyro_bias(pose_means_dps: np.ndarray, counts: np.ndarray,
         if samples_dps is None:
             from ..errors import UserError
             raise UserError("gyro method eq6 needs the still samples: give a recording, not pose means")
-        from .optim import _ga_core
+        from .ga import ga_core
         s = np.asarray(samples_dps, float)
 
         class _P:   # minimal problem adaptor for the GA core
@@ -543,7 +544,7 @@ def fit_gyro_bias(pose_means_dps: np.ndarray, counts: np.ndarray,
                 return gyro_bias_eq6_fitness(z, s)
         lo, hi = b - 5 * s.std(0) - 1e-3, b + 5 * s.std(0) + 1e-3
         rng = as_rng(rng)
-        z, f, g = _ga_core(_P(), lo, hi, 1, rng, pop=60, max_gen=80, stall_gen=20)
+        z, f, g = ga_core(_P(), lo, hi, 1, rng, pop=60, max_gen=80, stall_gen=20)
         b, fitness, it = z[0], float(f[0]), int(g[0])
     mk = lambda v: [float(x) for x in v]
     return FitResult("gyro", "bias", method, N, b.copy(), {"bias_dps": mk(b)},

@@ -2,58 +2,123 @@
 light ``ga`` and paper 001's hybrid ``hga`` (see :mod:`imucald.calib.optim`)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable, Optional, Tuple
 
 import numpy as np
 
 from ..rng import as_rng
 
-from .lsq import (OptimResult, Problem, RngLike, _lm_converge, _lm_steps, _result,
-                  _starts)
+from .lsq import (OptimResult, Problem, RngLike, _result, closed_form_starts, lm_converge,
+                  lm_steps)
 from .normmodel import NormModel
 
-__all__ = ["ga_paper", "ga", "hga"]
+__all__ = ["ga_paper", "ga", "hga", "ga_core"]
 
 
 # --- MATLAB-style GA (paper 000), vectorised over independent runs ----------------------
 
-def _ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.random.Generator,
-             pop: int = 200, nsub: int = 2, elite: int = 2, xfrac: float = 0.8,
-             mig_frac: float = 0.2, mig_interval: int = 20, max_gen: int = 150,
-             stall_gen: int = 50, tol: float = 1e-10, mut_scale: float = 1.0,
-             mut_shrink: float = 1.0, progress: Optional[Callable[[int, np.ndarray], None]] = None
-             ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Run ``runs`` independent GAs at once.  Returns best z (R, kf), best f (R,), generations (R,)."""
-    kf = lo.size
+@dataclass
+class _GaShape:
+    """Sizes and index helpers of a vectorised GA: ``runs`` independent runs, each of
+    ``nsub`` subpopulations of ``Ps`` individuals over ``kf`` parameters."""
+    runs: int
+    nsub: int
+    Ps: int
+    kf: int
+    elite: int
+    n_x: int                    #: crossover children per subpopulation
+    n_par: int                  #: parents drawn per subpopulation
+    n_mig: int                  #: migrants per subpopulation
+    cw: np.ndarray              #: cumulative rank-scaled weights (1/sqrt(rank))
+    base: np.ndarray            #: (rows, 1) flat offset of each (run, subpop) row
+    ar: np.ndarray              #: arange(runs)
+
+    @property
+    def rows(self) -> int:
+        return self.runs * self.nsub
+
+
+def _ga_shape(runs: int, kf: int, pop: int, nsub: int, elite: int, xfrac: float,
+              mig_frac: float) -> _GaShape:
     Ps = pop // nsub
+    n_x = int(round(xfrac * (Ps - elite)))
+    n_m = Ps - elite - n_x
+    w = 1.0 / np.sqrt(np.arange(1, Ps + 1))
+    return _GaShape(runs, nsub, Ps, kf, elite, n_x, 2 * n_x + n_m,
+                    max(1, int(round(mig_frac * Ps))), np.cumsum(w) / w.sum(),
+                    (np.arange(runs * nsub) * Ps)[:, None], np.arange(runs))
+
+
+def _generation_best(sh: _GaShape, Xf: np.ndarray, Ff: np.ndarray):
+    """(order, best f per run, best z per run): ``order`` ranks each row, best first."""
+    order = np.argsort(Ff, axis=1)
+    top = Ff[np.arange(sh.rows), order[:, 0]].reshape(sh.runs, sh.nsub)
+    sb = top.argmin(1)
+    fb = top[sh.ar, sb]
+    zb = Xf[(sh.base[:, 0].reshape(sh.runs, sh.nsub)[sh.ar, sb]
+             + order.reshape(sh.runs, sh.nsub, sh.Ps)[sh.ar, sb, 0])]
+    return order, fb, zb
+
+
+def _offspring(sh: _GaShape, Xf: np.ndarray, order: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+               sig: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Stochastic-uniform selection on rank-scaled fitness, scattered crossover and the
+    feasible Gaussian mutation: (rows, Ps - elite, kf) children."""
+    n_x = sh.n_x
+    pos = (rng.random((sh.rows, 1)) + np.arange(sh.n_par)) / sh.n_par
+    rk = np.minimum(np.searchsorted(sh.cw, pos), sh.Ps - 1)
+    rk = rng.permuted(rk, axis=-1)
+    pidx = np.take_along_axis(order, rk, axis=1) + sh.base
+    par = Xf[pidx]                                      # (rows, n_par, kf)
+    p1, p2, pm = par[:, :n_x], par[:, n_x:2 * n_x], par[:, 2 * n_x:]
+    xo = np.where(rng.integers(0, 2, p1.shape, dtype=bool), p1, p2)  # scattered crossover
+    mu = pm + rng.standard_normal(pm.shape) * sig
+    bad = (mu < lo) | (mu > hi)
+    if bad.any():  # redraw between the parent and the violated bound: stays feasible
+        bound = np.where(mu < lo, lo, hi)
+        mu = np.where(bad, pm + rng.random(mu.shape) * (bound - pm), mu)
+    return np.concatenate([xo, mu], axis=1)
+
+
+def _migrate(sh: _GaShape, X: np.ndarray, F: np.ndarray) -> None:
+    """Forward migration, in place: each subpopulation's best replace the next one's worst."""
+    o2 = np.argsort(F, axis=1)
+    bi = o2[:, :sh.n_mig].reshape(sh.runs, sh.nsub, sh.n_mig)
+    wi = o2[:, sh.Ps - sh.n_mig:].reshape(sh.runs, sh.nsub, sh.n_mig)
+    X4 = X.reshape(sh.runs, sh.nsub, sh.Ps, sh.kf)
+    F3 = F.reshape(sh.runs, sh.nsub, sh.Ps)
+    mX = np.roll(np.take_along_axis(X4, bi[..., None], axis=2), 1, axis=1)
+    mF = np.roll(np.take_along_axis(F3, bi, axis=2), 1, axis=1)
+    np.put_along_axis(X4, wi[..., None], mX, axis=2)
+    np.put_along_axis(F3, wi, mF, axis=2)
+
+
+def ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.random.Generator,
+            pop: int = 200, nsub: int = 2, elite: int = 2, xfrac: float = 0.8,
+            mig_frac: float = 0.2, mig_interval: int = 20, max_gen: int = 150,
+            stall_gen: int = 50, tol: float = 1e-10, mut_scale: float = 1.0,
+            mut_shrink: float = 1.0, progress: Optional[Callable[[int, np.ndarray], None]] = None
+            ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Run ``runs`` independent GAs at once (paper 000's operators, MATLAB defaults) on
+    anything with a vectorised ``fitness(Z)``.  Returns best z (R, kf), best f (R,),
+    generations (R,)."""
+    kf = lo.size
+    sh = _ga_shape(runs, kf, pop, nsub, elite, xfrac, mig_frac)
+    Ps, rows, ar = sh.Ps, sh.rows, sh.ar
     span = hi - lo
     X = lo + rng.random((runs, nsub, Ps, kf)) * span
     F = prob.fitness(X)
-    n_x = int(round(xfrac * (Ps - elite)))
-    n_m = Ps - elite - n_x
-    n_par = 2 * n_x + n_m
-    w = 1.0 / np.sqrt(np.arange(1, Ps + 1))
-    cw = np.cumsum(w) / w.sum()
-    n_mig = max(1, int(round(mig_frac * Ps)))
     hist = np.full((max_gen + 1, runs), np.inf)
     stopped = np.zeros(runs, bool)
     stop_gen = np.full(runs, max_gen)
     best_z = np.zeros((runs, kf))
     best_f = np.full(runs, np.inf)
-    # flat views: row (run, subpop) offsets turn per-row indices into flat ones
-    rows = runs * nsub
-    base = (np.arange(rows) * Ps)[:, None]
-    ar = np.arange(runs)
     gen = 0
     for gen in range(max_gen):
         Xf = X.reshape(rows * Ps, kf)
         Ff = F.reshape(rows, Ps)
-        order = np.argsort(Ff, axis=1)                      # ranks, best first
-        # record the best of each run
-        top = Ff[np.arange(rows), order[:, 0]].reshape(runs, nsub)
-        sb = top.argmin(1)
-        fb = top[ar, sb]
-        zb = Xf[(base[:, 0].reshape(runs, nsub)[ar, sb] + order.reshape(runs, nsub, Ps)[ar, sb, 0])]
+        order, fb, zb = _generation_best(sh, Xf, Ff)
         upd = ~stopped
         best_f = np.where(upd, fb, best_f)
         best_z = np.where(upd[:, None], zb, best_z)
@@ -68,35 +133,14 @@ def _ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.r
             stopped |= newly
             if stopped.all():
                 break
-        # stochastic-uniform selection on rank-scaled fitness
-        pos = (rng.random((rows, 1)) + np.arange(n_par)) / n_par
-        rk = np.minimum(np.searchsorted(cw, pos), Ps - 1)
-        rk = rng.permuted(rk, axis=-1)
-        pidx = np.take_along_axis(order, rk, axis=1) + base
-        par = Xf[pidx]                                      # (rows, n_par, kf)
-        p1, p2, pm = par[:, :n_x], par[:, n_x:2 * n_x], par[:, 2 * n_x:]
-        xo = np.where(rng.integers(0, 2, p1.shape, dtype=bool), p1, p2)  # scattered crossover
         sig = mut_scale * max(0.0, 1.0 - mut_shrink * gen / max_gen) * span
-        mu = pm + rng.standard_normal(pm.shape) * sig
-        bad = (mu < lo) | (mu > hi)
-        if bad.any():  # redraw between the parent and the violated bound: stays feasible
-            bound = np.where(mu < lo, lo, hi)
-            mu = np.where(bad, pm + rng.random(mu.shape) * (bound - pm), mu)
-        eidx = order[:, :elite] + base
-        children = np.concatenate([xo, mu], axis=1)
+        children = _offspring(sh, Xf, order, lo, hi, sig, rng)
+        eidx = order[:, :elite] + sh.base
         Fc = prob.fitness(children)
         X = np.concatenate([Xf[eidx], children], axis=1)
         F = np.concatenate([Ff[np.arange(rows)[:, None], order[:, :elite]], Fc], axis=1)
-        if nsub > 1 and (gen + 1) % mig_interval == 0:   # forward migration: best replace worst
-            o2 = np.argsort(F, axis=1)
-            bi = o2[:, :n_mig].reshape(runs, nsub, n_mig)
-            wi = o2[:, Ps - n_mig:].reshape(runs, nsub, n_mig)
-            X4 = X.reshape(runs, nsub, Ps, kf)
-            F3 = F.reshape(runs, nsub, Ps)
-            mX = np.roll(np.take_along_axis(X4, bi[..., None], axis=2), 1, axis=1)
-            mF = np.roll(np.take_along_axis(F3, bi, axis=2), 1, axis=1)
-            np.put_along_axis(X4, wi[..., None], mX, axis=2)
-            np.put_along_axis(F3, wi, mF, axis=2)
+        if nsub > 1 and (gen + 1) % mig_interval == 0:
+            _migrate(sh, X, F)
         X = X.reshape(runs, nsub, Ps, kf)
         F = F.reshape(runs, nsub, Ps)
     flat = F.reshape(runs, -1)
@@ -128,7 +172,7 @@ def ga_paper(prob: Problem, rng: RngLike = None, runs: int = 20, iterations: int
     gens = 0
     mean = None
     for it in range(iterations):
-        z, f, g = _ga_core(prob, lo, hi, runs, rng, **ga_kw)
+        z, f, g = ga_core(prob, lo, hi, runs, rng, **ga_kw)
         gens += int(g.sum())
         if type(prob.model).canonical is not NormModel.canonical:
             # average in one gauge (full12's rotation freedom), inside the bounds
@@ -158,13 +202,13 @@ def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
     """The daemon's light GA (paper 000 operators, one run) polished by LM."""
     rng = as_rng(rng)
     prob.nfev = 0
-    z, f, g = _ga_core(prob, prob.lo, prob.hi, 1, rng, pop=pop, max_gen=max_gen,
+    z, f, g = ga_core(prob, prob.lo, prob.hi, 1, rng, pop=pop, max_gen=max_gen,
                        stall_gen=stall_gen, mig_interval=10, progress=progress)
-    zp, fp, it = _lm_converge(prob, z[0])
+    zp, fp, it = lm_converge(prob, z[0])
     # the closed-form starts are polished too, so the GA can only add to what lm finds
     ga_won = True
-    for s in _starts(prob):
-        zs, fs, its = _lm_converge(prob, s)
+    for s in closed_form_starts(prob):
+        zs, fs, its = lm_converge(prob, s)
         it += its
         if fs < fp:
             zp, fp, ga_won = zs, fs, False
@@ -211,7 +255,7 @@ def hga(prob: Problem, rng: RngLike = None, pop: int = 300, max_gen: int = 200,
         FC = prob.fitness(C)
         # local refinement of the best children (Lamarckian)
         top = np.argsort(FC)[:n_ref]
-        Zr, Fr, _, _ = _lm_steps(prob, C[top], FC[top], np.full(n_ref, 1e-3), refine_steps)
+        Zr, Fr, _, _ = lm_steps(prob, C[top], FC[top], np.full(n_ref, 1e-3), refine_steps)
         C[top], FC[top] = Zr, Fr
         # (mu + lambda) reproduction
         allX = np.concatenate([X, C])
@@ -223,5 +267,5 @@ def hga(prob: Problem, rng: RngLike = None, pop: int = 300, max_gen: int = 200,
             old = hist[-stall_gen - 1]
             if (old - F[0]) / max(abs(F[0]), 1e-300) < tol:
                 break
-    zp, fp, it = _lm_converge(prob, X[0]) if polish else (X[0], float(F[0]), 0)
+    zp, fp, it = lm_converge(prob, X[0]) if polish else (X[0], float(F[0]), 0)
     return _result(prob, zp, fp, gen + 1 + it, "hga", {"generations": gen + 1, "lm_iterations": it})

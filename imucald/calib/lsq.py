@@ -24,7 +24,8 @@ from ..rng import RngLike
 from .. import _malloc
 from .models import NormModel
 
-__all__ = ["Problem", "OptimResult", "lm", "sphere_fit", "ellipsoid_fit"]
+__all__ = ["Problem", "OptimResult", "lm", "lm_converge", "lm_steps", "closed_form_starts",
+           "sphere_fit", "ellipsoid_fit"]
 
 
 
@@ -232,7 +233,7 @@ def ellipsoid_fit(x: np.ndarray) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     return c, Q
 
 
-def _starts(prob: Problem) -> List[np.ndarray]:
+def closed_form_starts(prob: Problem) -> List[np.ndarray]:
     """Candidate starting points: nominal, sphere fit, ellipsoid fit (when valid)."""
     m = prob.model
     starts = [prob.clip(prob.reduce(m.nominal))]
@@ -254,8 +255,8 @@ def _starts(prob: Problem) -> List[np.ndarray]:
 
 # --- Levenberg-Marquardt ----------------------------------------------------------------
 
-def _lm_steps(prob: Problem, Z: np.ndarray, f: np.ndarray, mu: np.ndarray, n: int,
-              cache: Optional[dict] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def lm_steps(prob: Problem, Z: np.ndarray, f: np.ndarray, mu: np.ndarray, n: int,
+             cache: Optional[dict] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """n projected LM iterations on a batch Z (B, kf).  Returns Z, f, mu, iterations.
 
     A rejected step leaves Z as it was (the same array), and the gradient and Gauss-Newton
@@ -290,8 +291,10 @@ def _lm_steps(prob: Problem, Z: np.ndarray, f: np.ndarray, mu: np.ndarray, n: in
     return Z, f, mu, it
 
 
-def _lm_converge(prob: Problem, z0: np.ndarray, max_iter: int = 200, ftol: float = 1e-15
-                 ) -> Tuple[np.ndarray, float, int]:
+def lm_converge(prob: Problem, z0: np.ndarray, max_iter: int = 200, ftol: float = 1e-15
+                ) -> Tuple[np.ndarray, float, int]:
+    """Projected LM from z0 until a step improves the fitness by <= ftol (relative) with
+    the damping above 1e10 or six such steps in a row, or max_iter: (z, fitness, iterations)."""
     Z = np.asarray(z0, float)[None, :]
     f = prob.fitness(Z)
     mu = np.array([1e-3])
@@ -300,7 +303,7 @@ def _lm_converge(prob: Problem, z0: np.ndarray, max_iter: int = 200, ftol: float
     cache: dict = {}
     while it_total < max_iter:
         f_old = f[0]
-        Z, f, mu, it = _lm_steps(prob, Z, f, mu, 1, cache)
+        Z, f, mu, it = lm_steps(prob, Z, f, mu, 1, cache)
         it_total += it
         rel = (f_old - f[0]) / max(f_old, 1e-300)
         if rel <= ftol:
@@ -316,11 +319,11 @@ def lm(prob: Problem, z0: Optional[np.ndarray] = None, max_iter: int = 200,
        rng: RngLike = None) -> OptimResult:
     """Bounded Levenberg-Marquardt from z0, or from the best of the closed-form starts."""
     prob.nfev = 0
-    starts = [np.asarray(z0, float)] if z0 is not None else _starts(prob)
+    starts = [np.asarray(z0, float)] if z0 is not None else closed_form_starts(prob)
     best = None
     iters = 0
     for s in starts:
-        z, f, it = _lm_converge(prob, prob.clip(s), max_iter)
+        z, f, it = lm_converge(prob, prob.clip(s), max_iter)
         iters += it
         if best is None or f < best[1]:
             best = (z, f)

@@ -30,9 +30,8 @@ from __future__ import annotations
 
 from typing import Callable, Dict
 
-from .ga import _ga_core, ga, ga_paper, hga  # noqa: F401 (_ga_core, _lm_*, _starts: tests, fit)
-from .lsq import (OptimResult, Problem, RngLike, _lm_converge, _lm_steps, _starts, ellipsoid_fit,
-                  lm, sphere_fit)
+from .ga import ga, ga_paper, hga
+from .lsq import OptimResult, Problem, RngLike, ellipsoid_fit, lm, sphere_fit
 
 __all__ = ["Problem", "OptimResult", "lm", "ga_paper", "hga", "ga", "METHODS", "run_method",
            "sphere_fit", "ellipsoid_fit"]

@@ -197,12 +197,29 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
     """
     rng = as_rng(rng)
     truth = truth or draw_truth(board, rng)
-    an, gn, mn = BOARDS[board]
-    aspec, gspec = ACCEL[an], GYRO[gn]
-    mspec = MAG[mn] if mn else None
+    tr = _pose_tour(rotations, rng, rate_hz, hold_s, move_s, lead_s, move_accel_g)
+    _add_tremor(tr, tremor_dps, len(rotations), rate_hz, tremor_lever_m, rng)
+    return _sense(board, truth, tr.R, tr.w_dps, tr.a_world, rotations, tr.holds, rate_hz, rng,
+                  temp_kind, temp0_c, temp_rise_c, effects, quantise, latitude_deg)
+
+
+@dataclass
+class _Trajectory:
+    """A board's motion sampled at the rate: body->world rotations R (n, 3, 3), body rates
+    w_dps (n, 3), world linear acceleration a_world (n, 3, g), each pose's hold (t0, t1, s)
+    and the sample count of each segment (hold, move, hold, ... in order)."""
+    R: np.ndarray
+    w_dps: np.ndarray
+    a_world: np.ndarray
+    holds: List[Tuple[float, float]]
+    segments: List[int]
+
+
+def _pose_tour(rotations, rng, rate_hz, hold_s, move_s, lead_s, move_accel_g) -> _Trajectory:
+    """Holds at each pose and smoothstep moves between them, with a hand-like linear
+    acceleration bump (see :func:`simulate_session`)."""
     dt = 1.0 / rate_hz
     draw = lambda v: float(rng.uniform(*v)) if isinstance(v, tuple) else float(v)
-
     Rs, ws, accs, holds = [], [], [], []
     t_cursor = 0.0
     N = len(rotations)
@@ -232,34 +249,38 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
             amp = rng.uniform(0.3, 1.0) * move_accel_g
             accs.append(amp * np.sin(2 * np.pi * tau)[:, None] * d[None, :])
             t_cursor += m * dt
-    R = np.concatenate(Rs)
-    w_dps = np.concatenate(ws)
-    a_world = np.concatenate(accs)
-    n = len(R)
+    return _Trajectory(np.concatenate(Rs), np.concatenate(ws), np.concatenate(accs), holds,
+                       [len(x) for x in Rs])
+
+
+def _add_tremor(tr: _Trajectory, tremor_dps, N: int, rate_hz: float, lever_m: float,
+                rng) -> None:
+    """Hand tremor into the trajectory, in place: the small rotation, its rate and the
+    tangential acceleration at ``lever_m`` from the pivot (see :func:`simulate_session`)."""
+    n = len(tr.R)
     per_pose = np.ndim(tremor_dps) > 0
     if per_pose and len(tremor_dps) != N:
         raise ValueError(f"tremor_dps: {len(tremor_dps)} values for {N} poses")
     if per_pose and np.any(np.asarray(tremor_dps, float) > 0):
         # each pose's tremor over its hold and the move that follows it (bench poses: 0)
         env = np.repeat(np.asarray(tremor_dps, float),
-                        [sum(len(x) for x in Rs[2 * i:2 * i + 2]) for i in range(N)])
+                        [sum(tr.segments[2 * i:2 * i + 2]) for i in range(N)])
         rate_dps, _ = hand_tremor(n, rate_hz, 1.0, rng)
         rate_dps *= env[:, None]
         ang = np.cumsum(np.radians(rate_dps), 0) / rate_hz
         ang -= ang.mean(0)
     elif not per_pose and tremor_dps > 0:
         rate_dps, ang = hand_tremor(n, rate_hz, tremor_dps, rng)
-    if (per_pose and np.any(np.asarray(tremor_dps, float) > 0)) or (not per_pose and tremor_dps > 0):
-        sk = np.zeros((n, 3, 3))                     # small-angle body rotation I + [ang]x
-        sk[:, 0, 1], sk[:, 0, 2], sk[:, 1, 2] = -ang[:, 2], ang[:, 1], -ang[:, 0]
-        sk -= np.transpose(sk, (0, 2, 1))
-        R = R @ (np.eye(3) + sk)
-        w_dps = w_dps + rate_dps
-        alpha = np.gradient(np.radians(rate_dps), dt, axis=0)          # rad/s^2, body
-        lever = np.cross(alpha, np.array([tremor_lever_m, 0.0, 0.0])) / 9.80665   # g, body
-        a_world = a_world + np.einsum("nij,nj->ni", R, lever)
-    return _sense(board, truth, R, w_dps, a_world, rotations, holds, rate_hz, rng, temp_kind,
-                  temp0_c, temp_rise_c, effects, quantise, latitude_deg)
+    else:
+        return
+    sk = np.zeros((n, 3, 3))                     # small-angle body rotation I + [ang]x
+    sk[:, 0, 1], sk[:, 0, 2], sk[:, 1, 2] = -ang[:, 2], ang[:, 1], -ang[:, 0]
+    sk -= np.transpose(sk, (0, 2, 1))
+    tr.R = tr.R @ (np.eye(3) + sk)
+    tr.w_dps = tr.w_dps + rate_dps
+    alpha = np.gradient(np.radians(rate_dps), 1.0 / rate_hz, axis=0)      # rad/s^2, body
+    lever = np.cross(alpha, np.array([lever_m, 0.0, 0.0])) / 9.80665      # g, body
+    tr.a_world = tr.a_world + np.einsum("nij,nj->ni", tr.R, lever)
 
 
 def _sense(board, truth, R, w_dps, a_world, rotations, holds, rate_hz, rng, temp_kind, temp0_c,

@@ -42,17 +42,17 @@ from typing import Callable, Dict, List, Optional
 
 import numpy as np
 
-__all__ = ["Decision", "fold_groups", "poses_needed", "signed_rank_p", "paired_gate", "gate_rule",
-           "fitted_poses", "incumbent_predicted_var", "cv_residuals", "loo_weighted_mean_residuals",
-           "ALPHA", "LOO_MAX_POSES", "KFOLDS", "MATCH_ANGLE_DEG"]
-
-#: default false-accept rate (config calibration.false_accept_rate)
-ALPHA = 0.05
 # leave-one-pose-out up to LOO_MAX_POSES poses, KFOLDS folds beyond; poses_needed: the
 # fewest poses a fit plus its cross-validation need (numpy-free, in imucald/cv.py)
-from ..cv import KFOLDS, LOO_MAX_POSES, poses_needed  # noqa: E402
-from .models import gyro_bias_mean  # noqa: E402
-from .stats import chi2_sf  # noqa: E402
+from ..cv import KFOLDS, LOO_MAX_POSES, poses_needed
+from .levels import GATE_FALSE_ACCEPT_RATE
+from .models import gyro_bias_mean
+from .stats import chi2_sf
+
+__all__ = ["Decision", "fold_groups", "poses_needed", "signed_rank_p", "paired_gate", "gate_rule",
+           "fitted_poses", "incumbent_predicted_var", "cv_residuals", "loo_weighted_mean_residuals",
+           "LOO_MAX_POSES", "KFOLDS", "MATCH_ANGLE_DEG"]
+
 #: exact signed-rank distribution up to this many pairs, normal approximation beyond
 _EXACT_MAX = 200
 
@@ -189,7 +189,7 @@ class Decision:
         return f"{head}, {sig}{tail}"
 
 
-def paired_gate(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = ALPHA,
+def paired_gate(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = GATE_FALSE_ACCEPT_RATE,
                 against: str = "current") -> Decision:
     """Decide on paired per-pose squared residuals (incumbent as is, candidate
     cross-validated).  Pairs with a non-finite value are an error, not skipped: a
@@ -207,7 +207,7 @@ def paired_gate(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = ALPH
                     float(np.sqrt(b.mean())), float(np.sqrt(a.mean())), against)
 
 
-def gate_rule(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = ALPHA,
+def gate_rule(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = GATE_FALSE_ACCEPT_RATE,
               against: str = "current", fitted: Optional[np.ndarray] = None, nested: bool = False,
               var_incumbent: Optional[np.ndarray] = None, dof_per_pose: int = 1) -> Decision:
     """The gate's two rules (module docstring) on per-pose squared residuals.
@@ -354,8 +354,8 @@ def loo_weighted_mean_residuals(x: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def gate_accel(raw_g: np.ndarray, pose_cov: Optional[np.ndarray], incumbent_g: np.ndarray,
-               method: str = "lm", alpha: float = ALPHA, against: str = "current", rng=None,
-               chip: Optional[str] = None, model: str = "triangular9",
+               method: str = "lm", alpha: float = GATE_FALSE_ACCEPT_RATE, against: str = "current",
+               rng=None, chip: Optional[str] = None, model: str = "triangular9",
                fitted: Optional[np.ndarray] = None, nested: bool = False, incumbent=None):
     """Fit the accelerometer on all poses and gate it against the incumbent.
 
@@ -376,7 +376,7 @@ def gate_accel(raw_g: np.ndarray, pose_cov: Optional[np.ndarray], incumbent_g: n
 
 
 def gate_gyro_bias(means_dps: np.ndarray, counts: np.ndarray, incumbent_dps: np.ndarray,
-                   alpha: float = ALPHA, against: str = "current",
+                   alpha: float = GATE_FALSE_ACCEPT_RATE, against: str = "current",
                    fitted: Optional[np.ndarray] = None, nested: bool = False):
     """Gyro bias = the count-weighted mean of the still poses' mean rates, gated
     against the incumbent's corrected pose means (raw when none): a still pose

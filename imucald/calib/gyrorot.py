@@ -374,7 +374,8 @@ def _heldout_update(prob, lam, phi, folds, E_all, r, J):
     are then integrated exactly at the fold's K.  About five integrations of the rotations
     in all instead of ~35 on the Xsens; the figures agree with _heldout's to ~1e-6 deg
     (tests/test_calibrate_all.py)."""
-    from .gate import ALPHA, paired_gate
+    from .gate import paired_gate
+    from .levels import GATE_FALSE_ACCEPT_RATE
     R = len(prob.W.T)
     rows = len(r) // R
     Jr = J.reshape(R, rows, 9)
@@ -401,7 +402,7 @@ def _heldout_update(prob, lam, phi, folds, E_all, r, J):
         D = prob.W.integrate(np.eye(3) + Ef.reshape(3, 3), test)[0]
         cal[test] = _angle_deg(predict_directions(D, s[test]), e[test])
         ok[test] = True
-    return _heldout_figures(raw, cal, ok, k, ALPHA, paired_gate)
+    return _heldout_figures(raw, cal, ok, k, GATE_FALSE_ACCEPT_RATE, paired_gate)
 
 
 def _heldout_figures(raw, cal, ok, k, alpha, paired_gate):
@@ -429,7 +430,8 @@ def _heldout(build, wins, lam, phi, folds, K_all):
     smaller (one-sided signed-rank test on the paired squared errors, calib.gate).  A fold
     with fewer than 3 training rotations is not evaluated: its rotations are counted as
     omitted (the figures and the test use the evaluated ones; none evaluated: no figures)."""
-    from .gate import ALPHA, paired_gate
+    from .gate import paired_gate
+    from .levels import GATE_FALSE_ACCEPT_RATE
     R = len(wins)
     k, split = _folds(R, folds)
     raw, cal, ok = np.zeros(R), np.zeros(R), np.zeros(R, bool)
@@ -442,4 +444,4 @@ def _heldout(build, wins, lam, phi, folds, K_all):
         raw[test] = _angle_deg(predict_directions(pt.W.integrate(np.eye(3))[0], s), e)
         cal[test] = _angle_deg(predict_directions(pt.W.integrate(np.eye(3) + Ef.reshape(3, 3))[0], s), e)
         ok[test] = True
-    return _heldout_figures(raw, cal, ok, k, ALPHA, paired_gate)
+    return _heldout_figures(raw, cal, ok, k, GATE_FALSE_ACCEPT_RATE, paired_gate)

@@ -39,14 +39,14 @@ import numpy as np
 from ..rng import as_rng
 from . import effect_forms
 from .heldout import heldout, lm_weighted, numjac, twin_rms
+from .levels import THERMAL_TREND_LEVEL
 from .stats import chi2_logsf
 from ..npstats import median
 
-__all__ = ["ThermalFit", "fit_bias_series", "fit_norm_thermal", "MIN_SPAN_C", "MAX_ORDER", "ALPHA"]
+__all__ = ["ThermalFit", "fit_bias_series", "fit_norm_thermal", "MIN_SPAN_C", "MAX_ORDER"]
 
 MIN_SPAN_C = 10.0       #: default calibration.thermal_min_span_c: below it only a constant
 MAX_ORDER = 3
-ALPHA = 0.01            #: the gap diagnosis's significance level (gap/verdict.py ALPHA)
 SIMS = 200              #: twin re-simulations per variant
 MIN_DOF = 6             #: residual degrees of freedom a variant must leave
 #: observations fit_bias_series needs for a first-order term (3 N - 6 >= MIN_DOF); the
@@ -118,12 +118,12 @@ def _choose(res: Dict[str, dict], n_obs: int, names: Sequence[str]) -> Tuple[str
     (chosen name, why)."""
     b = res["order 0"]
     p_gap = math.exp(chi2_logsf(b["chi2"], max(b["dof"], 1)))
-    gap = p_gap < ALPHA and b["ratio"] > b["q99"]
+    gap = p_gap < THERMAL_TREND_LEVEL and b["ratio"] > b["q99"]
     b.update(p_value=p_gap, gap=bool(gap))
     if not gap:
         return "order 0", (f"no temperature trend beyond the noise (held-out ratio {b['ratio']:.2f}, "
                            f"twin 99 % {b['q99']:.2f}, p = {p_gap:.2g})")
-    bonf = ALPHA / max(len(names) - 1, 1)
+    bonf = THERMAL_TREND_LEVEL / max(len(names) - 1, 1)
     sig = []
     for n in names[1:]:
         v = res[n]

@@ -16,7 +16,8 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from .gate import ALPHA, Decision, fold_groups, paired_gate
+from .gate import Decision, fold_groups, paired_gate
+from .levels import GATE_FALSE_ACCEPT_RATE
 from .thermal import ThermalFit, _design, norm_residuals, refit_norm
 
 __all__ = ["gate_norm_thermal", "gate_bias_thermal", "FOLDS", "MIN_OUTSIDE"]
@@ -33,7 +34,8 @@ def _decide(sq_inc, sq_cv, T, current: Optional[dict], alpha: float, against: st
     return paired_gate(sq_inc, sq_cv, alpha, against)
 
 
-def gate_norm_thermal(model, tf: ThermalFit, x, temp_c, incumbent, alpha: float = ALPHA,
+def gate_norm_thermal(model, tf: ThermalFit, x, temp_c, incumbent,
+                      alpha: float = GATE_FALSE_ACCEPT_RATE,
                       against: str = "current", target: float = 1.0,
                       current: Optional[dict] = None) -> Tuple[np.ndarray, Decision]:
     """Norm model (accelerometer): ``x`` raw pose means (N, 3) at ``temp_c``, ``incumbent``
@@ -55,7 +57,7 @@ def gate_norm_thermal(model, tf: ThermalFit, x, temp_c, incumbent, alpha: float 
     return r_cv, _decide(r_inc ** 2, r_cv ** 2, T, current, alpha, against)
 
 
-def gate_bias_thermal(tf: ThermalFit, temp_c, y, incumbent, alpha: float = ALPHA,
+def gate_bias_thermal(tf: ThermalFit, temp_c, y, incumbent, alpha: float = GATE_FALSE_ACCEPT_RATE,
                       against: str = "current", current: Optional[dict] = None
                       ) -> Tuple[np.ndarray, Decision]:
     """Direct bias observations (gyro still means, (N, 3)): a still interval should read

@@ -22,7 +22,8 @@ import numpy as np
 
 from ..calib.fit import fit_norm
 from ..calib.models import gyro_bias_scatter_se
-from ..calib.gate import ALPHA, Decision, fitted_poses, gate_accel, gate_gyro_bias, paired_gate
+from ..calib.gate import Decision, fitted_poses, gate_accel, gate_gyro_bias, paired_gate
+from ..calib.levels import GATE_FALSE_ACCEPT_RATE
 from ..calib.magcal import SphereReservoir as MagReservoir
 from ..calib.magcal import coverage, flat_axis
 from ..calib.models import MagModel, Triangular9
@@ -79,7 +80,7 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
 def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict[str, bool],
                 gates: Dict[str, Decision], notes: Dict[str, Any]) -> None:
     acc = np.asarray(job["acc"], float)
-    alpha = job.get("alpha", ALPHA)
+    alpha = job.get("alpha", GATE_FALSE_ACCEPT_RATE)
     temp = job.get("temp")
     # thermal terms in force: the constant part is refitted on the poses with them removed
     # (each at its own temperature) and the candidate keeps them
@@ -172,7 +173,7 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
         hc = np.linalg.norm(cur.apply_mag(raw[mho], None if mt is None else mt[mho]), axis=1)
         r_cur = hc / float(cur.mag.params["field_gauss"]) - 1
     # the same paired test on the withheld points; the applied fit then uses every point
-    dec = paired_gate(r_cur ** 2, r_new ** 2, job.get("alpha", ALPHA),
+    dec = paired_gate(r_cur ** 2, r_new ** 2, job.get("alpha", GATE_FALSE_ACCEPT_RATE),
                       "raw" if cur.mag is None else "current")
     mc = fit_norm(mp, "mag_sym", "lm", rng=job.get("seed"), heldout=False, pose_cov=pc(len(mp)))
     cv = coverage(_MAG, mc.theta, mp)

@@ -17,7 +17,7 @@ from typing import Any, Dict
 import numpy as np
 
 from ..calib.fit import accel_prior
-from ..calib.gate import ALPHA
+from ..calib.levels import GATE_FALSE_ACCEPT_RATE
 from ..calib.models import MagModel, Triangular9, mag_report
 from ..calib.thermal import fit_bias_series, fit_norm_thermal
 from ..calib.thermal_gate import gate_bias_thermal, gate_norm_thermal
@@ -38,7 +38,7 @@ def thermal_parts(job: Dict[str, Any], cur: Calibration, parts: Dict[str, Sensor
     if not th:
         return
     min_span = float(job.get("thermal_min_span_c", 10.0))
-    alpha = job.get("alpha", ALPHA)
+    alpha = job.get("alpha", GATE_FALSE_ACCEPT_RATE)
     T = np.asarray(th["temp"], float)
     out = notes.setdefault("thermal", {})
     seed = job.get("seed")
@@ -106,7 +106,8 @@ def mag_thermal(job: Dict[str, Any], cur: Calibration, mp: np.ndarray, temp: np.
             inc = mp / median(np.linalg.norm(mp, axis=1))
         else:
             inc = cur.apply_mag(mp, temp) / float(cur.mag.params["field_gauss"])
-        _, dec = gate_norm_thermal(mdl, tf, mp, temp, inc, job.get("alpha", ALPHA),
+        _, dec = gate_norm_thermal(mdl, tf, mp, temp, inc,
+                                   job.get("alpha", GATE_FALSE_ACCEPT_RATE),
                                    "raw" if cur.mag is None else "current",
                                    current=cur.mag.thermal if cur.mag is not None else None)
         ent.update(accepted=dec.accept, p_value=dec.p_value)

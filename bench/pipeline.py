@@ -112,7 +112,7 @@ def lateness(seconds):
     # preload poses so a calibration can start at once, and keep forcing new ones
     from imucald.sim.sensor import draw_truth, simulate_pose_means
     from imucald.sim.poses import up_vectors
-    from imucald.daemon.stillness import StaticInterval
+    from imucald.calib.stillness import StaticInterval
     rng = np.random.default_rng(3)
     raw, cov = simulate_pose_means(draw_truth("mpu6050", rng).accel, up_vectors(random_pose_set(30, rng)), 1e-4, rng)
     for i, r in enumerate(raw):

@@ -9,7 +9,7 @@ import numpy as np
 from imucald.cli import main
 from imucald.daemon.accumulator import PoseAccumulator
 from imucald.daemon.outputs import encode_samples
-from imucald.daemon.stillness import StaticInterval
+from imucald.calib.stillness import StaticInterval
 from imucald.recording import Recording, read_recording, write_recording
 
 

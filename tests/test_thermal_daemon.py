@@ -84,7 +84,7 @@ def test_the_magnetometer_hard_iron_learnt_in_the_field(bt):
 def test_the_thermal_log_survives_a_restart(tmp_path):
     """The log is saved as thermal.csv (a pose file with the gyro's deviations) and resumed:
     a daemon that reboots every day keeps learning over the days."""
-    from imucald.daemon.stillness import StaticInterval
+    from imucald.calib.stillness import StaticInterval
     from imucald.daemon.state import load_poses, save_poses
     from imucald.daemon.thermallog import ThermalLog
     rng = np.random.default_rng(1)
@@ -107,7 +107,7 @@ def test_the_thermal_log_survives_a_restart(tmp_path):
 
 
 def test_the_log_is_bounded_and_a_long_still_spell_does_not_push_out_the_range():
-    from imucald.daemon.stillness import StaticInterval
+    from imucald.calib.stillness import StaticInterval
     from imucald.daemon.thermallog import ThermalLog
     log = ThermalLog(max_intervals=50)
     c = np.eye(3) * 1e-8

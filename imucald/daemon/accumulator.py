@@ -17,8 +17,8 @@ import numpy as np
 from ..calib.coverage import cube_coverage
 from ..calib.models import Triangular9
 from ..calib.poses import PoseSet
+from ..calib.stillness import StaticInterval
 from ..calib.uncertainty import crlb, residual_variance
-from .stillness import StaticInterval
 from ..npstats import median
 
 __all__ = ["PoseAccumulator"]

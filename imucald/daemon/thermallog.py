@@ -15,7 +15,7 @@ from typing import Any, Dict, List, Optional
 import numpy as np
 
 from ..calib.poses import PoseSet
-from .stillness import StaticInterval
+from ..calib.stillness import StaticInterval
 
 __all__ = ["ThermalLog", "MAX_INTERVALS", "thermal_status"]
 

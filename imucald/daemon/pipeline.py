@@ -16,12 +16,12 @@ from typing import Any, Callable, Deque, Dict, List, Optional
 
 import numpy as np
 
+from ..calib.stillness import StillnessDetector
 from ..calibration import Calibration
 from .accumulator import PoseAccumulator
 from .calibrator import JobResult, MagReservoir, calibration_job
 from .config import accel_poses_needed
 from .outputs import encode_samples, event
-from .stillness import StillnessDetector
 from .thermallog import ThermalLog, thermal_status
 
 __all__ = ["Pipeline", "InlineExecutor", "POSE_COLUMNS", "batch_period_s"]

@@ -9,7 +9,7 @@ import pytest
 
 from imucald.cli import main
 from imucald.calib.noise import allan_deviation
-from imucald.gap.stats import chi2_logsf, chi2_sf, norm_sf2
+from imucald.calib.stats import chi2_logsf, chi2_sf, norm_sf2
 
 from .conftest import real_path
 

@@ -53,11 +53,10 @@ from .gyrostill import split_at_time_gaps, trim_turns
 from .linear import gyro_diag
 from .magpath import diagnosable, mag_model, mag_points, mag_still_slices, quiet_noise
 from .norm import norm_diag
-from .posenoise import pose_mean_variance
+from .posenoise import flag_disturbed, pose_mean_variance
 from .saturation import saturated
 from .series import orientation_groups, within_pose_inflation
 from .single import diagnose_single
-from .twin import flag_disturbed
 
 __all__ = ["diagnose", "GapError", "ACCEL_CANDIDATES", "GYRO_CANDIDATES", "MAG_CANDIDATES"]
 

@@ -10,8 +10,9 @@ import numpy as np
 from .candidates import GYRO_CANDIDATES, TRACELESS, kron_cols
 from .earth import horizontal_variance, vertical_column
 from .signif import p_and_log10, proj_sig, score
-from .twin import heldout, twin_rms
-from .verdict import ALPHA, decide
+from ..calib.heldout import heldout, twin_rms
+from .levels import ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
+from .verdict import decide
 from .where import linear_where
 from ..calib.metrics import rms
 
@@ -54,10 +55,10 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
            "earth_rate_vertical_dps": float(b0[3]),
            "heldout_rms": rms(e0), "twin_heldout_rms": twin,
            "twin_ratio_q99": ratio_q99}
-    significant = p_gap < ALPHA and ratio > ratio_q99
+    significant = p_gap < GAP_TEST_LEVEL and ratio > ratio_q99
     effects = []
     e_after = {}
-    bonf = ALPHA / max(len(GYRO_CANDIDATES), 1)
+    bonf = ATTRIBUTION_LEVEL / max(len(GYRO_CANDIDATES), 1)
     tested = []
     for c in GYRO_CANDIDATES:
         if c.name in names_skip:

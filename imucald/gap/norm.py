@@ -13,9 +13,10 @@ from ..calib.optim import Problem, lm
 from ..calib.uncertainty import residual_variance
 from .candidates import Candidate
 from .signif import p_and_log10, proj_sig, score
-from .stats import chi2_sf
-from .twin import hat_diag, heldout, lm_weighted, numjac, twin_rms
-from .verdict import ALPHA, decide
+from ..calib.heldout import hat_diag, heldout, lm_weighted, numjac, twin_rms
+from ..calib.stats import chi2_sf
+from .levels import ATTRIBUTION_LEVEL, GAP_TEST_LEVEL, REMAINING_GAP_LEVEL
+from .verdict import decide
 from .wander import random_walk_fit
 from .where import norm_where
 from ..calib.metrics import rms
@@ -81,7 +82,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     }
     # a gap: the chi-square test rejects the noise model, and the held-out ratio lies
     # above what the twin produces in 99 % of its re-simulations
-    significant = p_gap < ALPHA and ratio > ratio_q99
+    significant = p_gap < GAP_TEST_LEVEL and ratio > ratio_q99
     # --- which effect: score tests from the baseline fit
     sw = np.sqrt(w)
     rw = r * sw
@@ -96,7 +97,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         p, lp = p_and_log10(stat, q_vis) if q_vis else (1.0, 0.0)
         tested.append({"cand": c, "Ct": Ct, "stat": stat, "q": q_vis, "p": p, "lp": lp, "vis": vis})
     tested.sort(key=lambda d: d["lp"])
-    bonf = ALPHA / max(len(tested), 1)
+    bonf = ATTRIBUTION_LEVEL / max(len(tested), 1)
 
     def refit(cs: Sequence[Candidate]):
         qs = [c.q for c in cs]
@@ -220,7 +221,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
         for cf in firsts:
             chi2_best, e_best, _ = fits_all[id(cf)]
             q_best = cf.q
-            if chi2_sf(chi2_best, N - p0 - q_best) >= ALPHA:
+            if chi2_sf(chi2_best, N - p0 - q_best) >= REMAINING_GAP_LEVEL:
                 continue
             for d in tested:
                 other = d["cand"]

@@ -33,7 +33,7 @@ from typing import Dict, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ["pose_mean_variance", "FRACTIONS"]
+__all__ = ["pose_mean_variance", "flag_disturbed", "FRACTIONS"]
 
 FRACTIONS = (0.125, 0.1875, 0.25, 0.375, 0.5)    #: lags as fractions of the pose length
 MIN_SAMPLES = 16
@@ -137,3 +137,12 @@ def pose_mean_variance(x: np.ndarray, slices: Sequence[slice]) -> Tuple[np.ndarr
                  "bounded_part": ab[0].tolist(), "white_part": ab[1].tolist(),
                  "axes_below_white": lower.tolist()})
     return var, info
+
+
+def flag_disturbed(s2: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Poses whose within-pose variance ``s2`` (n samples each) is far above the robust
+    level (hand moved)."""
+    med = np.median(s2)
+    # chi-square(n-1)/(n-1) upper 99.9 % point ~ 1 + 3.1 sqrt(2/(n-1)); times 1.5 for colour
+    lim = med * 1.5 * (1 + 3.1 * np.sqrt(2.0 / np.maximum(n - 1, 1)))
+    return s2 > lim

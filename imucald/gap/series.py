@@ -32,13 +32,13 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from .stats import chi2_logsf
+from ..calib.stats import chi2_logsf
+from .levels import ATTRIBUTION_LEVEL, GAP_TEST_LEVEL, REMAINING_GAP_LEVEL
 from .verdict import verdict
 
 __all__ = ["make_blocks", "block_noise_var", "series_diagnose", "orientation_groups",
            "within_pose_inflation"]
 
-ALPHA = 0.01
 
 
 def orientation_groups(acc_mean_g: np.ndarray, tol_deg: float = 20.0) -> np.ndarray:
@@ -271,7 +271,7 @@ def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: 
     dof0 = K * C - X0.shape[1] * C
     lp0 = _log10p(float(chi0.sum()), dof0)
     q99 = float(np.quantile(tw0 / twin0, 0.99))
-    gap = lp0 < math.log10(ALPHA) and ratio0 > q99
+    gap = lp0 < math.log10(GAP_TEST_LEVEL) and ratio0 > q99
     out: Dict[str, object] = {"mode": "time_series", "blocks": K, "groups": int(G.shape[1]),
                               "block_s": None, "ratio_before": ratio0, "twin_ratio_q99": q99,
                               "chi2": float(chi0.sum()), "dof": dof0, "log10_p_value": round(lp0, 2),
@@ -284,13 +284,13 @@ def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: 
     pending = dict(cands)
     pending["wandering_bias"] = None
     steps = []
-    bonf = ALPHA / max(len(pending), 1)
+    bonf = ATTRIBUTION_LEVEL / max(len(pending), 1)
     for _step in range(2):
-        if not (lp0 < math.log10(ALPHA)):
+        if not (lp0 < math.log10(GAP_TEST_LEVEL)):
             break
         # the model so far must itself leave a gap against its own twin
         tw_cur = _twin(X, V, sims, rng)
-        if _step and not (_log10p(float(chi_cur.sum()), K * C - X.shape[1] * C) < math.log10(ALPHA)
+        if _step and not (_log10p(float(chi_cur.sum()), K * C - X.shape[1] * C) < math.log10(REMAINING_GAP_LEVEL)
                           and _norm_heldout(E_cur, V) / np.median(tw_cur) > np.quantile(tw_cur / np.median(tw_cur), 0.99)):
             break
         trial = []

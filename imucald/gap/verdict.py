@@ -33,11 +33,11 @@ from typing import Callable, Dict, List, Optional, Sequence
 import numpy as np
 
 from .candidates import SEPARATE
+from .levels import ATTRIBUTION_LEVEL
 from .signif import canon
 
-__all__ = ["ALPHA", "decide", "verdict"]
+__all__ = ["decide", "verdict"]
 
-ALPHA = 0.01
 #: below this held-out shrink nothing is named, not even partially (issue 25 item 4)
 PARTIAL_MIN = 0.2
 CONFUSABLE_CC = 0.98    # canonical correlation above which two signatures look alike
@@ -122,7 +122,7 @@ def decide(out: Dict[str, object], ratio: float, significant: bool, effects: Lis
         # attribution discipline: a partial explanation is named only when the chosen
         # coefficients are significant by a Wald test too (covariance scaled by the excess
         # that remains), at the Bonferroni level of the candidate tests
-        bonf = ALPHA / max(len(effects), 1)
+        bonf = ATTRIBUTION_LEVEL / max(len(effects), 1)
         src = out.get("joint") or next((ef for ef in allsig if ef["name"] == chosen[0]), {})
         if src.get("wald_p_value", 0.0) >= bonf:
             res = {"verdict": "unexplained", "shrink": res["shrink"], "closest_form": "+".join(chosen),

@@ -30,7 +30,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from .stats import chi2_sf
+from ..calib.stats import chi2_sf
 
 __all__ = ["random_walk_fit"]
 

@@ -3,7 +3,8 @@ means by weighted least squares; candidates add design columns."""
 from __future__ import annotations
 
 import math
-from typing import Dict
+from dataclasses import dataclass
+from typing import Dict, List, Tuple
 
 import numpy as np
 
@@ -16,91 +17,130 @@ from .verdict import decide
 from .where import linear_where
 from ..calib.metrics import rms
 
-__all__ = ["gyro_diag"]
+__all__ = ["gyro_diag", "gyro_baseline", "GyroBaseline"]
 
 
-def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Dict[str, object]:
-    """Diagnose gyro pose means ``g`` (N, 3) in dps with noise variance ``gvar`` (N, 3)."""
+def _wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted least squares: (coefficients, residuals y - X beta, inverse normal matrix)."""
+    A = X.T @ (X * w[:, None])
+    Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+    beta = Ai @ (X.T @ (w * y))
+    r = y - X @ beta
+    return beta, r, Ai
+
+
+@dataclass
+class GyroBaseline:
+    """The gyro baseline (a bias per axis and Earth's vertical rate) fitted to the pose means."""
+    n: int                         #: poses
+    y: np.ndarray                  #: pose means stacked x, y, z per pose, dps
+    var: np.ndarray                #: their noise variance, Earth's horizontal rate included, dps^2
+    w: np.ndarray                  #: weights 1 / var
+    X0: np.ndarray                 #: the baseline design
+    r0: np.ndarray                 #: baseline residuals, dps
+    e0: np.ndarray                 #: held-out residuals, dps
+    chi2: float
+    ratio: float                   #: held-out RMS over the twin's median
+    significant: bool              #: a gap: chi-square rejects and the ratio is above the twin's q99
+    report: Dict[str, object]      #: the baseline figures of the output
+
+
+def gyro_baseline(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng) -> GyroBaseline:
+    """The baseline fit of gyro pose means ``g`` (N, 3) in dps with noise variance ``gvar``
+    (N, 3), its held-out residuals and its twin."""
     N = len(g)
     y = g.reshape(-1)
     var = gvar.reshape(-1)
-    w = 1 / var
     # baseline: a bias per axis and Earth's vertical rate along the accelerometer's up
     X0 = np.hstack([kron_cols(np.ones(N)), vertical_column(ctx["acc_dir"])])
-
-    def wls(X):
-        A = X.T @ (X * w[:, None])
-        Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
-        beta = Ai @ (X.T @ (w * y))
-        r = y - X @ beta
-        return beta, r, Ai
-    b0, r0, A0 = wls(X0)
+    b0, r0, A0 = _wls(X0, y, 1 / var)
     # Earth's horizontal rate (unknown heading) as pose-to-pose scatter in the twin; its
     # size from the fitted vertical rate taken 2 standard errors towards zero (a larger
     # horizontal share): an overestimated vertical rate would call Earth's rate a gap
     v_low = max(abs(float(b0[3])) - 2 * math.sqrt(max(float(A0[3, 3]), 0.0)), 0.0)
     var = var + horizontal_variance(ctx["acc_dir"], v_low).reshape(-1)
     w = 1 / var
-    b0, r0, _ = wls(X0)
+    b0, r0, _ = _wls(X0, y, w)
     chi2 = float(np.sum(w * r0 * r0))
     p_gap, lp = p_and_log10(chi2, 3 * N - 4)
-    J0 = -X0
-    e0 = heldout(r0, J0, w)
-    tw = twin_rms(J0, var, w, sims, rng)
+    e0 = heldout(r0, -X0, w)
+    tw = twin_rms(-X0, var, w, sims, rng)
     twin = float(np.median(tw))
     ratio = rms(e0) / twin
     ratio_q99 = float(np.quantile(tw / twin, 0.99))
-    out = {"poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp, 2),
-           "chi2": chi2, "dof": 3 * N - 4, "unit": "dps", "bias_dps": b0[:3].tolist(),
-           "earth_rate_vertical_dps": float(b0[3]),
-           "heldout_rms": rms(e0), "twin_heldout_rms": twin,
-           "twin_ratio_q99": ratio_q99}
+    report = {"poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp, 2),
+              "chi2": chi2, "dof": 3 * N - 4, "unit": "dps", "bias_dps": b0[:3].tolist(),
+              "earth_rate_vertical_dps": float(b0[3]),
+              "heldout_rms": rms(e0), "twin_heldout_rms": twin,
+              "twin_ratio_q99": ratio_q99}
     significant = p_gap < GAP_TEST_LEVEL and ratio > ratio_q99
-    effects = []
-    e_after = {}
-    bonf = ATTRIBUTION_LEVEL / max(len(GYRO_CANDIDATES), 1)
+    return GyroBaseline(N, y, var, w, X0, r0, e0, chi2, ratio, significant, report)
+
+
+def _score_gyro(b: GyroBaseline, ctx, names_skip) -> List[tuple]:
+    """Score test of each gyro candidate, most significant first: (cand, Ct, stat, q, p, lp, vis)."""
     tested = []
     for c in GYRO_CANDIDATES:
         if c.name in names_skip:
             continue
         C = c.columns(ctx)
-        Ct, Cw = proj_sig(J0, -C, w)
-        stat, qv, vis = score(r0 * np.sqrt(w), Ct, Cw)
+        Ct, Cw = proj_sig(-b.X0, -C, b.w)
+        stat, qv, vis = score(b.r0 * np.sqrt(b.w), Ct, Cw)
         p, lpc = p_and_log10(stat, qv) if qv else (1.0, 0.0)
         tested.append((c, Ct, stat, qv, p, lpc, vis))
     tested.sort(key=lambda d: d[5])
+    return tested
+
+
+def _fit_gyro(b: GyroBaseline, tested: List[tuple], ctx, sims, rng
+              ) -> Tuple[List[Dict[str, object]], Dict[str, np.ndarray]]:
+    """Refit every visible candidate: (report entries, held-out residuals by name)."""
+    bonf = ATTRIBUTION_LEVEL / max(len(GYRO_CANDIDATES), 1)
+    w, var = b.w, b.var
+    effects, e_after = [], {}
     for c, Ct, stat, qv, p, lpc, vis in tested:
         ent = {"name": c.name, "score_chi2": round(stat, 3), "score_p_value": p,
-               "visibility": round(vis, 3), "significant": False, "ratio_after": ratio, "params": {}}
+               "visibility": round(vis, 3), "significant": False, "ratio_after": b.ratio, "params": {}}
         if qv:
-            X = np.hstack([X0, c.columns(ctx)])
+            X = np.hstack([b.X0, c.columns(ctx)])
             B = TRACELESS if c.name == "g_sensitivity" else np.eye(c.q)
-            beta, r1, Ai = wls(X)
+            beta, r1, Ai = _wls(X, b.y, w)
             chi2a = float(np.sum(w * r1 * r1))
             e1 = heldout(r1, -X, w)
             e_after[c.name] = e1
-            pn, _ = p_and_log10(max(chi2 - chi2a, 0.0), c.q)
+            pn, _ = p_and_log10(max(b.chi2 - chi2a, 0.0), c.q)
             twl = twin_rms(-X, var, w, sims, rng)
             twa = float(np.median(twl))
             ra = rms(e1) / twa
-            Ai = Ai * max(1.0, chi2a / max(3 * N - X.shape[1], 1))   # remaining excess scatter
+            Ai = Ai * max(1.0, chi2a / max(3 * b.n - X.shape[1], 1))   # remaining excess scatter
             ent.update({"ratio_after": ra, "nested_p_value": pn, "q": c.q,
                         "closed": bool(ra <= float(np.quantile(twl / twa, 0.99))),
-                        "significant": bool(significant and p < bonf and pn < bonf
-                                            and np.mean(e1 ** 2) < np.mean(e0 ** 2)),
+                        "significant": bool(b.significant and p < bonf and pn < bonf
+                                            and np.mean(e1 ** 2) < np.mean(b.e0 ** 2)),
                         "params": {f"{c.name}_{c.units}": (B @ beta[4:]).tolist()},
                         "stderr": {f"{c.name}_{c.units}": np.sqrt(np.diag(B @ Ai[4:, 4:] @ B.T)).tolist()}})
         effects.append(ent)
+    return effects, e_after
+
+
+def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Dict[str, object]:
+    """Diagnose gyro pose means ``g`` (N, 3) in dps with noise variance ``gvar`` (N, 3):
+    baseline -> candidates (score tests, refits) -> verdict (gap/verdict.py decide)."""
+    b = gyro_baseline(g, gvar, ctx, sims, rng)
+    out = b.report
+    tested = _score_gyro(b, ctx, names_skip)
+    effects, e_after = _fit_gyro(b, tested, ctx, sims, rng)
     out["effects"] = effects
-    chosen = decide(out, ratio, significant, effects, {d[0].name: d[1] for d in tested if d[3]})
+    chosen = decide(out, b.ratio, b.significant, effects, {d[0].name: d[1] for d in tested if d[3]})
     if chosen and chosen[0] == "g_sensitivity":
         out["note"] = ("Earth's vertical rate (up to 15 deg/h) is in the baseline; it takes up an "
                        "isotropic g-sensitivity of the same size")
-    rz = (r0 * np.sqrt(w)).reshape(N, 3)
+    N = b.n
+    rz = (b.r0 * np.sqrt(b.w)).reshape(N, 3)
     out["where"] = linear_where(rz, ctx)
     # for --report: one point per pose and axis (stacked x, y, z per pose)
     rep = lambda v: None if v is None else np.repeat(np.asarray(v), 3, axis=0)
-    out["_plot"] = {"e": e0, "var": var, "t": rep(ctx["t"]), "temp": rep(ctx.get("temp")),
+    out["_plot"] = {"e": b.e0, "var": b.var, "t": rep(ctx["t"]), "temp": rep(ctx.get("temp")),
                     "u": rep(ctx["acc_dir"]), "axis": np.tile(np.arange(3), N),
                     "e_after": e_after.get(chosen[0]) if chosen else None,
                     "after_label": "+".join(chosen) if chosen else None}

@@ -27,14 +27,17 @@ Method (../shared/reference/error-models.md sections 3-5):
    ``partially_explained`` or ``unexplained``.  Fewer than 10 poses or 6 orientations:
    the time-series path (:mod:`.single`, :mod:`.series`).
 
-Modules: ``candidates`` (the effects), ``twin`` (fitting kernels, twin, noise
-model), ``signif`` and ``stats`` (tests and distributions), ``verdict`` (one
-verdict for both paths), ``norm`` and ``linear`` (the accelerometer/magnetometer
-and gyro paths), ``where``, ``saturation``; this module only segments the
-recording, measures the noise and calls them.
+Modules: ``candidates`` (the effects), :mod:`imucald.calib.heldout` (fitting kernels,
+twin), ``posenoise`` (the pose means' noise, disturbed poses), ``signif`` and
+:mod:`imucald.calib.stats` (tests and distributions), ``levels`` (the significance
+levels), ``verdict`` (one verdict for every path), ``norm`` and ``linear`` (the
+accelerometer/magnetometer and gyro paths), ``where``, ``saturation``; this module only
+segments the recording, measures the noise and calls them (:func:`pose_setup`, then one
+step per sensor).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
@@ -44,7 +47,7 @@ from ..calib.fit import accel_prior
 from ..calib.models import Triangular9
 from ..calib.noise import MIN_STRETCH_S, allan_model, colour_inflation
 from ..calib.optim import Problem, lm
-from ..calib.poses import detect_static, poses_from_slices
+from ..calib.poses import PoseSet, detect_static, poses_from_slices
 from ..errors import UserError
 from ..recording import Recording
 from ..specs import BOARDS, MAG, recording_chips
@@ -187,31 +190,43 @@ def distinct_samples(rec: Recording) -> Recording:
                      temp=pick(rec.temp), meta=dict(rec.meta, rate_hz=f"{rep.rate_hz:.6g}"))
 
 
-def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int = 200,
-             seed: int = 0, name: str = "recording") -> Dict[str, object]:
-    """Diagnose every sensor present (or the ones asked for); returns the JSON object."""
-    rng = np.random.default_rng(seed)
-    rec = distinct_samples(rec)
-    if rec.acc is None:
-        if rec.mag is None:
-            raise GapError(f"{name}: no accelerometer or magnetometer columns: nothing to diagnose")
-        for s in sensors or ["mag"]:
-            if s != "mag":
-                raise GapError(f"{name}: --sensor {s}: the recording has no {s} columns")
-        return _mag_only(rec, sims, rng, name)
+def _sensors_asked(rec: Recording, sensors: Optional[Sequence[str]], name: str) -> List[str]:
+    """The sensors to diagnose: the ones asked for (each must be in the recording) or all present."""
     avail = [s for s, a in (("accel", rec.acc), ("gyro", rec.gyro), ("mag", rec.mag)) if a is not None]
     sensors = list(sensors or avail)
     for s in sensors:
         if s not in avail:
             raise GapError(f"{name}: --sensor {s}: the recording has no {s} columns")
-    rate = rec.rate_hz
-    sl = split_at_time_gaps(rec.t, rec.acc, detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rate), rate)
-    ps = poses_from_slices(rec, sl)
-    N = len(ps)
+    return sensors
+
+
+@dataclass
+class PoseSetup:
+    """The still poses of a recording with enough of them, and what every sensor's step shares."""
+    sl: List[slice]                #: still stretches (sample slices)
+    ps: PoseSet                    #: their pose averages
+    keep: np.ndarray               #: poses used (not disturbed, not saturated)
+    bad: np.ndarray                #: poses flagged disturbed or saturated
+    sat: np.ndarray                #: poses with saturated samples
+    skip: Dict[str, str]           #: candidates skipped, with the reason
+    ctx_all: Dict[str, np.ndarray]  #: regressors per pose (time, temperature...)
+    T_pose: float                  #: median pose length, s
+    longest: Optional[slice]       #: the longest still stretch
+    notes: List[str]
+
+    @property
+    def ctx(self) -> Dict[str, np.ndarray]:
+        """The regressors of the poses kept."""
+        return {k: v[self.keep] for k, v in self.ctx_all.items()}
+
+    def kept(self, slices: Sequence[slice]) -> List[slice]:
+        return [s_ for s_, k_ in zip(slices, self.keep) if k_]
+
+
+def pose_setup(rec: Recording, sl: List[slice], ps: PoseSet) -> PoseSetup:
+    """Disturbed and saturated poses, the temperature candidates' fate and the regressors."""
+    N, rate = len(ps), rec.rate_hz
     notes: List[str] = []
-    n_orient = int(orientation_groups(ps.acc).max()) + 1 if N else 0
-    if N < MIN_POSES or n_orient < MIN_ORIENTATIONS:
-        return _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient)
     if N < FULL_POSES:
         notes.append(f"{N} still poses: the diagnosis runs from {MIN_POSES}, with less power than with "
                      f"{FULL_POSES} or more (25-30 recommended); a small effect may go unseen")
@@ -237,84 +252,126 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
     if not skip:
         ctx_all["temp"] = temp
         ctx_all["dT"] = temp - temp.mean()
-    sub = lambda c, m: {k: v[m] for k, v in c.items()}
     T_pose = float(np.median(ps.n[keep]) / rate)
     longest = max(sl, key=lambda s: s.stop - s.start) if sl else None
+    return PoseSetup(sl, ps, keep, bad, sat, skip, ctx_all, T_pose, longest, notes)
+
+
+def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
+    """The accelerometer against the deployed triangular9 MAP fit (gap/norm.py)."""
+    rate, ps, keep, longest = rec.rate_hz, u.ps, u.keep, u.longest
+    kap, colour = colour_inflation(None if longest is None else rec.acc[longest], rate, u.T_pose)
+    # colour measured inside the poses too (short holds have no long stretch)
+    wp = within_pose_inflation(rec.acc, u.kept(u.sl))
+    kap = max(kap, wp["inflation"])
+    colour = dict(colour or {}, within_pose=wp)
+    # the pose means' variance from within-pose statistics (gap/posenoise.py): below the
+    # white figure under hand tremor; the colour inflation applies to the white axes
+    # (per axis, averaged: the radial component alone was tried and understated the
+    # noise on simulated hand-held sessions, 3 of 20 nulls called a gap against 1 of 20)
+    pmv, pinfo = pose_mean_variance(rec.acc, u.kept(u.sl))
+    white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
+    pv = np.mean(pmv * np.where(white_ax, kap, 1.0)[None, :], axis=1)
+    colour["pose_mean_variance"] = pinfo
+    # the deployed fit: triangular9 with the datasheet prior (MAP), as `calibrate` fits it
+    chip = BOARDS.get(rec.meta.get("board", ""), (None,))[0]
+    r = norm_diag(ps.acc[keep], u.ctx, pv, Triangular9(), ACCEL_CANDIDATES, sims, rng,
+                  u.skip, "g", prior=accel_prior(Triangular9(), chip))
+    r["baseline"] = ("triangular9, MAP with the datasheet prior "
+                     + (f"({chip})" if chip else "(generic chip)") + ", as calibrate fits it")
+    if colour:
+        r["noise_colour"] = colour
+    r["not_detectable"] = ("a local |g| different from 1 g and a rotation of the sensor frame leave no "
+                           "trace in norm-only data: not detectable without an external reference")
+    if u.bad.any():
+        r["where"]["disturbed_poses"] = {"indices": np.flatnonzero(u.bad).tolist(),
+                                         "t0_s": np.round(ps.t0[u.bad], 2).tolist()}
+    if u.sat.any():
+        idx = np.flatnonzero(u.sat).tolist()
+        r["effects"].insert(0, {"name": "saturation", "significant": True, "poses": idx,
+                                "ratio_after": r["ratio_after"], "params": {},
+                                "note": "samples at the range limit (clipping, e.g. vibration peaks) "
+                                        "bias these poses' means; they were left out of the fit: "
+                                        "reduce vibration or raise the range"})
+        r["verdict"] = "saturation" if r["verdict"] in ("none",) else f"saturation+{r['verdict']}"
+    _allan_compare(r, None if longest is None else rec.acc[longest], rate, "g")
+    return r
+
+
+def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
+    """The gyro against a bias per axis and Earth's vertical rate (gap/linear.py)."""
+    rate, ps, keep, longest = rec.rate_hz, u.ps, u.keep, u.longest
+    # the gyro's own still stretch: the slow ends of turns the accelerometer-led
+    # detector keeps inside a pose are cut (gap/gyrostill.py)
+    gsl, trim = trim_turns(rec.gyro, u.sl, rate)
+    gm = np.array([rec.gyro[s_].mean(0) for s_ in gsl])
+    kap_g, colour_g = colour_inflation(None if longest is None else rec.gyro[longest], rate, u.T_pose)
+    wp = within_pose_inflation(rec.gyro, u.kept(gsl))
+    kap_g = max(kap_g, wp["inflation"])
+    colour_g = dict(colour_g or {}, within_pose=wp)
+    gvar, pinfo = pose_mean_variance(rec.gyro, u.kept(gsl))
+    white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
+    gvar = gvar * np.where(white_ax, kap_g, 1.0)[None, :]
+    colour_g["pose_mean_variance"] = pinfo
+    ctx = u.ctx
+    # specific force in g from the calibrated accelerometer (raw directions carry the
+    # accelerometer's own scale and bias errors into the g-sensitivity regressor)
+    t9 = Triangular9()
+    th_a = lm(Problem(t9, ps.acc[keep])).theta
+    ctx["acc_dir"] = t9.forward(th_a, ps.acc[keep])
+    r = gyro_diag(gm[keep], gvar, ctx, sims, rng, u.skip)
+    r["turn_ends_trimmed_s"] = float(np.sum(trim["trimmed_s"]))
+    if colour_g:
+        r["noise_colour"] = colour_g
+    return r
+
+
+def _mag_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
+    """The magnetometer's still pose means and rotation points (gap/magpath.py)."""
+    ps, keep = u.ps, u.keep
+    mv = np.einsum("nii->n", ps.mag_cov) / 3 if ps.mag_cov is not None else None
+    mvar = np.median(mv[keep] * ps.n[keep]) / ps.n[keep]
+    t9 = Triangular9()
+    th_a = lm(Problem(t9, ps.acc[keep])).theta
+    return _mag(rec, u.sl, ps.mag[keep], mvar, np.flatnonzero(keep), th_a, u.skip, sims, rng,
+                _chip_mag_noise(rec))
+
+
+def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int = 200,
+             seed: int = 0, name: str = "recording") -> Dict[str, object]:
+    """Diagnose every sensor present (or the ones asked for); returns the JSON object.
+
+    Steps: segment the still poses; too few (or too few orientations): the time-series
+    path; else :func:`pose_setup` and one step per sensor (accelerometer, gyro, magnetometer)."""
+    rng = np.random.default_rng(seed)
+    rec = distinct_samples(rec)
+    if rec.acc is None:
+        if rec.mag is None:
+            raise GapError(f"{name}: no accelerometer or magnetometer columns: nothing to diagnose")
+        for s in sensors or ["mag"]:
+            if s != "mag":
+                raise GapError(f"{name}: --sensor {s}: the recording has no {s} columns")
+        return _mag_only(rec, sims, rng, name)
+    sensors = _sensors_asked(rec, sensors, name)
+    rate = rec.rate_hz
+    sl = split_at_time_gaps(rec.t, rec.acc, detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rate), rate)
+    ps = poses_from_slices(rec, sl)
+    N = len(ps)
+    n_orient = int(orientation_groups(ps.acc).max()) + 1 if N else 0
+    if N < MIN_POSES or n_orient < MIN_ORIENTATIONS:
+        return _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient)
+    u = pose_setup(rec, sl, ps)
     result: Dict[str, object] = {"sensors": {}, "poses_found": N,
-                                 "poses_left_out": np.flatnonzero(bad).tolist() if keep.sum() < N else []}
+                                 "poses_left_out": np.flatnonzero(u.bad).tolist() if u.keep.sum() < N else []}
     if "accel" in sensors:
-        kap, colour = colour_inflation(None if longest is None else rec.acc[longest], rate, T_pose)
-        # colour measured inside the poses too (short holds have no long stretch)
-        wp = within_pose_inflation(rec.acc, [s_ for s_, k_ in zip(sl, keep) if k_])
-        kap = max(kap, wp["inflation"])
-        colour = dict(colour or {}, within_pose=wp)
-        # the pose means' variance from within-pose statistics (gap/posenoise.py): below the
-        # white figure under hand tremor; the colour inflation applies to the white axes
-        # (per axis, averaged: the radial component alone was tried and understated the
-        # noise on simulated hand-held sessions, 3 of 20 nulls called a gap against 1 of 20)
-        pmv, pinfo = pose_mean_variance(rec.acc, [s_ for s_, k_ in zip(sl, keep) if k_])
-        white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
-        pv = np.mean(pmv * np.where(white_ax, kap, 1.0)[None, :], axis=1)
-        colour["pose_mean_variance"] = pinfo
-        # the deployed fit: triangular9 with the datasheet prior (MAP), as `calibrate` fits it
-        chip = BOARDS.get(rec.meta.get("board", ""), (None,))[0]
-        r = norm_diag(ps.acc[keep], sub(ctx_all, keep), pv, Triangular9(), ACCEL_CANDIDATES, sims, rng,
-                       skip, "g", prior=accel_prior(Triangular9(), chip))
-        r["baseline"] = ("triangular9, MAP with the datasheet prior "
-                         + (f"({chip})" if chip else "(generic chip)") + ", as calibrate fits it")
-        if colour:
-            r["noise_colour"] = colour
-        r["not_detectable"] = ("a local |g| different from 1 g and a rotation of the sensor frame leave no "
-                               "trace in norm-only data: not detectable without an external reference")
-        if bad.any():
-            r["where"]["disturbed_poses"] = {"indices": np.flatnonzero(bad).tolist(),
-                                             "t0_s": np.round(ps.t0[bad], 2).tolist()}
-        if sat.any():
-            idx = np.flatnonzero(sat).tolist()
-            r["effects"].insert(0, {"name": "saturation", "significant": True, "poses": idx,
-                                    "ratio_after": r["ratio_after"], "params": {},
-                                    "note": "samples at the range limit (clipping, e.g. vibration peaks) "
-                                            "bias these poses' means; they were left out of the fit: "
-                                            "reduce vibration or raise the range"})
-            r["verdict"] = "saturation" if r["verdict"] in ("none",) else f"saturation+{r['verdict']}"
-        _allan_compare(r, None if longest is None else rec.acc[longest], rate, "g")
-        result["sensors"]["accel"] = r
+        result["sensors"]["accel"] = _accel_step(rec, u, sims, rng)
     if "gyro" in sensors:
-        # the gyro's own still stretch: the slow ends of turns the accelerometer-led
-        # detector keeps inside a pose are cut (gap/gyrostill.py)
-        gsl, trim = trim_turns(rec.gyro, sl, rate)
-        gm = np.array([rec.gyro[s_].mean(0) for s_ in gsl])
-        gn = np.array([s_.stop - s_.start for s_ in gsl])
-        gs2 = np.array([rec.gyro[s_].var(0, ddof=1) for s_ in gsl])
-        med = np.median(gs2[keep], axis=0)
-        kap_g, colour_g = colour_inflation(None if longest is None else rec.gyro[longest], rate, T_pose)
-        wp = within_pose_inflation(rec.gyro, [s_ for s_, k_ in zip(gsl, keep) if k_])
-        kap_g = max(kap_g, wp["inflation"])
-        colour_g = dict(colour_g or {}, within_pose=wp)
-        gvar, pinfo = pose_mean_variance(rec.gyro, [s_ for s_, k_ in zip(gsl, keep) if k_])
-        white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
-        gvar = gvar * np.where(white_ax, kap_g, 1.0)[None, :]
-        colour_g["pose_mean_variance"] = pinfo
-        ctx = sub(ctx_all, keep)
-        # specific force in g from the calibrated accelerometer (raw directions carry the
-        # accelerometer's own scale and bias errors into the g-sensitivity regressor)
-        t9 = Triangular9()
-        th_a = lm(Problem(t9, ps.acc[keep])).theta
-        ctx["acc_dir"] = t9.forward(th_a, ps.acc[keep])
-        r = gyro_diag(gm[keep], gvar, ctx, sims, rng, skip)
-        r["turn_ends_trimmed_s"] = float(np.sum(trim["trimmed_s"]))
-        if colour_g:
-            r["noise_colour"] = colour_g
-        result["sensors"]["gyro"] = r
+        result["sensors"]["gyro"] = _gyro_step(rec, u, sims, rng)
     if "mag" in sensors:
-        mv = np.einsum("nii->n", ps.mag_cov) / 3 if ps.mag_cov is not None else None
-        mvar = np.median(mv[keep] * ps.n[keep]) / ps.n[keep]
-        t9 = Triangular9()
-        th_a = lm(Problem(t9, ps.acc[keep])).theta
-        m = _mag(rec, sl, ps.mag[keep], mvar, np.flatnonzero(keep), th_a, skip, sims, rng, _chip_mag_noise(rec))
+        m = _mag_step(rec, u, sims, rng)
         if m.get("verdict") is None:
-            notes.append(f"mag: not diagnosed: {m['error']}")
+            u.notes.append(f"mag: not diagnosed: {m['error']}")
         else:
             result["sensors"]["mag"] = m
-    result["notes"] = notes
+    result["notes"] = u.notes
     return result

@@ -28,6 +28,7 @@ temperature and time.  Pure functions over arrays:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
@@ -236,13 +237,32 @@ def _log10p(stat: float, dof: int) -> float:
 
 # --- the diagnosis --------------------------------------------------------------------------------
 
-def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: int, rng,
-                    unit: str, use_temp: bool, axis_names: str = "xyz") -> Dict[str, object]:
-    """Baseline (constant per group and axis) against thermal bias, linear drift and a
-    wandering (spline) bias; greedy, each addition judged on held-out blocks against its twin."""
-    Y, V = blk["mean"], noise["var"]
-    K, C = Y.shape
-    G = _group_cols(blk["group"])
+@dataclass
+class SeriesProblem:
+    """Block means of one sensor, their noise and the candidates' design columns."""
+    Y: np.ndarray                  #: block means (K, C), unit
+    V: np.ndarray                  #: their noise variance (K, C), unit^2
+    G: np.ndarray                  #: the baseline: a constant per orientation group
+    t: np.ndarray                  #: block mid times, s
+    s: np.ndarray                  #: time scaled to [0, 1]
+    cands: Dict[str, np.ndarray]   #: parametric candidates' columns, by name
+    units: Dict[str, str]          #: their coefficients' units
+    unit: str
+
+    @property
+    def K(self) -> int:
+        return self.Y.shape[0]
+
+    @property
+    def C(self) -> int:
+        return self.Y.shape[1]
+
+    def dof(self, X: np.ndarray) -> int:
+        return self.K * self.C - X.shape[1] * self.C
+
+
+def series_problem(blk: Dict[str, np.ndarray], noise: Dict[str, object], unit: str,
+                   use_temp: bool) -> SeriesProblem:
     t = blk["t"]
     s = (t - t.min()) / max(np.ptp(t), 1e-9)
     cands: Dict[str, np.ndarray] = {}
@@ -250,76 +270,114 @@ def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: 
         cands["thermal_bias"] = (blk["temp"] - blk["temp"].mean())[:, None]
     cands["bias_drift"] = (t - t.mean())[:, None]
     units = {"thermal_bias": f"{unit}/degC", "bias_drift": f"{unit}/s"}
+    return SeriesProblem(blk["mean"], noise["var"], _group_cols(blk["group"]), t, s, cands, units, unit)
 
-    def wander_cols(base: np.ndarray):
-        """Spline knots chosen by held-out error on top of ``base``."""
-        best = None
-        for m in range(0, max(0, min(6, K // 8 - 1)) + 1):
-            knots = [(i + 1) / (m + 1) for i in range(m)]
-            S = _spline_cols(s, knots)
-            _, _, E, _, _ = _fit(np.hstack([base, S]), Y, V)
-            ho = _norm_heldout(E, V)
-            if best is None or ho < best[0]:
-                best = (ho, S, m)
-        return best[1], best[2]
 
-    X0 = G
-    _, R0, E0, chi0, _ = _fit(X0, Y, V)
+def _wander_cols(p: SeriesProblem, base: np.ndarray):
+    """Spline knots chosen by held-out error on top of ``base``: (columns, knots)."""
+    best = None
+    for m in range(0, max(0, min(6, p.K // 8 - 1)) + 1):
+        knots = [(i + 1) / (m + 1) for i in range(m)]
+        S = _spline_cols(p.s, knots)
+        _, _, E, _, _ = _fit(np.hstack([base, S]), p.Y, p.V)
+        ho = _norm_heldout(E, p.V)
+        if best is None or ho < best[0]:
+            best = (ho, S, m)
+    return best[1], best[2]
+
+
+@dataclass
+class SeriesBaseline:
+    """The baseline fit (a constant per group and axis), its held-out residuals and its twin."""
+    R0: np.ndarray                 #: residuals (K, C)
+    E0: np.ndarray                 #: held-out residuals (K, C)
+    chi0: np.ndarray               #: chi-square per channel
+    ratio0: float                  #: normalised held-out RMS over the twin's median
+    lp0: float                     #: log10 p-value of the chi-square test
+    gap: bool                      #: chi-square rejects and the ratio is above the twin's q99
+    report: Dict[str, object]      #: the baseline figures of the output
+
+
+def series_baseline(p: SeriesProblem, noise: Dict[str, object], sims: int, rng) -> SeriesBaseline:
+    X0, V = p.G, p.V
+    _, R0, E0, chi0, _ = _fit(X0, p.Y, V)
     tw0 = _twin(X0, V, sims, rng)
     twin0 = float(np.median(tw0))
     ratio0 = _norm_heldout(E0, V) / twin0
-    dof0 = K * C - X0.shape[1] * C
+    dof0 = p.dof(X0)
     lp0 = _log10p(float(chi0.sum()), dof0)
     q99 = float(np.quantile(tw0 / twin0, 0.99))
     gap = lp0 < math.log10(GAP_TEST_LEVEL) and ratio0 > q99
-    out: Dict[str, object] = {"mode": "time_series", "blocks": K, "groups": int(G.shape[1]),
+    out: Dict[str, object] = {"mode": "time_series", "blocks": p.K, "groups": int(p.G.shape[1]),
                               "block_s": None, "ratio_before": ratio0, "twin_ratio_q99": q99,
                               "chi2": float(chi0.sum()), "dof": dof0, "log10_p_value": round(lp0, 2),
-                              "p_value": 10 ** lp0, "unit": unit,
+                              "p_value": 10 ** lp0, "unit": p.unit,
                               "noise_colour": {"adev_block": noise["adev_block"].tolist(),
                                                "loglog_slope": noise["loglog_slope"].tolist()}}
+    return SeriesBaseline(R0, E0, chi0, ratio0, lp0, gap, out)
+
+
+def _try_candidate(p: SeriesProblem, X: np.ndarray, chi_cur: np.ndarray, E_cur: np.ndarray, name: str,
+                   cols: Optional[np.ndarray], sims: int, rng, bonf: float, gap: bool, step: int):
+    """The model ``X`` with candidate ``name`` added: (report entry, design, chi2, held-out)."""
+    Y, V, C = p.Y, p.V, p.C
+    knots = None
+    if name == "wandering_bias":
+        cols, knots = _wander_cols(p, X)
+    Xa = np.hstack([X, cols])
+    beta, R, E, chi, cov = _fit(Xa, Y, V)
+    qa = cols.shape[1] * C
+    dchi = float(chi_cur.sum() - chi.sum())
+    lpn = _log10p(max(dchi, 0.0), qa)
+    twa = _twin(Xa, V, sims, rng)
+    ra = _norm_heldout(E, V) / float(np.median(twa))
+    ok = lpn < math.log10(bonf) and np.mean(E * E / V) < np.mean(E_cur * E_cur / V)
+    ent = {"name": name, "nested_log10_p": round(lpn, 2), "ratio_after": ra,
+           "closed": bool(ra <= float(np.quantile(twa / np.median(twa), 0.99))),
+           "significant": bool(gap and ok), "step": step + 1}
+    # coefficients with standard errors scaled by the remaining excess (chi2/dof > 1)
+    red = max(1.0, float(chi.sum()) / max(p.dof(Xa), 1))
+    if name != "wandering_bias":
+        co = beta[X.shape[1]:, :][0]
+        se = np.sqrt(np.array([cov[c][X.shape[1], X.shape[1]] for c in range(C)]) * red)
+        ent["params"] = {f"{name}_{p.units[name]}": co.tolist()}
+        ent["stderr"] = {f"{name}_{p.units[name]}": se.tolist()}
+    else:
+        curve = cols @ beta[X.shape[1]:, :]
+        ent["params"] = {"interior_knots": knots, f"curve_rms_{p.unit}": np.sqrt(np.mean(curve ** 2, 0)).tolist()}
+    return ent, Xa, chi, E
+
+
+@dataclass
+class SeriesChoice:
+    """The greedy forward steps: every trial's entry and the model they end with."""
+    chosen: List[str]
+    effects: List[Dict[str, object]]
+    steps: List[tuple]
+    E_cur: np.ndarray
+    ratio_cur: float
+
+
+def series_candidates(p: SeriesProblem, b: SeriesBaseline, sims: int, rng) -> SeriesChoice:
+    """Greedy, at most two steps: each addition judged on held-out blocks against its twin."""
+    K, C, V = p.K, p.C, p.V
     chosen: List[str] = []
-    X, chi_cur, E_cur, ratio_cur = X0, chi0, E0, ratio0
+    X, chi_cur, E_cur, ratio_cur = p.G, b.chi0, b.E0, b.ratio0
     effects: List[Dict[str, object]] = []
-    pending = dict(cands)
+    pending = dict(p.cands)
     pending["wandering_bias"] = None
     steps = []
     bonf = ATTRIBUTION_LEVEL / max(len(pending), 1)
     for _step in range(2):
-        if not (lp0 < math.log10(GAP_TEST_LEVEL)):
+        if not (b.lp0 < math.log10(GAP_TEST_LEVEL)):
             break
         # the model so far must itself leave a gap against its own twin
         tw_cur = _twin(X, V, sims, rng)
         if _step and not (_log10p(float(chi_cur.sum()), K * C - X.shape[1] * C) < math.log10(REMAINING_GAP_LEVEL)
                           and _norm_heldout(E_cur, V) / np.median(tw_cur) > np.quantile(tw_cur / np.median(tw_cur), 0.99)):
             break
-        trial = []
-        for name, cols in pending.items():
-            knots = None
-            if name == "wandering_bias":
-                cols, knots = wander_cols(X)
-            Xa = np.hstack([X, cols])
-            beta, R, E, chi, cov = _fit(Xa, Y, V)
-            qa = cols.shape[1] * C
-            dchi = float(chi_cur.sum() - chi.sum())
-            lpn = _log10p(max(dchi, 0.0), qa)
-            twa = _twin(Xa, V, sims, rng)
-            ra = _norm_heldout(E, V) / float(np.median(twa))
-            ok = lpn < math.log10(bonf) and np.mean(E * E / V) < np.mean(E_cur * E_cur / V)
-            ent = {"name": name, "nested_log10_p": round(lpn, 2), "ratio_after": ra,
-                   "closed": bool(ra <= float(np.quantile(twa / np.median(twa), 0.99))),
-                   "significant": bool(gap and ok), "step": _step + 1}
-            # coefficients with standard errors scaled by the remaining excess (chi2/dof > 1)
-            red = max(1.0, float(chi.sum()) / max(K * C - Xa.shape[1] * C, 1))
-            if name != "wandering_bias":
-                co = beta[X.shape[1]:, :][0]
-                se = np.sqrt(np.array([cov[c][X.shape[1], X.shape[1]] for c in range(C)]) * red)
-                ent["params"] = {f"{name}_{units[name]}": co.tolist()}
-                ent["stderr"] = {f"{name}_{units[name]}": se.tolist()}
-            else:
-                curve = cols @ beta[X.shape[1]:, :]
-                ent["params"] = {"interior_knots": knots, f"curve_rms_{unit}": np.sqrt(np.mean(curve ** 2, 0)).tolist()}
-            trial.append((ent, Xa, chi, E))
+        trial = [_try_candidate(p, X, chi_cur, E_cur, name, cols, sims, rng, bonf, b.gap, _step)
+                 for name, cols in pending.items()]
         # the simplest significant candidate that closes the gap; else the one closing most
         trial.sort(key=lambda d: (not d[0]["significant"], not d[0]["closed"],
                                   d[1].shape[1] if d[0]["closed"] else 0, d[0]["ratio_after"]))
@@ -333,19 +391,34 @@ def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: 
         pending.pop(best[0]["name"])
         if best[0]["closed"]:
             break
-    out["effects"] = effects
+    return SeriesChoice(chosen, effects, steps, E_cur, ratio_cur)
+
+
+def series_diagnose(blk: Dict[str, np.ndarray], noise: Dict[str, object], sims: int, rng,
+                    unit: str, use_temp: bool, axis_names: str = "xyz") -> Dict[str, object]:
+    """Baseline (constant per group and axis) against thermal bias, linear drift and a
+    wandering (spline) bias; greedy, each addition judged on held-out blocks against its twin.
+
+    Steps: :func:`series_baseline` -> :func:`series_candidates` -> verdict (gap/verdict.py)."""
+    p = series_problem(blk, noise, unit, use_temp)
+    K, C, V, t = p.K, p.C, p.V, p.t
+    b = series_baseline(p, noise, sims, rng)
+    ch = series_candidates(p, b, sims, rng)
+    chosen = ch.chosen
+    out = b.report
+    out["effects"] = ch.effects
     out["chosen"] = chosen
-    out["gap"] = bool(gap)
-    out["ratio_after"] = float(ratio_cur)
-    out["closed"] = bool(steps[-1][0]["closed"]) if steps else None
-    out["confusable"] = _confusable(blk, chosen, effects, use_temp)
-    out.update(verdict(gap, chosen, ratio0, float(ratio_cur), out["closed"]))
+    out["gap"] = bool(b.gap)
+    out["ratio_after"] = float(ch.ratio_cur)
+    out["closed"] = bool(ch.steps[-1][0]["closed"]) if ch.steps else None
+    out["confusable"] = _confusable(blk, chosen, ch.effects, use_temp)
+    out.update(verdict(b.gap, chosen, b.ratio0, float(ch.ratio_cur), out["closed"]))
     # for --report: one point per block and axis
-    out["_plot"] = {"e": E0.ravel(), "var": V.ravel(), "t": np.repeat(t - t.min(), C),
+    out["_plot"] = {"e": b.E0.ravel(), "var": V.ravel(), "t": np.repeat(t - t.min(), C),
                     "temp": np.repeat(blk["temp"], C) if use_temp else None, "u": None,
-                    "axis": np.tile(np.arange(C), K), "e_after": E_cur.ravel() if chosen else None,
+                    "axis": np.tile(np.arange(C), K), "e_after": ch.E_cur.ravel() if chosen else None,
                     "after_label": "+".join(chosen) if chosen else None}
-    rz = (R0 / np.sqrt(V))
+    rz = (b.R0 / np.sqrt(V))
     tot = float(np.sum(np.maximum(rz ** 2 - 1, 0))) or 1.0
     out["where"] = {"axis_share": {axis_names[c]: round(float(np.sum(np.maximum(rz[:, c] ** 2 - 1, 0))) / tot, 3)
                                    for c in range(C)}}

@@ -348,6 +348,13 @@ def _try_candidate(p: SeriesProblem, X: np.ndarray, chi_cur: np.ndarray, E_cur: 
     return ent, Xa, chi, E
 
 
+def _gap_remains(p: SeriesProblem, X: np.ndarray, chi_cur: np.ndarray, E_cur: np.ndarray,
+                 tw_cur: np.ndarray) -> bool:
+    """The model ``X`` is still rejected (chi-square) and out of its own twin's range."""
+    return (_log10p(float(chi_cur.sum()), p.dof(X)) < math.log10(REMAINING_GAP_LEVEL)
+            and _norm_heldout(E_cur, p.V) / np.median(tw_cur) > np.quantile(tw_cur / np.median(tw_cur), 0.99))
+
+
 @dataclass
 class SeriesChoice:
     """The greedy forward steps: every trial's entry and the model they end with."""
@@ -360,7 +367,7 @@ class SeriesChoice:
 
 def series_candidates(p: SeriesProblem, b: SeriesBaseline, sims: int, rng) -> SeriesChoice:
     """Greedy, at most two steps: each addition judged on held-out blocks against its twin."""
-    K, C, V = p.K, p.C, p.V
+    V = p.V
     chosen: List[str] = []
     X, chi_cur, E_cur, ratio_cur = p.G, b.chi0, b.E0, b.ratio0
     effects: List[Dict[str, object]] = []
@@ -373,8 +380,7 @@ def series_candidates(p: SeriesProblem, b: SeriesBaseline, sims: int, rng) -> Se
             break
         # the model so far must itself leave a gap against its own twin
         tw_cur = _twin(X, V, sims, rng)
-        if _step and not (_log10p(float(chi_cur.sum()), K * C - X.shape[1] * C) < math.log10(REMAINING_GAP_LEVEL)
-                          and _norm_heldout(E_cur, V) / np.median(tw_cur) > np.quantile(tw_cur / np.median(tw_cur), 0.99)):
+        if _step and not _gap_remains(p, X, chi_cur, E_cur, tw_cur):
             break
         trial = [_try_candidate(p, X, chi_cur, E_cur, name, cols, sims, rng, bonf, b.gap, _step)
                  for name, cols in pending.items()]

@@ -25,7 +25,6 @@ Pure functions over arrays; O(N^3) per grid point (N up to ~1000 magnetometer po
 """
 from __future__ import annotations
 
-import math
 from typing import Dict, Optional
 
 import numpy as np

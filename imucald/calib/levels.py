@@ -5,7 +5,8 @@ model the test assumes (the measured rates are in the tests named beside each).
 """
 from __future__ import annotations
 
-__all__ = ["GATE_FALSE_ACCEPT_RATE", "GAP_EFFECT_LEVEL", "THERMAL_TREND_LEVEL"]
+__all__ = ["GATE_FALSE_ACCEPT_RATE", "GAP_EFFECT_LEVEL", "GAP_TEST_LEVEL", "GAP_ATTRIBUTION_LEVEL",
+           "GAP_REMAINING_LEVEL", "THERMAL_TREND_LEVEL"]
 
 #: the calibration gate: how often a new calibration that is no better than the incumbent
 #: is applied (default of config calibration.false_accept_rate; tests/test_gate.py)
@@ -14,6 +15,16 @@ GATE_FALSE_ACCEPT_RATE = 0.05
 #: the gap diagnosis (imucald gap): how often a gap, or an effect within it, is named when
 #: the simulation explains the data (tests/test_gap*.py)
 GAP_EFFECT_LEVEL = 0.01
+#: its three decisions (imucald/gap/norm.py, linear.py, series.py, verdict.py):
+#: - the chi-square test of the noise model: a gap needs its p-value below this (and the
+#:   held-out ratio above the twin's 99th percentile)
+GAP_TEST_LEVEL = GAP_EFFECT_LEVEL
+#: - naming an effect: family-wise, split (Bonferroni) over the candidates tested; each
+#:   candidate's score, nested and Wald tests must pass at GAP_ATTRIBUTION_LEVEL / count
+GAP_ATTRIBUTION_LEVEL = GAP_EFFECT_LEVEL
+#: - with the first effect modelled, a second is sought only while the chi-square test of
+#:   that model still rejects at this level
+GAP_REMAINING_LEVEL = GAP_EFFECT_LEVEL
 
 #: the thermal fit: how often a temperature trend (and each order beyond a constant) is
 #: kept when there is none.  The fit applies the gap diagnosis's rule to temperature terms,

@@ -29,8 +29,8 @@ Method (../shared/reference/error-models.md sections 3-5):
 
 Modules: ``candidates`` (the effects), :mod:`imucald.calib.heldout` (fitting kernels,
 twin), ``posenoise`` (the pose means' noise, disturbed poses), ``signif`` and
-:mod:`imucald.calib.stats` (tests and distributions), ``levels`` (the significance
-levels), ``verdict`` (one verdict for every path), ``norm`` and ``linear`` (the
+:mod:`imucald.calib.stats` (tests and distributions), :mod:`imucald.calib.levels`
+(the significance levels), ``verdict`` (one verdict for every path), ``norm`` and ``linear`` (the
 accelerometer/magnetometer and gyro paths), ``where``, ``saturation``; this module only
 segments the recording, measures the noise and calls them (:func:`pose_setup`, then one
 step per sensor).

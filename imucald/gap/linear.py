@@ -12,7 +12,7 @@ from .candidates import GYRO_CANDIDATES, TRACELESS, kron_cols
 from .earth import horizontal_variance, vertical_column
 from .signif import p_and_log10, proj_sig, score
 from ..calib.heldout import heldout, twin_rms
-from .levels import ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
+from ..calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
 from .verdict import decide
 from .where import linear_where
 from ..calib.metrics import rms
@@ -95,7 +95,7 @@ def _score_gyro(b: GyroBaseline, ctx, names_skip) -> List[tuple]:
 def _fit_gyro(b: GyroBaseline, tested: List[tuple], ctx, sims, rng
               ) -> Tuple[List[Dict[str, object]], Dict[str, np.ndarray]]:
     """Refit every visible candidate: (report entries, held-out residuals by name)."""
-    bonf = ATTRIBUTION_LEVEL / max(len(GYRO_CANDIDATES), 1)
+    bonf = GAP_ATTRIBUTION_LEVEL / max(len(GYRO_CANDIDATES), 1)
     w, var = b.w, b.var
     effects, e_after = [], {}
     for c, Ct, stat, qv, p, lpc, vis in tested:

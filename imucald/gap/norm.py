@@ -16,7 +16,7 @@ from ..calib.optim import Problem, lm, sphere_fit
 from ..calib.stats import chi2_sf
 from ..calib.uncertainty import residual_variance
 from .candidates import Candidate
-from .levels import ATTRIBUTION_LEVEL, GAP_TEST_LEVEL, REMAINING_GAP_LEVEL
+from ..calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
 from .signif import p_and_log10, proj_sig, score
 from .verdict import decide
 from .wander import random_walk_fit
@@ -297,7 +297,7 @@ def second_effect(b: NormBaseline, tested: List[Dict[str, object]], cf: Candidat
     for c1 in firsts:
         chi2_best, e_best, _ = cf.fits_all[id(c1)]
         q_best = c1.q
-        if chi2_sf(chi2_best, N - p0 - q_best) >= REMAINING_GAP_LEVEL:
+        if chi2_sf(chi2_best, N - p0 - q_best) >= GAP_REMAINING_LEVEL:
             continue
         for d in tested:
             other = d["cand"]
@@ -343,7 +343,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     b = norm_baseline(x, pose_var, model, sims, rng, unit, scale, prior)
     out = b.report
     tested = score_candidates(b, cands, ctx, names_skip)
-    bonf = ATTRIBUTION_LEVEL / max(len(tested), 1)
+    bonf = GAP_ATTRIBUTION_LEVEL / max(len(tested), 1)
     cf = fit_candidates(b, tested, ctx, sims, rng, bonf)
     if "wandering_bias" not in names_skip and any(c.name == "wandering_bias" for c in cands):
         random_walk_variant(b, cf, ctx, sims, rng, bonf, unit, scale)

@@ -34,7 +34,7 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from ..calib.stats import chi2_logsf
-from .levels import ATTRIBUTION_LEVEL, GAP_TEST_LEVEL, REMAINING_GAP_LEVEL
+from ..calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
 from .verdict import verdict
 
 __all__ = ["make_blocks", "block_noise_var", "series_diagnose", "orientation_groups",
@@ -351,7 +351,7 @@ def _try_candidate(p: SeriesProblem, X: np.ndarray, chi_cur: np.ndarray, E_cur: 
 def _gap_remains(p: SeriesProblem, X: np.ndarray, chi_cur: np.ndarray, E_cur: np.ndarray,
                  tw_cur: np.ndarray) -> bool:
     """The model ``X`` is still rejected (chi-square) and out of its own twin's range."""
-    return (_log10p(float(chi_cur.sum()), p.dof(X)) < math.log10(REMAINING_GAP_LEVEL)
+    return (_log10p(float(chi_cur.sum()), p.dof(X)) < math.log10(GAP_REMAINING_LEVEL)
             and _norm_heldout(E_cur, p.V) / np.median(tw_cur) > np.quantile(tw_cur / np.median(tw_cur), 0.99))
 
 
@@ -374,7 +374,7 @@ def series_candidates(p: SeriesProblem, b: SeriesBaseline, sims: int, rng) -> Se
     pending = dict(p.cands)
     pending["wandering_bias"] = None
     steps = []
-    bonf = ATTRIBUTION_LEVEL / max(len(pending), 1)
+    bonf = GAP_ATTRIBUTION_LEVEL / max(len(pending), 1)
     for _step in range(2):
         if not (b.lp0 < math.log10(GAP_TEST_LEVEL)):
             break

@@ -33,7 +33,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 import numpy as np
 
 from .candidates import SEPARATE
-from .levels import ATTRIBUTION_LEVEL
+from ..calib.levels import GAP_ATTRIBUTION_LEVEL
 from .signif import canon
 
 __all__ = ["decide", "verdict"]
@@ -122,7 +122,7 @@ def decide(out: Dict[str, object], ratio: float, significant: bool, effects: Lis
         # attribution discipline: a partial explanation is named only when the chosen
         # coefficients are significant by a Wald test too (covariance scaled by the excess
         # that remains), at the Bonferroni level of the candidate tests
-        bonf = ATTRIBUTION_LEVEL / max(len(effects), 1)
+        bonf = GAP_ATTRIBUTION_LEVEL / max(len(effects), 1)
         src = out.get("joint") or next((ef for ef in allsig if ef["name"] == chosen[0]), {})
         if src.get("wald_p_value", 0.0) >= bonf:
             res = {"verdict": "unexplained", "shrink": res["shrink"], "closest_form": "+".join(chosen),

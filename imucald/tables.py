@@ -129,18 +129,21 @@ def iter_blocks(fh: BinaryIO, spec: TableSpec, lineno: int, offset: int, prev_t:
                     offset += len(head)
                 yield from _last_line(block[len(head):], spec, lineno, offset, prev_t)
                 return
-        for rows in _rows(block, spec, lineno, offset, prev_t):
+        nl = block.count(b"\n")
+        for rows in _rows(block, spec, lineno, offset, prev_t, nl):
             if spec.tcol is not None and len(rows):
                 prev_t = rows[-1, spec.tcol]
             yield rows
-        lineno += block.count(b"\n")
+        lineno += nl
         offset += len(block)
         if not data:
             return
 
 
-def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float):
-    """The rows of one block of whole lines (a generator of at most one array).
+def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float,
+          nl: Optional[int] = None):
+    """The rows of one block of whole lines (a generator of at most one array); ``nl``: its
+    count of newlines when the caller has it.
 
     An ASCII block (every numeric table in practice) goes to numpy's tokenizer as bytes: no
     decoded copy (an ``io.StringIO`` of the text holds 4 bytes a character, page-faulted afresh
@@ -148,7 +151,7 @@ def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float
     the text, so the fast path accepts the same and gives the same numbers; any other block is
     decoded (the one-line error when it is not UTF-8) and parsed as text."""
     if block.isascii():
-        rows = _parse_fast(block, spec, prev_t)
+        rows = _parse_fast(block, spec, prev_t, nl)
         if rows is None:
             rows = _parse_slow(block.decode("ascii"), spec, lineno, prev_t)
     else:
@@ -156,7 +159,7 @@ def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float
             text = block.decode("utf-8")
         except UnicodeDecodeError as e:
             raise spec.error(_not_utf8(spec.path, block, e, lineno, offset)) from None
-        rows = _parse_fast(text, spec, prev_t)
+        rows = _parse_fast(text, spec, prev_t, nl)
         if rows is None:
             rows = _parse_slow(text, spec, lineno, prev_t)
     if len(rows):
@@ -202,11 +205,13 @@ def _nul_tail(fh: BinaryIO, spec: TableSpec, head: bytes, lineno: int, offset: i
          f"end (an interrupted write, e.g. a power cut) are ignored; the rows before are used")
 
 
-def _parse_fast(text, spec: TableSpec, prev_t: float) -> Optional[np.ndarray]:
+def _parse_fast(text, spec: TableSpec, prev_t: float, count: Optional[int] = None
+                ) -> Optional[np.ndarray]:
     """The block (``str``, or ``bytes`` of ASCII text) through numpy's tokenizer, or None when
-    the reference parser must look."""
+    the reference parser must look.  ``count``: its newlines, when known (a UTF-8 newline is
+    one byte, never part of another character: the count of the bytes is the text's)."""
     nl, cr, comma = ("\n", "\r", ",") if isinstance(text, str) else (b"\n", b"\r", b",")
-    nlines = text.count(nl) + (0 if text.endswith(nl) else 1)
+    nlines = (text.count(nl) if count is None else count) + (0 if text.endswith(nl) else 1)
     if cr in text:
         text = text.replace(cr + nl, nl)
         if cr in text:
@@ -227,16 +232,18 @@ def _parse_fast(text, spec: TableSpec, prev_t: float) -> Optional[np.ndarray]:
 def _ok(rows: np.ndarray, spec: TableSpec, prev_t: float) -> bool:
     """Every checked value within ``|x - centre| <= halfwidth`` (so not NaN), the time column
     finite and not decreasing.  Checked on each column's least and greatest value: rounding
-    ``x - centre`` is monotonic in ``x``, so that is the test of every value, without the two
-    temporaries of the whole block; NaN propagates through min/max and fails it."""
-    lo, hi = rows.min(axis=0), rows.max(axis=0)
+    ``x - centre`` is monotonic in ``x``, so that is the test of every value, without the
+    temporaries of the whole block; NaN propagates through min/max and fails it.  Column by
+    column: numpy reduces one strided column ~50x faster than ``min(axis=0)`` of a few columns."""
+    centre, half = spec.centre, spec.halfwidth
     with np.errstate(invalid="ignore", over="ignore"):
-        ok = (hi - spec.centre <= spec.halfwidth) & (spec.centre - lo <= spec.halfwidth)
-    if not ok[spec.checked].all():
-        return False
+        for j in np.flatnonzero(spec.checked):
+            col = rows[:, j]
+            if not (col.max() - centre[j] <= half[j] and centre[j] - col.min() <= half[j]):
+                return False
     if spec.tcol is not None:
         t = rows[:, spec.tcol]
-        if not (np.isfinite(lo[spec.tcol]) and np.isfinite(hi[spec.tcol])) or t[0] < prev_t \
+        if not (np.isfinite(t.min()) and np.isfinite(t.max())) or t[0] < prev_t \
                 or (t[1:] < t[:-1]).any():
             return False
     return True

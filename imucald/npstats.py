@@ -5,12 +5,19 @@ it imports nothing from imucald).
 its result for NaN through ``numpy.ma``, whose import took 14-28 ms (and a few MB) here,
 paid by every command and by the daemon at its first pose.  Same algorithm (partition,
 mean of the middle one or two), so the same values bit for bit.
+
+:func:`row_sum`, :func:`row_all`, :func:`row_max`: ``x.sum(1)``, ``x.all(1)``, ``x.max(1)``
+of a tall array of a few columns (samples x axes), column by column: numpy reduces a row of
+3 values with a loop set up per row (0.6-1.5 ms for 51 k rows, 15-25x the column-wise
+form).  The same values bit for bit: below 8 columns numpy adds a row left to right (its
+pairwise summation starts at 8), as the column-wise sum does; ``&`` and ``maximum`` are
+exact and ``maximum`` propagates NaN as ``max`` does.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["median"]
+__all__ = ["median", "row_sum", "row_all", "row_max"]
 
 
 def median(a, axis=None):
@@ -35,4 +42,37 @@ def median(a, axis=None):
             if isinstance(out, np.generic):
                 return last
             np.copyto(out, last, where=bad)
+    return out
+
+
+def row_sum(x: np.ndarray) -> np.ndarray:
+    """``x.sum(1)`` of a 2-D float array, the same values (left to right under 8 columns)."""
+    x = np.asarray(x)
+    if x.ndim != 2 or x.shape[1] == 0 or x.shape[1] >= 8 or x.dtype.kind != "f":
+        return x.sum(1)
+    out = x[:, 0].copy()
+    for j in range(1, x.shape[1]):
+        out += x[:, j]
+    return out
+
+
+def row_all(b: np.ndarray) -> np.ndarray:
+    """``b.all(1)`` of a 2-D array."""
+    b = np.asarray(b)
+    if b.ndim != 2 or b.shape[1] == 0:
+        return b.all(1)
+    out = b[:, 0].astype(bool)
+    for j in range(1, b.shape[1]):
+        out &= b[:, j]
+    return out
+
+
+def row_max(x: np.ndarray) -> np.ndarray:
+    """``x.max(1)`` of a 2-D float array (NaN where a row holds one)."""
+    x = np.asarray(x)
+    if x.ndim != 2 or x.shape[1] == 0 or x.dtype.kind != "f":
+        return x.max(1)
+    out = x[:, 0].copy()
+    for j in range(1, x.shape[1]):
+        np.maximum(out, x[:, j], out=out)
     return out

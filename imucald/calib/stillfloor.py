@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..npstats import row_max
+
 __all__ = ["FLOOR_PCT", "FLOOR_WINDOWS", "floors", "floor", "onset"]
 
 FLOOR_PCT = 5.0         #: percentile of the window variances taken as the noise floor
@@ -21,7 +23,7 @@ def onset(acc: np.ndarray, short: int = 10) -> int:
     c = np.cumsum(np.vstack([np.zeros((1, 3)), acc]), 0)
     ma = (c[short:] - c[:-short]) / short            # ma[i] = mean of acc[i:i+short]
     dev = np.abs(ma - m0) / (sd / np.sqrt(short))
-    bad = np.flatnonzero(dev[half:].max(1) > 5.0)
+    bad = np.flatnonzero(row_max(dev[half:]) > 5.0)
     return n if not len(bad) else half + int(bad[0])
 
 

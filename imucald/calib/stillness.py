@@ -57,7 +57,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from ..npstats import median
+from ..npstats import median, row_all, row_sum
 from .stillfloor import FLOOR_WINDOWS, floors as _floors, onset as _onset
 
 __all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS", "still_limits"]
@@ -196,7 +196,7 @@ class _Core:
             full_w = cnt[:, 0] >= self.w
         s1, s2 = s[:, :k], s[:, k:]
         var = np.maximum(s2[:, :3] - s1[:, :3] * s1[:, :3] / cnt, 0) / np.maximum(cnt - 1, 1)
-        return var.sum(1), s1[:, 3:] / cnt + ref[3:], s1[:, :3] / cnt + ref[:3], full_w
+        return row_sum(var), s1[:, 3:] / cnt + ref[3:], s1[:, :3] / cnt + ref[:3], full_w
 
     # -- streaming --------------------------------------------------------------------
     def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None, oi=None):
@@ -210,7 +210,7 @@ class _Core:
         if oi is None:
             oi = np.arange(self._seen, self._seen + n)
         x = acc if gyro is None else np.concatenate([acc, np.asarray(gyro, float)], 1)
-        good = (np.abs(x) < ABSURD).all(1)              # False for NaN and inf too
+        good = row_all(np.abs(x) < ABSURD)             # False for NaN and inf too
         if not good.all():
             self.dropped += int((~good).sum())
             x = x.copy()
@@ -259,7 +259,7 @@ class _Core:
         q = b["good"] & (b["va"] <= self.k * fa)
         if bias is not None:
             d = b["gm"] - bias
-            q &= np.sqrt((d * d).sum(1)) * self.window_s <= self.max_turn_deg
+            q &= np.sqrt(row_sum(d * d)) * self.window_s <= self.max_turn_deg
         return q
 
     def flush(self) -> List[StaticInterval]:
@@ -333,7 +333,7 @@ class _Core:
             ia = np.minimum(ar + self.w - 1, nk - 1)
             after, q_after = am[ia], q[ia]
             brk |= q_before & q_after & (
-                ((after - before) ** 2).sum(1) > 25.0 * 2.0 * self.k * b["fa"][:nd] / self.w)
+                row_sum((after - before) ** 2) > 25.0 * 2.0 * self.k * b["fa"][:nd] / self.w)
             self._prev_am, self._prev_q = am[nd - 1].copy(), bool(q[nd - 1])
         out = self._runs(still, {k: (None if b[k] is None else b[k][:nd]) for k in _CH + ("i",)}, brk)
         self._buf = {k: (None if v is None else v[nd:]) for k, v in b.items()}
@@ -630,7 +630,7 @@ class StillnessDetector:
         if self._prev is not None:
             same[0] = bool(np.all(acc[0] == self._prev[1]))
             st[0] = t[0] == self._prev[0]
-        same[1:] = np.all(acc[1:] == acc[:-1], axis=1)
+        same[1:] = row_all(acc[1:] == acc[:-1])
         st[1:] = t[1:] == t[:-1]
         self._prev = (t[-1], acc[-1].copy())
         drop = same & (st | self._held)

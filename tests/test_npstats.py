@@ -27,3 +27,21 @@ def test_median_does_not_import_numpy_ma():
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 6, 7, 8, 11])
+def test_row_reductions_equal_numpy_bit_for_bit(k):
+    """row_sum/row_all/row_max give numpy's x.sum(1)/all(1)/max(1) exactly (the stillness
+    detector's poses depend on them bit for bit).  Breakage it catches: summing the columns
+    in another order (e.g. x[:, 0] + (x[:, 1] + x[:, 2])) differs in the last bit on about
+    a third of the rows; dropping the >= 8 fallback fails k = 8 and 11 (numpy sums those
+    pairwise); a max that drops NaN (fmax) fails the NaN row."""
+    from imucald.npstats import row_all, row_max, row_sum
+    rng = np.random.default_rng(k)
+    x = rng.normal(size=(5000, k)) * rng.lognormal(0, 3, size=(5000, k))
+    assert np.array_equal(row_sum(x), x.sum(1))
+    x[7, k - 1] = np.nan
+    assert np.array_equal(row_max(x), x.max(1), equal_nan=True)
+    b = rng.random((5000, k)) < 0.8
+    assert np.array_equal(row_all(b), b.all(1))
+    assert row_sum(x[:0]).shape == (0,) and row_all(b[:0]).shape == (0,)

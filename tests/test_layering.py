@@ -2,7 +2,8 @@
 
 Allowed direction (an arrow: "may import"):
 
-    cli -> daemon, gap, sim, drivers, calib, mqtt, orientation (the top: it builds and wires everything)
+    cli -> daemon, gap, sim, drivers, calib, mqtt, orientation, plots (the top: it builds and wires everything)
+    plots -> calib                               (pictures: matplotlib, the plots extra)
     mqtt -> daemon                               (the bridge reads the daemon's config and control socket)
     gap -> calib                                 (diagnosis refits; its twins are calib's)
     daemon -> drivers, calib, orientation        (the production path: never sim or gap)
@@ -22,9 +23,10 @@ import os
 import pytest
 
 ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "imucald")
-PACKAGES = ("calib", "sim", "drivers", "daemon", "gap", "cli", "mqtt", "orientation")
+PACKAGES = ("calib", "sim", "drivers", "daemon", "gap", "cli", "mqtt", "orientation", "plots")
 ALLOWED = {
-    "cli": {"daemon", "gap", "sim", "drivers", "calib", "mqtt", "orientation"},
+    "cli": {"daemon", "gap", "sim", "drivers", "calib", "mqtt", "orientation", "plots"},
+    "plots": {"calib"},
     "mqtt": {"daemon"},
     "gap": {"calib"},
     "daemon": {"drivers", "calib", "orientation"},

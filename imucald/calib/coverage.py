@@ -6,7 +6,7 @@ from typing import Dict
 
 import numpy as np
 
-__all__ = ["TARGETS", "target_name", "cube_coverage", "sphere_lattice"]
+__all__ = ["TARGETS", "target_name", "target_vector", "cube_coverage", "sphere_lattice", "next_orientation"]
 
 
 def sphere_lattice(n: int) -> np.ndarray:
@@ -53,3 +53,35 @@ def cube_coverage(directions: np.ndarray, cover_angle_deg: float = 25.0) -> Dict
     missing.sort(key=lambda s: s.count("+") + s.count("-"))
     return {"fraction": float(covered.mean()), "covered": int(covered.sum()),
             "targets": len(TARGETS), "missing": missing}
+
+
+def target_vector(name: str) -> np.ndarray:
+    """The unit up vector (sensor frame) of a cube direction named as by :func:`target_name`."""
+    v = np.zeros(3)
+    body = name.replace(" up", "")
+    for i in range(0, len(body), 2):
+        v["XYZ".index(body[i + 1])] = 1.0 if body[i] == "+" else -1.0
+    return v / np.linalg.norm(v)
+
+
+def next_orientation(missing, hinted: Dict[str, int], up=None):
+    """The missing cube direction to ask for next, so that the hint moves through the
+    missing ones instead of repeating one the user does not (or cannot) reach: the one
+    asked for fewest times so far (``hinted``: name -> times asked), then faces before
+    edges before corners (easiest to place), then the nearest to the current up vector
+    ``up`` (sensor frame; the smallest turn), then the order of ``missing``.  None when
+    nothing is missing.  Pure: the caller counts what it asked for."""
+    if not missing:
+        return None
+    u = None
+    if up is not None:
+        u = np.asarray(up, float)
+        n = np.linalg.norm(u)
+        u = u / n if n > 0 and np.all(np.isfinite(u)) else None
+
+    def key(item):
+        i, name = item
+        turn = 0.0 if u is None else -float(target_vector(name) @ u)
+        return (hinted.get(name, 0), name.count("+") + name.count("-"), turn, i)
+
+    return min(enumerate(missing), key=key)[1]

@@ -39,6 +39,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     # only the subcommand given gets its arguments built (--help and a typo: none)
     cmd = next((w for w in words if not w.startswith("-")), "")
     parser = build_parser(cmd if cmd in COMMAND_NAMES else "")
+    type(parser).json_errors = "--json" in words
     args = parser.parse_args(words)
     if not getattr(args, "func", None):
         parser.print_help()
@@ -49,8 +50,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         check_args(args)
         return int(args.func(args) or 0)
     except UserError as e:
-        eprint(f"imucald: error: {_one_line(e)}")
-        return e.exit_code
+        return _fail(args, _one_line(e), e.exit_code)
     except OSError as e:            # disk full, read-only, EIO: said in one line
         if isinstance(e, BrokenPipeError):      # the reader of our stdout went away (| head)
             try:                                 # nothing more to say, and no "Exception
@@ -58,8 +58,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             except (OSError, ValueError):
                 pass
             return 0
-        eprint(f"imucald: error: {_one_line(os_error_line(e))}")
-        return EX_IOERR
+        return _fail(args, _one_line(os_error_line(e)), EX_IOERR)
     except KeyboardInterrupt:
         return 130
     except Exception as e:
@@ -68,12 +67,21 @@ def main(argv: Optional[List[str]] = None) -> int:
         bus = sys.modules.get(f"{__package__.rsplit('.', 1)[0]}.drivers.bus")
         if bus is None or not isinstance(e, bus.BusError):
             raise
-        eprint(f"imucald: error: {_one_line(e)}")
-        return EX_UNAVAILABLE
+        return _fail(args, _one_line(e), EX_UNAVAILABLE)
     finally:
         sys.stdout = stdout
         from .. import atomic
         atomic.STDOUT = None
+
+
+def _fail(args, line: str, code: int) -> int:
+    """A user error: one line on stderr; under ``--json`` (whose answer is one JSON object)
+    also that object, ``{"error": LINE, "exit_code": CODE}``, on stdout."""
+    eprint(f"imucald: error: {line}")
+    if getattr(args, "json", False):
+        import json
+        print(json.dumps({"error": line, "exit_code": code}))
+    return code
 
 
 def _one_line(e) -> str:

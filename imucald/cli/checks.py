@@ -160,6 +160,12 @@ def check_args(args) -> None:
                 output_file(p, f)
         if args.output == "-" and args.kalibr == "-":
             raise UserError("-o - and --kalibr -: only one of them can go to standard output")
+    if cmd == "calibrate" and getattr(args, "plot", None):
+        output_dir(args.plot, "--plot")
+    if cmd == "status" and getattr(args, "plot", None):
+        output_file(args.plot, "--plot")
+    if cmd == "calibration" and getattr(args, "action", None) == "merge":
+        output_file(args.output, "-o")
     if cmd == "gap" and args.report:
         output_dir(args.report, "--report")
     if cmd == "replay" and args.state_dir:

@@ -6,6 +6,7 @@ that ``imucald --help`` stays light.
 from __future__ import annotations
 
 import json
+import os
 
 from ..errors import UserError, write_failure
 from ._common import eprint as _eprint
@@ -253,6 +254,9 @@ def cmd_calibrate(args) -> int:
     part = _file_part(cal, tf, rot)             # what -o writes (and the file's bias for the gyro)
     if args.output:
         _write_calibration(args.output, poses.meta, part, tf)
+    if getattr(args, "plot", None) and sensor == "accel":     # coverage sphere, residuals (plots extra)
+        from .plotcmd import calibrate_plots
+        calibrate_plots(args.plot, poses, part, os.path.basename(args.input))
     if args.json:
         d = cal.to_json()
         if det is not None:     # the still-pose detection behind the fit (issue 20)

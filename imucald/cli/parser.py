@@ -39,10 +39,18 @@ def _command(module: str, name: str):
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """A usage error is one line, as every other error (exit 2), naming --help."""
+    """A usage error is one line, as every other error (exit 2), naming --help; when the
+    command line asks for ``--json``, also one JSON object on stdout."""
+
+    json_errors = False             # set by cli.main when --json is among the words
 
     def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+        line = f"{message} (see '{self.prog} --help')"
+        if OneLineParser.json_errors:
+            import json
+            import sys
+            print(json.dumps({"error": line, "exit_code": 2}), file=sys.stdout)
+        self.exit(2, f"{self.prog}: error: {line}\n")
 
 
 def _add_simulate(s) -> None:
@@ -86,6 +94,8 @@ def _add_calibrate(c) -> None:
     c.add_argument("--json", action="store_true", help="print one JSON object")
     c.add_argument("-o", "--output", help="also write the calibration file (the daemon's calibration.yaml "
                                           "format, read by imucald.load_calibration)")
+    c.add_argument("--plot", metavar="DIR", help="accel: write coverage.png (the pose-coverage sphere) and "
+                                             "residuals.png (|a| - 1 g per pose before/after) here (plots extra)")
     c.add_argument("--seed", type=int, default=0, help="seed for the GA")
     c.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az (- skips one)")
     c.add_argument("--nominal-scale", type=float, default=1.0,
@@ -139,7 +149,7 @@ def _add_record(r) -> None:
     r.add_argument("--tremor-dps", type=number_in(0, LIMITS["tremor"][1], "deg/s", low_open=False), default=0.0,
                    help="emulator: hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
     r.add_argument("--fault", action="append", help="emulator fault, e.g. nack=0.01, reset=0x68@3 "
-                                                    "(repeatable; see the README)")
+                                                    "(repeatable; see docs/guide/recording.md)")
     r.set_defaults(func=_command("hardware", "cmd_record"))
 
 
@@ -195,6 +205,8 @@ def _add_replay(rp) -> None:
 def _add_status(q) -> None:
     daemon_opts(q, state=False)
     q.add_argument("--json", action="store_true")
+    q.add_argument("--plot", metavar="FILE", help="also draw the pose-coverage sphere (poses collected, "
+                                              "orientations missing) into FILE, .png or .svg (plots extra)")
     q.set_defaults(func=_command("service", "cmd_status"))
 
 
@@ -205,7 +217,7 @@ def _add_recalibrate(q) -> None:
 
 def _add_watch(w) -> None:
     daemon_opts(w, state=False)
-    w.add_argument("-n", "--count", type=at_least(1), help="stop after N lines")
+    w.add_argument("-n", "--count", type=at_least(1), help="stop after N samples (IMU lines; the VERSION banner and events are printed, not counted)")
     w.set_defaults(func=_command("service", "cmd_watch"))
 
 
@@ -254,6 +266,17 @@ def _add_mqtt(mq) -> None:
     mq.set_defaults(func=_command("mqtt", "cmd_mqtt"))
 
 
+def _add_calibration(cf) -> None:
+    sub = cf.add_subparsers(dest="action", metavar="ACTION", parser_class=OneLineParser)
+    sub.required = True
+    m = sub.add_parser("merge", help="one calibration file from parts fitted separately "
+                                     "(calibrate -o accel.yaml, --sensor gyro -o gyro.yaml, ...)")
+    m.add_argument("files", nargs="+", metavar="FILE",
+                   help="calibration files of one sensor; each part (accel, gyro, mag) from one file")
+    m.add_argument("-o", "--output", required=True, help="the merged calibration file to write")
+    m.set_defaults(func=_command("calfiles", "cmd_merge"))
+
+
 def _add_demo(d) -> None:
     d.add_argument("--seed", type=int, default=1)
     d.add_argument("--poses", type=count_in(10, 1000, " (the 9-parameter fit scored by leave-one-pose-out)"), default=25)
@@ -276,7 +299,9 @@ COMMANDS = (
     ("noise", "Allan deviation and noise figures of a still recording (kalibr imu.yaml, ROS covariances)", _add_noise),
     ("mqtt", "bridge the daemon's stream and status to an MQTT broker (the mqtt extra; "
              "the mqtt section of the configuration)", _add_mqtt),
-    ("demo", "the calibration demo that `make run` shows", _add_demo),
+    ("calibration", "calibration files: `calibration merge A.yaml B.yaml -o calibration.yaml`",
+     _add_calibration),
+    ("demo", "the calibration core alone: the GA converging on a simulated board, against the truth", _add_demo),
 )
 
 

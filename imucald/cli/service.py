@@ -184,6 +184,9 @@ def _control_path(args) -> str:
 def cmd_status(args) -> int:
     from ..daemon.control import request
     r = request(_control_path(args), "status")
+    if getattr(args, "plot", None) and r.get("class") != "ERROR":
+        from .plotcmd import status_plot
+        status_plot(args.plot, r, request(_control_path(args), "poses"))
     if args.json:
         print(json.dumps(r))
         return 0
@@ -245,7 +248,8 @@ def cmd_watch(args) -> int:
     count = 0
     for line in f:
         sys.stdout.write(_with_attitude(line.decode(errors="replace")))
-        count += 1
+        if is_sample_line(line):    # -n counts samples: not the VERSION banner, a CSV
+            count += 1              # header, a GAP/CAL event
         if args.count and count >= args.count:
             break
     return 0
@@ -264,4 +268,13 @@ def _with_attitude(line: str) -> str:
     r, p, h = attitude_deg(q)
     body = line.rstrip()
     return f'{body[:-1]},"roll_deg":{r:.2f},"pitch_deg":{p:.2f},"heading_deg":{h:.2f}}}\n'
+
+
+def is_sample_line(line: bytes) -> bool:
+    """One sample of the stream: an NDJSON ``IMU`` object or a CSV data row (not the
+    ``VERSION`` banner, the CSV header, a ``# {...}`` event or another class)."""
+    s = line.lstrip()
+    if s.startswith(b"{"):
+        return b'"class":"IMU"' in s[:40]
+    return bool(s) and s[:1] != b"#" and s[:1].isdigit()
 

@@ -90,7 +90,8 @@ SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
     "state.directory": ("/var/lib/imucald", "str", None),
     "runtime.directory": ("/run/imucald", "str", None),
     "log.level": ("info", "choice", ("debug", "info", "warning", "error")),
-    # the MQTT bridge (`imucald mqtt`, its own process and unit; the daemon ignores these)
+    # the MQTT bridge (`imucald mqtt`, its own process and unit): the daemon does not use
+    # these, but loads and checks them like every key (a bad value stops it with 78)
     "mqtt.host": ("localhost", "str", None),
     "mqtt.port": (None, "int?", (1, 65535)),        # null: 1883, or 8883 with tls
     "mqtt.tls": (False, "choice", (False, True)),

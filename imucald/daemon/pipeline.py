@@ -16,6 +16,7 @@ from typing import Any, Callable, Deque, Dict, List, Optional
 
 import numpy as np
 
+from ..calib.coverage import next_orientation
 from ..calib.stillness import StillnessDetector
 from ..calibration import Calibration
 from .accumulator import PoseAccumulator
@@ -82,6 +83,8 @@ class Pipeline:
         self.det = StillnessDetector(rate_hz, st["window_s"], st["k"], st["min_still_s"],
                                      st["max_pose_s"], st["trim_s"], chip=(chips or {}).get("accel"))
         self.acc = PoseAccumulator(cfg["poses"]["merge_angle_deg"], cfg["poses"]["max_poses"])
+        self.next_hint: Optional[str] = None          # the orientation the log asked for last
+        self._hinted: Dict[str, int] = {}             # orientation -> times asked for
         #: every still interval with its temperature, for the thermal terms (daemon/thermallog.py)
         self.thermal_log = ThermalLog()
         self._thermal_span_at = -np.inf        #: the log's span when thermal terms were last fitted
@@ -297,7 +300,11 @@ class Pipeline:
             self.temp_range = [min(self.temp_range[0], iv.temp), max(self.temp_range[1], iv.temp)]
         cov = self.acc.coverage()
         need = self.cfg["calibration"]["min_poses"]
-        nxt = f"; next: try {cov['missing'][0]}" if cov["missing"] else ""
+        # the hint moves through the missing orientations (calib/coverage.py)
+        self.next_hint = next_orientation(cov["missing"], self._hinted, iv.acc)
+        if self.next_hint is not None:
+            self._hinted[self.next_hint] = self._hinted.get(self.next_hint, 0) + 1
+        nxt = f"; next: try {self.next_hint}" if self.next_hint else ""
         n = len(self.acc)
         count = f"{n}/{need}" if n <= need else f"{n} ({need} needed, reached)"
         msg = (f"pose {count} ({what}, {iv.t1 - iv.t0:.1f} s still): coverage "
@@ -568,7 +575,8 @@ class Pipeline:
         cov = self.acc.coverage()
         ap = self.applied
         d = {"poses": len(self.acc), "poses_needed": self.cfg["calibration"]["min_poses"],
-             "coverage": cov["fraction"], "next_orientation": cov["missing"][0] if cov["missing"] else None,
+             "coverage": cov["fraction"], "next_orientation": (self.next_hint if self.next_hint in cov["missing"] else
+                                  next_orientation(cov["missing"], self._hinted)),
              "calibration_id": ap.id, "calibrating": self.pending is not None,
              "ready": self.ready_to_calibrate(), "samples": self.samples, "still": self.last_still}
         if ap.id:

@@ -1,0 +1,28 @@
+"""matplotlib, imported on first use, headless (Agg), or a one-line error naming the extra."""
+from __future__ import annotations
+
+from ..errors import UserError
+
+
+def pyplot(flag: str):
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise UserError(f"{flag} needs matplotlib: pip install 'imucald[plots]'") from None
+    return plt
+
+
+def save(fig, path: str, flag: str) -> str:
+    from ..errors import CannotCreate
+    plt = pyplot(flag)
+    try:
+        # no timestamp in the file, so a regenerated picture differs only when its content does
+        fig.savefig(path, dpi=90, metadata={"Software": None} if path.endswith(".png") else
+                    {"Date": None} if path.endswith(".svg") else None)
+    except OSError as e:
+        raise CannotCreate(f"{flag} {path}: cannot write: {e.strerror}") from None
+    finally:
+        plt.close(fig)
+    return path

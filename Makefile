@@ -1,13 +1,16 @@
 # Two entry points for a fresh machine that has only python3:
 #   make run   - create .venv, install imucald, run the main job
 #   make test  - create .venv, install imucald with its test extras, run the suite
+#   make docs  - install the docs extra, regenerate the generated pages and pictures, build the
+#                site into site/ with mkdocs --strict (a broken link or a missing page fails)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 TSTAMP := $(VENV)/.installed-test
+DSTAMP := $(VENV)/.installed-docs
 
-.PHONY: run test test-system bench clean test-deps install uninstall
+.PHONY: run test test-system bench clean test-deps install uninstall docs
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 9))' || \
@@ -26,6 +29,16 @@ $(STAMP): $(BIN)/python $(SOURCES)
 $(TSTAMP): $(BIN)/python $(SOURCES)
 	$(BIN)/python -m pip install --quiet '.[test]'
 	@touch $@ $(STAMP)
+
+$(DSTAMP): $(BIN)/python $(SOURCES)
+	$(BIN)/python -m pip install --quiet '.[docs]'
+	@touch $@
+
+# the reference pages made from the parser and the config schema, the pictures made by
+# imucald's own commands (tools/gen_docs.py, ~10 s), then the site, offline and strict
+docs: $(DSTAMP)
+	$(BIN)/python tools/gen_docs.py
+	$(BIN)/python -m mkdocs build --strict --quiet
 
 # The daemon for 200 s: on the I2C bus when one exists, else on the emulated board,
 # which a virtual hand moves through 30 orientations.  State and sockets stay in ./.imucald/.
@@ -84,4 +97,4 @@ uninstall:
 	@$(INSTALL_VARS) sh packaging/install.sh uninstall
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info site

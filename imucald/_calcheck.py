@@ -31,7 +31,7 @@ def _keys(d: Mapping, path: str, required: set, optional: set) -> None:
             _fail(f"{pre}{k}", "unknown key", "allowed: " + ", ".join(sorted(required | optional)))
     for k in sorted(required):
         if k not in d:
-            _fail(f"{pre}{k}", "missing", "see README: calibration file")
+            _fail(f"{pre}{k}", "missing", "see docs/reference/calibration-file.md")
 
 
 #: largest magnitude of a correction parameter: no sensor's scale, bias, hard iron or

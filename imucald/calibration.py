@@ -251,7 +251,7 @@ class SensorCal:
     def from_dict(cls, sensor: str, d: Any, path: str = "") -> "SensorCal":
         path = path or sensor
         if not isinstance(d, Mapping):
-            _fail(path, f"expected a mapping, got {type(d).__name__}", "see README: calibration file")
+            _fail(path, f"expected a mapping, got {type(d).__name__}", "see docs/reference/calibration-file.md")
         _keys(d, path, {"model", "params"}, {"method", "stderr", "flags", "quality", "thermal"})
         model = d["model"]
         try:
@@ -419,7 +419,7 @@ class Calibration:
     def from_dict(cls, d: Any) -> "Calibration":
         if not isinstance(d, Mapping):
             _fail("(top level)", f"expected a mapping, got {type(d).__name__}",
-                  "see README: calibration file")
+                  "see docs/reference/calibration-file.md")
         if d.get("format_version") == 1:
             d = _from_v1(d)
         _keys(d, "", {"format_version", "id", "board", "units"},
@@ -488,7 +488,7 @@ def save(cal: Calibration, path) -> None:
     """Write ``cal`` as YAML, atomically (temp file, fsync, rename)."""
     import yaml
     from .atomic import atomic_write_text
-    text = ("# imucald calibration (see README: calibration file)\n"
+    text = ("# imucald calibration (see docs/reference/calibration-file.md)\n"
             + yaml.safe_dump(cal.to_dict(), sort_keys=False, default_flow_style=None, width=100))
     atomic_write_text(os.fspath(path), text)
 
@@ -557,7 +557,7 @@ def _from_v1(d: Mapping) -> Dict[str, Any]:
         if p is None:
             continue
         if not isinstance(p, Mapping):
-            _fail(s, f"expected a mapping, got {type(p).__name__}", "see README: calibration file")
+            _fail(s, f"expected a mapping, got {type(p).__name__}", "see docs/reference/calibration-file.md")
         q = {k: p[k] for k in _V1_QUALITY[s] if p.get(k) is not None}
         rest = {k: v for k, v in p.items()
                 if k not in (*_V1_QUALITY[s], "theta", "crlb_std", "coverage")}

@@ -1,4 +1,4 @@
-"""The public API: the README's examples run as written (on a simulated recording, and
+"""The public API: the examples of docs/guide/api.md run as written (on a simulated recording, and
 against the emulated daemon), and ``import imucald`` stays light."""
 import json
 import os
@@ -16,10 +16,13 @@ from imucald.cli import main
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
+API_PAGE = os.path.join(ROOT, "docs", "guide", "api.md")
+
+
 def readme_block(marker):
-    text = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+    text = open(API_PAGE, encoding="utf-8").read()
     m = re.search(re.escape(marker) + r"[^\n]*\n```python\n(.*?)```", text, re.S)
-    assert m, f"README has no python block after {marker!r}"
+    assert m, f"docs/guide/api.md has no python block after {marker!r}"
     return m.group(1)
 
 
@@ -38,7 +41,7 @@ def test_readme_example_fits_loads_and_applies(tmp_path, monkeypatch, capsys):
                  "--hold", "5", "--seed", "5", "--truth", str(truth)]) == 0
     monkeypatch.chdir(tmp_path)
     capsys.readouterr()
-    exec(compile(readme_block("<!-- api-example:"), "README.md", "exec"), {})
+    exec(compile(readme_block("<!-- api-example:"), API_PAGE, "exec"), {})
     out = capsys.readouterr().out
     assert re.match(r"\d+ poses; ", out), out
     cal = imucald.load_calibration(tmp_path / "calibration.yaml")
@@ -63,7 +66,7 @@ def test_readme_stream_example_reads_the_daemon(tmp_path, capsys):
         code = readme_block("<!-- api-example-stream:").replace("/run/imucald/imucald.sock",
                                                                str(rt / "imucald.sock"))
         capsys.readouterr()
-        exec(compile(code, "README.md", "exec"), {})
+        exec(compile(code, API_PAGE, "exec"), {})
         out = capsys.readouterr().out.splitlines()
     finally:
         p.terminate()

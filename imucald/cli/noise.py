@@ -74,8 +74,8 @@ def cmd_noise(args) -> int:
     doc["stretch"] = {"first_sample": int(i0), "samples": int(i1 - i0),
                       "t_start_s": float(rec.t[i0]), "t_end_s": float(rec.t[i1 - 1])}
     from ..errors import write_failure
-    for path, flag, text in ((args.output, "-o", lambda: "# imucald noise figures (README: Noise "
-                              "figures)\n" + yaml.safe_dump(doc, sort_keys=False,
+    for path, flag, text in ((args.output, "-o", lambda: "# imucald noise figures "
+                              "(docs/guide/noise.md)\n" + yaml.safe_dump(doc, sort_keys=False,
                                                             default_flow_style=None, width=110)),
                              (args.kalibr, "--kalibr", lambda: kalibr_text(doc["kalibr"]))):
         if path:

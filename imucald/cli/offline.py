@@ -130,7 +130,7 @@ def _check_mag_span(path: str, mag) -> None:
         raise UserError(f"{path}: the magnetometer pose means do not span three dimensions (they lie in a "
                         f"plane, on a line or at one point), so no 3-D calibration is determined: turn the "
                         f"board through many orientations, or calibrate from a rotation recording "
-                        f"(README: magnetometer only)")
+                        f"(docs/guide/magnetometer.md)")
 
 
 def _accel_model_order(path, model, n_poses, default, det, progress):

@@ -37,7 +37,7 @@ $(DSTAMP): $(BIN)/python $(SOURCES)
 # the reference pages made from the parser and the config schema, the pictures made by
 # imucald's own commands (tools/gen_docs.py, ~10 s), then the site, offline and strict
 docs: $(DSTAMP)
-	$(BIN)/python tools/gen_docs.py
+	$(BIN)/python tools/gen_docs.py --man build/man
 	$(BIN)/python -m mkdocs build --strict --quiet
 
 # The daemon for 200 s: on the I2C bus when one exists, else on the emulated board,

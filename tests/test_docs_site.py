@@ -98,3 +98,19 @@ def test_validation_pages_carry_their_command_commit_and_machine():
         assert re.search(r"at commit `[0-9a-f]{7,}(\+changes)?` on .+ cores", text), f
         assert "--markdown" in _read(m.group(1)), m.group(1)
     assert found >= 3
+
+
+def test_man_page_has_every_command_and_exit_code():
+    sys.path.insert(0, os.path.join(ROOT, "tools"))
+    try:
+        import gen_docs
+    finally:
+        sys.path.pop(0)
+    from imucald.cli.parser import COMMANDS
+    man = gen_docs.man_page()
+    assert man.startswith(".TH IMUCALD 1")
+    for name, _, _ in COMMANDS:
+        assert f".SS imucald {name}\n" in man
+    for n in dir(errors):
+        if n.startswith("EX_"):
+            assert f".TP\n{getattr(errors, n)}\n" in man

@@ -10,6 +10,7 @@
 
     python tools/gen_docs.py            # write them
     python tools/gen_docs.py --check    # exit 1 when a text page differs from what is committed
+    python tools/gen_docs.py --man DIR  # also the man page DIR/imucald.1, from the same parser
 
 Deterministic: fixed seeds, no dates in the files.  About 10 s.
 """
@@ -61,6 +62,31 @@ def _subparser(p, name):
         if isinstance(act, argparse._SubParsersAction):
             return act.choices[name]
     raise KeyError(name)
+
+
+def man_page() -> str:
+    """imucald(1) in roff: every command's help from the parser, the exit codes from
+    imucald/errors.py.  `man -l imucald.1` reads it."""
+    from imucald import __version__, errors
+    from imucald.cli.parser import COMMANDS, build_parser
+
+    def esc(text):
+        out = []
+        for line in text.replace("\\", "\\e").splitlines():
+            out.append(("\\&" + line) if line.startswith((".", "'")) else line)
+        return "\n".join(out)
+    m = [f'.TH IMUCALD 1 "" "imucald {__version__}" "User Commands"',
+         ".SH NAME", "imucald \\- field calibration of MEMS IMUs (MPU-6050, 9DOF, MPU-9250, GY-273)",
+         ".SH SYNOPSIS", ".B imucald", "COMMAND [OPTIONS]",
+         ".SH DESCRIPTION", ".nf", esc(_help(build_parser(""))), ".fi", ".SH COMMANDS"]
+    for name, hlp, _ in COMMANDS:
+        sub = _subparser(build_parser(name), name)
+        m += [f".SS imucald {name}", esc(hlp), ".nf", esc(_help(sub)), ".fi"]
+    m += [".SH EXIT STATUS", ".TP", "0", "success"]
+    for n in sorted(x for x in dir(errors) if x.startswith("EX_")):
+        m += [".TP", str(getattr(errors, n)), n[3:].lower().replace("_", " ")]
+    m += [".SH SEE ALSO", "The documentation site: make docs, then site/index.html; docs/reference/cli.md."]
+    return "\n".join(m) + "\n"
 
 
 def config_page() -> str:
@@ -134,7 +160,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--check", action="store_true", help="compare the text pages, write nothing")
     ap.add_argument("--no-pictures", action="store_true")
+    ap.add_argument("--man", metavar="DIR", help="also write the man page DIR/imucald.1")
     a = ap.parse_args()
+    if a.man:
+        os.makedirs(a.man, exist_ok=True)
+        open(os.path.join(a.man, "imucald.1"), "w", encoding="utf-8").write(man_page())
     pages = {os.path.join(DOCS, "reference", "cli.md"): cli_page(),
              os.path.join(DOCS, "reference", "config-keys.md"): config_page()}
     stale = []

@@ -38,7 +38,7 @@ $(DSTAMP): $(BIN)/python $(SOURCES)
 # imucald's own commands (tools/gen_docs.py, ~10 s), then the site, offline and strict
 docs: $(DSTAMP)
 	$(BIN)/python tools/gen_docs.py --man build/man
-	$(BIN)/python -m mkdocs build --strict --quiet
+	$(BIN)/python -m mkdocs build --strict   # not --quiet: it hides the warnings that --strict counts
 
 # The daemon for 200 s: on the I2C bus when one exists, else on the emulated board,
 # which a virtual hand moves through 30 orientations.  State and sockets stay in ./.imucald/.

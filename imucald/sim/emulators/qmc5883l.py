@@ -20,6 +20,16 @@ from .base import EmuDevice
 __all__ = ["EmuQMC5883L"]
 
 
+_Q = _qmc.REGMAP
+#: addresses and fields read on every poll, looked up once (a gy273 is polled once per
+#: sample: the register map's attribute lookups were a sixth of `record`'s time)
+_DATA, _STATUS, _TOUT, _CHIP_ID, _CONTROL1, _CONTROL2 = (
+    _Q.DATA_X_L.addr, _Q.STATUS.addr, _Q.TOUT_L.addr, _Q.CHIP_ID.addr, _Q.CONTROL1.addr, _Q.CONTROL2.addr)
+_ROL_PNT = _Q.CONTROL2.fields["ROL_PNT"].mask
+_CLEAR_ON_READ = _Q.STATUS.fields["DRDY"].mask | _Q.STATUS.fields["DOR"].mask
+_C1 = _Q.CONTROL1.fields
+
+
 class EmuQMC5883L(EmuDevice):
     regmap = _qmc.REGMAP
 
@@ -32,7 +42,7 @@ class EmuQMC5883L(EmuDevice):
 
     def read(self, reg, n):
         R = self.regmap
-        if self.regs[R.CONTROL2.addr] & R.CONTROL2.fields["ROL_PNT"].mask and reg <= R.STATUS.addr:
+        if self.regs[_CONTROL2] & _ROL_PNT and reg <= _STATUS:
             # roll-over: the pointer wraps from 0x06 back to 0x00 (D, CONTROL2.ROL_PNT)
             self.sync(self.clock.now())
             data = bytes(self.read_reg(r) for r in range(R.STATUS.addr + 1))
@@ -42,22 +52,20 @@ class EmuQMC5883L(EmuDevice):
         return super().read(reg, n)
 
     def read_reg(self, r):
-        R = self.regmap
-        if R.DATA_X_L.addr <= r < R.DATA_X_L.addr + 6:
-            return self.latest[r - R.DATA_X_L.addr]
-        if r == R.STATUS.addr:
+        if _DATA <= r < _DATA + 6:
+            return self.latest[r - _DATA]
+        if r == _STATUS:
             return self.status
-        if R.TOUT_L.addr <= r < R.TOUT_L.addr + 2:
-            return self.tout[r - R.TOUT_L.addr]
-        if r == R.CHIP_ID.addr and self.id_override is not None:
+        if _TOUT <= r < _TOUT + 2:
+            return self.tout[r - _TOUT]
+        if r == _CHIP_ID and self.id_override is not None:
             return self.id_override
         return self.regs[r]
 
     def after_read(self, reg, n):
-        R = self.regmap
-        if reg < R.DATA_X_L.addr + 6 and reg + n > R.DATA_X_L.addr:
+        if reg < _DATA + 6 and reg + n > _DATA:
             # reading the data clears DRDY and DOR (D, status register)
-            self.status &= ~(R.STATUS.fields["DRDY"].mask | R.STATUS.fields["DOR"].mask) & 0xFF
+            self.status &= ~_CLEAR_ON_READ & 0xFF
 
     def write_reg(self, r, v):
         R = self.regmap
@@ -67,7 +75,7 @@ class EmuQMC5883L(EmuDevice):
         super().write_reg(r, v)
 
     def _field(self, name):
-        return self.regmap.decode("CONTROL1", self.regs[self.regmap.CONTROL1.addr], name)
+        return _C1[name].get(self.regs[_CONTROL1])
 
     def running(self):
         return self._field("MODE") == _qmc.MODE_CONTINUOUS

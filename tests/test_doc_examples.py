@@ -146,7 +146,7 @@ __wait_socket() {  # the daemon just started in the background: wait for its con
 }
 __wait_poses() {  # until the daemon at runtime dir $2 holds $1 poses
   for i in $(seq 1 600); do
-    n=$(imucald status --json --runtime-dir "$2" | python3 -c 'import json,sys; print(json.load(sys.stdin).get("poses", 0))')
+    n=$(imucald status --json --runtime-dir "$2" | "$__PY" -c 'import json,sys; print(json.load(sys.stdin).get("poses", 0))')
     [ "$n" -ge "$1" ] && return 0; sleep 0.1
   done; echo "the daemon has only $n poses" >&2; return 1
 }
@@ -207,7 +207,7 @@ def test_shell_examples_run(path, bl, tmp_path):
     _shim(str(bindir))
     work = tmp_path / "work"
     work.mkdir()
-    env = dict(os.environ, PATH=f"{bindir}{os.pathsep}{os.environ['PATH']}",
+    env = dict(os.environ, PATH=f"{bindir}{os.pathsep}{os.environ['PATH']}", __PY=sys.executable,
                PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""), HOME=str(tmp_path))
     rel = os.path.relpath(path, ROOT)
     ran = 0

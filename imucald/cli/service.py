@@ -199,6 +199,10 @@ def cmd_status(args) -> int:
         print(f"magnetometer rotation coverage {r['mag_coverage']:.0%} of the sphere")
     print(f"poses {r['poses']}/{r['poses_needed']}, coverage {r['coverage']:.0%}"
           + (f", next: {r['next_orientation']}" if r.get("next_orientation") else ""))
+    if r.get("calibration_provisional"):         # applied before the pose set was complete
+        miss = r.get("missing_orientations") or []
+        cal += ", provisional" + (f" (missing: {', '.join(miss[:6])}{', ...' if len(miss) > 6 else ''})"
+                                  if miss else "")
     print(f"calibration {cal}{', calibrating now' if r.get('calibrating') else ''}")
     sn = r.get("sensor") or {}
     if sn:

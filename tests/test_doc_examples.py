@@ -8,7 +8,9 @@ being this tree's command line.
 
 A block preceded by `<!-- example: skip REASON -->` is not run; the reason is required
 (e.g. system commands that need root and systemd: tests/test_install.py covers them).
-Any other `<!-- example: ... -->` comment is a note to the reader.
+Any other `<!-- example: ... -->` comment is a note to the reader. A block whose commands
+are those of a block that already ran (the README repeats the quick start's probe, run,
+status) and that reads no file is not run twice.
 
 Where a block names hardware it runs on the emulated board (the transformations are
 applied per command, and the file and line are named when one fails):
@@ -21,7 +23,7 @@ applied per command, and the file and line are named when one fails):
   `-n 5`), `/run/imucald/` means it too, and a `sleep N` lasts at most 3 s;
 - shorter, to keep the suite fast (the examples' results are not the point here, that
   they run is): `record --seconds` at most 120, `simulate --poses` at most 16 held at
-  most 3 s each, `gap --sims` 30 (the least it takes is 20), `run --speed` 100;
+  most 3 s each, `gap --sims` 20 (the least it takes), `run --speed` 100;
 - `imucald recalibrate` first waits (up to 60 s) until the daemon holds the 10 poses it
   needs, as a user reads `status` before asking.
 """
@@ -73,13 +75,13 @@ def _segment(seg: str, rt: str, st: str):
     add = []
     if cmd in ("record", "simulate", "gap"):
         seg = _cap(seg, {"record": ("--seconds", 120.0), "simulate": ("--hold", 3.0),
-                         "gap": ("--sims", 30)}[cmd])
+                         "gap": ("--sims", 20)}[cmd])
         if cmd == "simulate":
             seg = _cap(seg, ("--poses", 16))
             if not has("--hold"):
                 add.append("--hold 3")
         if cmd == "gap" and not has("--sims"):
-            add.append("--sims 30")
+            add.append("--sims 20")
     if cmd == "probe" and not has("--emulate"):
         add.append("--emulate 9dof")
     if cmd == "record" and not has("--emulate"):
@@ -197,8 +199,16 @@ def test_transform_puts_hardware_commands_on_the_emulated_board():
                   "imucald record -o r.csv --seconds 300 --emulate\n", "/R", "/S").splitlines()
     assert "--speed 100 " in t[0] and "--runtime-dir run " in t[0] and "/R" not in t[0], t[0]
     assert t[0].endswith(" & __wait_socket run; "), t[0]
-    assert t[1] == "imucald gap s.csv --sims 30" and t[2] == "imucald record -o r.csv --seconds 120 --emulate"
+    assert t[1] == "imucald gap s.csv --sims 20" and t[2] == "imucald record -o r.csv --seconds 120 --emulate"
     assert lines[5] == "__stop_daemons"
+
+
+_RAN = set()     # commands already run by an earlier page (the README repeats the quick start)
+
+
+def _key(body: str) -> str:
+    """The commands of a block, comments and spacing aside."""
+    return "\n".join(" ".join(l.split(" #")[0].split()) for l in body.splitlines() if l.strip())
 
 
 @pytest.mark.parametrize("path,bl", list(_cases()))
@@ -214,6 +224,9 @@ def test_shell_examples_run(path, bl, tmp_path):
     for line, note, body in bl:
         if note.startswith("skip"):
             continue
+        if _key(body) in _RAN and ".csv" not in body and ".yaml" not in body:
+            ran += 1                # the same commands, reading no file, already ran as written
+            continue
         rt, st = str(tmp_path / f"run{line}"), str(tmp_path / f"state{line}")
         script = PRELUDE + transform(body, rt, st)
         t0 = time.time()
@@ -223,5 +236,6 @@ def test_shell_examples_run(path, bl, tmp_path):
                                    f"{time.time() - t0:.1f} s\n{script}\n--- stderr:\n{p.stderr[-3000:]}"
                                    f"\n--- stdout:\n{p.stdout[-1500:]}")
         ran += 1
+        _RAN.add(_key(body))
     if not ran:
         pytest.skip(f"{rel}: every example is marked skip (with its reason)")

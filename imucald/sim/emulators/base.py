@@ -158,8 +158,7 @@ class GridMotion:
         k = np.rint(j)
         if k[0] < 0 or k[-1] >= self.BLOCK or np.abs(j - k).max() > self._TOL:
             return None
-        idx = k.astype(np.intp)
-        return {key: v[idx] for key, v in self._m.items()}
+        return _Rows(self._m, k.astype(np.intp))
 
     def sample(self, t) -> Dict[str, np.ndarray]:
         t = np.atleast_1d(np.asarray(t, float))
@@ -172,6 +171,22 @@ class GridMotion:
             self._m = self.motion.sample(self._t0 + dt * np.arange(self.BLOCK))
             m = self._hit(t, dt)
         return m if m is not None else self.motion.sample(t)
+
+
+class _Rows:
+    """Rows ``idx`` of a block of motion arrays, sliced when a key is read (a chip reads
+    two or three of the six)."""
+
+    __slots__ = ("_m", "_i")
+
+    def __init__(self, m, idx):
+        self._m, self._i = m, idx
+
+    def __getitem__(self, key):
+        return self._m[key][self._i]
+
+    def keys(self):
+        return self._m.keys()
 
 
 def i16(x: np.ndarray, lo: int = -32768, hi: int = 32767) -> np.ndarray:

@@ -89,7 +89,7 @@ def _segment(seg: str, rt: str, st: str):
     if cmd == "run":
         seg = re.sub(r"--speed\s+\S+", "--speed 100", seg)
         add += [a for f, a in (("--emulate", "--emulate"), ("--speed", "--speed 100"),
-                               ("--duration", "--duration 3000"), ("--state-dir", f"--state-dir {st}"),
+                               ("--duration", "--duration 100000"), ("--state-dir", f"--state-dir {st}"),
                                ("--runtime-dir", f"--runtime-dir {rt}")) if not has(f)]
     if cmd in ("status", "recalibrate", "watch", "mqtt") and not has("--runtime-dir"):
         add.append(f"--runtime-dir {rt}")

@@ -161,32 +161,21 @@ def _accel_model_order(path, model, n_poses, default, det, progress):
 
 
 def cmd_calibrate(args) -> int:
-    import numpy as np
+    """parse (input, sensor, model) -> poses -> fit -> rotations and thermal terms -> write
+    and present; each step a function below."""
     from .. import _malloc
     # the fit tunes the allocator anyway (calib/lsq.py); tuned before reading, the reader's
     # and the detector's MB-sized temporaries are reused from the heap, not page-faulted
     # afresh each time (measured: 3.5 ms of reading, 1.5 ms of detection on the Xsens file)
     _malloc.tune()
-    from ..calib.fit import fit_gyro_bias, fit_norm
     from ..calib.inputs import load_input
-    from ..calib.models import MODEL_NAMES
     from ..calib.poses import poses_and_pieces
     columns = args.columns.split(",") if args.columns else None
     kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
-    sensor = args.sensor
-    if sensor == "all":         # every part the recording supports, into one file (cli/calall.py)
+    if args.sensor == "all":    # every part the recording supports, into one file (cli/calall.py)
         from .calall import cmd_calibrate_all
         return cmd_calibrate_all(args, kind, obj)
-    if sensor is None:      # a magnetometer-only recording: calibrate the magnetometer
-        sensor = "mag" if kind == "recording" and obj.acc is None and obj.mag is not None else "accel"
-    model = args.model or DEFAULT_MODEL[sensor]
-    accel_models = ["auto"] + [m for m in MODEL_NAMES if not m.startswith("mag_")]
-    if sensor == "accel" and model not in accel_models:
-        raise UserError(f"--model {model!r} does not fit --sensor accel: allowed " + ", ".join(accel_models))
-    if sensor == "mag" and not model.startswith("mag_"):
-        raise UserError(f"--model {model!r} does not fit --sensor mag: allowed mag_sym, mag_diag, mag_sphere")
-    if sensor == "gyro" and model not in ("mean", "eq6"):
-        raise UserError(f"--model {model!r} does not fit --sensor gyro: allowed mean, eq6")
+    sensor, model = _sensor_and_model(args, kind, obj)
     rec = obj if kind == "recording" else None
     progress = None if args.json else _eprint
     if sensor == "mag" and rec is not None:
@@ -201,54 +190,20 @@ def cmd_calibrate(args) -> int:
     if det is not None and det.repeats.summary():
         # repeated rows (sample-and-hold, duplicated rows) are not measurements: said once
         _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
-    infl_pieces = None
-    chip = infl = None
+    chip = infl_pieces = None
     if sensor == "accel":
-        need, model = _accel_model_order(args.input, model, len(poses), args.model is None, det, progress)
-        _check_rest_norms(args.input, poses)
-        if progress:
-            from ..calib.poses import still_report
-            for line in still_report(det)[1:]:
-                progress(f"imucald: {line}")
-            progress(f"imucald: {len(poses)} still poses; fitting {model} with {args.method}")
-        kw = {"progress": progress} if args.method == "ga-paper" and progress else {}
-        from ..specs import BOARDS
-        chip = BOARDS.get(poses.meta.get("board", ""), (None,))[0]
-        infl = None
-        if rec is not None:     # coloured noise: the Allan model of the longest still pose
-            from ..calib.noise import pose_colour_inflation
-            from .thermal import pieces_colour_inflation
-            infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
-            infl_pieces = pieces_colour_inflation(rec, poses, pieces)
-        cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed,
-                       chip=chip, noise_inflation=infl, **kw)
-    elif sensor == "mag":           # a pose file: the pose means are the points
-        if poses.mag is None:
-            raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
-        _check_mag_span(args.input, poses.mag)
-        cal = fit_norm(poses.mag, model, args.method, pose_cov=poses.mag_cov, rng=args.seed)
+        cal, chip, infl_pieces = _fit_accel(args, rec, poses, pieces, det, model, progress)
+    elif sensor == "mag":
+        cal = _fit_mag_poses(args, poses, model)
     else:
-        if poses.gyro is None:
-            raise UserError(f"{args.input}: no gyro columns (gx, gy, gz)")
-        if len(poses) == 0:
-            raise UserError(f"{args.input}: no still poses found; the gyro bias needs at least one: hold "
-                            f"the board still for a few seconds, or check the units (--nominal-scale)")
-        samples = None
-        if model == "eq6":
-            if rec is None:
-                raise UserError("--model eq6 needs the still samples: give a recording")
-            from ..calib.poses import detect_static
-            sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
-            keep = det.repeats.keep if det is not None else np.ones(len(rec.t), bool)
-            samples = np.concatenate([rec.gyro[s][keep[s]] for s in sl])     # distinct samples
-        cal = fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
+        cal = _fit_gyro_poses(args, rec, poses, det, model)
     rot = why = None
     if sensor == "gyro" and rec is not None:    # scale/misalignment from the rotations between poses
         from .gyrorot import fit_rotations
         rot, why = fit_rotations(rec, poses, args, pieces)
     tf = None
     if sensor in ("accel", "gyro") and args.method != "ga-paper":
-        # the thermal terms: the order the held-out test supports (README: thermal terms)
+        # the thermal terms: the order the held-out test supports (docs: thermal terms)
         from .thermal import fit_thermal
         tf = fit_thermal(sensor, pieces, cal, chip, infl_pieces, args.thermal_min_span, args.seed)
     part = _file_part(cal, tf, rot)             # what -o writes (and the file's bias for the gyro)
@@ -258,23 +213,108 @@ def cmd_calibrate(args) -> int:
         from .plotcmd import calibrate_plots
         calibrate_plots(args.plot, poses, part, os.path.basename(args.input))
     if args.json:
-        d = cal.to_json()
-        if det is not None:     # the still-pose detection behind the fit (issue 20)
-            rp = det.repeats
-            d["stillness"] = {"effective_rate_hz": round(float(det.rate), 4), "repeated_rows": int(rp.repeated),
-                              "held": bool(rp.held), "duplicated_timestamps": int(rp.duplicated_t),
-                              "rejected": dict(det.rejected_counts)}
-        if rec is not None and sensor == "gyro":
-            from .gyrorot import rotation_json
-            d["rotations"] = rotation_json(rot, why)
-        if sensor == "gyro":
-            d["file"] = {"bias_dps": part.params["bias_dps"].tolist(),
-                         "matrix": "matrix" in part.params, "g_sens_dps_per_g": "g_sens_dps_per_g" in part.params}
-        if tf is not None:
-            from .thermal import thermal_json
-            d["thermal"] = thermal_json(sensor, tf)
-        print(json.dumps(d))
-        return 0
+        print(json.dumps(_calibrate_json(sensor, cal, det, rec, rot, why, part, tf)))
+    else:
+        _print_report(sensor, cal, rec, rot, why, part, tf)
+    return 0
+
+
+def _sensor_and_model(args, kind: str, obj):
+    """The sensor to calibrate (a magnetometer-only recording: the magnetometer) and the
+    model asked for (else the sensor's default), refused in one line when it does not fit."""
+    from ..calib.models import MODEL_NAMES
+    sensor = args.sensor
+    if sensor is None:
+        sensor = "mag" if kind == "recording" and obj.acc is None and obj.mag is not None else "accel"
+    model = args.model or DEFAULT_MODEL[sensor]
+    accel_models = ["auto"] + [m for m in MODEL_NAMES if not m.startswith("mag_")]
+    if sensor == "accel" and model not in accel_models:
+        raise UserError(f"--model {model!r} does not fit --sensor accel: allowed " + ", ".join(accel_models))
+    if sensor == "mag" and not model.startswith("mag_"):
+        raise UserError(f"--model {model!r} does not fit --sensor mag: allowed mag_sym, mag_diag, mag_sphere")
+    if sensor == "gyro" and model not in ("mean", "eq6"):
+        raise UserError(f"--model {model!r} does not fit --sensor gyro: allowed mean, eq6")
+    return sensor, model
+
+
+def _fit_accel(args, rec, poses, pieces, det, model, progress):
+    """The accelerometer on the still poses: the model the pose count supports, the chip's
+    datasheet prior, the coloured-noise inflation from the recording; returns (FitResult,
+    chip, the pieces' inflation for the thermal fit)."""
+    from ..calib.fit import fit_norm
+    from ..specs import BOARDS
+    need, model = _accel_model_order(args.input, model, len(poses), args.model is None, det, progress)
+    _check_rest_norms(args.input, poses)
+    if progress:
+        from ..calib.poses import still_report
+        for line in still_report(det)[1:]:
+            progress(f"imucald: {line}")
+        progress(f"imucald: {len(poses)} still poses; fitting {model} with {args.method}")
+    kw = {"progress": progress} if args.method == "ga-paper" and progress else {}
+    chip = BOARDS.get(poses.meta.get("board", ""), (None,))[0]
+    infl = infl_pieces = None
+    if rec is not None:     # coloured noise: the Allan model of the longest still pose
+        from ..calib.noise import pose_colour_inflation
+        from .thermal import pieces_colour_inflation
+        infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
+        infl_pieces = pieces_colour_inflation(rec, poses, pieces)
+    cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed,
+                   chip=chip, noise_inflation=infl, **kw)
+    return cal, chip, infl_pieces
+
+
+def _fit_mag_poses(args, poses, model):
+    """The magnetometer from a pose file: the pose means are the points."""
+    from ..calib.fit import fit_norm
+    if poses.mag is None:
+        raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
+    _check_mag_span(args.input, poses.mag)
+    return fit_norm(poses.mag, model, args.method, pose_cov=poses.mag_cov, rng=args.seed)
+
+
+def _fit_gyro_poses(args, rec, poses, det, model):
+    """The gyro bias from the still poses (``eq6``: from their distinct still samples)."""
+    import numpy as np
+    from ..calib.fit import fit_gyro_bias
+    if poses.gyro is None:
+        raise UserError(f"{args.input}: no gyro columns (gx, gy, gz)")
+    if len(poses) == 0:
+        raise UserError(f"{args.input}: no still poses found; the gyro bias needs at least one: hold "
+                        f"the board still for a few seconds, or check the units (--nominal-scale)")
+    samples = None
+    if model == "eq6":
+        if rec is None:
+            raise UserError("--model eq6 needs the still samples: give a recording")
+        from ..calib.poses import detect_static
+        sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+        keep = det.repeats.keep if det is not None else np.ones(len(rec.t), bool)
+        samples = np.concatenate([rec.gyro[s][keep[s]] for s in sl])     # distinct samples
+    return fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
+
+
+def _calibrate_json(sensor, cal, det, rec, rot, why, part, tf) -> dict:
+    """calibrate --json: the fit, the still-pose detection behind it, the rotations, what the
+    file holds and the thermal terms."""
+    d = cal.to_json()
+    if det is not None:     # the still-pose detection behind the fit (issue 20)
+        rp = det.repeats
+        d["stillness"] = {"effective_rate_hz": round(float(det.rate), 4), "repeated_rows": int(rp.repeated),
+                          "held": bool(rp.held), "duplicated_timestamps": int(rp.duplicated_t),
+                          "rejected": dict(det.rejected_counts)}
+    if rec is not None and sensor == "gyro":
+        from .gyrorot import rotation_json
+        d["rotations"] = rotation_json(rot, why)
+    if sensor == "gyro":
+        d["file"] = {"bias_dps": part.params["bias_dps"].tolist(),
+                     "matrix": "matrix" in part.params, "g_sens_dps_per_g": "g_sens_dps_per_g" in part.params}
+    if tf is not None:
+        from .thermal import thermal_json
+        d["thermal"] = thermal_json(sensor, tf)
+    return d
+
+
+def _print_report(sensor, cal, rec, rot, why, part, tf) -> None:
+    """calibrate's text report: the fit, then the rotations, the file's gyro line, the thermal terms."""
     _print_cal(sensor, cal)
     if rec is not None and sensor == "gyro":
         from .gyrorot import rotation_lines
@@ -285,7 +325,6 @@ def cmd_calibrate(args) -> int:
     if tf is not None:
         from .thermal import thermal_lines
         print("\n".join(thermal_lines(sensor, tf)))
-    return 0
 
 
 def _print_cal(sensor: str, cal) -> None:

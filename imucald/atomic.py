@@ -87,12 +87,17 @@ def atomic_write_bytes(path: str, data: bytes, mode: int = 0o644, flag: str = ""
         check_output(path, flag)        # again: something may have appeared meanwhile
         os.replace(tmp, path)
     except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
+        _remove_quietly(tmp)
         raise
     fsync_dir(d)
+
+
+def _remove_quietly(path: str) -> None:
+    """Remove a temporary file left by a failed write (gone already is fine)."""
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
 
 
 def atomic_write_text(path: str, text: str, mode: int = 0o644, flag: str = "") -> None:
@@ -169,10 +174,7 @@ class GrowingFile:
             os.replace(tmp, path)
         except BaseException:
             os.close(fd)
-            try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
+            _remove_quietly(tmp)
             raise
         fsync_dir(d)
         self._fd = fd

@@ -108,14 +108,14 @@ def _yaml_error(e, path: str, error):
     return error(f"{path}{line}: not valid YAML: {snippet(prob, 120, quote=False)}")
 
 
-def compose(data, path: str, error=UserError, base=None, max_bytes: int = MAX_BYTES):
-    """The YAML node tree of ``data`` (bytes or str) with the limits (None for an empty file)."""
+def _run(data, path: str, error, base, max_bytes: int, get):
+    """``get`` (a loader method's name) on ``data`` with the limits; every failure one line."""
     import yaml
     text = _text(data, path, error, max_bytes)
     ld = None
     try:
         ld = _loader(text, path, error, base)
-        return ld.get_single_node()
+        return getattr(ld, get)()
     except yaml.YAMLError as e:
         raise _yaml_error(e, path, error) from None
     except RecursionError:
@@ -123,24 +123,17 @@ def compose(data, path: str, error=UserError, base=None, max_bytes: int = MAX_BY
     finally:
         if ld is not None:
             ld.dispose()
+
+
+def compose(data, path: str, error=UserError, base=None, max_bytes: int = MAX_BYTES):
+    """The YAML node tree of ``data`` (bytes or str) with the limits (None for an empty file)."""
+    return _run(data, path, error, base, max_bytes, "get_single_node")
 
 
 def load(data, path: str, error=UserError, base=None, max_bytes: int = MAX_BYTES) -> Any:
     """The Python value of ``data`` (bytes or str): one document, with the limits; ``error``
     (a UserError class) for every failure, one line naming ``path`` and the line."""
-    import yaml
-    text = _text(data, path, error, max_bytes)
-    ld = None
-    try:
-        ld = _loader(text, path, error, base)
-        return ld.get_single_data()
-    except yaml.YAMLError as e:
-        raise _yaml_error(e, path, error) from None
-    except RecursionError:
-        raise error(f"{path}: not valid YAML: nested too deeply") from None
-    finally:
-        if ld is not None:
-            ld.dispose()
+    return _run(data, path, error, base, max_bytes, "get_single_data")
 
 
 def load_file(path: str, error=UserError, base=None, max_bytes: int = MAX_BYTES,

@@ -189,11 +189,9 @@ class Decision:
         return f"{head}, {sig}{tail}"
 
 
-def paired_gate(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = GATE_FALSE_ACCEPT_RATE,
-                against: str = "current") -> Decision:
-    """Decide on paired per-pose squared residuals (incumbent as is, candidate
-    cross-validated).  Pairs with a non-finite value are an error, not skipped: a
-    NaN there means a refit failed."""
+def _paired(sq_incumbent, sq_cv, alpha: float):
+    """The paired per-pose squared residuals as flat arrays, checked: equal, non-empty sizes,
+    all finite (a NaN means a refit failed: an error, not a skipped pair), alpha in (0, 1)."""
     a = np.asarray(sq_incumbent, float).ravel()
     b = np.asarray(sq_cv, float).ravel()
     if a.shape != b.shape or a.size == 0:
@@ -202,6 +200,15 @@ def paired_gate(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = GATE
         raise ValueError("the gate got a non-finite residual (a cross-validation refit failed)")
     if not 0 < alpha < 1:
         raise ValueError(f"false-accept rate {alpha!r} must lie in (0, 1)")
+    return a, b
+
+
+def paired_gate(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = GATE_FALSE_ACCEPT_RATE,
+                against: str = "current") -> Decision:
+    """Decide on paired per-pose squared residuals (incumbent as is, candidate
+    cross-validated).  Pairs with a non-finite value are an error, not skipped: a
+    NaN there means a refit failed."""
+    a, b = _paired(sq_incumbent, sq_cv, alpha)
     p = signed_rank_p(a - b)
     return Decision(bool(p <= alpha), float(p), float(alpha), int(a.size),
                     float(np.sqrt(b.mean())), float(np.sqrt(a.mean())), against)
@@ -218,14 +225,7 @@ def gate_rule(sq_incumbent: np.ndarray, sq_cv: np.ndarray, alpha: float = GATE_F
     was fitted on; var_incumbent (N,): the incumbent's predicted squared residual on each
     pose if it describes the sensor (:func:`incumbent_predicted_var`), for rule 1, over
     dof_per_pose squared components (the gyro's 3 axes: var_incumbent per axis)."""
-    a = np.asarray(sq_incumbent, float).ravel()
-    b = np.asarray(sq_cv, float).ravel()
-    if a.shape != b.shape or a.size == 0:
-        raise ValueError(f"the gate needs equal, non-empty residual sets (got {a.size} and {b.size})")
-    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
-        raise ValueError("the gate got a non-finite residual (a cross-validation refit failed)")
-    if not 0 < alpha < 1:
-        raise ValueError(f"false-accept rate {alpha!r} must lie in (0, 1)")
+    a, b = _paired(sq_incumbent, sq_cv, alpha)
     old = np.zeros(a.size, bool) if fitted is None else np.asarray(fitted, bool).ravel()
     new = ~old
     m, k_old = int(new.sum()), int(old.sum())

@@ -1,8 +1,7 @@
 """Every shell example in README.md and docs/ runs as written, so the examples cannot rot.
 
 What counts as an example: a fenced block marked ```sh (or ```bash). Output shown to the
-reader is fenced ```text and is not run. docs/changes/ (per-issue notes the integrator
-folds in) is skipped. The blocks of one page run in order, in one temporary directory (a
+reader is fenced ```text and is not run. The blocks of one page run in order, in one temporary directory (a
 later block may use the file an earlier one wrote), each under `bash -e`, with `imucald`
 being this tree's command line.
 
@@ -44,7 +43,7 @@ FENCE = re.compile(r"(?:<!--\s*example:(?P<note>[^>]*)-->\s*\n)?^```(?:sh|bash)[
 def pages():
     out = [os.path.join(ROOT, "README.md")]
     for d, dirs, files in os.walk(os.path.join(ROOT, "docs")):
-        dirs[:] = sorted(x for x in dirs if x != "changes")
+        dirs[:] = sorted(dirs)
         out += [os.path.join(d, f) for f in sorted(files) if f.endswith(".md")]
     return out
 

@@ -79,7 +79,7 @@ def sock_file(path):
 
 def check_stream(lines, label):
     objs = [json.loads(x) for x in lines]
-    assert objs[0]["class"] == "VERSION" and objs[0]["proto_major"] == 1, label
+    assert objs[0]["class"] == "VERSION" and objs[0]["proto_major"] == 2, label
     imu = [o for o in objs if o["class"] == "IMU"]
     gaps = {o["seq"]: o["missing"] for o in objs if o["class"] == "GAP"}
     seq = np.array([o["seq"] for o in imu])

@@ -54,8 +54,10 @@ __all__ = ["encode_samples", "banner", "event", "SocketSink", "FifoSink", "BINAR
            "BINARY_DTYPE", "BINARY_VERSION", "PROTO_MAJOR", "PROTO_MINOR", "CSV_HEADER",
            "CSV_ORIENTATION", "orientation_extra"]
 
-#: minor 1: orientation fields (additive in NDJSON and CSV; the binary record is version 2)
-PROTO_MAJOR, PROTO_MINOR = 1, 1
+#: 2.0: the binary record's layout changed (version 2, 100 bytes: a client of the 64-byte
+#: records must not read it as one, so a major step, docs/reference/stream.md); the
+#: orientation fields are additive in NDJSON and CSV
+PROTO_MAJOR, PROTO_MINOR = 2, 0
 BINARY_FORMAT = struct.Struct("<QdIB3x3f3ff3f4f3fff")
 BINARY_VERSION = 2
 #: the record as a numpy dtype (the same layout as BINARY_FORMAT)

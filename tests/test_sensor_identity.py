@@ -102,8 +102,9 @@ def test_a_calibration_of_another_sensor_copied_in_is_moved_not_applied(tmp_path
 
 
 def _run_once(tmp_path, seed, query=False):
-    """One daemon start on the emulated MPU-6050 of ``seed`` (20 s of sensor time, 5x)."""
-    p, rt, st = start_daemon(tmp_path, "--speed", "5", "--seed", str(seed), "--duration", "20")
+    """One daemon start on the emulated MPU-6050 of ``seed`` (10 s of sensor time, 5x: the
+    identity is written at the first sample; 2 s of wall time leaves the status query room)."""
+    p, rt, st = start_daemon(tmp_path, "--speed", "5", "--seed", str(seed), "--duration", "10")
     status = None
     try:
         if query:

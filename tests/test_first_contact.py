@@ -71,6 +71,34 @@ def test_watch_counts_samples_not_the_banner_or_events():
     assert is_sample_line(b"12,0.12,0,0,1,,,,,,,,1,0\n")
 
 
+def test_watch_says_so_when_the_daemon_closes_the_stream(tmp_path, capsys):
+    """A watcher whose daemon stops must not end as if all went well.  Breakage it catches:
+    `watch` returning 0 with no word when the stream ends before -n samples (the old code)."""
+    import socket
+    import threading
+    from imucald.cli import main
+    sock = tmp_path / "imucald.sock"
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    srv.bind(str(sock))
+    srv.listen(1)
+
+    def serve():                                   # a daemon that sends 2 samples, then dies
+        c, _ = srv.accept()
+        c.sendall(b'{"class":"VERSION","release":"x","proto_major":2}\n'
+                  b'{"class":"IMU","seq":1,"t":0.01,"acc_g":[0,0,1],"still":true,"cal":0}\n'
+                  b'{"class":"IMU","seq":2,"t":0.02,"acc_g":[0,0,1],"still":true,"cal":0}\n')
+        c.close()
+    th = threading.Thread(target=serve, daemon=True)
+    th.start()
+    code = main(["watch", "--runtime-dir", str(tmp_path), "-n", "5"])
+    th.join(5)
+    srv.close()
+    err = capsys.readouterr().err
+    assert code == 69, err
+    assert "closed the stream after 2 samples" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+
+
 def test_grid_motion_serves_the_motion_itself():
     """The block-wise motion the emulated chips read (the record speed-up) gives the values
     the motion model gives at the same times, on and off the chip's grid."""

@@ -255,8 +255,12 @@ def cmd_watch(args) -> int:
         if is_sample_line(line):    # -n counts samples: not the VERSION banner, a CSV
             count += 1              # header, a GAP/CAL event
         if args.count and count >= args.count:
-            break
-    return 0
+            return 0
+    # The stream ends only when the daemon closes it (stopped, restarted or crashed): a
+    # watcher must not mistake that for success (exit 0 silently was a reported bug).
+    from ..errors import DeviceUnavailable
+    raise DeviceUnavailable(f"{p}: the daemon closed the stream after {count} samples "
+                            "(stopped or restarted?): see `imucald status` or journalctl -u imucald")
 
 
 def _with_attitude(line: str) -> str:

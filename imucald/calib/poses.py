@@ -6,7 +6,12 @@ there): the batch call here runs the daemon's streaming detector over the whole
 file, so ``calibrate``, ``replay``, the daemon and ``gap`` find the same poses.
 
 Each pose carries its mean, sample covariance, covariance of the mean, count,
-mean temperature and start/end time.
+mean temperature and start/end time.  The covariance of the mean is the sample
+covariance over n (white noise) for single slices; the whole-recording calls
+(:func:`poses_and_pieces`, what calibrate fits) rescale it per axis by the
+structure-function estimate of :mod:`imucald.calib.posecov`, so that hand tremor (which
+averages out of a pose mean) and short-correlated colour (which does not) are counted as
+they are.
 """
 from __future__ import annotations
 
@@ -47,6 +52,9 @@ class PoseSet:
     meta: Dict[str, str] = field(default_factory=dict)
     #: the whole-file detector that found the poses (repeats, rejected stretches), or None
     detector: object = field(default=None, repr=False, compare=False)
+    #: how the covariances of the means were formed ({"accel": summary, "gyro": ...} of
+    #: calib/posecov.py), or None (sample covariance over n)
+    noise: Optional[dict] = field(default=None, repr=False, compare=False)
 
     def __len__(self):
         return len(self.acc)
@@ -139,7 +147,7 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
         kw = dict(kw, chip=recording_chips(rec.meta).get("accel"))
     ivs, dropped, det = detect(rec.t, rec.acc, rec.gyro, rec.rate_hz, mag=rec.mag, **kw)
     keep = None if det is None else det.repeats.keep
-    ps = poses_from_slices(rec, merge_cut(ivs, keep), keep)
+    ps = poses_from_slices(rec, merge_cut(ivs, keep), keep, structure=True)
     pieces = poses_from_slices(rec, [slice(iv.i0, iv.i1) for iv in ivs], keep)
     if dropped:
         ps.meta["dropped_samples"] = pieces.meta["dropped_samples"] = str(dropped)
@@ -196,9 +204,13 @@ def no_still_message(path: str, det, n_found: int = 0) -> str:
             f"orientation")
 
 
-def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.ndarray] = None) -> PoseSet:
+def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.ndarray] = None,
+                      structure: bool = False) -> PoseSet:
     """Each slice's rows averaged; with ``keep`` only the distinct ones (repeated samples
-    are not measurements: counted, they would shrink the standard errors)."""
+    are not measurements: counted, they would shrink the standard errors).  With
+    ``structure`` the accelerometer's and gyro's covariances of the means are rescaled
+    per axis by the within-pose structure function (calib/posecov.py; ``ps.noise`` says
+    what it found); else each is the pose's sample covariance over n."""
     N = len(slices)
     acc = np.zeros((N, 3))
     acov = np.zeros((N, 3, 3))
@@ -211,9 +223,11 @@ def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.nda
     mg = np.zeros((N, 3)) if rec.mag is not None else None
     mcov = np.zeros((N, 3, 3)) if rec.mag is not None else None
     tp = np.zeros(N) if rec.temp is not None else None
+    rows = []
     for i, s in enumerate(slices):
         if keep is not None and not keep[s].all():
             s = s.start + np.flatnonzero(keep[s])
+        rows.append(s)
         a = rec.acc[s]
         n[i] = len(a)
         acc[i], scov[i] = _mean_cov(a)
@@ -227,7 +241,14 @@ def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.nda
             mcov[i] = c / n[i]
         if tp is not None:
             tp[i] = rec.temp[s].mean()
-    return PoseSet(acc, acov, n, t0, t1, scov, gy, gcov, mg, mcov, tp, dict(rec.meta))
+    ps = PoseSet(acc, acov, n, t0, t1, scov, gy, gcov, mg, mcov, tp, dict(rec.meta))
+    if structure and N:
+        from .posecov import scale_pose_cov
+        ps.noise = {}
+        ps.acc_cov, ps.noise["accel"] = scale_pose_cov([rec.acc[s] for s in rows], acov)
+        if gcov is not None:
+            ps.gyro_cov, ps.noise["gyro"] = scale_pose_cov([rec.gyro[s] for s in rows], gcov)
+    return ps
 
 
 # --- pose-average file ----------------------------------------------------------------

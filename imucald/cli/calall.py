@@ -97,7 +97,10 @@ def _accel(args, rec, poses, pieces, progress):
         progress(f"imucald: accel: fitting {model} with {args.method}")
     kw = {"progress": progress} if args.method == "ga-paper" and progress else {}
     chip = BOARDS.get(poses.meta.get("board", ""), (None,))[0]
-    infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
+    from ..calib.posecov import allan_still_needed
+    infl = None
+    if allan_still_needed((poses.noise or {}).get("accel")):    # not counted twice (calib/posecov.py)
+        infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
     cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed, chip=chip,
                    noise_inflation=infl, **kw)
     tf = None

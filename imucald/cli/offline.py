@@ -256,7 +256,9 @@ def _fit_accel(args, rec, poses, pieces, det, model, progress):
     if rec is not None:     # coloured noise: the Allan model of the longest still pose
         from ..calib.noise import pose_colour_inflation
         from .thermal import pieces_colour_inflation
-        infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
+        from ..calib.posecov import allan_still_needed
+        if allan_still_needed((poses.noise or {}).get("accel")):
+            infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
         infl_pieces = pieces_colour_inflation(rec, poses, pieces)
     cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed,
                    chip=chip, noise_inflation=infl, **kw)

@@ -16,7 +16,27 @@ What the cloud can determine is said, not assumed:
 * a swing in one plane (the out-of-plane spread of the raw cloud is within
   ``FLAT_K`` noise standard deviations) leaves the axis normal to the plane
   undetermined: then no 3-D calibration is returned, only the plane, its normal
-  and the ring's centre in the plane.
+  and the ring's centre in the plane;
+* a cloud that spans three dimensions can still leave terms undetermined: a cap of
+  the sphere (the sensor tilted a little, never rolled over), a planar turn with a
+  wobble, or a sensor carried about without turning (the field's spatial changes then
+  make a small blob that an ellipsoid fits as a tiny sphere).  Each hard-iron
+  component and soft-iron term counts as determined only when its standard error
+  (the fit's covariance: the Cramer-Rao bound at the per-point noise, scaled up by
+  the excess scatter when the residuals reject that noise) is within
+  ``HARD_IRON_SE_MAX`` of the fitted field (hard iron) or ``SOFT_IRON_SE_MAX``
+  (soft-iron terms, W normalised to det 1), and not on a search bound.  2 % is about
+  a degree of heading error at one standard error.  That bound is a linearisation: it
+  holds only when the field directions spread in every plane, so first the corrected
+  cloud's direction scatter must have its smallest eigenvalue at least
+  ``MIN_DIRECTION_EIG`` (1/3 for the whole sphere; 0.02 is a cap of about 60 degrees
+  about the mean direction, a quarter of the sphere), else every term is undetermined:
+  on simulated caps of 45-60 degrees and planar turns with a 10 degree wobble, terms
+  whose standard error passed had errors 40-50x the limit.  Otherwise no calibration
+  is returned either: what is undetermined, how much of the sphere the field
+  directions reached and which sensor axes never pointed along the field.  The
+  rule's error rates on simulated partial rotations and its decisions on the real
+  BROAD trials: bench/mag_determination.py, docs/guide/magnetometer.md.
 
 Noise per sample comes from second differences of the time series (robust: a
 smooth hand rotation contributes little to them at 10-200 Hz).
@@ -34,14 +54,27 @@ from .optim import sphere_fit
 from .uncertainty import residual_variance
 from ..npstats import median
 
-__all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage",
-           "calibrate_rotation", "rel_std", "FLAT_K"]
+__all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage", "undetermined_terms",
+           "missing_axes", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
+           "SOFT_IRON_SE_MAX", "MIN_DIRECTION_EIG"]
 
 #: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
 #: along the plane normal is flat: the normal axis is not determined (3 sigma)
 FLAT_K = 3.0
 #: rows a SphereReservoir queues before binning them
 QUEUE_ROWS = 64
+#: a hard-iron component is determined when its standard error is at most this fraction
+#: of the fitted field (module doc)
+HARD_IRON_SE_MAX = 0.02
+#: a soft-iron term (W normalised to det 1, dimensionless) is determined when its
+#: standard error is at most this
+SOFT_IRON_SE_MAX = 0.02
+#: smallest eigenvalue of the corrected unit directions' scatter for the standard errors
+#: to be trusted at all (module doc)
+MIN_DIRECTION_EIG = 0.02
+SOFT_NAMES = ("soft_iron_xx", "soft_iron_yy", "soft_iron_zz", "soft_iron_xy", "soft_iron_xz",
+              "soft_iron_yz")
+HARD_NAMES = ("hard_iron_x", "hard_iron_y", "hard_iron_z")
 
 
 class SphereReservoir:
@@ -242,6 +275,49 @@ def coverage(model: MagModel, theta: np.ndarray, points: np.ndarray, cells: int 
             "least_spread_axis": V[:, order[-1]].tolist()}
 
 
+def undetermined_terms(cal: FitResult, min_direction_eig: float = np.inf) -> List[Dict[str, Any]]:
+    """The hard-iron components and soft-iron terms a rotation fit does not determine
+    (module doc: every term when the direction scatter's smallest eigenvalue
+    ``min_direction_eig`` is below ``MIN_DIRECTION_EIG``, reason "coverage"; else each
+    whose standard error is above ``HARD_IRON_SE_MAX`` of the field or above
+    ``SOFT_IRON_SE_MAX``, reason "stderr", or on a search bound): one dict each (name,
+    stderr, limit, reason).  The terms a model holds fixed (mag_diag's off-diagonal,
+    mag_sphere's shape) have standard error 0 and are listed only for coverage."""
+    F = float(cal.params["field_gauss"])
+    if not min_direction_eig >= MIN_DIRECTION_EIG:
+        hi = np.asarray(cal.stderr.get("hard_iron_gauss", [np.inf] * 3), float)
+        si = np.asarray(cal.stderr.get("soft_iron", [np.inf] * 6), float)
+        return ([{"name": n, "stderr": float(hi[k]), "limit": HARD_IRON_SE_MAX * abs(F), "unit": "gauss",
+                  "reason": "coverage"} for k, n in enumerate(HARD_NAMES)]
+                + [{"name": n, "stderr": float(si[k]), "limit": SOFT_IRON_SE_MAX, "unit": "",
+                    "reason": "coverage"} for k, n in enumerate(SOFT_NAMES)])
+    hi = np.asarray(cal.stderr.get("hard_iron_gauss", [np.inf] * 3), float)
+    si = np.asarray(cal.stderr.get("soft_iron", [np.inf] * 6), float)
+    bound = {f["name"] for f in cal.uncertainty.flags if "at_bound" in f["reason"]}
+    out: List[Dict[str, Any]] = []
+    for k, name in enumerate(HARD_NAMES):
+        lim = HARD_IRON_SE_MAX * abs(F)
+        if not hi[k] <= lim or f"{name}_gauss" in bound:
+            out.append({"name": name, "stderr": float(hi[k]), "limit": lim, "unit": "gauss",
+                        "reason": "at_bound" if hi[k] <= lim else "stderr"})
+    for k, name in enumerate(SOFT_NAMES):
+        if not si[k] <= SOFT_IRON_SE_MAX:
+            out.append({"name": name, "stderr": float(si[k]), "limit": SOFT_IRON_SE_MAX, "unit": "",
+                        "reason": "stderr"})
+    return out
+
+
+def missing_axes(model: MagModel, theta: np.ndarray, points: np.ndarray,
+                 cover_angle_deg: float = 30.0) -> List[str]:
+    """The sensor axes (+X, -X, ... faces of a cube, then edges) the field direction never
+    came within ``cover_angle_deg`` of, in the corrected cloud: where to turn the sensor."""
+    from .coverage import cube_coverage
+    h = model.forward(theta, np.asarray(points, float))
+    d = h / np.linalg.norm(h, axis=1, keepdims=True)
+    miss = cube_coverage(d, cover_angle_deg)["missing"]
+    return [m.replace(" up", "") for m in miss]
+
+
 def rel_std(norms: np.ndarray) -> float:
     """Relative standard deviation of a field norm: std / mean."""
     n = np.asarray(norms, float)
@@ -297,9 +373,16 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
         return out
     cal = _fit(mdl, pts, sigma, method, rng)
     cal.noise_source = "second differences"
+    out["coverage"] = coverage(mdl, cal.theta, pts, cells)
+    und = undetermined_terms(cal, out["coverage"]["direction_eigenvalues"][-1])
+    if und:
+        # the fit is kept for the report only ("rejected_fit"): a file from it would be wrong
+        out.update(determined=False, undetermined=und, rejected_fit=cal,
+                   field_gauss=float(cal.params["field_gauss"]),
+                   missing_axes=missing_axes(mdl, cal.theta, pts))
+        return out
     out["determined"] = True
     out["calibration"] = cal
-    out["coverage"] = coverage(mdl, cal.theta, pts, cells)
     hn = np.linalg.norm(mdl.forward(cal.theta, mag), axis=1)
     out["norm_rel_std"] = rel_std(hn)
     var = residual_variance(mdl, cal.theta, pts, np.broadcast_to(np.diag(sigma ** 2), (len(pts), 3, 3)))
@@ -329,6 +412,13 @@ def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:
     """The JSON object ``imucald calibrate --sensor mag`` prints for a rotation fit."""
     d: Dict[str, Any] = {"sensor": "mag", "input": "rotation", "determined": bool(res["determined"]),
                          "samples": res["samples"], "points": res["points"], "noise_gauss": res["noise"]}
+    if not res["determined"] and "undetermined" in res:
+        cal = res["rejected_fit"]
+        d["undetermined"] = res["undetermined"]
+        d["missing_axes"] = res["missing_axes"]
+        d["coverage"] = res["coverage"]
+        d["rejected_fit"] = {"params": cal.params, "stderr": cal.stderr, "model": cal.model}
+        return d
     if not res["determined"]:
         f = res["flat"]
         d["undetermined_axis"] = f["normal"]
@@ -347,6 +437,9 @@ def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:
 
 
 def flat_message(res: Dict[str, Any]) -> str:
+    """One line: why the rotation determines no calibration and what to record."""
+    if "undetermined" in res:
+        return undetermined_message(res)
     f = res["flat"]
     if f.get("rank", 2) < 2:
         return ("the magnetometer was hardly turned (its readings spread no more than its noise "
@@ -358,6 +451,40 @@ def flat_message(res: Dict[str, Any]) -> str:
             f"iron along that axis are not determined, so no calibration is given; tilt the sensor "
             f"onto another face and keep turning it (in-plane ring centre: "
             f"[{', '.join(f'{x:.6g}' for x in f['ring_centre'])}])")
+
+
+def undetermined_message(res: Dict[str, Any]) -> str:
+    """One line for a cloud that leaves terms undetermined (module doc): what, why, and
+    which sensor axes never pointed along the field."""
+    und = res["undetermined"]
+    c = res["coverage"]
+    if und[0]["reason"] == "coverage":
+        ax = ", ".join(f"{x:+.2f}" for x in c["least_spread_axis"])
+        what = (f"hard and soft iron: the field directions hardly spread along [{ax}] (direction "
+                f"scatter eigenvalue {c['direction_eigenvalues'][-1]:.3f}; the rule needs "
+                f"{MIN_DIRECTION_EIG:g}, the whole sphere gives 1/3)")
+    else:
+        F = abs(float(res["field_gauss"]))
+        hard = [u for u in und if u["name"].startswith("hard")]
+        soft = [u for u in und if u["name"].startswith("soft")]
+        parts = []
+        if hard:
+            worst = max(u["stderr"] for u in hard)
+            parts.append(f"hard iron {','.join(u['name'][-1] for u in hard)} (standard error up to "
+                         f"{worst / F:.0%} of the field, the rule needs {HARD_IRON_SE_MAX:.0%})")
+        if soft:
+            worst = max(u["stderr"] for u in soft)
+            parts.append(f"soft iron {','.join(u['name'].split('_')[-1] for u in soft)} (standard "
+                         f"error up to {worst:.2g}, the rule needs {SOFT_IRON_SE_MAX:g})")
+        what = " and ".join(parts)
+    miss = res.get("missing_axes") or []
+    faces = [m for m in miss if len(m) == 2] or miss[:4]
+    toward = (f"; the field never came near the sensor's {', '.join(faces)} axes: turn the sensor "
+              f"so that each of those in turn points along the field (north, dipping down)") if faces else ""
+    return (f"the rotation does not determine {what}; the field directions reached "
+            f"{c['fraction']:.0%} of the sphere{toward}; no calibration is given: turn the sensor "
+            f"through every orientation (roll it over each face, not only round in one plane) "
+            f"and record again")
 
 
 def rotation_lines(res: Dict[str, Any]) -> List[str]:

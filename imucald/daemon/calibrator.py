@@ -25,7 +25,7 @@ from ..calib.models import gyro_bias_scatter_se
 from ..calib.gate import Decision, fitted_poses, gate_accel, gate_gyro_bias, paired_gate
 from ..calib.levels import GATE_FALSE_ACCEPT_RATE
 from ..calib.magcal import SphereReservoir as MagReservoir
-from ..calib.magcal import coverage, flat_axis
+from ..calib.magcal import coverage, flat_axis, missing_axes, undetermined_terms
 from ..calib.models import MagModel, Triangular9
 from ..calibration import Calibration, SensorCal, build_calibration
 from ..calib.metrics import rms
@@ -42,7 +42,8 @@ class JobResult(NamedTuple):
     accept: Dict[str, bool]         #: sensor -> the gate's decision
     #: notes: "gate": sensor -> calib.gate.Decision (p-value, alpha, cross-validated RMS...)
     wall_s: float
-    #: mag_flat: the plane of a one-plane swing (no magnetometer part then)
+    #: mag_flat: the plane of a one-plane swing; mag_undetermined: the terms a partial
+    #: rotation leaves undetermined (no magnetometer part in either case)
     notes: Dict[str, Any]
 
 
@@ -147,7 +148,8 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
     """The rotation-cloud calibration (calib.magcal), validated on every k-th point.
 
     A cloud from a one-plane swing is reported (notes["mag_flat"]: the undetermined
-    axis) and never applied."""
+    axis) and never applied; so is one whose terms the determination rule of
+    calib/magcal.py does not accept (notes["mag_undetermined"])."""
     noise = job.get("mag_noise")
     cov = None
     if noise is not None and np.all(np.isfinite(noise)) and np.all(np.asarray(noise) > 0):
@@ -177,6 +179,12 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
                       "raw" if cur.mag is None else "current")
     mc = fit_norm(mp, "mag_sym", "lm", rng=job.get("seed"), heldout=False, pose_cov=pc(len(mp)))
     cv = coverage(_MAG, mc.theta, mp)
+    und = undetermined_terms(mc, cv["direction_eigenvalues"][-1])
+    if und:     # a cap, a wobbly planar turn, no turning at all: never applied (calib/magcal.py)
+        notes["mag_undetermined"] = {"undetermined": und, "coverage": cv,
+                                     "field_gauss": float(mc.params["field_gauss"]),
+                                     "missing_axes": missing_axes(_MAG, mc.theta, mp)}
+        return
     parts["mag"] = SensorCal.from_fit(mc, {
         "points": int(len(mp)), "heldout_rel_rms": dec.rms_cv, "heldout_rel_rms_before": dec.rms_incumbent,
         "gate_p_value": dec.p_value,

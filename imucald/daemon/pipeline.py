@@ -494,6 +494,9 @@ class Pipeline:
         if "mag_flat" in res.notes:
             from ..calib.magcal import flat_message
             parts.append("mag not determined: " + flat_message({"flat": res.notes["mag_flat"]}))
+        elif "mag_undetermined" in res.notes:
+            from ..calib.magcal import flat_message
+            parts.append("mag not determined: " + flat_message(res.notes["mag_undetermined"]))
         elif m:
             parts.append(f"mag held-out {m.quality['heldout_rel_rms'] * 100:.2f} % vs "
                          f"{m.quality['heldout_rel_rms_before'] * 100:.2f} % "

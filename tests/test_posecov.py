@@ -53,3 +53,46 @@ def test_short_correlated_colour_is_counted_above_white():
     assert 0.6 < ratio < 1.5, (ratio, info)
     one, _ = pose_mean_variance(np.vstack(parts), [slice(i * n, (i + 1) * n) for i in range(N)])
     assert np.median(one) / exact < 0.2                  # the twin's one-sided figure: white
+
+
+def test_the_daemons_poses_keep_what_the_estimate_needs():
+    """The daemon's poses are formed incrementally (stillness detector -> accumulator,
+    the samples then dropped): each keeps its holds' structure functions (25 numbers a
+    hold), the job carries them and the worker forms the covariances as calibrate does
+    (the sensor's white noise under 3 deg/s tremor, 0.7-1.4x), also for a pose refined
+    by a second hold.  Seen to fail with the pipeline's job leaving them out (ratio ~6.8)."""
+    from concurrent.futures import Executor, Future
+
+    from imucald.calib.stillness import StillnessDetector
+    from imucald.daemon.calibrator import _pose_cov
+    from imucald.daemon.config import validate
+    from imucald.daemon.pipeline import Pipeline
+
+    class Capture(Executor):
+        jobs = []
+
+        def submit(self, fn, *a, **kw):
+            self.jobs.append(a[0])
+            return Future()
+
+    sa, _ = pose_sigma(ACCEL["mpu6050"].noise_density_g_rthz, 100.0, 1.0)
+    rng = np.random.default_rng(0)
+    rots = random_pose_set(12, rng)
+    s = simulate_session("mpu6050", np.concatenate([rots, rots[:1]]), rng, hold_s=10.0,
+                         move_s=(1.5, 3.0), lead_s=0.0, tremor_dps=3.0)
+    rec = s.recording
+    det = StillnessDetector(100.0, chip="mpu6050")
+    ivs = det.update(rec.t, rec.acc, rec.gyro, rec.temp)[1] + det.flush()
+    ex = Capture()
+    p = Pipeline(validate({}), "mpu6050", 100.0, False, executor=ex, chips={"accel": "mpu6050"})
+    kinds = [p.acc.add(iv) for iv in ivs]
+    assert "refined" in kinds and len(p.acc) == 12          # the 13th hold refines the first
+    assert max(len(q.acc_sf) for q in p.acc.poses) == 2
+    assert p.request_calibration()
+    job = ex.jobs[-1]
+    notes = {}
+    cov = _pose_cov(job, notes)["acc_cov"]
+    n = np.asarray(job["n"])
+    assert np.median(np.einsum("nii->ni", np.asarray(job["acc_cov"])) * n[:, None] / sa ** 2) > 3.0
+    new = np.median(np.einsum("nii->ni", cov) * n[:, None] / sa ** 2)
+    assert 0.7 < new < 1.4, (new, notes)

@@ -42,12 +42,14 @@ from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ["pose_mean_variance", "pose_mean_variance_parts", "pose_sf_rows", "scale_pose_cov",
-           "FRACTIONS", "MIN_SAMPLES", "MIN_POSES"]
+__all__ = ["pose_mean_variance", "pose_mean_variance_parts", "pose_mean_variance_stats", "pose_sf_rows",
+           "scale_pose_cov", "scale_pose_cov_stats", "allan_still_needed", "FRACTIONS", "MIN_SAMPLES",
+           "MIN_POSES"]
 
 FRACTIONS = (0.125, 0.1875, 0.25, 0.375, 0.5)    #: lags as fractions of the pose length
 MIN_SAMPLES = 16                                 #: shortest pose whose increments count
 MIN_POSES = 5                                    #: fewest such poses for an estimate
+MAX_HOLDS = 8                                    #: holds a refined daemon pose keeps
 
 
 def pose_sf_rows(x: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
@@ -119,23 +121,39 @@ def pose_mean_variance_parts(parts: List[np.ndarray], two_sided: bool = False
     C = np.asarray(parts[0]).shape[1] if parts else 1
     s2 = np.array([np.asarray(p, float).var(0, ddof=1) if len(p) > 1 else np.full(C, np.nan)
                    for p in parts]).reshape(len(parts), C)
-    if len(parts) == 0 or not np.isfinite(s2).any():
-        return np.full((len(parts), C), np.nan), {"method": "white", "poses_used": 0}
+    sf = [[(len(p),) + pose_sf_rows(p)] if len(p) >= MIN_SAMPLES else [] for p in parts]
+    return pose_mean_variance_stats(ns, s2, sf, two_sided)
+
+
+def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],
+                             two_sided: bool = False) -> Tuple[np.ndarray, Dict[str, object]]:
+    """:func:`pose_mean_variance` from per-pose statistics, for poses whose samples are
+    gone (the daemon keeps these, a few hundred bytes a pose): ``ns`` (N,) samples per
+    pose, ``s2`` (N, C) per-sample variances, ``sf[i]`` the holds averaged into pose i,
+    each (n_k, rows, obs) of :func:`pose_sf_rows` (one for a pose from one hold, several
+    for a pose refined by later holds, none when unknown, e.g. read back from a file).
+    A pose of K holds has variance (K a + b n) / n^2 (independent holds)."""
+    ns = np.asarray(ns, float)
+    s2 = np.asarray(s2, float).reshape(len(ns), -1)
+    C = s2.shape[1]
+    if len(ns) == 0 or not np.isfinite(s2).any():
+        return np.full((len(ns), C), np.nan), {"method": "white", "poses_used": 0}
     s2_pool = np.nanmedian(s2, axis=0)
     white = s2_pool[None, :] / ns[:, None]
-    use = [i for i, p in enumerate(parts) if len(p) >= MIN_SAMPLES]
-    info: Dict[str, object] = {"method": "white", "poses_used": len(use)}
-    if len(use) < MIN_POSES or not np.all(s2_pool > 0):
+    ent = [e for holds in sf for e in holds if e[0] >= MIN_SAMPLES]
+    info: Dict[str, object] = {"method": "white", "poses_used": len(ent)}
+    if len(ent) < MIN_POSES or not np.all(s2_pool > 0):
         info["note"] = (f"fewer than {MIN_POSES} poses of {MIN_SAMPLES} samples (or a constant "
                         f"axis): per-sample variance over n")
         return white, info
-    rows, obs = {}, {}
-    for i in use:
-        rows[i], obs[i] = pose_sf_rows(parts[i])
-    ab = _fit(rows, obs, ns, use)
-    ref = np.median(ns[use])
+    rows = [e[1] for e in ent]
+    obs = [e[2] for e in ent]
+    hn = np.array([e[0] for e in ent], float)
+    use = list(range(len(ent)))
+    ab = _fit(rows, obs, hn, use)
+    ref = np.median(hn)
     m = len(use)
-    jk_ab = np.array([_fit(rows, obs, ns, [k for k in use if k != i]) for i in use])     # (m, 2, C)
+    jk_ab = np.array([_fit(rows, obs, hn, [k for k in use if k != i]) for i in use])     # (m, 2, C)
     jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
     # the white part only where it is clear of its jackknife error: a b >= 0 clipped from
     # noise is biased upwards, and b n dominates the extrapolation to the pose length
@@ -145,8 +163,8 @@ def pose_mean_variance_parts(parts: List[np.ndarray], two_sided: bool = False
     drop_b = (ab[1] < 2 * jse(jk_ab[:, 1])) & (ratio_ab < 0.25)
     if drop_b.any():
         # there the unconstrained least-squares split (unbiased, either sign) replaces it
-        ab0 = _fit(rows, obs, ns, use, white="ls")
-        jk0 = np.array([_fit(rows, obs, ns, [k for k in use if k != i], white="ls") for i in use])
+        ab0 = _fit(rows, obs, hn, use, white="ls")
+        jk0 = np.array([_fit(rows, obs, hn, [k for k in use if k != i], white="ls") for i in use])
         ab[:, drop_b] = ab0[:, drop_b]
         jk_ab[:, :, drop_b] = jk0[:, :, drop_b]
     est = lambda ab_: (ab_[0] + ab_[1] * ref) / ref ** 2          # (C,) at the median length
@@ -161,18 +179,21 @@ def pose_mean_variance_parts(parts: List[np.ndarray], two_sided: bool = False
         # into a and b is ill-conditioned over lags n/8..n/2 (its jackknife error came out
         # as large as the estimate on AR(1) noise, and most coloured axes stayed white);
         # a short-correlated colour's negative a biases b low by a few per cent
-        ab_ls = _fit(rows, obs, ns, use, white="b")
-        jk_ls = np.array([_fit(rows, obs, ns, [k for k in use if k != i], white="b") for i in use])
+        ab_ls = _fit(rows, obs, hn, use, white="b")
+        jk_ls = np.array([_fit(rows, obs, hn, [k for k in use if k != i], white="b") for i in use])
         full_ls = est(ab_ls) / (s2_pool / ref)
         se_ls = jse(np.array([est(a_) / (s2_pool / ref) for a_ in jk_ls]))
         higher = (full_ls - 2 * se_ls > 1.0) & ~lower
         ab[:, higher] = ab_ls[:, higher]
         full[higher], se[higher] = full_ls[higher], se_ls[higher]
+    # each pose's number of holds (one, unless a daemon refined it; a daemon keeps the
+    # longest MAX_HOLDS: the others are counted at the kept ones' mean length)
+    K = np.array([n / np.mean([e[0] for e in holds]) if len(holds) else 1.0 for holds, n in zip(sf, ns)])
     var = white.copy()
     for j in range(C):
         if lower[j] or higher[j]:
-            var[:, j] = np.maximum((ab[0, j] + ab[1, j] * ns) / ns ** 2,
-                                   (1.0 if higher[j] else 1e-3) * white[:, j])
+            sf_var = (ab[0, j] * K + ab[1, j] * ns) / ns ** 2
+            var[:, j] = np.maximum(sf_var, (1.0 if higher[j] else 1e-3) * white[:, j])
     info.update({"method": "structure function" if (lower | higher).any() else "white",
                  "ratio_to_white": np.round(full, 4).tolist(), "ratio_stderr": np.round(se, 4).tolist(),
                  "bounded_part": ab[0].tolist(), "white_part": ab[1].tolist(),
@@ -187,14 +208,27 @@ def scale_pose_cov(parts: List[np.ndarray], cov_mean: np.ndarray
     figure (:func:`pose_mean_variance_parts`, two-sided): S_i cov_i S_i with
     S_i = diag(sqrt(ratio_i)).  Each pose keeps its own scatter (a disturbed pose stays
     noisier); the averaging is what changes.  Returns (covariances, summary)."""
-    cov_mean = np.asarray(cov_mean, float)
     if len(parts) == 0:
+        return np.asarray(cov_mean, float), {"method": "white", "poses_used": 0}
+    C = np.asarray(parts[0]).shape[1]
+    ns = np.array([len(p) for p in parts], float)
+    s2 = np.array([np.asarray(p, float).var(0, ddof=1) if len(p) > 1 else np.full(C, np.nan)
+                   for p in parts]).reshape(len(parts), C)
+    sf = [[(len(p),) + pose_sf_rows(p)] if len(p) >= MIN_SAMPLES else [] for p in parts]
+    return scale_pose_cov_stats(ns, s2, sf, cov_mean)
+
+
+def scale_pose_cov_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],
+                         cov_mean: np.ndarray) -> Tuple[np.ndarray, Dict[str, object]]:
+    """:func:`scale_pose_cov` from per-pose statistics (:func:`pose_mean_variance_stats`)."""
+    cov_mean = np.asarray(cov_mean, float)
+    if len(ns) == 0:
         return cov_mean, {"method": "white", "poses_used": 0}
-    var, info = pose_mean_variance_parts(parts, two_sided=True)
+    var, info = pose_mean_variance_stats(ns, s2, sf, two_sided=True)
     if info["method"] == "white":
         return cov_mean, info
-    ns = np.array([len(p) for p in parts], float)
-    s2_pool = np.nanmedian(np.array([np.asarray(p, float).var(0, ddof=1) for p in parts]), axis=0)
+    ns = np.asarray(ns, float)
+    s2_pool = np.nanmedian(np.asarray(s2, float).reshape(len(ns), -1), axis=0)
     ratio = var / (s2_pool[None, :] / ns[:, None])
     s = np.sqrt(np.where(np.isfinite(ratio) & (ratio > 0), ratio, 1.0))
     return cov_mean * s[:, :, None] * s[:, None, :], info

@@ -59,6 +59,7 @@ import numpy as np
 
 from ..npstats import median, row_all, row_sum
 from .stillfloor import FLOOR_WINDOWS, floors as _floors, onset as _onset
+from .posecov import MIN_SAMPLES as SF_MIN_SAMPLES, pose_sf_rows
 
 __all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS", "still_limits"]
 
@@ -86,6 +87,9 @@ class StaticInterval:
     mag: Optional[np.ndarray] = None        #: mean of fresh readings, gauss
     i0: int = -1                  #: first sample, index in the stream since start
     i1: int = -1                  #: one past the last sample
+    #: the structure function of each hold averaged into this pose, [(n, rows, obs)] of
+    #: calib/posecov.py (a daemon's pose covariance under tremor); None: unknown
+    acc_sf: Optional[list] = None
 
 
 class _Core:
@@ -426,6 +430,8 @@ class _Core:
             tmp = float(np.nanmean(temp[sl]))
         iv = StaticInterval(m, sc / len(acc), sc, len(acc), float(t[0]), float(t[-1]), tmp,
                             i0=int(oi[sl][0]), i1=int(oi[sl][-1]) + 1)
+        if n >= SF_MIN_SAMPLES:     # 25 numbers a pose: what the daemon's pose covariance needs
+            iv.acc_sf = [(n,) + pose_sf_rows(acc)]
         if gyro is not None:
             g = gyro[sl]
             iv.gyro = g.mean(0)

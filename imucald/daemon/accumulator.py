@@ -16,6 +16,7 @@ import numpy as np
 
 from ..calib.coverage import cube_coverage
 from ..calib.models import Triangular9
+from ..calib.posecov import MAX_HOLDS
 from ..calib.poses import PoseSet
 from ..calib.stillness import StaticInterval
 from ..calib.uncertainty import crlb, residual_variance
@@ -82,6 +83,9 @@ class PoseAccumulator:
         return cube_coverage(self.directions(), self.cover_angle_deg)
 
     def pose_set(self) -> PoseSet:
+        """The poses as a PoseSet (the covariances of the means: each pose's sample
+        covariance over n; the worker rescales them from the holds' structure functions
+        each pose keeps, ``acc_sf``: daemon/calibrator.py)."""
         P = self.poses
         N = len(P)
         g = lambda f: np.array([getattr(p, f) for p in P]) if N and all(
@@ -126,7 +130,11 @@ def _merge(a: StaticInterval, b: StaticInterval) -> StaticInterval:
                           mix(a.gyro, b.gyro),
                           None if a.gyro_cov is None or b.gyro_cov is None else
                           (a.gyro_cov * a.n ** 2 + b.gyro_cov * b.n ** 2) / n ** 2,
-                          mix(a.mag, b.mag) if a.mag is not None and b.mag is not None else (b.mag if b.mag is not None else a.mag))
+                          mix(a.mag, b.mag) if a.mag is not None and b.mag is not None else (b.mag if b.mag is not None else a.mag),
+                          # both holds' structure functions (each ~25 numbers), when both known;
+                          # the longest MAX_HOLDS kept (a board resting for hours refines one pose)
+                          acc_sf=None if a.acc_sf is None or b.acc_sf is None else
+                          sorted(a.acc_sf + b.acc_sf, key=lambda e: -e[0])[:MAX_HOLDS])
 
 
 def _mean_temp(ta: float, tb: float, wa: float, wb: float) -> float:

@@ -57,7 +57,10 @@ def _holdout(n: int, frac: float) -> np.ndarray:
 def calibration_job(job: Dict[str, Any]) -> JobResult:
     """Fit, validate and decide.  Pure: no I/O, no globals.
 
-    job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3), t0 (N,),
+    job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3) (each
+    pose's sample covariance over n), acc_sf and acc_s2 (the holds' structure functions and
+    per-sample variances, calib/posecov.py) or None, acc_colour_k (N,) (the Allan inflation
+    acc_cov carries) or None, t0 (N,),
     t1 (N,) (the poses' still intervals, s: matched against the incumbent's poses_used), n (N,),
     gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
     per-sample noise or None, current (the Calibration in force), method, holdout_fraction
@@ -70,12 +73,32 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     accept: Dict[str, bool] = {}
     notes: Dict[str, Any] = {"gate": {}}
     if job.get("acc") is not None:
+        job = _pose_cov(job, notes)
         _accel_gyro(job, cur, parts, accept, notes["gate"], notes)
     mp = job.get("mag_points")
     if mp is not None and len(mp) >= 30:
         _mag(np.asarray(mp, float), job, cur, parts, accept, notes)
     candidate = build_calibration(parts, cur.board, cur.chips, id=0, created="")   # not in force yet
     return JobResult(candidate, accept, time.perf_counter() - t_start, notes)
+
+
+def _pose_cov(job: Dict[str, Any], notes: Dict[str, Any]) -> Dict[str, Any]:
+    """The job with acc_cov from the holds' structure functions (job["acc_sf"], calib/
+    posecov.py; here in the worker: ~80 ms at 60 poses) where they decide; the noise
+    file's Allan inflation (job["acc_colour_k"], already in job["acc_cov"]) is then taken
+    out again: the two measure the same thing and are not counted twice."""
+    from ..calib.posecov import allan_still_needed, scale_pose_cov_stats
+    if job.get("acc_sf") is None or job.get("acc_s2") is None:
+        return job
+    k = job.get("acc_colour_k")
+    own = np.asarray(job["acc_cov"], float)
+    if k is not None:
+        own = own / np.asarray(k, float)[:, None, None]
+    cov, info = scale_pose_cov_stats(job["n"], job["acc_s2"], job["acc_sf"], own)
+    notes["pose_noise"] = info
+    if allan_still_needed(info):
+        return job
+    return dict(job, acc_cov=cov)
 
 
 def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict[str, bool],

@@ -417,14 +417,21 @@ class Pipeline:
             tg = self.reservoir.tags()
             mag_temp = None if np.any(tg < 0) else tg / 100.0 - 273.15
         acc_cov = ps.acc_cov
+        k = None
         if self.noise is not None and "accel" in self.noise and acc_cov is not None:
             # coloured noise: a pose mean over T s varies k(T) times more than white noise
-            # says (calib/noise.py), k from the noise file's Allan coefficients
+            # says (calib/noise.py), k from the noise file's Allan coefficients (the worker
+            # takes it out where the holds' structure functions decide)
             from ..calib.noise import inflation_of
             k = np.array([inflation_of(self.noise["accel"]["avar_coef"], n / self.rate_hz)[0]
                           for n in ps.n])
             acc_cov = acc_cov * k[:, None, None]
-        job = {"acc": ps.acc, "acc_cov": acc_cov, "t0": ps.t0, "t1": ps.t1, "n": ps.n,
+        # tremor averages out of a pose mean: the worker forms the covariances from the
+        # holds' structure functions (daemon/calibrator.py _pose_cov, calib/posecov.py)
+        job = {"acc": ps.acc, "acc_cov": acc_cov, "acc_colour_k": k,
+               "acc_sf": [p.acc_sf or [] for p in self.acc.poses],
+               "acc_s2": np.einsum("nii->ni", ps.acc_sample_cov) if ps.acc_sample_cov is not None else None,
+               "t0": ps.t0, "t1": ps.t1, "n": ps.n,
                "temp": _temps(ps.temp),
                "gyro": ps.gyro, "mag_points": mag_pts, "mag_temp": mag_temp, "mag_noise": self._mag_noise(),
                "method": c["method"],

@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from imucald.cli import main                                    # noqa: E402
+from imucald.cli import main as cli_main                        # noqa: E402
 from imucald.recording import write_recording                   # noqa: E402
 from imucald.sim.poses import random_pose_set                   # noqa: E402
 from imucald.sim.sensor import draw_truth, simulate_session     # noqa: E402
@@ -60,7 +60,7 @@ def run_one(scen, seed, tmp, method="lm", poses=12):
     write_recording(rec, path)
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
-        rc = main(["calibrate", path, "--json", "--method", method])
+        rc = cli_main(["calibrate", path, "--json", "--method", method])
     if rc != 0:
         return None
     d = json.loads(out.getvalue())
@@ -72,7 +72,7 @@ def run_one(scen, seed, tmp, method="lm", poses=12):
     return (th - tr) / se, det
 
 
-def main_(argv=None):
+def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--scenarios", default="bench,hand,short,coloured")
@@ -94,4 +94,4 @@ def main_(argv=None):
 
 
 if __name__ == "__main__":
-    main_()
+    main()

@@ -49,7 +49,7 @@ NULLS = ["null", "null_flicker", "tremor_null", "mag_null"]
 LIBRARY = ["thermal_bias", "thermal_scale", "nonlinearity", "random_walk", "pair_nl_thermal",
            "gyro_thermal", "gyro_gsens_tremor", "mag_thermal"]
 OUTSIDE = ["thermal_hysteresis", "temp_rate", "cubic", "cross_product", "step_bias",
-           "vibration_rectification", "timestamp_jitter"]
+           "vibration_rectification", "timestamp_jitter", "piecewise_bias"]
 CLASSES = NULLS + LIBRARY + OUTSIDE
 
 #: which sensor's verdict a class is judged on, and the accepted verdict names
@@ -174,17 +174,22 @@ def make_case(kind: str, seed: int) -> Tuple[Recording, Dict[str, object]]:
     Ga = np.diag(1 + rng.normal(0, 0.02, 3)) + rng.normal(0, 0.006, (3, 3)) * (1 - np.eye(3))
     acc = f @ Ga.T + rng.normal(0, 0.04, 3)
     flick = 0.0 if kind == "null" else float(_loguni(rng, 30e-6, 0.5, 2.0))
-    acc += _noise(rng, n, rate_hz, 400e-6 * rng.uniform(0.5, 1.5), flick)
+    dens_a = 400e-6 * rng.uniform(0.5, 1.5)
+    acc_noise = _noise(rng, n, rate_hz, dens_a, flick)
+    acc += acc_noise
     # gyro: 0.005 dps/rtHz, Earth's rate at the latitude, random heading
     lsb_g = float(rng.choice([1 / 131, 1 / 65.5, 1 / 14.375]))
     head = rng.uniform(0, 2 * np.pi)
     e_world = OMEGA_E_DPS * np.array([math.cos(lat) * math.cos(head), math.cos(lat) * math.sin(head), math.sin(lat)])
     Gg = np.diag(1 + rng.normal(0, 0.02, 3)) + rng.normal(0, 0.01, (3, 3)) * (1 - np.eye(3))
     gyro = (w_body + np.einsum("nji,j->ni", R, e_world)) @ Gg.T + rng.normal(0, 1.0, 3)
-    gyro += _noise(rng, n, rate_hz, 0.005 * rng.uniform(0.5, 1.5), 0.0 if kind == "null" else 3e-4)
+    dens_g = 0.005 * rng.uniform(0.5, 1.5)
+    gyro_noise = _noise(rng, n, rate_hz, dens_g, 0.0 if kind == "null" else 3e-4)
+    gyro += gyro_noise
     label: Dict[str, object] = {"class": kind, "sensor": SENSOR.get(kind, "accel"), "expect": {"none"},
                                 "truth": {}, "rate_hz": rate_hz}
     mono = profile == "warmup"
+    acc_before, gyro_before = acc.copy(), gyro.copy()        # the injected effect is the difference
     if kind == "thermal_bias":
         b = _sign(rng) * _loguni(rng, 0.5e-3, size=3)                 # g/C, datasheet 0.5 mg/C
         acc += _sat_curve(T - T0)[:, None] * b
@@ -211,6 +216,8 @@ def make_case(kind: str, seed: int) -> Tuple[Recording, Dict[str, object]]:
     elif kind == "random_walk":
         end = float(_loguni(rng, 1e-3))                                # g at the end of the record
         acc += np.cumsum(rng.normal(size=(n, 3)), 0) * end / math.sqrt(n)
+        # the walk's intensity (variance growth per second, each axis): (end^2 / n) per sample
+        label["truth"] = {"random_walk_intensity_g^2/s": end ** 2 / (n / rate_hz)}
         label["expect"] = {"wandering_bias", "bias_drift"}
     elif kind == "gyro_thermal":
         c = _sign(rng) * _loguni(rng, 0.03, size=3)                   # dps/C
@@ -245,9 +252,22 @@ def make_case(kind: str, seed: int) -> Tuple[Recording, Dict[str, object]]:
         for k in range(n_poses):
             energy[pid == k] = rng.exponential(1.0)
         acc += energy[:, None] * _sign(rng) * _loguni(rng, 0.5e-3, size=3)
-        acc += rng.normal(size=(n, 3)) * np.sqrt(energy)[:, None] * 2e-3   # the vibration itself
+        vib = rng.normal(size=(n, 3)) * np.sqrt(energy)[:, None] * 2e-3   # the vibration itself
+        acc += vib
+        acc_noise = acc_noise + vib
         label["expect"] = {"unexplained", "partially_explained"}
-    mag = None
+    elif kind == "piecewise_bias":
+        # a bias piecewise linear in time through 3-5 knots at random (not equally spaced)
+        # times, each knot's value drawn afresh: a bias that changes its drift now and then
+        m = int(rng.integers(3, 6))
+        knots = np.sort(np.concatenate([[0.0, t[-1]], rng.uniform(0.1, 0.9, m - 2) * t[-1]]))
+        vals = rng.normal(size=(m, 3)) * _loguni(rng, 1e-3)
+        acc += np.stack([np.interp(t, knots, vals[:, j]) for j in range(3)], 1)
+        label["expect"] = {"unexplained", "partially_explained", "wandering_bias", "bias_drift"}
+    effect = {"acc": acc - acc_before, "gyro": gyro - gyro_before, "mag": None}
+    if kind == "vibration_rectification":
+        effect["acc"] = effect["acc"] - vib
+    mag = mag_noise = None
     if kind in ("mag_null", "mag_thermal"):
         dip = math.radians(rng.uniform(-70, 70))
         F = float(rng.uniform(0.25, 0.65))
@@ -258,8 +278,13 @@ def make_case(kind: str, seed: int) -> Tuple[Recording, Dict[str, object]]:
             c = _sign(rng) * _loguni(rng, 0.5e-3, size=3)             # gauss/C
             hard = hard + _sat_curve(T - T0)[:, None] * c
             label["expect"] = {"thermal_bias", "bias_drift"} if mono else {"thermal_bias"}
-        mag = np.einsum("nji,j->ni", R, h_world) @ A.T + hard + rng.normal(0, 2e-3, (n, 3))
+            effect["mag"] = _sat_curve(T - T0)[:, None] * c
+        mag_noise = rng.normal(0, 2e-3, (n, 3))
+        mag = np.einsum("nji,j->ni", R, h_world) @ A.T + hard + mag_noise
+        effect["mag"] = np.zeros((n, 3)) if effect["mag"] is None else effect["mag"]
+        noise_free_mag = mag - mag_noise
         mag = np.round(mag * 1090) / 1090
+    acc_pre_q, gyro_pre_q = acc, gyro
     acc = np.round(acc / lsb_a) * lsb_a
     gyro = np.round(gyro / lsb_g) * lsb_g
     tt = t.copy()
@@ -270,6 +295,18 @@ def make_case(kind: str, seed: int) -> Tuple[Recording, Dict[str, object]]:
     temp = np.round(T * 340) / 340
     meta = {"board": "blind2", "rate_hz": f"{rate_hz:g}", "accel_range_g": f"{32768 * lsb_a:g}"}
     label["profile"] = profile
+    # what the bench needs to project the truth onto the library's forms (noise-free,
+    # unquantised, per sample): the whole noise-free signal, the injected effect alone, the
+    # generator's pose of each sample (-1 while moving), the true temperature, and the
+    # white noise's per-sample standard deviation (the flicker's slow part not included)
+    label["noise_free"] = {"acc": acc_pre_q - acc_noise, "gyro": gyro_pre_q - gyro_noise,
+                           "mag": None if mag is None else noise_free_mag}
+    label["effect"] = effect
+    label["pose_id"] = pid
+    label["temp_true_c"] = T
+    label["latitude_deg"] = math.degrees(lat)
+    label["noise_sd"] = {"acc": dens_a * math.sqrt(rate_hz / 2), "gyro": dens_g * math.sqrt(rate_hz / 2),
+                         "mag": 2e-3}
     return Recording(t=tt, acc=acc, gyro=gyro, mag=mag, temp=temp, meta=meta), label
 
 

@@ -32,7 +32,16 @@ called, ``NULLS`` expect "none"):
   proportional to dT/dt), cubic (f^3 per axis), cross_product (f_x f_y on z and so on),
   step_bias (a bias jump at a random time), vibration_rectification (a bias proportional
   to each pose's vibration energy), timestamp_jitter (sample times jittered, no sensor
-  effect: a verdict other than "none" is reported).
+  effect: a verdict other than "none" is reported), piecewise_bias (a bias piecewise linear
+  in time through 3-5 knots at random times; appended last, so the other classes' seeds
+  and draws are unchanged).
+
+``make_case`` returns the recording and a label: the judged sensor, the accepted verdicts,
+and for the bench's truth projection (bench/gap_blind.py ``truth_check``) the noise-free
+signal per sample (``noise_free``: unquantised, without the white and flicker noise), the
+injected effect alone (``effect``), the generator's pose of each sample (``pose_id``, -1
+while moving), the true temperature (``temp_true_c``), the latitude and the white noise's
+per-sample standard deviation (``noise_sd``); for the random walk its intensity (``truth``).
 """
 from __future__ import annotations
 

@@ -40,3 +40,19 @@ def test_tremor_gyro_twin_ratio_near_one(nulls):
     over n (gap/posenoise.py bypassed): ratios 0.15-0.3."""
     ratios = [res["sensors"]["gyro"]["ratio_before"] for k, s, lab, res in nulls if k == "tremor_null"]
     assert all(0.6 < r < 1.5 for r in ratios), ratios
+
+
+def test_generator_imports_only_recording_from_the_project():
+    """Blind in code: tests/blindgen2.py takes nothing from imucald but ``Recording`` (no
+    effect form, magnitude, latitude or LSB of the library or simulator).  Seen to fail with
+    ``from imucald.sim.effects import DEFAULT_MAGNITUDE`` added to it."""
+    import ast
+    import os
+    src = open(os.path.join(os.path.dirname(__file__), "blindgen2.py"), encoding="utf-8").read()
+    used = []
+    for node in ast.walk(ast.parse(src)):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "imucald":
+            used += [(node.module, a.name) for a in node.names]
+        elif isinstance(node, ast.Import):
+            used += [(a.name, None) for a in node.names if a.name.split(".")[0] == "imucald"]
+    assert used == [("imucald.recording", "Recording")], used

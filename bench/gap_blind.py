@@ -239,6 +239,7 @@ def main():
     called = defaultdict(Counter)
     gyro_none = [0, 0]
     false_alarm = [0, 0]
+    below_white = {False: [0, 0], True: [0, 0]}   # accel nulls: an axis's pose variance "below white"
     zs = defaultdict(list)            # class -> z-scores of every named coefficient
     rec_ok = defaultdict(lambda: [0, 0])   # class -> recordings with every |z| <= 3, compared
     ci = defaultdict(lambda: [0, 0])  # random walk: truth inside the reported 95 % interval
@@ -262,6 +263,11 @@ def main():
         if kind in nulls:
             false_alarm[0] += v != "none"
             false_alarm[1] += 1
+            if res and lab["sensor"] == "accel":
+                pmv = res["sensors"]["accel"].get("noise_colour", {}).get("pose_mean_variance", {})
+                bw = bool(np.any(pmv.get("axes_below_white", [False])))
+                below_white[v != "none"][0] += bw
+                below_white[v != "none"][1] += 1
             if res and "gyro" in res["sensors"]:
                 gyro_none[0] += res["sensors"]["gyro"]["verdict"] != "none"
                 gyro_none[1] += 1
@@ -289,6 +295,10 @@ def main():
     print(f"null false alarms (judged sensor): {k}/{n} = {k / max(n, 1):.1%} "
           f"(95 % upper bound {clopper_upper(k, n):.1%})")
     print(f"gyro false alarms on the nulls: {gyro_none[0]}/{gyro_none[1]}")
+    (a0, n0), (a1, n1) = below_white[False], below_white[True]
+    if n0 + n1:
+        print(f"accelerometer nulls whose pose-mean variance was estimated below the white figure on "
+              f"some axis (gap/posenoise.py): {a1}/{n1} of the false alarms, {a0}/{n0} of the others")
     if not args.old:
         print()
         print("truth within 3 SE: each named coefficient against the injected effect projected onto the")

@@ -57,8 +57,10 @@ def clopper_upper(k, n, conf=0.95):
 #   baseline's or noise), weights 1 / (sigma^2 / n_k + the horizontal Earth rate's
 #   scatter at the generator's latitude, (Omega cos lat)^2 (1 - u_j^2) / 2, as the twin holds it);
 # * magnetometer (norm path): the deployed hard + soft iron model plus the candidate, no
-#   prior, on the noise-free still pose means, weights n_k / sigma^2 (the diagnosis's
-#   rotation points, single samples of weight 1 / sigma^2 each, are left out);
+#   prior, on the noise-free still pose means (weights n_k / sigma^2) and the turns (the
+#   diagnosis's rotation points stood for by every moving sample, at their total weight),
+#   temperature centred where the diagnosis centres it (its points' mean; a curved variant's
+#   slope depends on the centre);
 # * not projected: the random walk (a stochastic form: its intensity is judged by the
 #   reported 95 % interval instead), out-of-library classes (nothing is the truth there).
 
@@ -133,19 +135,29 @@ def project_accel(cs, lab, rec_t):
     return least_squares(fun, z0, method="lm", xtol=1e-14, ftol=1e-14).x[9:]
 
 
-def project_mag(cs, lab, rec_t):
+def project_mag(cs, lab, rec_t, n_rot, centre_c=None):
     """Coefficients of candidates ``cs`` (with the deployed hard + soft iron model, no prior,
-    as the diagnosis fits the magnetometer) fitted to the noise-free still pose means; the
-    diagnosis's rotation points (single samples, weight 1 / sigma^2 each against n_k /
-    sigma^2 for a pose mean) are left out."""
+    as the diagnosis fits the magnetometer) fitted to the noise-free still pose means and
+    the turns: the diagnosis's ``n_rot`` rotation points (single samples thinned over the
+    sphere, weight 1 / sigma^2 each) stand here as every moving sample at weight
+    n_rot / (moving samples) / sigma^2, and temperature is centred as the diagnosis centres
+    it (the plain mean over its points, pose means and rotation points alike)."""
     from scipy.optimize import least_squares
     from imucald.calib.mag_models import MagModel
     from imucald.calib.optim import sphere_fit
+    from imucald.gap.candidates import hat_columns
     masks, n, mean, tmid, temp = _pose_stats(lab, rec_t)
-    x = mean(lab["noise_free"]["mag"])
-    ctx = _ctx(tmid, temp)
+    mov = lab["pose_id"] < 0
+    M = int(mov.sum())
+    x = np.vstack([mean(lab["noise_free"]["mag"]), lab["noise_free"]["mag"][mov]])
+    T = np.concatenate([temp, lab["temp_true_c"][mov]])
+    tt = np.concatenate([tmid, np.asarray(rec_t)[mov]])
+    wpt = np.concatenate([np.ones(len(n)), np.full(M, n_rot / max(M, 1))])    # points' share
+    centre = float(np.sum(wpt * T) / np.sum(wpt)) if centre_c is None else centre_c
+    ctx = {"t": tt - tt.min(), "dt": tt - np.sum(wpt * tt) / np.sum(wpt), **hat_columns(tt),
+           "temp": T, "dT": T - centre}
     model = MagModel("sym")
-    sw = np.sqrt(n) / lab["noise_sd"]["mag"]
+    sw = np.sqrt(np.concatenate([n, np.full(M, n_rot / max(M, 1))])) / lab["noise_sd"]["mag"]
     qs = [c.q for c in cs]
     p0 = model.k
 
@@ -183,6 +195,13 @@ def project_gyro(cs, lab, rec_t):
     return np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0][4:]
 
 
+def _centre(r):
+    """The diagnosis's own temperature centre (mean over its points' temperatures, from the
+    plotting data it returns), or None when the result does not carry them."""
+    T = (r.get("_plot") or {}).get("temp")
+    return None if T is None else float(np.mean(T))
+
+
 def truth_check(res, lab, rec_t):
     """{"z": z-scores of the named coefficients against the projected truth} or {"skip": why};
     for a named random walk {"ci_hit": truth inside the reported 95 % interval}."""
@@ -205,7 +224,8 @@ def truth_check(res, lab, rec_t):
         cs = _variants(ACCEL_CANDIDATES if sensor == "accel" else MAG_CANDIDATES, names, len(coef))
         if cs is None:
             return {"skip": "variant ambiguous"}
-        proj = (project_accel if sensor == "accel" else project_mag)(cs, lab, rec_t)
+        proj = (project_accel(cs, lab, rec_t) if sensor == "accel" else
+                project_mag(cs, lab, rec_t, int(r.get("points", {}).get("rotation_points", 0)), _centre(r)))
     else:
         # one variant per gyro class; g-sensitivity is reported as the 9 elements of its
         # traceless matrix (the 8 coefficients on the TRACELESS basis mapped back)

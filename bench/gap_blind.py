@@ -214,7 +214,8 @@ def truth_check(res, lab, rec_t):
             return {"skip": "random walk not named as one"}
         lo, hi = e["random_walk"]["intensity_ci95"]
         q = lab["truth"]["random_walk_intensity_g^2/s"]
-        return {"ci_hit": (lo is None or lo <= q) and (hi is None or q <= hi)}
+        est = e["params"][next(iter(e["params"]))][0]
+        return {"ci_hit": (lo is None or lo <= q) and (hi is None or q <= hi), "ratio": est / q}
     named, why = _named(r, v) if v not in ("none", "unexplained", "partially_explained") else (None, "nothing named")
     if named is None:
         return {"skip": why}
@@ -263,6 +264,7 @@ def main():
     zs = defaultdict(list)            # class -> z-scores of every named coefficient
     rec_ok = defaultdict(lambda: [0, 0])   # class -> recordings with every |z| <= 3, compared
     ci = defaultdict(lambda: [0, 0])  # random walk: truth inside the reported 95 % interval
+    ci_ratio = defaultdict(list)      # random walk: estimated over injected intensity
     skipped = defaultdict(Counter)
     times = []
     plan = [(k, s) for k in library + outside for s in range(args.per_class)]
@@ -300,6 +302,7 @@ def main():
             elif "ci_hit" in tc:
                 ci[kind][0] += bool(tc["ci_hit"])
                 ci[kind][1] += 1
+                ci_ratio[kind].append(tc["ratio"])
             else:
                 skipped[kind][tc["skip"]] += 1
         if not h and kind not in outside:
@@ -329,8 +332,11 @@ def main():
             z = np.array(zs[kd])
             rest = ", ".join(f"{why} {c}" for why, c in skipped[kd].most_common()) or "-"
             if ci[kd][1]:
-                print(f"{kd:26s}{'':14s}{'':12s}{'':12s}{'':9s}   {rest}; random-walk intensity inside the "
-                      f"reported 95 % interval {ci[kd][0]}/{ci[kd][1]} (no coefficient: a stochastic form)")
+                rr = np.array(ci_ratio[kd])
+                print(f"{kd:26s}{'':14s}{'':12s}{'':12s}{'':9s}   " + ("" if rest == "-" else rest + "; ")
+                      + "no coefficient (a stochastic form): "
+                      f"the injected intensity inside the reported 95 % interval {ci[kd][0]}/{ci[kd][1]}, "
+                      f"estimate / injected median {np.median(rr):.2f} (range {rr.min():.2f}-{rr.max():.2f})")
             elif len(z):
                 print(f"{kd:26s}{int(np.sum(z <= 3)):>8d}/{len(z):<5d}{rec_ok[kd][0]:>6d}/{rec_ok[kd][1]:<5d}"
                       f"{np.median(z):>12.2f}{z.max():>9.2f}   {rest}")

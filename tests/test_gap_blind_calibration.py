@@ -14,7 +14,7 @@ that the test passes with probability >= 0.95 at the stated rate and <= 0.05 at 
   (gap/norm.py ``norm_baseline``, the accelerometer's triangular9 MAP fit): 1640 null pose
   sets, at most 23 with p < 1 %: P(pass | 1 %) = 0.955, P(pass | 2 %) = 0.045;
 * the pose-mean variance that weighs it, estimated from the samples as the diagnosis does
-  (gap/posenoise.py ``pose_mean_variance``): on white noise its "below white" decision
+  (``pose_mean_variance``, calib/posecov.py through gap/posenoise.py): on white noise its "below white" decision
   (estimate below the white figure by twice its jackknife standard error, one-sided:
   1 - Phi(2) = 2.28 % per axis) may fire on at most 22 of 687 axes:
   P(pass | 2.28 %) = 0.954, P(pass | 4.55 %) = 0.049.
@@ -77,8 +77,9 @@ def test_chi_square_false_alarm_rate_at_its_stated_level():
 @pytest.mark.xfail(strict=True, reason=(
     "issue 25 (measured 2026-11-26): on white noise the 'below white' decision fires on ~8 % of "
     "axes (22 % of pose sets) against its stated 2.3 %; with the variance so estimated the "
-    "chi-square stage rejects ~2.2 % of null pose sets at the 1 % level (45/2000).  Owner of "
-    "the structure-function math: remove this marker when the decision meets its rate"))
+    "chi-square stage rejects ~2.2 % of null pose sets at the 1 % level (45/2000).  The rule: "
+    "imucald/calib/posecov.py pose_mean_variance, 'lower' (as used by the gap diagnosis, one-sided); "
+    "remove this marker when the decision meets its rate"))
 def test_pose_variance_below_white_decision_at_its_stated_rate():
     """On white noise, the pose-mean variance estimate is called "below white" on an axis at
     most at the rate of its two-standard-error rule (bounds in the module doc).  Fails on

@@ -14,7 +14,6 @@ from __future__ import annotations
 import os
 import stat
 import sys
-import tempfile
 from typing import BinaryIO, Optional
 
 from .errors import CannotCreate
@@ -26,6 +25,13 @@ __all__ = ["NotAFile", "check_output", "read_own_file", "atomic_write_bytes", "a
 #: where ``-`` writes when the command's own report was moved to stderr (cli.checks), else
 #: sys.stdout
 STDOUT = None
+
+
+def _mkstemp(**kw):
+    """``tempfile.mkstemp``, imported when a file is written: tempfile (and shutil, bz2,
+    lzma under it) cost 1.5-3 ms at every command's exit (cli.main imports this module)."""
+    import tempfile
+    return tempfile.mkstemp(**kw)
 
 
 class NotAFile(CannotCreate, OSError):
@@ -77,7 +83,7 @@ def atomic_write_bytes(path: str, data: bytes, mode: int = 0o644, flag: str = ""
         return
     check_output(path, flag)
     d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=d)
+    fd, tmp = _mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=d)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -163,7 +169,7 @@ class GrowingFile:
             return
         check_output(path, flag)
         d = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=d)
+        fd, tmp = _mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=d)
         try:
             view = memoryview(head)
             while view:

@@ -33,6 +33,8 @@ class _GaShape:
     cw: np.ndarray              #: cumulative rank-scaled weights (1/sqrt(rank))
     base: np.ndarray            #: (rows, 1) flat offset of each (run, subpop) row
     ar: np.ndarray              #: arange(runs)
+    ri: np.ndarray              #: (rows, 1) arange(rows): each row's index, for fancy indexing
+    par_ar: np.ndarray          #: arange(n_par)
 
     @property
     def rows(self) -> int:
@@ -47,13 +49,14 @@ def _ga_shape(runs: int, kf: int, pop: int, nsub: int, elite: int, xfrac: float,
     w = 1.0 / np.sqrt(np.arange(1, Ps + 1))
     return _GaShape(runs, nsub, Ps, kf, elite, n_x, 2 * n_x + n_m,
                     max(1, int(round(mig_frac * Ps))), np.cumsum(w) / w.sum(),
-                    (np.arange(runs * nsub) * Ps)[:, None], np.arange(runs))
+                    (np.arange(runs * nsub) * Ps)[:, None], np.arange(runs),
+                    np.arange(runs * nsub)[:, None], np.arange(2 * n_x + n_m))
 
 
 def _generation_best(sh: _GaShape, Xf: np.ndarray, Ff: np.ndarray):
     """(order, best f per run, best z per run): ``order`` ranks each row, best first."""
     order = np.argsort(Ff, axis=1)
-    top = Ff[np.arange(sh.rows), order[:, 0]].reshape(sh.runs, sh.nsub)
+    top = Ff[sh.ri[:, 0], order[:, 0]].reshape(sh.runs, sh.nsub)
     sb = top.argmin(1)
     fb = top[sh.ar, sb]
     zb = Xf[(sh.base[:, 0].reshape(sh.runs, sh.nsub)[sh.ar, sb]
@@ -66,10 +69,10 @@ def _offspring(sh: _GaShape, Xf: np.ndarray, order: np.ndarray, lo: np.ndarray, 
     """Stochastic-uniform selection on rank-scaled fitness, scattered crossover and the
     feasible Gaussian mutation: (rows, Ps - elite, kf) children."""
     n_x = sh.n_x
-    pos = (rng.random((sh.rows, 1)) + np.arange(sh.n_par)) / sh.n_par
+    pos = (rng.random((sh.rows, 1)) + sh.par_ar) / sh.n_par
     rk = np.minimum(np.searchsorted(sh.cw, pos), sh.Ps - 1)
     rk = rng.permuted(rk, axis=-1)
-    pidx = np.take_along_axis(order, rk, axis=1) + sh.base
+    pidx = order[sh.ri, rk] + sh.base                  # np.take_along_axis(order, rk, 1)
     par = Xf[pidx]                                      # (rows, n_par, kf)
     p1, p2, pm = par[:, :n_x], par[:, n_x:2 * n_x], par[:, 2 * n_x:]
     xo = np.where(rng.integers(0, 2, p1.shape, dtype=bool), p1, p2)  # scattered crossover
@@ -138,7 +141,7 @@ def ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.ra
         eidx = order[:, :elite] + sh.base
         Fc = prob.fitness(children)
         X = np.concatenate([Xf[eidx], children], axis=1)
-        F = np.concatenate([Ff[np.arange(rows)[:, None], order[:, :elite]], Fc], axis=1)
+        F = np.concatenate([Ff[sh.ri, order[:, :elite]], Fc], axis=1)
         if nsub > 1 and (gen + 1) % mig_interval == 0:
             _migrate(sh, X, F)
         X = X.reshape(runs, nsub, Ps, kf)

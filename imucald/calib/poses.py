@@ -122,7 +122,7 @@ def detect(t, acc, gyro=None, rate_hz=None, temp=None, mag=None, **params):
 
 
 def _mean_cov(x: np.ndarray):
-    m = x.mean(0)
+    m = x.sum(0) / len(x)        # x.mean(0) bit for bit (the same sum, / the count) without its wrapper
     d = x - m
     c = d.T @ d / max(len(x) - 1, 1)
     return m, c
@@ -147,13 +147,41 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
         kw = dict(kw, chip=recording_chips(rec.meta).get("accel"))
     ivs, dropped, det = detect(rec.t, rec.acc, rec.gyro, rec.rate_hz, mag=rec.mag, **kw)
     keep = None if det is None else det.repeats.keep
-    ps = poses_from_slices(rec, merge_cut(ivs, keep), keep, structure=True)
-    pieces = poses_from_slices(rec, [slice(iv.i0, iv.i1) for iv in ivs], keep)
+    cuts = [slice(iv.i0, iv.i1) for iv in ivs]
+    pieces = poses_from_slices(rec, cuts, keep)
+    ps = _joined(rec, merge_cut(ivs, keep), cuts, pieces, keep)
     if dropped:
         ps.meta["dropped_samples"] = pieces.meta["dropped_samples"] = str(dropped)
     if det is not None:
         ps.detector = pieces.detector = det
     return ps, pieces
+
+
+def _joined(rec: Recording, slices: List[slice], cuts: List[slice], pieces: PoseSet,
+            keep: Optional[np.ndarray]) -> PoseSet:
+    """``poses_from_slices(rec, slices, keep, structure=True)``, the rows of a slice that is
+    also one of the pieces (``cuts``: most poses are one piece) copied from ``pieces``
+    instead of averaged again (the same rows of the same samples, so the same numbers),
+    then the structure-function scaling as there."""
+    at = {(s.start, s.stop): i for i, s in enumerate(cuts)}
+    new = [s for s in slices if (s.start, s.stop) not in at]
+    if len(new) == len(slices):
+        return poses_from_slices(rec, slices, keep, structure=True)
+    more = poses_from_slices(rec, new, keep)
+    src, j = [], len(cuts)
+    for s in slices:
+        i = at.get((s.start, s.stop))
+        if i is None:
+            i, j = j, j + 1
+        src.append(i)
+    idx = np.array(src, dtype=np.intp)
+    rows = lambda a, b: None if a is None else np.concatenate([a, b])[idx]
+    ps = PoseSet(rows(pieces.acc, more.acc), rows(pieces.acc_cov, more.acc_cov), rows(pieces.n, more.n),
+                 rows(pieces.t0, more.t0), rows(pieces.t1, more.t1),
+                 rows(pieces.acc_sample_cov, more.acc_sample_cov), rows(pieces.gyro, more.gyro),
+                 rows(pieces.gyro_cov, more.gyro_cov), rows(pieces.mag, more.mag),
+                 rows(pieces.mag_cov, more.mag_cov), rows(pieces.temp, more.temp), dict(rec.meta))
+    return _structure(ps, rec, [_distinct(s, keep) for s in slices])
 
 
 def still_report(det) -> List[str]:
@@ -225,8 +253,7 @@ def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.nda
     tp = np.zeros(N) if rec.temp is not None else None
     rows = []
     for i, s in enumerate(slices):
-        if keep is not None and not keep[s].all():
-            s = s.start + np.flatnonzero(keep[s])
+        s = _distinct(s, keep)
         rows.append(s)
         a = rec.acc[s]
         n[i] = len(a)
@@ -242,12 +269,25 @@ def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.nda
         if tp is not None:
             tp[i] = rec.temp[s].mean()
     ps = PoseSet(acc, acov, n, t0, t1, scov, gy, gcov, mg, mcov, tp, dict(rec.meta))
-    if structure and N:
+    return _structure(ps, rec, rows) if structure else ps
+
+
+def _distinct(s: slice, keep: Optional[np.ndarray]):
+    """The slice, or the indices of its distinct rows when ``keep`` drops some."""
+    if keep is not None and not keep[s].all():
+        return s.start + np.flatnonzero(keep[s])
+    return s
+
+
+def _structure(ps: PoseSet, rec: Recording, rows) -> PoseSet:
+    """The accelerometer's and gyro's covariances of the means rescaled per axis by the
+    within-pose structure function (calib/posecov.py); ``rows``: each pose's rows."""
+    if len(rows):
         from .posecov import scale_pose_cov
         ps.noise = {}
-        ps.acc_cov, ps.noise["accel"] = scale_pose_cov([rec.acc[s] for s in rows], acov)
-        if gcov is not None:
-            ps.gyro_cov, ps.noise["gyro"] = scale_pose_cov([rec.gyro[s] for s in rows], gcov)
+        ps.acc_cov, ps.noise["accel"] = scale_pose_cov([rec.acc[s] for s in rows], ps.acc_cov)
+        if ps.gyro_cov is not None:
+            ps.gyro_cov, ps.noise["gyro"] = scale_pose_cov([rec.gyro[s] for s in rows], ps.gyro_cov)
     return ps
 
 

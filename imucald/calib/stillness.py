@@ -382,7 +382,9 @@ class _Core:
         start = 0 if self._run_cut else self.trim_n
         if trim:
             self._run_cut = False
-        cat = lambda k: None if run[0][k] is None else np.concatenate([r[k] for r in run])
+        # one piece (most runs): its rows as they are (C order, as a concatenation makes them)
+        cat = lambda k: None if run[0][k] is None else np.ascontiguousarray(run[0][k]) \
+            if len(run) == 1 else np.concatenate([r[k] for r in run])
         t, acc = cat("t"), cat("acc")
         end = len(t)
         if trim:

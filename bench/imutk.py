@@ -25,7 +25,11 @@ of wall time over the rounds, and of the child's CPU time):
 Then the agreement of ``--sensor all`` with the separate commands: the largest difference of
 each parameter over its reported standard error.  The byte code of each tree is compiled
 first (``compileall``), as an installed package has it.
-Usage: python bench/imutk.py [--rounds N] [--before DIR]
+
+With ``--stages``: where the accelerometer command's time goes, stage by stage
+(bench/_imutk_stages.py: the same steps in one fresh process, CPU time per stage, medians
+over the rounds; with ``--before``, that tree's stages in the same rounds).
+Usage: python bench/imutk.py [--rounds N] [--before DIR] [--stages]
 """
 import argparse
 import compileall
@@ -102,13 +106,39 @@ def agreement(docs):
     return rows
 
 
+def stages(rounds, before):
+    """CPU ms per stage of the accelerometer calibrate (bench/_imutk_stages.py), medians over
+    ``rounds`` fresh processes per tree, the trees interleaved."""
+    child = [sys.executable, os.path.join(ROOT, "bench", "_imutk_stages.py"), ACC]
+    trees = [("after" if before else "this tree", ROOT)] + ([("before", before)] if before else [])
+    got = {label: [] for label, _ in trees}
+    for _ in range(rounds):
+        for label, tree in trees:
+            got[label].append(json.loads(run(child, tree)[2]))
+    print(f"where the accelerometer command's CPU goes (ms, medians of {rounds} fresh processes):")
+    names = list(got[trees[0][0]][0])
+    print(f"{'stage':<24}" + "".join(f"{label:>11}" for label, _ in trees))
+    for n in names + ["total"]:
+        row = [statistics.median(sum(r.values()) if n == "total" else r[n] for r in got[label])
+               for label, _ in trees]
+        print(f"{n:<24}" + "".join(f"{v:>11.1f}" for v in row))
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--before", help="a checkout of an older commit, timed in the same rounds")
+    ap.add_argument("--stages", action="store_true",
+                    help="only the accelerometer command's CPU time stage by stage")
     a = ap.parse_args()
     if not os.path.exists(ACC):
         print(f"skipped: {ACC} is absent (../shared is not beside the checkout)")
+        return 0
+    if a.stages:
+        for tree in (ROOT, a.before):
+            if tree:
+                compileall.compile_dir(os.path.join(tree, "imucald"), quiet=1)
+        stages(a.rounds, a.before and os.path.abspath(a.before))
         return 0
     sys.path.insert(0, os.path.join(ROOT, "bench"))
     from real_gap import xsens

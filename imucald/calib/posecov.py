@@ -88,12 +88,17 @@ def _nnls2(A: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _fit(rows, obs, ns, idx, white=True):
     """a, b per axis from poses ``idx`` (``white`` False: b = 0); each pose's rows scaled by
-    1/n (its increments' scale grows with n)."""
-    C = obs[idx[0]].shape[1]
-    A = np.vstack([rows[i] / ns[i] for i in idx])
+    1/n (its increments' scale grows with n).  ``rows`` (E, L, 2) and ``obs`` (E, L, C)
+    stacked: the poses' scaled rows gathered by one indexing, the same numbers in the same
+    order as stacking them pose by pose (which was ~80 % of the jackknife's time)."""
+    C = obs.shape[2]
+    idx = np.asarray(idx, dtype=np.intp)
+    sc = ns[idx][:, None, None]
+    A = (rows[idx] / sc).reshape(-1, rows.shape[2])
+    Y = obs[idx] / sc
     out = np.zeros((2, C))
     for j in range(C):
-        y = np.concatenate([obs[i][:, j] / ns[i] for i in idx])
+        y = Y[:, :, j].reshape(-1)
         if white == "b":              # the white part alone (a = 0)
             b = A[:, 1]
             out[1, j] = max(float(b @ y) / float(b @ b), 0.0)
@@ -146,8 +151,8 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
         info["note"] = (f"fewer than {MIN_POSES} poses of {MIN_SAMPLES} samples (or a constant "
                         f"axis): per-sample variance over n")
         return white, info
-    rows = [e[1] for e in ent]
-    obs = [e[2] for e in ent]
+    rows = np.array([e[1] for e in ent], float)         # (E, len(FRACTIONS), 2)
+    obs = np.array([e[2] for e in ent], float)          # (E, len(FRACTIONS), C)
     hn = np.array([e[0] for e in ent], float)
     use = list(range(len(ent)))
     ab = _fit(rows, obs, hn, use)

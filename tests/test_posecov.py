@@ -81,7 +81,7 @@ def test_the_daemons_poses_keep_what_the_estimate_needs():
     s = simulate_session("mpu6050", np.concatenate([rots, rots[:1]]), rng, hold_s=10.0,
                          move_s=(1.5, 3.0), lead_s=0.0, tremor_dps=3.0)
     rec = s.recording
-    det = StillnessDetector(100.0, chip="mpu6050")
+    det = StillnessDetector(100.0, chip="mpu6050", keep_structure=True)   # as the daemon
     ivs = det.update(rec.t, rec.acc, rec.gyro, rec.temp)[1] + det.flush()
     ex = Capture()
     p = Pipeline(validate({}), "mpu6050", 100.0, False, executor=ex, chips={"accel": "mpu6050"})

@@ -100,8 +100,9 @@ class _Core:
                  k: float = DEFAULTS["k"], min_still_s: float = DEFAULTS["min_still_s"],
                  max_pose_s: float = DEFAULTS["max_pose_s"], trim_s: float = DEFAULTS["trim_s"],
                  max_turn_deg: float = DEFAULTS["max_turn_deg"], floor_cap: float = np.inf,
-                 rest_norm_g=(0.0, np.inf)):
+                 rest_norm_g=(0.0, np.inf), keep_structure: bool = False):
         self.rate = float(rate_hz)
+        self.keep_structure = bool(keep_structure)
         self.floor_cap = float(floor_cap)
         self.rest_norm_g = tuple(rest_norm_g)
         self.min_still_s = float(min_still_s)
@@ -432,7 +433,8 @@ class _Core:
             tmp = float(np.nanmean(temp[sl]))
         iv = StaticInterval(m, sc / len(acc), sc, len(acc), float(t[0]), float(t[-1]), tmp,
                             i0=int(oi[sl][0]), i1=int(oi[sl][-1]) + 1)
-        if n >= SF_MIN_SAMPLES:     # 25 numbers a pose: what the daemon's pose covariance needs
+        if self.keep_structure and n >= SF_MIN_SAMPLES:     # 25 numbers a pose: what the
+                                    # daemon's pose covariance needs (calibrate has the rows)
             iv.acc_sf = [(n,) + pose_sf_rows(acc)]
         if gyro is not None:
             g = gyro[sl]
@@ -544,16 +546,18 @@ class StillnessDetector:
     wait for the decision); when the stream turns out held (or its rate not the nominal one)
     those rows are judged again by a core at the effective rate.  ``chip``: the
     accelerometer (specs.ACCEL name, else the generic bounds of :func:`still_limits`).
-    Intervals index the caller's rows (i0, i1)."""
+    Intervals index the caller's rows (i0, i1).  ``keep_structure``: each interval keeps its
+    accelerometer's within-pose structure function (``acc_sf``, calib/posecov.py), which
+    the daemon needs because it keeps no samples; a caller holding the rows leaves it off."""
 
     def __init__(self, rate_hz: float, window_s: float = DEFAULTS["window_s"],
                  k: float = DEFAULTS["k"], min_still_s: float = DEFAULTS["min_still_s"],
                  max_pose_s: float = DEFAULTS["max_pose_s"], trim_s: float = DEFAULTS["trim_s"],
                  max_turn_deg: float = DEFAULTS["max_turn_deg"], chip: Optional[str] = None,
-                 repeats=None):
+                 repeats=None, keep_structure: bool = False):
         self.nominal_rate = float(rate_hz)
         self._kw = dict(window_s=window_s, k=k, min_still_s=min_still_s, max_pose_s=max_pose_s,
-                        trim_s=trim_s, max_turn_deg=max_turn_deg)
+                        trim_s=trim_s, max_turn_deg=max_turn_deg, keep_structure=keep_structure)
         self.chip = chip
         self.repeats = None          #: the repeats.Repeats the detector runs on, once decided
         self._core: Optional[_Core] = None

@@ -81,7 +81,8 @@ class Pipeline:
         self._next_mag_seen = 0
         st = cfg["stillness"]
         self.det = StillnessDetector(rate_hz, st["window_s"], st["k"], st["min_still_s"],
-                                     st["max_pose_s"], st["trim_s"], chip=(chips or {}).get("accel"))
+                                     st["max_pose_s"], st["trim_s"], chip=(chips or {}).get("accel"),
+                                     keep_structure=True)
         self.acc = PoseAccumulator(cfg["poses"]["merge_angle_deg"], cfg["poses"]["max_poses"])
         self.next_hint: Optional[str] = None          # the orientation the log asked for last
         self._hinted: Dict[str, int] = {}             # orientation -> times asked for
@@ -125,7 +126,8 @@ class Pipeline:
         if any(k.startswith("stillness.") for k in changed):
             st = cfg["stillness"]
             self.det = StillnessDetector(self.rate_hz, st["window_s"], st["k"], st["min_still_s"],
-                                         st["max_pose_s"], st["trim_s"], chip=self.applied.chips.get("accel"))
+                                         st["max_pose_s"], st["trim_s"], chip=self.applied.chips.get("accel"),
+                                         keep_structure=True)
         if any(k.startswith("poses.") for k in changed):
             self.acc.merge_cos = np.cos(np.radians(cfg["poses"]["merge_angle_deg"]))
             self.acc.max_poses = cfg["poses"]["max_poses"]

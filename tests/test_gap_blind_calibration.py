@@ -24,7 +24,6 @@ The end-to-end nulls (tests/test_gap_blindgen2.py, 12 recordings) are a smoke ch
 bench's >= 200 nulls (bench/gap_blind.py) carry the end-to-end figure.
 """
 import numpy as np
-import pytest
 
 from imucald.calib.fit import accel_prior
 from imucald.calib.levels import GAP_TEST_LEVEL

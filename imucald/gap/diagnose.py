@@ -57,6 +57,8 @@ from .linear import gyro_diag
 from .magpath import diagnosable, mag_model, mag_points, mag_still_slices, quiet_noise
 from .norm import norm_diag
 from .posenoise import flag_disturbed, pose_mean_variance
+from ..calib.posefloor import (estimate_lsb, noise_before_quantisation, quantisation_floor, radial_series,
+                               run_effective_counts, sway_rotation_variance)
 from .saturation import saturated
 from .series import orientation_groups, within_pose_inflation
 from .single import diagnose_single
@@ -257,21 +259,41 @@ def pose_setup(rec: Recording, sl: List[slice], ps: PoseSet) -> PoseSetup:
     return PoseSetup(sl, ps, keep, bad, sat, skip, ctx_all, T_pose, longest, notes)
 
 
+def _quant_floor(x: np.ndarray, slices) -> tuple:
+    """Per axis (C,): the variance of a pose mean's quantisation offset, from the LSB seen in
+    the data and the noise before the quantiser (calib/posefloor.py); and a summary."""
+    lsb = estimate_lsb(x, slices)
+    if not np.any(lsb > 0):
+        return np.zeros(x.shape[1]), {"lsb": lsb.tolist()}
+    v = np.median([x[s].var(0, ddof=1) for s in slices if s.stop - s.start > 1], axis=0)
+    sig = noise_before_quantisation(v, lsb)
+    qf = quantisation_floor(lsb, sig)
+    return qf, {"lsb": lsb.tolist(), "noise_before_quantisation": sig.tolist(), "floor_variance": qf.tolist()}
+
+
 def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     """The accelerometer against the deployed triangular9 MAP fit (gap/norm.py)."""
     rate, ps, keep, longest = rec.rate_hz, u.ps, u.keep, u.longest
-    kap, colour = colour_inflation(None if longest is None else rec.acc[longest], rate, u.T_pose)
+    # the noise the norm model |a| = 1 g sees is radial (along each pose's mean direction):
+    # a swaying hand's tilt wander is tangential and would inflate the twin (calib/posefloor.py)
+    kept = u.kept(u.sl)
+    xr = radial_series(rec.acc, kept)
+    xl = None if longest is None else radial_series(rec.acc[longest], [slice(0, longest.stop - longest.start)])
+    kap, colour = colour_inflation(xl, rate, u.T_pose)
     # colour measured inside the poses too (short holds have no long stretch)
-    wp = within_pose_inflation(rec.acc, u.kept(u.sl))
+    wp = within_pose_inflation(xr, kept)
     kap = max(kap, wp["inflation"])
     colour = dict(colour or {}, within_pose=wp)
     # the pose means' variance from within-pose statistics (gap/posenoise.py): below the
-    # white figure under hand tremor; the colour inflation applies to the white axes
-    # (per axis, averaged: the radial component alone was tried and understated the
-    # noise on simulated hand-held sessions, 3 of 20 nulls called a gap against 1 of 20)
-    pmv, pinfo = pose_mean_variance(rec.acc, u.kept(u.sl))
-    white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
-    pv = np.mean(pmv * np.where(white_ax, kap, 1.0)[None, :], axis=1)
+    # white figure under hand tremor; the colour inflation applies where it is white
+    pmv, pinfo = pose_mean_variance(xr, kept)
+    white_ax = ~np.asarray(pinfo.get("axes_below_white", [False]))
+    pv = pmv[:, 0] * (kap if white_ax[0] else 1.0)
+    # the quantisation floor of each pose mean (does not average down without dither)
+    qf, qinfo = _quant_floor(rec.acc, kept)
+    up = ps.acc[keep] / np.linalg.norm(ps.acc[keep], axis=1, keepdims=True)
+    pv = pv + up ** 2 @ qf
+    pinfo["quantisation"] = qinfo
     colour["pose_mean_variance"] = pinfo
     # the deployed fit: triangular9 with the datasheet prior (MAP), as `calibrate` fits it
     chip = BOARDS.get(rec.meta.get("board", ""), (None,))[0]
@@ -312,6 +334,10 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     gvar, pinfo = pose_mean_variance(rec.gyro, u.kept(gsl))
     white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
     gvar = gvar * np.where(white_ax, kap_g, 1.0)[None, :]
+    # a swaying hand's net rotation over each hold, and the quantisation floor (calib/posefloor.py)
+    sway, pinfo["sway"] = sway_rotation_variance(rec.acc, rec.gyro, u.kept(gsl), rate)
+    qf, pinfo["quantisation"] = _quant_floor(rec.gyro, u.kept(gsl))
+    gvar = np.maximum(gvar, sway[:, None]) + qf[None, :]
     colour_g["pose_mean_variance"] = pinfo
     ctx = u.ctx
     # specific force in g from the calibrated accelerometer (raw directions carry the
@@ -330,7 +356,13 @@ def _mag_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     """The magnetometer's still pose means and rotation points (gap/magpath.py)."""
     ps, keep = u.ps, u.keep
     mv = np.einsum("nii->n", ps.mag_cov) / 3 if ps.mag_cov is not None else None
-    mvar = np.median(mv[keep] * ps.n[keep]) / ps.n[keep]
+    # a magnetometer held at its own rate inside a faster log: its distinct readings count
+    # (calib/posefloor.py run_effective_counts), not the rows
+    n_eff = ps.n[keep]
+    from ..calib.repeats import find_repeats
+    if len(rec.t) > 3 and find_repeats(rec.t, rec.mag, rec.rate_hz).held:
+        n_eff = run_effective_counts(rec.mag, u.kept(u.sl))
+    mvar = np.median(mv[keep] * n_eff) / n_eff
     t9 = Triangular9()
     th_a = lm(Problem(t9, ps.acc[keep])).theta
     return _mag(rec, u.sl, ps.mag[keep], mvar, np.flatnonzero(keep), th_a, u.skip, sims, rng,

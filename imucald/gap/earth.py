@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["EARTH_RATE_DPS", "vertical_column", "horizontal_variance"]
+__all__ = ["EARTH_RATE_DPS", "vertical_column", "horizontal_variance", "earth_rate_report"]
 
 EARTH_RATE_DPS = float(np.degrees(7.2921e-5))
 #: the fitted vertical rate also holds any isotropic g-sensitivity, so it is capped at
@@ -42,3 +42,18 @@ def horizontal_variance(u_body: np.ndarray, vertical_dps: float) -> np.ndarray:
     v = min(abs(float(vertical_dps)), MAX_VERTICAL_DPS)
     h2 = EARTH_RATE_DPS ** 2 - v ** 2
     return h2 * (1.0 - u ** 2) / 2.0
+
+
+def earth_rate_report(vertical_dps: float, stderr_dps: float) -> dict:
+    """The fitted vertical rate with its standard error (scaled by the excess scatter) and
+    what it says: not determined when its SE exceeds Earth's rate; beyond Earth's rate by
+    more than 3 SE: it holds something else (an isotropic g-sensitivity, a residual net
+    rotation of the hand)."""
+    out = {"earth_rate_vertical_dps_stderr": float(stderr_dps)}
+    if stderr_dps > EARTH_RATE_DPS:
+        out["earth_rate_vertical_note"] = (f"not determined: its standard error {stderr_dps:.2g} dps exceeds "
+                                           f"Earth's rate ({EARTH_RATE_DPS:.4f} dps)")
+    elif abs(vertical_dps) - 3 * stderr_dps > EARTH_RATE_DPS:
+        out["earth_rate_vertical_note"] = ("beyond Earth's rate by more than 3 standard errors: the term also "
+                                           "holds an isotropic g-sensitivity (or a net rotation of the hand)")
+    return out

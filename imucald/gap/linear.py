@@ -9,7 +9,7 @@ from typing import Dict, List, Tuple
 import numpy as np
 
 from .candidates import GYRO_CANDIDATES, TRACELESS, kron_cols
-from .earth import horizontal_variance, vertical_column
+from .earth import earth_rate_report, horizontal_variance, vertical_column
 from .signif import p_and_log10, proj_sig, score
 from ..calib.heldout import heldout, twin_rms
 from ..calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
@@ -60,7 +60,7 @@ def gyro_baseline(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng) -> GyroBaseli
     v_low = max(abs(float(b0[3])) - 2 * math.sqrt(max(float(A0[3, 3]), 0.0)), 0.0)
     var = var + horizontal_variance(ctx["acc_dir"], v_low).reshape(-1)
     w = 1 / var
-    b0, r0, _ = _wls(X0, y, w)
+    b0, r0, A1 = _wls(X0, y, w)
     chi2 = float(np.sum(w * r0 * r0))
     p_gap, lp = p_and_log10(chi2, 3 * N - 4)
     e0 = heldout(r0, -X0, w)
@@ -71,6 +71,8 @@ def gyro_baseline(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng) -> GyroBaseli
     report = {"poses": N, "ratio_before": ratio, "p_value": p_gap, "log10_p_value": round(lp, 2),
               "chi2": chi2, "dof": 3 * N - 4, "unit": "dps", "bias_dps": b0[:3].tolist(),
               "earth_rate_vertical_dps": float(b0[3]),
+              **earth_rate_report(float(b0[3]), math.sqrt(max(float(A1[3, 3]), 0.0)
+                                                           * max(1.0, chi2 / max(3 * N - 4, 1)))),
               "heldout_rms": rms(e0), "twin_heldout_rms": twin,
               "twin_ratio_q99": ratio_q99}
     significant = p_gap < GAP_TEST_LEVEL and ratio > ratio_q99

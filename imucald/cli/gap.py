@@ -54,8 +54,10 @@ def gap_summary(res) -> str:
             lines.append(f"  cannot tell {' from '.join(c['effects'])} apart here ({why}); "
                          f"to separate them: {c['to_separate']}")
         w = r.get("where", {})
-        if w.get("region_share"):
-            top = sorted(w["region_share"].items(), key=lambda kv: -kv[1])[:3]
+        # the excess (normalised residual^2 - 1) by orientation says where a gap lies: only
+        # when there is one (with no gap, or nothing above the noise, the shares are all 0 %)
+        if w.get("region_share") and r["verdict"] != "none" and max(w["region_share"].values()) > 0:
+            top = [kv for kv in sorted(w["region_share"].items(), key=lambda kv: -kv[1])[:3] if kv[1] > 0]
             lines.append("  excess by orientation: " + ", ".join(f"{a} {b:.0%}" for a, b in top))
         if r.get("note"):
             lines.append(f"  note: {r['note']}")

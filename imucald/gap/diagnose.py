@@ -357,12 +357,12 @@ def _mag_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     ps, keep = u.ps, u.keep
     mv = np.einsum("nii->n", ps.mag_cov) / 3 if ps.mag_cov is not None else None
     # a magnetometer held at its own rate inside a faster log: its distinct readings count
-    # (calib/posefloor.py run_effective_counts), not the rows
+    # (calib/posefloor.py run_effective_counts), not the rows (mag_cov is over the rows / n)
     n_eff = ps.n[keep]
     from ..calib.repeats import find_repeats
     if len(rec.t) > 3 and find_repeats(rec.t, rec.mag, rec.rate_hz).held:
         n_eff = run_effective_counts(rec.mag, u.kept(u.sl))
-    mvar = np.median(mv[keep] * n_eff) / n_eff
+    mvar = np.median(mv[keep] * ps.n[keep]) / n_eff
     t9 = Triangular9()
     th_a = lm(Problem(t9, ps.acc[keep])).theta
     return _mag(rec, u.sl, ps.mag[keep], mvar, np.flatnonzero(keep), th_a, u.skip, sims, rng,

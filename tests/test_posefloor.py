@@ -109,3 +109,19 @@ def test_held_runs_and_undithered_repeats():
     a = np.round(np.vstack(parts) / 0.0039) * 0.0039
     t = np.arange(len(a)) / 50.0
     assert not find_repeats(t, a, 50.0).held
+
+
+def test_summary_orientation_excess_only_with_a_gap():
+    """`gap` text: no "excess by orientation" line when the verdict is "none" (it printed
+    "+X up 0%, +Y up 0%, +Z up 0%" when the ratio was below 1), and no 0 % entries when
+    there is a gap.  Breakage caught: the line printed whenever region shares exist."""
+    from imucald.cli.gap import gap_summary
+    base = {"unit": "g", "ratio_before": 0.8, "ratio_after": 0.8, "p_value": 0.5, "heldout_rms": 1e-4,
+            "twin_heldout_rms": 1.2e-4, "effects": []}
+    none = dict(base, verdict="none", where={"region_share": {"+X": 0.0, "+Y": 0.0, "+Z": 0.0}})
+    txt = gap_summary({"poses_found": 20, "sensors": {"accel": none}})
+    assert "excess by orientation" not in txt
+    gap = dict(base, verdict="unexplained", ratio_before=3.0,
+               where={"region_share": {"+X": 0.7, "+Y": 0.3, "+Z": 0.0}})
+    txt = gap_summary({"poses_found": 20, "sensors": {"accel": gap}})
+    assert "excess by orientation: +X 70%, +Y 30%" in txt and "0%" not in txt.split("+Y 30%")[1]

@@ -64,7 +64,7 @@ from typing import Dict, Optional, Sequence, Tuple
 import numpy as np
 
 __all__ = ["quantisation_floor", "noise_before_quantisation", "estimate_lsb", "run_effective_counts",
-           "radial_series", "sway_rotation_variance"]
+           "radial_series", "sway_rotation_variance", "tilt_wander_test"]
 
 _K = np.arange(1, 401, dtype=float)     #: the tail beyond is below 0.2 % of LSB^2 / 12
 
@@ -164,6 +164,30 @@ def radial_series(acc_g: np.ndarray, slices: Sequence[slice]) -> np.ndarray:
         m = a[s].mean(0)
         out[s, 0] = a[s] @ (m / max(float(np.linalg.norm(m)), 1e-300))
     return out
+
+
+def tilt_wander_test(acc_g: np.ndarray, slices: Sequence[slice], min_samples: int = 16) -> Dict[str, object]:
+    """Whether the accelerometer's direction wanders within the still stretches: the mean
+    over poses of log(tangential / radial per-sample variance) (tangential: the mean of the
+    two components across the pose's mean direction) above 2 of its standard errors over
+    poses (one-sided ~2 %; isotropic sensor noise gives 0)."""
+    a = np.asarray(acc_g, float)
+    lr = []
+    for s in slices:
+        if s.stop - s.start < min_samples:
+            continue
+        x = a[s]
+        m = x.mean(0)
+        u = m / max(float(np.linalg.norm(m)), 1e-300)
+        vr = float(np.var(x @ u, ddof=1))
+        vt = (float(np.trace(np.cov(x.T))) - vr) / 2.0
+        if vr > 0 and vt > 0:
+            lr.append(math.log(vt / vr))
+    if len(lr) < 5:
+        return {"wander": False, "note": "fewer than 5 poses of 16 samples"}
+    lr = np.array(lr)
+    mean, se = float(lr.mean()), float(lr.std(ddof=1) / math.sqrt(len(lr)))
+    return {"wander": bool(mean > 2 * se), "log_tangential_over_radial": round(mean, 4), "stderr": round(se, 4)}
 
 
 def sway_rotation_variance(acc_g: np.ndarray, gyro_dps: np.ndarray, slices: Sequence[slice],

@@ -58,7 +58,7 @@ from .magpath import diagnosable, mag_model, mag_points, mag_still_slices, quiet
 from .norm import norm_diag
 from .posenoise import flag_disturbed, pose_mean_variance
 from ..calib.posefloor import (estimate_lsb, noise_before_quantisation, quantisation_floor, radial_series,
-                               run_effective_counts, sway_rotation_variance)
+                               run_effective_counts, sway_rotation_variance, tilt_wander_test)
 from .saturation import saturated
 from .series import orientation_groups, within_pose_inflation
 from .single import diagnose_single
@@ -274,21 +274,29 @@ def _quant_floor(x: np.ndarray, slices) -> tuple:
 def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     """The accelerometer against the deployed triangular9 MAP fit (gap/norm.py)."""
     rate, ps, keep, longest = rec.rate_hz, u.ps, u.keep, u.longest
-    # the noise the norm model |a| = 1 g sees is radial (along each pose's mean direction):
-    # a swaying hand's tilt wander is tangential and would inflate the twin (calib/posefloor.py)
+    # the noise the norm model |a| = 1 g sees is radial (along each pose's mean direction): a
+    # swaying hand's tilt wander is tangential and inflates the per-axis figure (twin ratio
+    # 0.48 on simulated swaying nulls); without wander the three axes estimate the same
+    # noise with less scatter (the radial figure alone: 3 of 20 hand-held nulls called a
+    # gap against 1 of 20).  The radial figure is used when the tangential per-sample
+    # variance exceeds the radial one beyond 2 standard errors over poses (calib/posefloor.py)
     kept = u.kept(u.sl)
-    xr = radial_series(rec.acc, kept)
-    xl = None if longest is None else radial_series(rec.acc[longest], [slice(0, longest.stop - longest.start)])
+    tilt = tilt_wander_test(rec.acc, kept)
+    x_a = radial_series(rec.acc, kept) if tilt["wander"] else rec.acc
+    xl = None if longest is None else rec.acc[longest]
+    if tilt["wander"] and xl is not None:
+        xl = radial_series(xl, [slice(0, len(xl))])
     kap, colour = colour_inflation(xl, rate, u.T_pose)
     # colour measured inside the poses too (short holds have no long stretch)
-    wp = within_pose_inflation(xr, kept)
+    wp = within_pose_inflation(x_a, kept)
     kap = max(kap, wp["inflation"])
     colour = dict(colour or {}, within_pose=wp)
     # the pose means' variance from within-pose statistics (gap/posenoise.py): below the
-    # white figure under hand tremor; the colour inflation applies where it is white
-    pmv, pinfo = pose_mean_variance(xr, kept)
-    white_ax = ~np.asarray(pinfo.get("axes_below_white", [False]))
-    pv = pmv[:, 0] * (kap if white_ax[0] else 1.0)
+    # white figure under hand tremor; the colour inflation applies to the white axes
+    pmv, pinfo = pose_mean_variance(x_a, kept)
+    white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * x_a.shape[1]))
+    pv = np.mean(pmv * np.where(white_ax, kap, 1.0)[None, :], axis=1)
+    pinfo["tilt_wander"] = tilt
     # the quantisation floor of each pose mean (does not average down without dither)
     qf, qinfo = _quant_floor(rec.acc, kept)
     up = ps.acc[keep] / np.linalg.norm(ps.acc[keep], axis=1, keepdims=True)

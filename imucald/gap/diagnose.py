@@ -282,7 +282,13 @@ def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     # variance exceeds the radial one beyond 2 standard errors over poses (calib/posefloor.py)
     kept = u.kept(u.sl)
     tilt = tilt_wander_test(rec.acc, kept)
-    x_a = radial_series(rec.acc, kept) if tilt["wander"] else rec.acc
+    x_a = rec.acc
+    if tilt["wander"]:
+        # the radial noise from the poses without their turning ends (the gyro's cut,
+        # gap/gyrostill.py), as the gyro's: a turn's last degrees are not noise
+        if rec.gyro is not None:
+            kept = u.kept(trim_turns(rec.gyro, u.sl, rate)[0])
+        x_a = radial_series(rec.acc, kept)
     xl = None if longest is None else rec.acc[longest]
     if tilt["wander"] and xl is not None:
         xl = radial_series(xl, [slice(0, len(xl))])

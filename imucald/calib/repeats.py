@@ -130,19 +130,28 @@ def chance_repeats(full: np.ndarray, eq: np.ndarray, window: int = CHANCE_WINDOW
     if not rest.any():
         return float(m)
     w = int(min(max(window, 1), m))
-    kern = np.ones(w)
-    # local counts by a moving sum (same length, centred); rows with no non-repeated
-    # neighbour in the window fall back to the whole-recording rates
-    cnt = np.convolve(rest.astype(float), kern, mode="same")
+    i = np.arange(m)
+    hi, lo = np.minimum(m, i + (w - 1) // 2 + 1), np.maximum(0, i - w // 2)
+
+    def msum(v):            # centred moving sum over w rows (np.convolve 'same', in O(m))
+        c = np.concatenate([[0], np.cumsum(v, dtype=np.int64)])
+        return (c[hi] - c[lo]).astype(float)
+    # local counts; rows with no non-repeated neighbour in the window fall back to the
+    # whole-recording rates
+    cnt = msum(rest)
     glob = np.array([np.count_nonzero(eq[1:, j] & rest) for j in range(eq.shape[1])]) / int(rest.sum())
     pc = np.empty((m, eq.shape[1]))
     for j in range(eq.shape[1]):
-        num = np.convolve((eq[1:, j] & rest).astype(float), kern, mode="same")
+        num = msum(eq[1:, j] & rest)
         pc[:, j] = np.where(cnt > 0, num / np.maximum(cnt, 1.0), glob[j])
     p = pc.copy()
     for _ in range(50):
         P = np.prod(p, axis=1, keepdims=True)
-        p = pc * (1 - P) + P
+        p_new = pc * (1 - P) + P
+        done = np.max(np.abs(p_new - p)) < 1e-12
+        p = p_new
+        if done:
+            break
     return float(np.sum(np.prod(p, axis=1)))
 
 

@@ -301,6 +301,15 @@ def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     # white figure under hand tremor; the colour inflation applies to the white axes
     pmv, pinfo = pose_mean_variance(x_a, kept)
     white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * x_a.shape[1]))
+    if tilt["wander"]:
+        # the radial component holds no rotation tremor (tangential): its pose means keep the
+        # white figure (the structure function's bounded part, from one column, read white
+        # radial noise as half of it on simulated swaying nulls: 5 of 40 called a gap)
+        white_ax[:] = True
+        n_k = np.asarray(ps.n[keep], float)
+        s2r = np.median([x_a[s_, 0].var(ddof=1) for s_ in kept if s_.stop - s_.start > 1])
+        pmv = (s2r / n_k)[:, None]
+        pinfo["radial_white"] = "the radial pose means keep the white figure"
     pv = np.mean(pmv * np.where(white_ax, kap, 1.0)[None, :], axis=1)
     pinfo["tilt_wander"] = tilt
     # the quantisation floor of each pose mean (does not average down without dither)

@@ -6,7 +6,7 @@ model the test assumes (the measured rates are in the tests named beside each).
 from __future__ import annotations
 
 __all__ = ["GATE_FALSE_ACCEPT_RATE", "GAP_EFFECT_LEVEL", "GAP_TEST_LEVEL", "GAP_ATTRIBUTION_LEVEL",
-           "GAP_REMAINING_LEVEL", "THERMAL_TREND_LEVEL"]
+           "GAP_REMAINING_LEVEL", "GAP_HELDOUT_LEVEL", "THERMAL_TREND_LEVEL"]
 
 #: the calibration gate: how often a new calibration that is no better than the incumbent
 #: is applied (default of config calibration.false_accept_rate; tests/test_gate.py)
@@ -25,6 +25,10 @@ GAP_ATTRIBUTION_LEVEL = GAP_EFFECT_LEVEL
 #: - with the first effect modelled, a second is sought only while the chi-square test of
 #:   that model still rejects at this level
 GAP_REMAINING_LEVEL = GAP_EFFECT_LEVEL
+#: - the combination search (imucald/gap/search.py): a member's held-out shrink (the fall in
+#:   the held-out RMS it brings) must be significant at this level against its twin, one-sided,
+#:   beside its coefficient test at GAP_ATTRIBUTION_LEVEL / count
+GAP_HELDOUT_LEVEL = GAP_EFFECT_LEVEL
 
 #: the thermal fit: how often a temperature trend (and each order beyond a constant) is
 #: kept when there is none.  The fit applies the gap diagnosis's rule to temperature terms,

@@ -4,7 +4,7 @@ candidates (:func:`score_candidates`, :func:`fit_candidates`), verdict (:func:`n
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -18,7 +18,8 @@ from ..calib.uncertainty import residual_variance
 from .candidates import Candidate
 from ..calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
 from .signif import p_and_log10, proj_sig, score
-from .verdict import decide
+from .search import stepwise
+from .verdict import confusable, verdict
 from .wander import random_walk_fit
 from .where import norm_where
 
@@ -144,15 +145,21 @@ class CandidateFit:
     sd: np.ndarray                 #: standard errors scaled by the remaining excess scatter
     q99: float                     #: the augmented twin's 99th percentile of the ratio
     wald_p: float                  #: Wald test of the last candidate's coefficients
+    r: Optional[np.ndarray] = None     #: residuals at the fit (N,)
+    J: Optional[np.ndarray] = None     #: their Jacobian over z (N, len(z))
+    lam: Optional[np.ndarray] = None   #: the prior precision over z (None: no prior)
+    cov: Optional[np.ndarray] = None   #: covariance of z, scaled by the remaining excess
 
 
 def refit_with(b: NormBaseline, cs: Sequence[Candidate], ctx: Dict[str, np.ndarray], sims: int,
-               rng) -> CandidateFit:
+               rng, z0: Optional[np.ndarray] = None) -> CandidateFit:
     """Refit the baseline model with candidates ``cs`` added (the baseline's prior kept as
-    pseudo-observations), and the augmented model's twin."""
+    pseudo-observations), and the augmented model's twin; ``z0``: a start (default: the
+    baseline with zero effects)."""
     x, N, p0, prob, model, lam, w = b.x, b.n, b.p0, b.prob, b.model, b.lam, b.w
     qs = [c.q for c in cs]
-    z0 = np.concatenate([prob.reduce(b.th)] + [np.zeros(q) for q in qs])
+    if z0 is None:
+        z0 = np.concatenate([prob.reduce(b.th)] + [np.zeros(q) for q in qs])
 
     def fun(z):
         t = prob.expand(z[:p0])
@@ -184,7 +191,7 @@ def refit_with(b: NormBaseline, cs: Sequence[Candidate], ctx: Dict[str, np.ndarr
     za = z[o:]
     wald = float(za @ np.linalg.pinv(Ca, rcond=1e-10, hermitian=True) @ za)
     rank = int(np.linalg.matrix_rank(Ca, tol=1e-10 * max(np.abs(Ca).max(), 1e-300)))
-    return CandidateFit(z, chi2a, ea, twa, sd, q99, p_and_log10(wald, max(rank, 1))[0])
+    return CandidateFit(z, chi2a, ea, twa, sd, q99, p_and_log10(wald, max(rank, 1))[0], ra, Ja, lam_a, Ai * red)
 
 
 @dataclass
@@ -325,6 +332,43 @@ def second_effect(b: NormBaseline, tested: List[Dict[str, object]], cf: Candidat
             "stderr": best_pair[3][p0:].tolist()}
 
 
+def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str, object]],
+                  ctx: Dict[str, np.ndarray], sims: int, rng, bonf: float, walk_ok: bool,
+                  signatures: Dict[str, np.ndarray], scale: float, unit: str):
+    """The verdict from the combination search (gap/search.py): with a gap, the model the
+    forward and backward steps end with names its members (each passed its coefficient and
+    held-out tests); written into ``out``; returns (chosen classes, held-out residuals after)."""
+    if not b.significant:
+        out.update(verdict(False, [], b.ratio, b.ratio, None))
+        out["ratio_after"] = float(b.ratio)
+        if b.ratio > float(out["twin_ratio_q99"]) * 1.05:
+            out["note"] = "held-out ratio above the twin's 99th percentile but chi-square not significant"
+        return [], None
+    sr = stepwise(b, tested, ctx, sims, rng, bonf, walk_ok, refit_with)
+    m = sr["model"]
+    chosen = m.classes
+    for ent in sr["members"]:
+        if "random_walk" in ent:                      # intensity in the sensor's units
+            ent["params"] = {f"random_walk_intensity_{unit}^2/s": [v * scale ** 2 for v in
+                                                                  ent["params"]["random_walk_intensity"]]}
+            ent["stochastic"] = True
+            ent["random_walk"]["q_ci95"] = [None if v is None else v * scale ** 2
+                                            for v in ent["random_walk"]["q_ci95"]]
+    ratio_after = m.nrms / m.twin if chosen else b.ratio
+    closed = bool(ratio_after <= m.q99) if chosen else None
+    out["search"] = {"steps": sr["steps"], "members": sr["members"], "models_fitted": sr["models_fitted"],
+                     "rule": "forward and backward steps; every member's coefficients (Wald or "
+                             "likelihood ratio, Bonferroni) and held-out shrink (against its twin) significant"}
+    if len(chosen) > 1:
+        out["joint"] = {"effects": list(chosen), "ratio_after": float(ratio_after), "closed": closed}
+    out.update(verdict(True, chosen, b.ratio, float(ratio_after), closed))
+    out["ratio_after"] = float(ratio_after)
+    conf = confusable(chosen, signatures)
+    if conf:
+        out["confusable"] = conf
+    return chosen, (m.e if chosen else None)
+
+
 def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, model: NormModel,
               cands: List[Candidate], sims: int, rng, names_skip: Dict[str, str],
               unit: str, scale: float = 1.0,
@@ -348,14 +392,11 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     if "wandering_bias" not in names_skip and any(c.name == "wandering_bias" for c in cands):
         random_walk_variant(b, cf, ctx, sims, rng, bonf, unit, scale)
     out["effects"] = cf.effects
-    second: Callable[[str], Optional[Dict[str, object]]] = \
-        lambda first: second_effect(b, tested, cf, ctx, sims, rng, bonf, first)
-    chosen = decide(out, b.ratio, b.significant, cf.effects,
-                    {d["cand"].name: d["Ct"] for d in tested
-                     if d["q"] and cf.cand_of.get(d["cand"].name) is d["cand"]},
-                    second)
+    signatures = {d["cand"].name: d["Ct"] for d in tested
+                  if d["q"] and cf.cand_of.get(d["cand"].name) is d["cand"]}
+    walk_ok = "wandering_bias" not in names_skip and any(c.name == "wandering_bias" for c in cands)
+    chosen, e_after = decide_search(out, b, tested, ctx, sims, rng, bonf, walk_ok, signatures, scale, unit)
     out["where"], ud = norm_where(x, b.r * np.sqrt(b.w), model, b.th, ctx)
     out["_plot"] = {"r": b.r, "e": b.e, "t": ctx["t"], "temp": ctx.get("temp"), "u": ud, "var": b.var,
-                    "e_after": cf.fits[chosen[0]][1] if chosen and chosen[0] in cf.fits else None,
-                    "after_label": chosen[0] if chosen else None}
+                    "e_after": e_after, "after_label": "+".join(chosen) if chosen else None}
     return out

@@ -36,7 +36,7 @@ from .candidates import SEPARATE
 from ..calib.levels import GAP_ATTRIBUTION_LEVEL
 from .signif import canon
 
-__all__ = ["decide", "verdict"]
+__all__ = ["decide", "verdict", "confusable"]
 
 #: below this held-out shrink nothing is named, not even partially (issue 25 item 4)
 PARTIAL_MIN = 0.2
@@ -62,6 +62,21 @@ def verdict(gap: bool, chosen: Sequence[str], ratio_before: float, ratio_after: 
         return {"verdict": "unexplained", "shrink": float(shrink), "closest_form": name}
     return {"verdict": "partially_explained", "shrink": float(shrink), "explained": "partially",
             "partially_explained_by": name}
+
+
+def confusable(chosen: Sequence[str], signatures: Dict[str, np.ndarray]) -> List[dict]:
+    """Candidates whose projected signatures coincide with a chosen one (canonical
+    correlation above CONFUSABLE_CC), with the recording that would separate them."""
+    confused = []
+    for n in chosen:
+        for o, Ct in signatures.items():
+            if o == n or o in chosen or n not in signatures:
+                continue
+            cc = canon(signatures[n], Ct)
+            if cc > CONFUSABLE_CC:
+                confused.append({"effects": sorted([n, o]), "canonical_correlation": round(cc, 4),
+                                 "to_separate": SEPARATE.get(frozenset({n, o}), "a more varied recording")})
+    return confused
 
 
 def decide(out: Dict[str, object], ratio: float, significant: bool, effects: List[dict],
@@ -129,15 +144,7 @@ def decide(out: Dict[str, object], ratio: float, significant: bool, effects: Lis
                    "closest_form_wald_p_value": src.get("wald_p_value")}
     out.update(res)
     out["ratio_after"] = float(ratio_after)
-    confused = []
-    for n in chosen:
-        for o, Ct in signatures.items():
-            if o == n or o in chosen or n not in signatures:
-                continue
-            cc = canon(signatures[n], Ct)
-            if cc > CONFUSABLE_CC:
-                confused.append({"effects": sorted([n, o]), "canonical_correlation": round(cc, 4),
-                                 "to_separate": SEPARATE.get(frozenset({n, o}), "a more varied recording")})
+    confused = confusable(chosen, signatures)
     if confused:
         out["confusable"] = confused
     return chosen

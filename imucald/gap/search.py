@@ -1,0 +1,356 @@
+"""The combination search of the norm-model gap diagnosis (issue 25 items 2-4): effects are
+added (forward) and removed (backward) one at a time, each step judged on held-out data,
+until nothing more is significant; the wandering bias as a random walk (gap/wander.py) is a
+member like any fixed-form effect, so a walk pairs with, e.g., a thermal bias.
+
+A model M is a set of fixed-form candidates (one variant per class) and, optionally, the
+random walk.  Its fit: the fixed members refitted with the baseline (norm.refit_with); with
+the walk, the walk's strength q by REML over the residuals of that fit with every fixed
+coefficient profiled out (random_walk_fit with the augmented Jacobian), the held-out
+residuals then the mixed model's leave-one-out ones.
+
+Each member m of M is tested twice, and must pass both (attribution discipline):
+
+* **coefficient**: a fixed member's coefficients by a Wald test (covariance scaled by the
+  remaining excess, or the generalised least-squares covariance under the walk), the walk
+  by its likelihood ratio on the boundary; at the Bonferroni level of the candidate tests
+  (GAP_ATTRIBUTION_LEVEL / count);
+* **held-out shrink**: the fall in the noise-normalised held-out RMS from M without m to M,
+  against the same fall on re-simulations in which m is absent (the linearised twin of both
+  models on the same noise draws, the walk's strength held at its fit); one-sided, at
+  GAP_HELDOUT_LEVEL.
+
+Forward: of the moves that pass (a new class in any variant, or another variant of a member
+with every member still passing), the one with the lowest held-out RMS.  Backward, after
+each forward step: the member that fails a test by most is removed, until all pass.  Stop
+when no move passes (or a model repeats).
+
+Pure functions over arrays; the fits and tests are cached per model.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from ..calib.heldout import hat_diag, numjac
+from ..calib.levels import GAP_HELDOUT_LEVEL
+from .signif import p_and_log10
+from .wander import random_walk_fit
+
+__all__ = ["stepwise", "SEARCH_MIN_DOF", "WALK"]
+
+#: residual degrees of freedom a model must leave: the Wald covariance is scaled by the
+#: remaining chi2 / dof, which needs a few; the held-out tests are calibrated by their twin
+#: at any count (a nonlinearity (7 visible coefficients) with a thermal bias (3) on 22 poses
+#: leaves 3)
+SEARCH_MIN_DOF = 3
+MAX_STEPS = 8
+WALK = "wandering_bias"        #: the class the random walk belongs to
+_NESTED = {frozenset({"bias_drift", "wandering_bias"})}   # the drift's line lies in the wandering span
+
+
+@dataclass
+class ModelFit:
+    cands: Tuple                   #: fixed members (Candidate objects)
+    walk: bool
+    r: np.ndarray
+    J: np.ndarray
+    lam: Optional[np.ndarray]
+    z: np.ndarray                  #: reduced baseline parameters then the members' coefficients
+    cov: np.ndarray                #: covariance of z
+    sd: np.ndarray
+    chi2: float
+    e: np.ndarray                  #: held-out residuals
+    nrms: float                    #: noise-normalised held-out RMS
+    twin: float                    #: the model's own twin median (noise-normalised)
+    q99: float
+    q_walk: float = 0.0
+    gp: Optional[dict] = None
+    member_p: Dict[str, float] = field(default_factory=dict)   #: coefficient test by member
+
+    @property
+    def names(self) -> List[str]:
+        return [c.name for c in self.cands] + ([WALK + " (random walk)"] if self.walk else [])
+
+    @property
+    def classes(self) -> List[str]:
+        return [c.name for c in self.cands] + ([WALK] if self.walk else [])
+
+    @property
+    def key(self):
+        return (frozenset(id(c) for c in self.cands), self.walk)
+
+
+def _loo(n: np.ndarray, J: np.ndarray, var: np.ndarray, lam, q: float, K: np.ndarray) -> np.ndarray:
+    """Leave-one-out residuals (sims, N) of the linear(ised) model J (prior precision lam;
+    with a walk of strength q, covariance D + q K) applied to draws ``n`` (sims, N)."""
+    w = 1.0 / var
+    if q <= 0:
+        Jw = J * w[:, None]
+        A = J.T @ Jw + (np.diag(lam) if lam is not None else 0.0)
+        Ai = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+        h = np.einsum("nk,kl,nl->n", J, Ai, Jw)
+        return (n - ((n @ Jw) @ Ai.T) @ J.T) / np.maximum(1 - h, 1e-3)
+    S = np.diag(var) + q * K
+    Si = np.linalg.inv(S)
+    SiJ = Si @ J
+    A = J.T @ SiJ + (np.diag(lam) if lam is not None else 0.0)
+    P = Si - SiJ @ np.linalg.pinv(A, rcond=1e-12, hermitian=True) @ SiJ.T
+    return (n @ P) / np.diag(P)[None, :]
+
+
+class Search:
+    """The models of one diagnosis (norm path), fitted on demand and cached."""
+
+    def __init__(self, b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with):
+        self.b, self.ctx, self.sims, self.rng, self.bonf = b, ctx, sims, rng, bonf
+        self.vis_q, self.walk_ok, self.refit_with = vis_q, walk_ok, refit_with
+        self.cache: Dict[tuple, Optional[ModelFit]] = {}
+        th, model, x = b.th, b.model, b.x
+        if walk_ok:
+            _, self.B = numjac(lambda eta: 1.0 - model.norms(th, x - eta[None, :]), np.zeros(3),
+                               eps=np.full(3, 1e-5))
+            t = np.asarray(ctx["t"], float) - float(np.min(ctx["t"]))
+            self.K = (self.B @ self.B.T) * np.minimum(t[:, None], t[None, :])
+        else:
+            self.B = self.K = None
+
+    def dof_ok(self, cands, walk) -> bool:
+        used = self.b.p0 + sum(self.vis_q[id(c)] for c in cands) + (1 if walk else 0)
+        return used <= self.b.n - SEARCH_MIN_DOF
+
+    def fit(self, cands, walk) -> Optional[ModelFit]:
+        cands = tuple(cands)
+        key = (frozenset(id(c) for c in cands), walk)
+        if key in self.cache:
+            return self.cache[key]
+        self.cache[key] = m = self._fit(cands, walk)
+        return m
+
+    def _start(self, cands) -> Optional[np.ndarray]:
+        """A start for the refit: the fitted model sharing most members with ``cands`` (its
+        baseline parameters and those members' coefficients; zeros for the others)."""
+        ids = {id(c) for c in cands}
+        best = None
+        for m in self.cache.values():
+            if m is None or m.walk:
+                continue
+            k = sum(id(c) in ids for c in m.cands)
+            if k and all(id(c) in ids for c in m.cands) and (best is None or k > best[0]):
+                best = (k, m)
+        if best is None:
+            return None
+        m = best[1]
+        p0 = self.b.p0
+        have, o = {}, p0
+        for c in m.cands:
+            have[id(c)] = m.z[o:o + c.q]
+            o += c.q
+        return np.concatenate([m.z[:p0]] + [have.get(id(c), np.zeros(c.q)) for c in cands])
+
+    def _fit(self, cands, walk) -> Optional[ModelFit]:
+        b = self.b
+        N, p0 = b.n, b.p0
+        if cands:
+            f = self.refit_with(b, list(cands), self.ctx, self.sims, self.rng, self._start(cands))
+            r, J, lam, z, cov, chi2 = f.r, f.J, f.lam, f.z, f.cov, f.chi2
+            e, twin, q99 = f.e, f.twin, f.q99
+        else:
+            r, J, lam, chi2, e = b.r, b.J, b.lam, b.chi2, b.e
+            z = b.prob.reduce(b.th)
+            _, Ai = hat_diag(J, b.w, lam)
+            cov = Ai * max(1.0, chi2 / max(N - p0, 1))
+            twin = float(b.report["twin_heldout_rms_normalised"])
+            q99 = float(b.report["twin_ratio_q99"])
+        m = ModelFit(tuple(cands), walk, r, J, lam, z, cov, np.sqrt(np.clip(np.diag(cov), 0, None)), chi2, e,
+                     b.nrms(e), twin, q99)
+        if walk:
+            gp = random_walk_fit(r, J, b.var, self.B, self.ctx["t"], self.sims, self.rng, lam)
+            if gp is None or not gp["q"] > 0:
+                return None
+            S = np.diag(b.var) + gp["q"] * self.K
+            A = J.T @ np.linalg.solve(S, J) + (np.diag(lam) if lam is not None else 0.0)
+            m.cov = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+            m.sd = np.sqrt(np.clip(np.diag(m.cov), 0, None))
+            m.e, m.nrms, m.twin, m.q99 = gp["heldout"], gp["nrms"], gp["twin"], gp["twin_q99"]
+            m.q_walk, m.gp = gp["q"], gp
+            m.member_p[WALK] = gp["p_value"]
+        o = p0
+        for c in cands:
+            q = c.q
+            Ca, za = m.cov[o:o + q, o:o + q], m.z[o:o + q]
+            wald = float(za @ np.linalg.pinv(Ca, rcond=1e-10, hermitian=True) @ za)
+            rank = int(np.linalg.matrix_rank(Ca, tol=1e-10 * max(np.abs(Ca).max(), 1e-300)))
+            m.member_p[c.name] = p_and_log10(wald, max(rank, 1))[0]
+            o += q
+        return m
+
+    def without(self, m: ModelFit, cls: str) -> Optional[ModelFit]:
+        if cls == WALK and m.walk:
+            return self.fit(m.cands, False)
+        return self.fit(tuple(c for c in m.cands if c.name != cls), m.walk)
+
+    def heldout_p(self, small: ModelFit, big: ModelFit) -> float:
+        """One-sided p-value of the held-out RMS falling from ``small`` to ``big`` by as much
+        as it does, when what ``big`` adds is absent (linearised twin of both, same draws)."""
+        b = self.b
+        var = b.var
+        obs = small.nrms - big.nrms
+        sims = max(self.sims, 50)
+        if small.q_walk > 0:
+            L = np.linalg.cholesky(np.diag(var) + small.q_walk * self.K)
+            n = self.rng.normal(size=(sims, len(var))) @ L.T
+        else:
+            n = self.rng.normal(size=(sims, len(var))) * np.sqrt(var)
+        es = _loo(n, small.J, var, small.lam, small.q_walk, self.K)
+        eb = _loo(n, big.J, var, big.lam, big.q_walk, self.K)
+        g = np.sqrt(np.mean(es * es / var, 1)) - np.sqrt(np.mean(eb * eb / var, 1))
+        sd = float(np.std(g))
+        if sd <= 0:
+            return 0.0 if obs > float(np.mean(g)) else 1.0
+        return 0.5 * math.erfc((obs - float(np.mean(g))) / (sd * math.sqrt(2)))
+
+    def tests(self, m: ModelFit) -> Dict[str, Tuple[float, float]]:
+        """(coefficient p, held-out p) of every member of ``m``."""
+        out = {}
+        for cls in m.classes:
+            small = self.without(m, cls)
+            if small is None:
+                pho = 1.0
+            elif cls == WALK and m.walk:
+                # the walk's held-out evidence: without it, the model's held-out ratio lies
+                # beyond its own twin's 99th percentile (GAP_HELDOUT_LEVEL), and with it the
+                # ratio against its own twin falls
+                pho = 0.0 if (small.nrms / small.twin > small.q99
+                              and m.nrms / m.twin < small.nrms / small.twin) else 1.0
+            else:
+                pho = self.heldout_p(small, m)
+            out[cls] = (m.member_p.get(cls, 1.0), pho)
+        return out
+
+    def passes(self, pc: float, pho: float) -> bool:
+        return pc < self.bonf and pho < GAP_HELDOUT_LEVEL
+
+    def failure(self, pc: float, pho: float) -> float:
+        return max(pc / self.bonf, pho / GAP_HELDOUT_LEVEL)
+
+
+def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_with) -> Dict[str, object]:
+    """Forward and backward over the visible candidates of ``tested`` (score-test entries of
+    norm.score_candidates) and the random walk; returns the final model and the steps."""
+    variants: Dict[str, list] = {}
+    vis_q = {}
+    for d in tested:
+        # the wandering bias enters as the random walk (its piecewise-linear forms stay among
+        # the single candidates' report: as members they multiply the search's fits and
+        # follow any smooth misfit in time, as the walk does with its own evidence)
+        if d["q"] > 0 and not (walk_ok and d["cand"].name == WALK):
+            variants.setdefault(d["cand"].name, []).append(d["cand"])
+            vis_q[id(d["cand"])] = d["q"]
+    s = Search(b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with)
+    cur = s.fit((), False)
+    visited = {cur.key}
+    steps: List[Dict[str, object]] = []
+    for _ in range(MAX_STEPS):
+        moves = []
+        have = set(cur.classes)
+        # forward: a class not in the model, in any variant (the walk is a variant of its class)
+        for cls in variants:
+            if cls in have or any(frozenset({cls, h}) in _NESTED for h in have):
+                continue
+            # with every variant of the members already in (a member's best variant alone can
+            # be the wrong one beside a second effect: a 3-term nonlinearity beats the 10-term
+            # one alone while a thermal bias is unmodelled, and loses to it beside one)
+            base = [()]
+            for c in cur.cands:
+                base = [b_ + (v,) for b_ in base for v in variants[c.name]]
+            opts = [(b_ + (c,), cur.walk) for b_ in base for c in variants.get(cls, [])]
+            for cands, walk in opts:
+                if not s.dof_ok(cands, walk):
+                    continue
+                m = s.fit(cands, walk)
+                if m is None or m.key in visited or not m.nrms < cur.nrms:
+                    continue
+                pc = m.member_p.get(cls, 1.0)
+                if pc >= bonf or any(p_ >= bonf for p_ in m.member_p.values()):
+                    continue
+                pho = s.heldout_p(s.without(m, cls), m)
+                if s.passes(pc, pho):
+                    what = f"add {cls}" + (" (random walk)" if walk and not cur.walk else
+                                           f" ({cands[-1].q} coefficients)")
+                    moves.append((m, what + "".join(f"; {c.name} {c.q}" for c in cands[:len(cur.cands)]
+                                                    if c not in cur.cands), pc, pho))
+        # another variant of a member, every member still passing
+        for c in cur.cands:
+            for v in variants.get(c.name, []):
+                if v is c:
+                    continue
+                cands = tuple(v if x is c else x for x in cur.cands)
+                if not s.dof_ok(cands, cur.walk):
+                    continue
+                m = s.fit(cands, cur.walk)
+                if m is None or m.key in visited or not m.nrms < cur.nrms:
+                    continue
+                if all(s.passes(*t) for t in s.tests(m).values()):
+                    moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], None))
+        if not moves and walk_ok and not cur.walk and cur.nrms / cur.twin > cur.q99 \
+                and s.dof_ok(cur.cands, True):
+            # the fixed forms are stuck with a model its own twin rejects: the random walk
+            # (the least specific form: any misfit smooth in time) joins them when its
+            # likelihood ratio is significant and the held-out ratio against each model's own
+            # twin falls (a walk is not predictable from its neighbours, so its held-out RMS
+            # keeps the walk's increments: the comparison is with what each model predicts)
+            m = s.fit(cur.cands, True)
+            if m is not None and m.key not in visited and m.member_p[WALK] < bonf \
+                    and m.nrms / m.twin < cur.nrms / cur.twin:
+                moves.append((m, "add wandering_bias (random walk)", m.member_p[WALK], None))
+        if not moves:
+            break
+        m, what, pc, pho = min(moves, key=lambda t: t[0].nrms)
+        steps.append({"step": what, "heldout_rms_normalised": m.nrms, "coefficient_p_value": pc,
+                      "heldout_p_value": pho})
+        cur = m
+        visited.add(cur.key)
+        # backward: drop the member that fails a test by most, until every member passes
+        while len(cur.classes) > 1:
+            t = s.tests(cur)
+            bad = {k: s.failure(*v) for k, v in t.items() if not s.passes(*v)}
+            if not bad:
+                break
+            worst = max(bad, key=bad.get)
+            nxt = s.without(cur, worst)
+            if nxt is None:
+                break
+            steps.append({"step": f"drop {worst}", "heldout_rms_normalised": nxt.nrms,
+                          "coefficient_p_value": t[worst][0], "heldout_p_value": t[worst][1]})
+            cur = nxt
+            visited.add(cur.key)
+    members = []
+    if cur.classes:
+        t = s.tests(cur)
+        o = b.p0
+        for c in cur.cands:
+            key = c.name + (f"_{c.units}" if c.units else "")
+            ent = {"name": c.name, "coefficients": c.q, "coefficient_p_value": t[c.name][0],
+                   "heldout_p_value": t[c.name][1],
+                   "params": {key: cur.z[o:o + c.q].tolist()}, "stderr": {key: cur.sd[o:o + c.q].tolist()}}
+            if c.parts:
+                ent["params"], ent["stderr"] = {}, {}
+                oo = o
+                for u, k in c.parts:
+                    ent["params"][f"{c.name}_{u}"] = cur.z[oo:oo + k].tolist()
+                    ent["stderr"][f"{c.name}_{u}"] = cur.sd[oo:oo + k].tolist()
+                    oo += k
+            members.append(ent)
+            o += c.q
+        if cur.walk:
+            gp = cur.gp
+            members.append({"name": WALK, "form": "random walk (REML strength, gap/wander.py)",
+                            "coefficient_p_value": t[WALK][0], "heldout_p_value": t[WALK][1],
+                            "params": {"random_walk_intensity": [gp["q"]] * 3},
+                            "random_walk": {"q_ci95": gp["q_ci95"], "likelihood_ratio": gp["lr"],
+                                            "effective_parameters": round(gp["edf"], 2)}})
+    return {"model": cur, "members": members, "steps": steps, "models_fitted": len(s.cache)}

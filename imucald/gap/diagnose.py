@@ -19,7 +19,9 @@ Method (../shared/reference/error-models.md sections 3-5):
 4. **Which effect.**  Every candidate's signature (its Jacobian columns,
    projected off what the baseline absorbs) is score-tested from the single
    baseline fit; significant candidates are refitted (nested test), judged by
-   the held-out ratio; a second effect is added when one is not enough;
+   the held-out ratio; on the norm paths a forward and backward search over
+   combinations (the random walk a member too) names every member whose
+   coefficients and held-out shrink are both significant (:mod:`.search`);
    candidates whose projected signatures coincide are reported as one class,
    with the recording that would separate them.
 5. **Shrink**: ratio before and after, the effect's parameters and uncertainty.

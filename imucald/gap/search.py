@@ -15,15 +15,20 @@ Each member m of M is tested twice, and must pass both (attribution discipline):
   remaining excess, or the generalised least-squares covariance under the walk), the walk
   by its likelihood ratio on the boundary; at the Bonferroni level of the candidate tests
   (GAP_ATTRIBUTION_LEVEL / count);
-* **held-out shrink**: the fall in the noise-normalised held-out RMS from M without m to M,
-  against the same fall on re-simulations in which m is absent (the linearised twin of both
-  models on the same noise draws, the walk's strength held at its fit); one-sided, at
-  GAP_HELDOUT_LEVEL.
+* **held-out shrink**: the fall in the held-out ratio (noise-normalised held-out RMS over
+  the model's own twin's median, the verdict's ratio) from M without m to M, against the
+  same fall on re-simulations in which m is absent (the linearised twin of both models on
+  the same noise draws, the walk's strength held at its fit); one-sided, at
+  GAP_HELDOUT_LEVEL (for the walk too: its twin holds the walk, so on pure noise its
+  ratio falls below the fixed model's, and the test asks for more than that).
 
-Forward: of the moves that pass (a new class in any variant, or another variant of a member
-with every member still passing), the one with the lowest held-out RMS.  Backward, after
-each forward step: the member that fails a test by most is removed, until all pass.  Stop
-when no move passes (or a model repeats).
+Forward: of the moves that pass (a new fixed-form class in any variant, its variants tried
+with every variant of the members already in; or another variant of a member with every
+member still passing), the one with the lowest held-out ratio.  The walk, the least specific
+form (any misfit smooth in time), joins only when no fixed form passes and the model left
+is beyond its own twin's 99th percentile.  Backward, after each forward step: the member
+that fails a test by most is removed, until all pass.  Stop when no move passes (or a
+model repeats).
 
 Pure functions over arrays; the fits and tests are cached per model.
 """
@@ -70,6 +75,11 @@ class ModelFit:
     q_walk: float = 0.0
     gp: Optional[dict] = None
     member_p: Dict[str, float] = field(default_factory=dict)   #: coefficient test by member
+
+    @property
+    def ratio(self) -> float:
+        """Held-out RMS over the model's own twin's median (the verdict's ratio)."""
+        return self.nrms / self.twin
 
     @property
     def names(self) -> List[str]:
@@ -194,11 +204,12 @@ class Search:
         return self.fit(tuple(c for c in m.cands if c.name != cls), m.walk)
 
     def heldout_p(self, small: ModelFit, big: ModelFit) -> float:
-        """One-sided p-value of the held-out RMS falling from ``small`` to ``big`` by as much
-        as it does, when what ``big`` adds is absent (linearised twin of both, same draws)."""
+        """One-sided p-value of the held-out ratio (held-out RMS over the model's own twin)
+        falling from ``small`` to ``big`` by as much as it does, when what ``big`` adds is
+        absent (linearised twin of both models on the same draws)."""
         b = self.b
         var = b.var
-        obs = small.nrms - big.nrms
+        obs = small.ratio - big.ratio
         sims = max(self.sims, 50)
         if small.q_walk > 0:
             L = np.linalg.cholesky(np.diag(var) + small.q_walk * self.K)
@@ -207,7 +218,7 @@ class Search:
             n = self.rng.normal(size=(sims, len(var))) * np.sqrt(var)
         es = _loo(n, small.J, var, small.lam, small.q_walk, self.K)
         eb = _loo(n, big.J, var, big.lam, big.q_walk, self.K)
-        g = np.sqrt(np.mean(es * es / var, 1)) - np.sqrt(np.mean(eb * eb / var, 1))
+        g = np.sqrt(np.mean(es * es / var, 1)) / small.twin - np.sqrt(np.mean(eb * eb / var, 1)) / big.twin
         sd = float(np.std(g))
         if sd <= 0:
             return 0.0 if obs > float(np.mean(g)) else 1.0
@@ -218,16 +229,7 @@ class Search:
         out = {}
         for cls in m.classes:
             small = self.without(m, cls)
-            if small is None:
-                pho = 1.0
-            elif cls == WALK and m.walk:
-                # the walk's held-out evidence: without it, the model's held-out ratio lies
-                # beyond its own twin's 99th percentile (GAP_HELDOUT_LEVEL), and with it the
-                # ratio against its own twin falls
-                pho = 0.0 if (small.nrms / small.twin > small.q99
-                              and m.nrms / m.twin < small.nrms / small.twin) else 1.0
-            else:
-                pho = self.heldout_p(small, m)
+            pho = 1.0 if small is None else self.heldout_p(small, m)
             out[cls] = (m.member_p.get(cls, 1.0), pho)
         return out
 
@@ -272,10 +274,10 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                 if not s.dof_ok(cands, walk):
                     continue
                 m = s.fit(cands, walk)
-                if m is None or m.key in visited or not m.nrms < cur.nrms:
+                if m is None or m.key in visited or not m.ratio < cur.ratio:
                     continue
                 pc = m.member_p.get(cls, 1.0)
-                if pc >= bonf or any(p_ >= bonf for p_ in m.member_p.values()):
+                if pc >= bonf:
                     continue
                 pho = s.heldout_p(s.without(m, cls), m)
                 if s.passes(pc, pho):
@@ -292,11 +294,11 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                 if not s.dof_ok(cands, cur.walk):
                     continue
                 m = s.fit(cands, cur.walk)
-                if m is None or m.key in visited or not m.nrms < cur.nrms:
+                if m is None or m.key in visited or not m.ratio < cur.ratio:
                     continue
                 if all(s.passes(*t) for t in s.tests(m).values()):
                     moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], None))
-        if not moves and walk_ok and not cur.walk and cur.nrms / cur.twin > cur.q99 \
+        if not moves and walk_ok and not cur.walk and cur.ratio > cur.q99 \
                 and s.dof_ok(cur.cands, True):
             # the fixed forms are stuck with a model its own twin rejects: the random walk
             # (the least specific form: any misfit smooth in time) joins them when its
@@ -304,13 +306,14 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
             # twin falls (a walk is not predictable from its neighbours, so its held-out RMS
             # keeps the walk's increments: the comparison is with what each model predicts)
             m = s.fit(cur.cands, True)
-            if m is not None and m.key not in visited and m.member_p[WALK] < bonf \
-                    and m.nrms / m.twin < cur.nrms / cur.twin:
-                moves.append((m, "add wandering_bias (random walk)", m.member_p[WALK], None))
+            if m is not None and m.key not in visited and m.ratio < cur.ratio and m.member_p[WALK] < bonf:
+                pho = s.heldout_p(cur, m)
+                if s.passes(m.member_p[WALK], pho):
+                    moves.append((m, "add wandering_bias (random walk)", m.member_p[WALK], pho))
         if not moves:
             break
-        m, what, pc, pho = min(moves, key=lambda t: t[0].nrms)
-        steps.append({"step": what, "heldout_rms_normalised": m.nrms, "coefficient_p_value": pc,
+        m, what, pc, pho = min(moves, key=lambda t: t[0].ratio)
+        steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
                       "heldout_p_value": pho})
         cur = m
         visited.add(cur.key)
@@ -324,7 +327,7 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
             nxt = s.without(cur, worst)
             if nxt is None:
                 break
-            steps.append({"step": f"drop {worst}", "heldout_rms_normalised": nxt.nrms,
+            steps.append({"step": f"drop {worst}", "heldout_ratio": nxt.ratio,
                           "coefficient_p_value": t[worst][0], "heldout_p_value": t[worst][1]})
             cur = nxt
             visited.add(cur.key)

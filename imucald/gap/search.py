@@ -16,19 +16,21 @@ Each member m of M is tested twice, and must pass both (attribution discipline):
   by its likelihood ratio on the boundary; at the Bonferroni level of the candidate tests
   (GAP_ATTRIBUTION_LEVEL / count);
 * **held-out shrink**: the fall in the held-out ratio (noise-normalised held-out RMS over
-  the model's own twin's median, the verdict's ratio) from M without m to M, against the
-  same fall on re-simulations in which m is absent (the linearised twin of both models on
-  the same noise draws, the walk's strength held at its fit); one-sided, at
-  GAP_HELDOUT_LEVEL (for the walk too: its twin holds the walk, so on pure noise its
-  ratio falls below the fixed model's, and the test asks for more than that).
+  the model's own twin's median, the verdict's ratio; floored at 1, since a model cannot
+  explain more than all: a near-saturated fit's twin is inflated by its leverages and its
+  ratio can fall far below 1) from M without m to M, against the same fall on
+  re-simulations in which m is absent (the linearised twin of both models on the same noise
+  draws, the walk's strength held at its fit); one-sided, at GAP_HELDOUT_LEVEL (for the walk
+  too: its twin holds the walk, so on pure noise its ratio falls below the fixed model's,
+  and the test asks for more than that).
 
 Forward: of the moves that pass (a new fixed-form class in any variant, its variants tried
 with every variant of the members already in; or another variant of a member with every
-member still passing), the one with the lowest held-out ratio.  The walk, the least specific
-form (any misfit smooth in time), joins only when no fixed form passes and the model left
-is beyond its own twin's 99th percentile.  Backward, after each forward step: the member
-that fails a test by most is removed, until all pass.  Stop when no move passes (or a
-model repeats).
+member still passing), the one with the lowest floored ratio (then the fewest
+coefficients).  The walk, the least specific form (any misfit smooth in time), joins only
+when no fixed form passes and the model left is beyond its own twin's 99th percentile.
+Backward, after each forward step: the member that fails a test by most is removed, until
+all pass.  Stop when no move passes (or a model repeats).
 
 Pure functions over arrays; the fits and tests are cached per model.
 """
@@ -47,10 +49,10 @@ from .wander import random_walk_fit
 
 __all__ = ["stepwise", "SEARCH_MIN_DOF", "WALK"]
 
-#: residual degrees of freedom a model must leave: the Wald covariance is scaled by the
-#: remaining chi2 / dof, which needs a few; the held-out tests are calibrated by their twin
-#: at any count (a nonlinearity (7 visible coefficients) with a thermal bias (3) on 22 poses
-#: leaves 3)
+#: residual degrees of freedom a model must leave (N - trace of its hat matrix): the Wald
+#: covariance is scaled by the remaining chi2 / dof, which needs a few, and a fit with fewer
+#: interpolates the poses (leverages near 1: the held-out residuals and the twin lose their
+#: meaning); a nonlinearity (7 visible coefficients) with a thermal bias (3) on 22 poses leaves 3
 SEARCH_MIN_DOF = 3
 MAX_STEPS = 8
 WALK = "wandering_bias"        #: the class the random walk belongs to
@@ -80,6 +82,17 @@ class ModelFit:
     def ratio(self) -> float:
         """Held-out RMS over the model's own twin's median (the verdict's ratio)."""
         return self.nrms / self.twin
+
+    @property
+    def excess(self) -> float:
+        """The ratio's part above 1: what is left to explain (a ratio below 1, a model whose
+        held-out residual is smaller than its own twin predicts, explains no more than one at
+        1: e.g. a near-saturated fit whose twin is inflated by its leverages)."""
+        return max(self.ratio, 1.0)
+
+    @property
+    def n_coef(self) -> int:
+        return sum(c.q for c in self.cands) + (1 if self.walk else 0)
 
     @property
     def names(self) -> List[str]:
@@ -175,6 +188,13 @@ class Search:
             cov = Ai * max(1.0, chi2 / max(N - p0, 1))
             twin = float(b.report["twin_heldout_rms_normalised"])
             q99 = float(b.report["twin_ratio_q99"])
+        if cands:
+            # the residual degrees of freedom the fit actually leaves (N - trace of the hat
+            # matrix): the score tests' visible counts can understate a combination's
+            # (a near-saturated pair interpolates the poses, leverages -> 1)
+            h, _ = hat_diag(J, b.w, lam)
+            if N - float(np.sum(h)) < SEARCH_MIN_DOF:
+                return None
         m = ModelFit(tuple(cands), walk, r, J, lam, z, cov, np.sqrt(np.clip(np.diag(cov), 0, None)), chi2, e,
                      b.nrms(e), twin, q99)
         if walk:
@@ -209,7 +229,7 @@ class Search:
         absent (linearised twin of both models on the same draws)."""
         b = self.b
         var = b.var
-        obs = small.ratio - big.ratio
+        obs = small.excess - big.excess
         sims = max(self.sims, 50)
         if small.q_walk > 0:
             L = np.linalg.cholesky(np.diag(var) + small.q_walk * self.K)
@@ -218,7 +238,8 @@ class Search:
             n = self.rng.normal(size=(sims, len(var))) * np.sqrt(var)
         es = _loo(n, small.J, var, small.lam, small.q_walk, self.K)
         eb = _loo(n, big.J, var, big.lam, big.q_walk, self.K)
-        g = np.sqrt(np.mean(es * es / var, 1)) / small.twin - np.sqrt(np.mean(eb * eb / var, 1)) / big.twin
+        g = (np.maximum(np.sqrt(np.mean(es * es / var, 1)) / small.twin, 1.0)
+             - np.maximum(np.sqrt(np.mean(eb * eb / var, 1)) / big.twin, 1.0))
         sd = float(np.std(g))
         if sd <= 0:
             return 0.0 if obs > float(np.mean(g)) else 1.0
@@ -274,7 +295,7 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                 if not s.dof_ok(cands, walk):
                     continue
                 m = s.fit(cands, walk)
-                if m is None or m.key in visited or not m.ratio < cur.ratio:
+                if m is None or m.key in visited or not m.excess < cur.excess:
                     continue
                 pc = m.member_p.get(cls, 1.0)
                 if pc >= bonf:
@@ -294,7 +315,7 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                 if not s.dof_ok(cands, cur.walk):
                     continue
                 m = s.fit(cands, cur.walk)
-                if m is None or m.key in visited or not m.ratio < cur.ratio:
+                if m is None or m.key in visited or not m.excess < cur.excess:
                     continue
                 if all(s.passes(*t) for t in s.tests(m).values()):
                     moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], None))
@@ -306,13 +327,13 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
             # twin falls (a walk is not predictable from its neighbours, so its held-out RMS
             # keeps the walk's increments: the comparison is with what each model predicts)
             m = s.fit(cur.cands, True)
-            if m is not None and m.key not in visited and m.ratio < cur.ratio and m.member_p[WALK] < bonf:
+            if m is not None and m.key not in visited and m.excess < cur.excess and m.member_p[WALK] < bonf:
                 pho = s.heldout_p(cur, m)
                 if s.passes(m.member_p[WALK], pho):
                     moves.append((m, "add wandering_bias (random walk)", m.member_p[WALK], pho))
         if not moves:
             break
-        m, what, pc, pho = min(moves, key=lambda t: t[0].ratio)
+        m, what, pc, pho = min(moves, key=lambda t: (t[0].excess, t[0].n_coef))
         steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
                       "heldout_p_value": pho})
         cur = m

@@ -26,8 +26,8 @@ Each member m of M is tested twice, and must pass both (attribution discipline):
 
 Forward: of the moves that pass (a new fixed-form class in any variant, its variants tried
 with every variant of the members already in; or another variant of a member with every
-member still passing), the one with the lowest floored ratio (then the fewest
-coefficients).  The walk, the least specific form (any misfit smooth in time), joins only
+member still passing), the simplest (fewest coefficients) that closes the gap (its ratio
+within its own twin's 99th percentile), else the one with the lowest floored ratio.  The walk, the least specific form (any misfit smooth in time), joins only
 when no fixed form passes and the model left is beyond its own twin's 99th percentile.
 Backward, after each forward step: the member that fails a test by most is removed, until
 all pass.  Stop when no move passes (or a model repeats).
@@ -333,7 +333,11 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                     moves.append((m, "add wandering_bias (random walk)", m.member_p[WALK], pho))
         if not moves:
             break
-        m, what, pc, pho = min(moves, key=lambda t: (t[0].excess, t[0].n_coef))
+        # the simplest move that closes the gap (within its own twin's 99th percentile); else
+        # the one leaving least to explain
+        m, what, pc, pho = min(moves, key=lambda t: (t[0].ratio > t[0].q99,
+                                                     t[0].n_coef if t[0].ratio <= t[0].q99 else 0,
+                                                     t[0].excess, t[0].n_coef))
         steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
                       "heldout_p_value": pho})
         cur = m

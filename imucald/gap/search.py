@@ -28,7 +28,9 @@ Forward: of the moves that pass (a new fixed-form class in any variant, its vari
 with every variant of the members already in; or another variant of a member with every
 member still passing), the simplest (fewest coefficients) that closes the gap (its ratio
 within its own twin's 99th percentile), else the one with the lowest floored ratio.  The walk, the least specific form (any misfit smooth in time), joins only
-when no fixed form passes and the model left is beyond its own twin's 99th percentile.
+when no fixed form passes, the model left is beyond its own twin's 99th percentile, and the
+walk predicts (its held-out RMS, not only its ratio, falls); or in place of a drift (a
+drift's line is one path of a walk) on the same terms.
 Backward, after each forward step: the member that fails a test by most is removed, until
 all pass.  Stop when no move passes (or a model repeats).
 
@@ -55,6 +57,10 @@ __all__ = ["stepwise", "SEARCH_MIN_DOF", "WALK"]
 #: meaning); a nonlinearity (7 visible coefficients) with a thermal bias (3) on 22 poses leaves 3
 SEARCH_MIN_DOF = 3
 MAX_STEPS = 8
+#: effects named together at most (the walk counts): with 22-35 poses a third effect's tests
+#: are dominated by what the first two leave unmodelled (on the blind generators a third member
+#: was a thermal scale or a drift soaking up the curvature of a thermal bias, or a walk)
+MAX_MEMBERS = 2
 WALK = "wandering_bias"        #: the class the random walk belongs to
 _NESTED = {frozenset({"bias_drift", "wandering_bias"})}   # the drift's line lies in the wandering span
 
@@ -281,7 +287,7 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
         moves = []
         have = set(cur.classes)
         # forward: a class not in the model, in any variant (the walk is a variant of its class)
-        for cls in variants:
+        for cls in (variants if len(have) < MAX_MEMBERS else []):
             if cls in have or any(frozenset({cls, h}) in _NESTED for h in have):
                 continue
             # with every variant of the members already in (a member's best variant alone can
@@ -319,7 +325,14 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                     continue
                 if all(s.passes(*t) for t in s.tests(m).values()):
                     moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], None))
-        if not moves and walk_ok and not cur.walk and cur.ratio > cur.q99 \
+        if walk_ok and not cur.walk and "bias_drift" in have and cur.ratio > cur.q99:
+            # the drift's straight line is one path of a walk: the walk in its place, on the
+            # walk's terms (below)
+            m = s.fit(tuple(c for c in cur.cands if c.name != "bias_drift"), True)
+            if m is not None and m.key not in visited and m.excess < cur.excess and m.nrms < cur.nrms \
+                    and all(s.passes(*t) for t in s.tests(m).values()):
+                moves.append((m, "bias_drift -> wandering_bias (random walk)", m.member_p[WALK], None))
+        if not moves and walk_ok and not cur.walk and cur.ratio > cur.q99 and len(have) < MAX_MEMBERS \
                 and s.dof_ok(cur.cands, True):
             # the fixed forms are stuck with a model its own twin rejects: the random walk
             # (the least specific form: any misfit smooth in time) joins them when its
@@ -327,7 +340,10 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
             # twin falls (a walk is not predictable from its neighbours, so its held-out RMS
             # keeps the walk's increments: the comparison is with what each model predicts)
             m = s.fit(cur.cands, True)
-            if m is not None and m.key not in visited and m.excess < cur.excess and m.member_p[WALK] < bonf:
+            # the walk must also predict: its held-out RMS (not only its ratio against its own
+            # twin, which a strong walk inflates) falls below the model's without it
+            if m is not None and m.key not in visited and m.excess < cur.excess and m.nrms < cur.nrms \
+                    and m.member_p[WALK] < bonf:
                 pho = s.heldout_p(cur, m)
                 if s.passes(m.member_p[WALK], pho):
                     moves.append((m, "add wandering_bias (random walk)", m.member_p[WALK], pho))

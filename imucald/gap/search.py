@@ -28,9 +28,10 @@ Forward: of the moves that pass (a new fixed-form class in any variant, its vari
 with every variant of the members already in; or another variant of a member with every
 member still passing), the simplest (fewest coefficients) that closes the gap (its ratio
 within its own twin's 99th percentile), else the one with the lowest floored ratio.  The walk, the least specific form (any misfit smooth in time), joins only
-when no fixed form passes, the model left is beyond its own twin's 99th percentile, and the
-walk predicts (its held-out RMS, not only its ratio, falls); or in place of a drift (a
-drift's line is one path of a walk) on the same terms.
+when no fixed form passes and the model left is beyond its own twin's 99th percentile, or in
+place of a drift (a drift's line is one path of a walk); and only when the walk predicts:
+alone, its held-out RMS (not only its ratio against its own twin, which a strong walk
+inflates) falls below the baseline's.
 Backward, after each forward step: the member that fails a test by most is removed, until
 all pass.  Stop when no move passes (or a model repeats).
 
@@ -280,98 +281,120 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
             variants.setdefault(d["cand"].name, []).append(d["cand"])
             vis_q[id(d["cand"])] = d["q"]
     s = Search(b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with)
-    cur = s.fit((), False)
-    visited = {cur.key}
-    steps: List[Dict[str, object]] = []
-    for _ in range(MAX_STEPS):
-        moves = []
-        have = set(cur.classes)
-        # forward: a class not in the model, in any variant (the walk is a variant of its class)
-        for cls in (variants if len(have) < MAX_MEMBERS else []):
-            if cls in have or any(frozenset({cls, h}) in _NESTED for h in have):
-                continue
-            # with every variant of the members already in (a member's best variant alone can
-            # be the wrong one beside a second effect: a 3-term nonlinearity beats the 10-term
-            # one alone while a thermal bias is unmodelled, and loses to it beside one)
-            base = [()]
+    base = s.fit((), False)
+    # the walk is a candidate at all only when it predicts: alone, its held-out RMS falls below
+    # the baseline's (its ratio against its own twin, which a strong walk inflates, is not
+    # enough: a walk of large strength "closes" any misfit), with its likelihood ratio significant
+    w0 = s.fit((), True) if walk_ok else None
+    walk_ok = bool(w0 is not None and w0.nrms < base.nrms and w0.member_p[WALK] < bonf)
+
+    def path(cur):
+        visited = {cur.key}
+        steps: List[Dict[str, object]] = []
+        for _ in range(MAX_STEPS):
+            moves = []
+            have = set(cur.classes)
+            # forward: a class not in the model, in any variant (the walk is a variant of its class)
+            for cls in (variants if len(have) < MAX_MEMBERS else []):
+                if cls in have or any(frozenset({cls, h}) in _NESTED for h in have):
+                    continue
+                # with every variant of the members already in (a member's best variant alone can
+                # be the wrong one beside a second effect: a 3-term nonlinearity beats the 10-term
+                # one alone while a thermal bias is unmodelled, and loses to it beside one)
+                base = [()]
+                for c in cur.cands:
+                    base = [b_ + (v,) for b_ in base for v in variants[c.name]]
+                opts = [(b_ + (c,), cur.walk) for b_ in base for c in variants.get(cls, [])]
+                for cands, walk in opts:
+                    if not s.dof_ok(cands, walk):
+                        continue
+                    m = s.fit(cands, walk)
+                    if m is None or m.key in visited or not m.excess < cur.excess:
+                        continue
+                    pc = m.member_p.get(cls, 1.0)
+                    if pc >= bonf:
+                        continue
+                    pho = s.heldout_p(s.without(m, cls), m)
+                    if s.passes(pc, pho):
+                        what = f"add {cls}" + (" (random walk)" if walk and not cur.walk else
+                                               f" ({cands[-1].q} coefficients)")
+                        moves.append((m, what + "".join(f"; {c.name} {c.q}" for c in cands[:len(cur.cands)]
+                                                        if c not in cur.cands), pc, pho))
+            # another variant of a member, every member still passing
             for c in cur.cands:
-                base = [b_ + (v,) for b_ in base for v in variants[c.name]]
-            opts = [(b_ + (c,), cur.walk) for b_ in base for c in variants.get(cls, [])]
-            for cands, walk in opts:
-                if not s.dof_ok(cands, walk):
-                    continue
-                m = s.fit(cands, walk)
-                if m is None or m.key in visited or not m.excess < cur.excess:
-                    continue
-                pc = m.member_p.get(cls, 1.0)
-                if pc >= bonf:
-                    continue
-                pho = s.heldout_p(s.without(m, cls), m)
-                if s.passes(pc, pho):
-                    what = f"add {cls}" + (" (random walk)" if walk and not cur.walk else
-                                           f" ({cands[-1].q} coefficients)")
-                    moves.append((m, what + "".join(f"; {c.name} {c.q}" for c in cands[:len(cur.cands)]
-                                                    if c not in cur.cands), pc, pho))
-        # another variant of a member, every member still passing
-        for c in cur.cands:
-            for v in variants.get(c.name, []):
-                if v is c:
-                    continue
-                cands = tuple(v if x is c else x for x in cur.cands)
-                if not s.dof_ok(cands, cur.walk):
-                    continue
-                m = s.fit(cands, cur.walk)
-                if m is None or m.key in visited or not m.excess < cur.excess:
-                    continue
-                if all(s.passes(*t) for t in s.tests(m).values()):
-                    moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], None))
-        if walk_ok and not cur.walk and "bias_drift" in have and cur.ratio > cur.q99:
-            # the drift's straight line is one path of a walk: the walk in its place, on the
-            # walk's terms (below)
-            m = s.fit(tuple(c for c in cur.cands if c.name != "bias_drift"), True)
-            if m is not None and m.key not in visited and m.excess < cur.excess and m.nrms < cur.nrms \
-                    and all(s.passes(*t) for t in s.tests(m).values()):
-                moves.append((m, "bias_drift -> wandering_bias (random walk)", m.member_p[WALK], None))
-        if not moves and walk_ok and not cur.walk and cur.ratio > cur.q99 and len(have) < MAX_MEMBERS \
-                and s.dof_ok(cur.cands, True):
-            # the fixed forms are stuck with a model its own twin rejects: the random walk
-            # (the least specific form: any misfit smooth in time) joins them when its
-            # likelihood ratio is significant and the held-out ratio against each model's own
-            # twin falls (a walk is not predictable from its neighbours, so its held-out RMS
-            # keeps the walk's increments: the comparison is with what each model predicts)
-            m = s.fit(cur.cands, True)
-            # the walk must also predict: its held-out RMS (not only its ratio against its own
-            # twin, which a strong walk inflates) falls below the model's without it
-            if m is not None and m.key not in visited and m.excess < cur.excess and m.nrms < cur.nrms \
-                    and m.member_p[WALK] < bonf:
-                pho = s.heldout_p(cur, m)
-                if s.passes(m.member_p[WALK], pho):
-                    moves.append((m, "add wandering_bias (random walk)", m.member_p[WALK], pho))
-        if not moves:
-            break
-        # the simplest move that closes the gap (within its own twin's 99th percentile); else
-        # the one leaving least to explain
-        m, what, pc, pho = min(moves, key=lambda t: (t[0].ratio > t[0].q99,
-                                                     t[0].n_coef if t[0].ratio <= t[0].q99 else 0,
-                                                     t[0].excess, t[0].n_coef))
-        steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
-                      "heldout_p_value": pho})
-        cur = m
-        visited.add(cur.key)
-        # backward: drop the member that fails a test by most, until every member passes
-        while len(cur.classes) > 1:
-            t = s.tests(cur)
-            bad = {k: s.failure(*v) for k, v in t.items() if not s.passes(*v)}
-            if not bad:
+                for v in variants.get(c.name, []):
+                    if v is c:
+                        continue
+                    cands = tuple(v if x is c else x for x in cur.cands)
+                    if not s.dof_ok(cands, cur.walk):
+                        continue
+                    m = s.fit(cands, cur.walk)
+                    if m is None or m.key in visited or not m.excess < cur.excess:
+                        continue
+                    if all(s.passes(*t) for t in s.tests(m).values()):
+                        moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], None))
+            if walk_ok and not cur.walk and "bias_drift" in have and cur.ratio > cur.q99:
+                # the drift's straight line is one path of a walk: the walk in its place, on the
+                # walk's terms (below)
+                m = s.fit(tuple(c for c in cur.cands if c.name != "bias_drift"), True)
+                if m is not None and m.key not in visited and m.excess < cur.excess \
+                        and all(s.passes(*t) for t in s.tests(m).values()):
+                    moves.append((m, "bias_drift -> wandering_bias (random walk)", m.member_p[WALK], None))
+            if not moves and walk_ok and not cur.walk and cur.ratio > cur.q99 and len(have) < MAX_MEMBERS \
+                    and s.dof_ok(cur.cands, True):
+                # the fixed forms are stuck with a model its own twin rejects: the random walk
+                # (the least specific form: any misfit smooth in time) joins them when its
+                # likelihood ratio is significant and the held-out ratio against each model's own
+                # twin falls (a walk is not predictable from its neighbours, so its held-out RMS
+                # keeps the walk's increments: the comparison is with what each model predicts)
+                m = s.fit(cur.cands, True)
+                if m is not None and m.key not in visited and m.excess < cur.excess and m.member_p[WALK] < bonf:
+                    pho = s.heldout_p(cur, m)
+                    if s.passes(m.member_p[WALK], pho):
+                        moves.append((m, "add wandering_bias (random walk)", m.member_p[WALK], pho))
+            if not moves:
                 break
-            worst = max(bad, key=bad.get)
-            nxt = s.without(cur, worst)
-            if nxt is None:
-                break
-            steps.append({"step": f"drop {worst}", "heldout_ratio": nxt.ratio,
-                          "coefficient_p_value": t[worst][0], "heldout_p_value": t[worst][1]})
-            cur = nxt
+            # the simplest move that closes the gap (within its own twin's 99th percentile); else
+            # the one leaving least to explain
+            m, what, pc, pho = min(moves, key=lambda t: (t[0].ratio > t[0].q99,
+                                                         t[0].n_coef if t[0].ratio <= t[0].q99 else 0,
+                                                         t[0].excess, t[0].n_coef))
+            steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
+                          "heldout_p_value": pho})
+            cur = m
             visited.add(cur.key)
+            # backward: drop the member that fails a test by most, until every member passes
+            while len(cur.classes) > 1:
+                t = s.tests(cur)
+                bad = {k: s.failure(*v) for k, v in t.items() if not s.passes(*v)}
+                if not bad:
+                    break
+                worst = max(bad, key=bad.get)
+                nxt = s.without(cur, worst)
+                if nxt is None:
+                    break
+                steps.append({"step": f"drop {worst}", "heldout_ratio": nxt.ratio,
+                              "coefficient_p_value": t[worst][0], "heldout_p_value": t[worst][1]})
+                cur = nxt
+                visited.add(cur.key)
+
+        return cur, steps
+    cur, steps = path(base)
+    if walk_ok:
+        # a second path from the walk alone (the fixed forms first can soak up a walk: a
+        # thermal bias on a warm-up, a nonlinearity's terms); the two ends are compared by
+        # their likelihood gain over the baseline less Akaike's penalty (2 per coefficient,
+        # the walk's strength one), as the walk and the parametric choice were before
+        cw, sw = path(w0)
+
+        def aic(m):
+            k = sum(s.vis_q[id(c)] for c in m.cands) + (1 if m.walk else 0)
+            return (base.chi2 - m.chi2) + (m.gp["lr"] if m.walk else 0.0) - 2.0 * k
+        if cw.key != cur.key and aic(cw) > aic(cur):
+            steps = [{"step": "path from the walk alone (its end's likelihood gain less 2 per "
+                              "coefficient beats the path from the baseline's)",
+                      "other_path_end": cur.names}] + sw
+            cur = cw
     members = []
     if cur.classes:
         t = s.tests(cur)

@@ -360,7 +360,10 @@ def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str
                      "rule": "forward and backward steps; every member's coefficients (Wald or "
                              "likelihood ratio, Bonferroni) and held-out shrink (against its twin) significant"}
     if len(chosen) > 1:
-        out["joint"] = {"effects": list(chosen), "ratio_after": float(ratio_after), "closed": closed}
+        # params / stderr: the fixed members' coefficients in the order of ``effects`` (flat,
+        # as before the search; the walk's strength is in search.members)
+        out["joint"] = {"effects": list(chosen), "ratio_after": float(ratio_after), "closed": closed,
+                        "params": m.z[b.p0:].tolist(), "stderr": m.sd[b.p0:].tolist()}
     out.update(verdict(True, chosen, b.ratio, float(ratio_after), closed))
     out["ratio_after"] = float(ratio_after)
     conf = confusable(chosen, signatures)

@@ -276,8 +276,10 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
     for d in tested:
         # the wandering bias enters as the random walk (its piecewise-linear forms stay among
         # the single candidates' report: as members they multiply the search's fits and
-        # follow any smooth misfit in time, as the walk does with its own evidence)
-        if d["q"] > 0 and not (walk_ok and d["cand"].name == WALK):
+        # follow any smooth misfit in time, as the walk does with its own evidence); a variant
+        # enters only when its signature is in the data: its score test from the baseline fit
+        # passes at the same level (as a single candidate's must)
+        if d["q"] > 0 and not (walk_ok and d["cand"].name == WALK) and d["p"] < bonf:
             variants.setdefault(d["cand"].name, []).append(d["cand"])
             vis_q[id(d["cand"])] = d["q"]
     s = Search(b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with)
@@ -310,6 +312,10 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                         continue
                     m = s.fit(cands, walk)
                     if m is None or m.key in visited or not m.excess < cur.excess:
+                        continue
+                    if not cur.classes and not m.nrms < cur.nrms:
+                        # the first effect must predict the held-out poses better than the
+                        # baseline (its held-out RMS falls, as a single candidate's must)
                         continue
                     pc = m.member_p.get(cls, 1.0)
                     if pc >= bonf:

@@ -24,7 +24,9 @@ Each member m of M is tested twice, and must pass both (attribution discipline):
   too: its twin holds the walk, so on pure noise its ratio falls below the fixed model's,
   and the test asks for more than that).
 
-Forward: of the moves that pass (a new fixed-form class in any variant, its variants tried
+A variant is a candidate only when its score test from the baseline fit passes at the same
+Bonferroni level, and the first effect must lower the held-out RMS below the baseline's (a
+single candidate's rules).  Forward: of the moves that pass (a new fixed-form class in any variant, its variants tried
 with every variant of the members already in; or another variant of a member with every
 member still passing), the simplest (fewest coefficients) that closes the gap (its ratio
 within its own twin's 99th percentile), else the one with the lowest floored ratio.  The walk, the least specific form (any misfit smooth in time), joins only

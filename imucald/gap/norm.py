@@ -18,15 +18,14 @@ from ..calib.uncertainty import residual_variance
 from .candidates import Candidate
 from ..calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
 from .signif import p_and_log10, proj_sig, score
-from .search import stepwise
+from .search import MIN_DOF, stepwise
 from .verdict import confusable, verdict
 from .wander import random_walk_fit
 from .where import norm_where
 
 __all__ = ["norm_diag", "norm_baseline", "score_candidates", "fit_candidates", "NormBaseline",
-           "CandidateFit", "CandidateFits", "MIN_DOF"]
+           "CandidateFit", "CandidateFits"]
 
-MIN_DOF = 10           #: residual degrees of freedom a candidate fit must leave
 
 
 @dataclass

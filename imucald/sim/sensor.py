@@ -23,13 +23,11 @@ from ..rng import RngLike, as_rng
 
 from ..calib.models import Triangular9
 from ..recording import Recording
-from .motion import log_so3
-from .poses import axis_angle
+from .motion import PoseTour, Tumble, earth_rate_body_dps
 from ..specs import ACCEL, BOARDS, GYRO, MAG
 
 __all__ = ["Truth", "draw_truth", "pose_sigma", "simulate_pose_means", "Session",
-           "simulate_session", "simulate_tumble", "temperature_profile", "hold_samples",
-           "duplicate_rows"]
+           "simulate_session", "simulate_tumble", "sense", "hold_samples", "duplicate_rows"]
 
 _T9 = Triangular9()
 
@@ -122,23 +120,6 @@ def simulate_pose_means(theta: np.ndarray, ups: np.ndarray, sigma_pose: float,
     return raw, cov
 
 
-def temperature_profile(t: np.ndarray, kind: str = "warmup", t0_c: float = 22.0,
-                        dt_c: float = 6.0) -> np.ndarray:
-    """Die temperature, degC: 'warmup' (exponential, tau = span/3), 'ramp' (linear),
-    'heatcool' (up then down), or 'constant'."""
-    span = max(float(t[-1] - t[0]), 1e-9)
-    x = (t - t[0]) / span
-    if kind == "warmup":
-        return t0_c + dt_c * (1 - np.exp(-3 * x)) / (1 - np.exp(-3))
-    if kind == "ramp":
-        return t0_c + dt_c * x
-    if kind == "heatcool":
-        return t0_c + dt_c * (1 - np.abs(2 * x - 1))
-    if kind == "constant":
-        return np.full_like(t, t0_c, dtype=float)
-    raise ValueError(f"unknown temperature profile {kind!r}: allowed warmup, ramp, heatcool, constant")
-
-
 @dataclass
 class Session:
     """A simulated session: the recording plus what produced it."""
@@ -155,19 +136,6 @@ class Session:
 Effect = Callable[[str, np.ndarray, Dict[str, np.ndarray]], None]
 
 
-def hand_tremor(n: int, rate_hz: float, rms_dps: float, rng: RngLike = None):
-    """Band-limited (6-12 Hz) hand tremor: (rate deg/s (n, 3), angle rad (n, 3)), body
-    frame, each rate axis with RMS ``rms_dps``; the angle is the rate integrated."""
-    rng = as_rng(rng)
-    f = np.fft.rfftfreq(n, 1.0 / rate_hz)
-    band = (f >= 6.0) & (f <= min(12.0, rate_hz / 2))
-    spec = (rng.normal(size=(3, len(f))) + 1j * rng.normal(size=(3, len(f)))) * band
-    rate = np.fft.irfft(spec, n).T
-    rate *= rms_dps / np.maximum(rate.std(0), 1e-300)
-    ang = np.cumsum(np.radians(rate), 0) / rate_hz
-    return rate, ang - ang.mean(0)
-
-
 def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
                      rate_hz: float = 100.0, hold_s: Union[float, Tuple[float, float]] = 10.0,
                      move_s: Union[float, Tuple[float, float]] = 3.0, lead_s: float = 2.0,
@@ -176,145 +144,74 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
                      effects: Sequence[Effect] = (), move_accel_g: float = 0.2,
                      quantise: bool = True, tremor_dps: Union[float, Sequence[float]] = 0.0,
                      tremor_lever_m: float = 0.025, latitude_deg: float = 48.0) -> Session:
-    """Raw sample stream for a board moved through ``rotations``.
-
-    The gyro also senses Earth's rotation, 7.2921e-5 rad/s (IERS), at ``latitude_deg``
-    (world frame: x north, as the magnetic field's horizontal part, z up).
+    """Raw sample stream for a board moved through ``rotations``: the trajectory generator
+    the emulated chips also sample (:class:`imucald.sim.motion.PoseTour`), evaluated at the
+    logger's times k / ``rate_hz``, then sensed (:func:`sense`).
 
     The board rests ``lead_s`` in the first pose, then for each pose holds still
     for ``hold_s`` (a number or a (lo, hi) range drawn uniformly) and moves to the
     next in ``move_s``: a smooth (smoothstep) rotation about a fixed body axis,
     with a hand-like linear acceleration bump of up to ``move_accel_g``.
 
-    ``tremor_dps`` > 0 adds hand tremor throughout: a small angular oscillation,
-    band-limited to 6-12 Hz, whose rate has that RMS per axis (0.5-2 deg/s for real
-    hands).  It is physical: the rotation enters the trajectory, so the gyro sees the
-    rate and the accelerometer the gravity-direction wobble, plus the tangential
-    acceleration of a point ``tremor_lever_m`` from the pivot (2.5 cm gives the
-    accelerometer 1.3-3x its noise variance at 1.5 deg/s, as real hand poses show).
-    A sequence gives each pose its own (over its hold and the move after it): e.g. 10 bench
-    poses (0) then 10 hand-held ones (1.5).
+    ``tremor_dps`` > 0 adds hand tremor throughout: a small angular oscillation in 6-12 Hz
+    (its components above the logger's Nyquist frequency left out, as the chip's anti-alias
+    filter would), whose rate has that RMS per axis (0.5-2 deg/s for real hands), physical
+    (gravity tilt and the tangential acceleration ``tremor_lever_m`` from the pivot: see
+    :class:`~imucald.sim.motion.PoseTour`).  A sequence gives each pose its own: e.g. 10
+    bench poses (0) then 10 hand-held ones (1.5).  The die temperature follows ``temp_kind``
+    over the session (:func:`~imucald.sim.motion.temperature_profile`); the gyro also senses
+    Earth's rotation at ``latitude_deg``.
+
+    Random draws, in order: the truth (unless given), the tour (holds, bumps, moves, tremor),
+    then the sensor noise.
     """
     rng = as_rng(rng)
     truth = truth or draw_truth(board, rng)
-    tr = _pose_tour(rotations, rng, rate_hz, hold_s, move_s, lead_s, move_accel_g)
-    _add_tremor(tr, tremor_dps, len(rotations), rate_hz, tremor_lever_m, rng)
-    return _sense(board, truth, tr.R, tr.w_dps, tr.a_world, rotations, tr.holds, rate_hz, rng,
-                  temp_kind, temp0_c, temp_rise_c, effects, quantise, latitude_deg)
+    tour = PoseTour(rotations, rng, hold_s=hold_s, move_s=move_s, lead_s=lead_s,
+                    move_accel_g=move_accel_g, field_gauss=truth.field_gauss, dip_deg=truth.dip_deg,
+                    temp0_c=temp0_c, temp_rise_c=temp_rise_c, temp_kind=temp_kind,
+                    tremor_dps=tremor_dps, tremor_lever_m=tremor_lever_m)
+    t = tour.sample_times(rate_hz)
+    m = tour.sample(t, max_hz=rate_hz / 2)
+    return sense(board, truth, t, m, rate_hz, rng, effects, quantise, latitude_deg,
+                 holds=_sampled_holds(tour.holds(), t), rotations=rotations)
 
 
-@dataclass
-class _Trajectory:
-    """A board's motion sampled at the rate: body->world rotations R (n, 3, 3), body rates
-    w_dps (n, 3), world linear acceleration a_world (n, 3, g), each pose's hold (t0, t1, s)
-    and the sample count of each segment (hold, move, hold, ... in order)."""
-    R: np.ndarray
-    w_dps: np.ndarray
-    a_world: np.ndarray
-    holds: List[Tuple[float, float]]
-    segments: List[int]
+def _sampled_holds(holds, t_s: np.ndarray) -> List[Tuple[float, float]]:
+    """Each still interval as the times of its first and last sample, s (the interval
+    itself when no sample falls in it)."""
+    out = []
+    for a, b in holds:
+        i0, i1 = np.searchsorted(t_s, [a, b])
+        out.append((float(t_s[i0]), float(t_s[i1 - 1])) if i1 > i0 else (float(a), float(b)))
+    return out
 
 
-def _pose_tour(rotations, rng, rate_hz, hold_s, move_s, lead_s, move_accel_g) -> _Trajectory:
-    """Holds at each pose and smoothstep moves between them, with a hand-like linear
-    acceleration bump (see :func:`simulate_session`)."""
-    dt = 1.0 / rate_hz
-    draw = lambda v: float(rng.uniform(*v)) if isinstance(v, tuple) else float(v)
-    Rs, ws, accs, holds = [], [], [], []
-    t_cursor = 0.0
-    N = len(rotations)
-    for i in range(N):
-        h = draw(hold_s) + (lead_s if i == 0 else 0.0)
-        n = max(1, int(round(h * rate_hz)))
-        Rs.append(np.broadcast_to(rotations[i], (n, 3, 3)))
-        ws.append(np.zeros((n, 3)))
-        accs.append(np.zeros((n, 3)))
-        holds.append((t_cursor, t_cursor + (n - 1) * dt))
-        t_cursor += n * dt
-        if i + 1 < N:
-            mt = draw(move_s)
-            m = max(2, int(round(mt * rate_hz)))
-            tau = (np.arange(m) + 0.5) / m
-            s = 3 * tau ** 2 - 2 * tau ** 3
-            sdot = 6 * tau * (1 - tau) / (m * dt)     # the motion lasts m samples (mt rounded)
-            rel = rotations[i].T @ rotations[i + 1]
-            rv = log_so3(rel)
-            ang = np.linalg.norm(rv)
-            ax = rv / ang if ang > 0 else np.array([1.0, 0, 0])
-            Rm = np.array([rotations[i] @ axis_angle(ax, ang * sk) for sk in s])
-            Rs.append(Rm)
-            ws.append(np.degrees(rv)[None, :] * sdot[:, None])
-            d = rng.normal(size=3)
-            d /= np.linalg.norm(d)
-            amp = rng.uniform(0.3, 1.0) * move_accel_g
-            accs.append(amp * np.sin(2 * np.pi * tau)[:, None] * d[None, :])
-            t_cursor += m * dt
-    return _Trajectory(np.concatenate(Rs), np.concatenate(ws), np.concatenate(accs), holds,
-                       [len(x) for x in Rs])
-
-
-def _add_tremor(tr: _Trajectory, tremor_dps, N: int, rate_hz: float, lever_m: float,
-                rng) -> None:
-    """Hand tremor into the trajectory, in place: the small rotation, its rate and the
-    tangential acceleration at ``lever_m`` from the pivot (see :func:`simulate_session`)."""
-    n = len(tr.R)
-    per_pose = np.ndim(tremor_dps) > 0
-    if per_pose and len(tremor_dps) != N:
-        raise ValueError(f"tremor_dps: {len(tremor_dps)} values for {N} poses")
-    if per_pose and np.any(np.asarray(tremor_dps, float) > 0):
-        # each pose's tremor over its hold and the move that follows it (bench poses: 0)
-        env = np.repeat(np.asarray(tremor_dps, float),
-                        [sum(tr.segments[2 * i:2 * i + 2]) for i in range(N)])
-        rate_dps, _ = hand_tremor(n, rate_hz, 1.0, rng)
-        rate_dps *= env[:, None]
-        ang = np.cumsum(np.radians(rate_dps), 0) / rate_hz
-        ang -= ang.mean(0)
-    elif not per_pose and tremor_dps > 0:
-        rate_dps, ang = hand_tremor(n, rate_hz, tremor_dps, rng)
-    else:
-        return
-    sk = np.zeros((n, 3, 3))                     # small-angle body rotation I + [ang]x
-    sk[:, 0, 1], sk[:, 0, 2], sk[:, 1, 2] = -ang[:, 2], ang[:, 1], -ang[:, 0]
-    sk -= np.transpose(sk, (0, 2, 1))
-    tr.R = tr.R @ (np.eye(3) + sk)
-    tr.w_dps = tr.w_dps + rate_dps
-    alpha = np.gradient(np.radians(rate_dps), 1.0 / rate_hz, axis=0)      # rad/s^2, body
-    lever = np.cross(alpha, np.array([lever_m, 0.0, 0.0])) / 9.80665      # g, body
-    tr.a_world = tr.a_world + np.einsum("nij,nj->ni", tr.R, lever)
-
-
-def _sense(board, truth, R, w_dps, a_world, rotations, holds, rate_hz, rng, temp_kind, temp0_c,
-           temp_rise_c, effects, quantise, latitude_deg) -> Session:
-    """The sensors on a trajectory: body->world rotations R (n, 3, 3), body rates w_dps
-    (n, 3) and world linear acceleration a_world (n, 3, g), sampled at rate_hz: the error
-    model, effects, white noise, quantisation and clipping."""
+def sense(board: str, truth: Truth, t_s: np.ndarray, motion: Dict[str, np.ndarray], rate_hz: float,
+          rng: RngLike = None, effects: Sequence[Effect] = (), quantise: bool = True,
+          latitude_deg: float = 48.0, holds: Sequence[Tuple[float, float]] = (),
+          rotations: Optional[np.ndarray] = None) -> Session:
+    """The board's sensors on a sampled trajectory (``motion``: a trajectory's ``sample(t_s)``,
+    keys f (g), w (deg/s), R, temp (degC), h (gauss)): the error model, Earth's rotation,
+    effects, white noise at the datasheet density over rate_hz / 2, quantisation and
+    clipping, and the die temperature at the chip's resolution."""
+    rng = as_rng(rng)
     an, gn, mn = BOARDS[board]
     aspec, gspec = ACCEL[an], GYRO[gn]
     mspec = MAG[mn] if mn else None
-    n = len(R)
-    dt = 1.0 / rate_hz
-    t = np.arange(n) * dt
-    f = np.einsum("nji,nj->ni", R, a_world + np.array([0.0, 0.0, 1.0]))  # R^T (a + up)
-    temp = temperature_profile(t, temp_kind, temp0_c, temp_rise_c)
-    ctx = {"t": t, "temp": temp, "f": f, "w": w_dps, "R": R}
-
+    f, w_dps, R, temp = motion["f"], motion["w"], motion["R"], motion["temp"]
+    ctx = {"t": t_s, "temp": temp, "f": f, "w": w_dps, "R": R}
     acc = truth.accel_raw(f)
-    lat = np.radians(latitude_deg)
-    earth_dps = np.degrees(7.2921e-5) * np.array([np.cos(lat), 0.0, np.sin(lat)])
-    gyro = truth.gyro_raw(w_dps + np.einsum("nji,j->ni", R, earth_dps))
+    gyro = truth.gyro_raw(w_dps + earth_rate_body_dps(R, latitude_deg))
     mag = None
     if mspec is not None:
-        dip = np.radians(truth.dip_deg)
-        B = truth.field_gauss * np.array([np.cos(dip), 0.0, -np.sin(dip)])
-        h = np.einsum("nji,j->ni", R, B)
-        mag = truth.mag_raw(h)
-        ctx["h"] = h
+        ctx["h"] = motion["h"]
+        mag = truth.mag_raw(motion["h"])
     for eff in effects:
         eff("accel", acc, ctx)
         eff("gyro", gyro, ctx)
         if mag is not None:
             eff("mag", mag, ctx)
-
     sa, _ = pose_sigma(aspec.noise_density_g_rthz, rate_hz, 1.0)
     sg, _ = pose_sigma(gspec.noise_density_dps_rthz, rate_hz, 1.0)
     acc = acc + rng.normal(scale=sa, size=acc.shape)
@@ -338,45 +235,24 @@ def _sense(board, truth, R, w_dps, a_world, rotations, holds, rate_hz, rng, temp
             "gyro_range_dps": f"{gspec.range_dps:g}", "source": "imucald simulate"}
     if mspec is not None:
         meta["mag_range_gauss"] = f"{mspec.range_gauss:g}"
-    rec = Recording(t=t, acc=acc, gyro=gyro, mag=mag, temp=temp, meta=meta)
-    return Session(rec, truth, holds, np.asarray(rotations), f, w_dps)
+    rec = Recording(t=t_s, acc=acc, gyro=gyro, mag=mag, temp=temp, meta=meta)
+    rot = np.asarray(rotations) if rotations is not None else R[:1]
+    return Session(rec, truth, list(holds), rot, f, w_dps)
 
 
 def simulate_tumble(board: str, rng: RngLike = None, rate_hz: float = 5.0, duration_s: float = 120.0,
                     speed_dps: Tuple[float, float] = (15.0, 60.0), truth: Optional[Truth] = None,
                     quantise: bool = True, move_accel_g: float = 0.05) -> Session:
-    """A board turned slowly by hand without ever stopping: the body rate's direction wanders
-    smoothly and its magnitude stays within ``speed_dps`` (a slow hand tumble; no still
-    moment), with a small hand-like linear acceleration (``move_accel_g``, 0.5 Hz).  Sampled at
-    ``rate_hz`` (real loggers of such tumbles: 3-10 Hz).  Session.hold is empty."""
+    """A board turned slowly by hand without ever stopping (:class:`~imucald.sim.motion.Tumble`:
+    the rate's direction wanders, its magnitude within ``speed_dps``, a small 0.5-Hz linear
+    acceleration of ``move_accel_g``), sampled at ``rate_hz`` (real loggers of such tumbles:
+    3-10 Hz) and sensed.  Session.hold is empty."""
     rng = as_rng(rng)
     truth = truth or draw_truth(board, rng)
-    # simulated finely (200 Hz) so the attitude integrates well, then sampled at rate_hz
-    fine = 200.0
-    nf = int(round(duration_s * fine))
-    tf = np.arange(nf) / fine
-    nk = 8                                          # a few slow sinusoids per axis, 0.02-0.3 Hz
-    fr = rng.uniform(0.02, 0.3, size=(nk, 3))
-    ph = rng.uniform(0, 2 * np.pi, size=(nk, 3))
-    amp = rng.normal(size=(nk, 3))
-    d = (amp[None] * np.sin(2 * np.pi * fr[None] * tf[:, None, None] + ph[None])).sum(1)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)                 # direction (never 0 speed)
-    sp = np.interp(np.sin(2 * np.pi * rng.uniform(0.01, 0.05) * tf + rng.uniform(0, 6.3)),
-                   [-1, 1], list(speed_dps))
-    w_f = d * sp[:, None]                                          # deg/s, body
-    R = np.empty((nf, 3, 3))
-    Rc = axis_angle(rng.normal(size=3), rng.uniform(0, np.pi))
-    for i in range(nf):
-        R[i] = Rc
-        wv = np.radians(w_f[i]) / fine
-        ang = np.linalg.norm(wv)
-        if ang > 0:
-            Rc = Rc @ axis_angle(wv / ang, ang)
-    acc_f = move_accel_g * np.sin(2 * np.pi * 0.5 * tf[:, None] + rng.uniform(0, 6.3, 3)[None])
-    idx = np.round(np.arange(0, duration_s, 1.0 / rate_hz) * fine).astype(int)
-    idx = idx[idx < nf]
-    return _sense(board, truth, R[idx], w_f[idx], acc_f[idx], R[idx[:1]], [], rate_hz, rng,
-                  "constant", 22.0, 0.0, (), quantise, 48.0)
+    tumble = Tumble(rng, duration_s, speed_dps, move_accel_g, field_gauss=truth.field_gauss,
+                    dip_deg=truth.dip_deg)
+    t = tumble.sample_times(rate_hz)
+    return sense(board, truth, t, tumble.sample(t), rate_hz, rng, quantise=quantise)
 
 
 def hold_samples(rec: Recording, logger_rate_hz: float, phase: float = 0.0) -> Recording:

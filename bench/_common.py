@@ -156,6 +156,6 @@ class Markdown:
 
     def write(self):
         if self.path:
-            from imucald.atomic import atomic_write_text
+            from imucald.files.atomic import atomic_write_text
             atomic_write_text(self.path, "\n".join(self.parts))
             print(f"wrote {self.path}")

@@ -29,10 +29,10 @@ def main(path: str) -> dict:
         ["calibrate", path, "--columns", "t,ax,ay,az", "--nominal-offset", "32768",
          "--nominal-scale", "4069.76", "--json"])
     check_args(args)
-    from imucald import _malloc
+    from imucald.numerics import allocator as _malloc
     _malloc.tune()
-    from imucald.calib.inputs import load_input
-    from imucald.calib.poses import poses_and_pieces
+    from imucald.fitting.inputs import load_input
+    from imucald.fitting.stillness.poses import poses_and_pieces
     from imucald.cli import offline
     _mark()
     _, rec = load_input(path, args.columns.split(","), args.nominal_scale, args.nominal_offset, None)
@@ -41,8 +41,8 @@ def main(path: str) -> dict:
                                      min_still_s=args.min_still_s)
     _mark()
     import numpy.random  # noqa: F401
-    from imucald.calib.fit import fit_norm  # noqa: F401
-    from imucald.calib.noise import pose_colour_inflation  # noqa: F401
+    from imucald.fitting.fit import fit_norm  # noqa: F401
+    from imucald.fitting.noise.colour import pose_colour_inflation  # noqa: F401
     from imucald.cli.thermal import fit_thermal
     _mark()
     cal, chip, infl = offline._fit_accel(args, rec, poses, pieces, poses.detector, "triangular9", None)

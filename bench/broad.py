@@ -16,7 +16,7 @@ import sys
 from _common import np
 
 from imucald.orientation.quat import error_angles_rad, rmse_deg
-from imucald.recording import Recording, write_recording
+from imucald.files.recording import Recording, write_recording
 
 #: standard gravity, m/s^2 per g; 1 gauss = 100 uT
 G_MS2 = 9.80665

@@ -17,7 +17,7 @@ from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, RealClock, VirtualClock
 from imucald.sim.emulators import emulated_board
 from imucald.sim.motion import PoseTour
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 
 #: payload bytes per sample, and transactions per sample of a polled design
 PAYLOAD = {

@@ -27,8 +27,8 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from imucald.cli import main as cli_main                        # noqa: E402
-from imucald.recording import write_recording                   # noqa: E402
-from imucald.sim.poses import random_pose_set                   # noqa: E402
+from imucald.files.recording import write_recording                   # noqa: E402
+from imucald.sim.orientations import random_pose_set                   # noqa: E402
 from imucald.sim.sensor import draw_truth, simulate_session     # noqa: E402
 
 SCEN = {"bench": dict(hold_s=10.0, tremor_dps=0.0), "hand": dict(hold_s=10.0, tremor_dps=1.5),

@@ -7,7 +7,7 @@ from _common import np
 
 from imucald.gap.diagnose import diagnose
 from imucald.sim.effects import effect_session
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 
 
 def main():
@@ -22,7 +22,7 @@ def main():
                               rate_hz=100.0, hold_s=(15.0, 19.0), move_s=(2.5, 3.5), temp_kind="heatcool")
         import os
         import tempfile
-        from imucald.recording import read_recording, write_recording
+        from imucald.files.recording import read_recording, write_recording
         with tempfile.TemporaryDirectory() as d:
             path = os.path.join(d, "r.csv")
             write_recording(s.recording, path)

@@ -114,9 +114,9 @@ def project_accel(cs, lab, rec_t):
     """Coefficients of candidates ``cs`` (with the triangular9 baseline, MAP) fitted to the
     noise-free accelerometer pose means (see above)."""
     from scipy.optimize import least_squares
-    from imucald.calib.fit import accel_prior
-    from imucald.calib.models import Triangular9
-    from imucald.calib.optim import Problem, lm
+    from imucald.fitting.fit import accel_prior
+    from imucald.fitting.models.accel import Triangular9
+    from imucald.fitting.solvers.lsq import Problem, lm
     masks, n, mean, tmid, temp = _pose_stats(lab, rec_t)
     x = mean(lab["noise_free"]["acc"])
     ctx = _ctx(tmid, temp)
@@ -143,8 +143,8 @@ def project_mag(cs, lab, rec_t, n_rot, centre_c=None):
     n_rot / (moving samples) / sigma^2, and temperature is centred as the diagnosis centres
     it (the plain mean over its points, pose means and rotation points alike)."""
     from scipy.optimize import least_squares
-    from imucald.calib.mag_models import MagModel
-    from imucald.calib.optim import sphere_fit
+    from imucald.fitting.models.mag import MagModel
+    from imucald.fitting.solvers.lsq import sphere_fit
     from imucald.gap.candidates import hat_columns
     masks, n, mean, tmid, temp = _pose_stats(lab, rec_t)
     mov = lab["pose_id"] < 0
@@ -177,8 +177,8 @@ def project_mag(cs, lab, rec_t, n_rot, centre_c=None):
 def project_gyro(cs, lab, rec_t):
     """Coefficients of candidates ``cs`` (bias + Earth's vertical rate baseline) fitted by
     weighted least squares to the pose means of the injected gyro effect (see above)."""
-    from imucald.calib.models import Triangular9
-    from imucald.calib.optim import Problem, lm
+    from imucald.fitting.models.accel import Triangular9
+    from imucald.fitting.solvers.lsq import Problem, lm
     from imucald.gap.candidates import kron_cols
     masks, n, mean, tmid, temp = _pose_stats(lab, rec_t)
     xa = mean(lab["noise_free"]["acc"])

@@ -1,4 +1,4 @@
-"""The acceptance gate (calib/gate.py), measured against the simulated truth.
+"""The acceptance gate (fitting/gate.py), measured against the simulated truth.
 
 "Truly worse" and "truly better" are judged by the truth: the RMS error of the
 corrected specific force over 2000 directions spread on the sphere.  Three scenarios,
@@ -33,11 +33,11 @@ import time
 import _common  # noqa: F401  (sys.path)
 import numpy as np
 
-from imucald.calib.coverage import sphere_lattice
-from imucald.calib.fit import fit_norm
-from imucald.calib.gate import gate_accel, paired_gate
-from imucald.calib.models import Triangular9
-from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.fitting.judging.coverage import sphere_lattice
+from imucald.fitting.fit import fit_norm
+from imucald.fitting.gate import gate_accel, paired_gate
+from imucald.fitting.models.accel import Triangular9
+from imucald.sim.orientations import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma
 from imucald.specs import ACCEL
 
@@ -81,7 +81,7 @@ def fit(raw, cov, seed):
 
 
 def gate(raw, cov, inc_theta, fitted, alpha, seed, former_theta=None):
-    """The daemon's gate (calib.gate.gate_accel) and, on the same candidate fit, the former
+    """The daemon's gate (fitting.gate.gate_accel) and, on the same candidate fit, the former
     rule (the incumbent ``former_theta``, default the same, scored on every pose)."""
     cal, r_cv, dec = gate_accel(raw, cov, T9.forward(inc_theta, raw), "lm", alpha, rng=seed, chip=CHIP,
                                 fitted=fitted, nested=bool(fitted is not None and fitted.any()),

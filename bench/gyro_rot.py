@@ -1,5 +1,5 @@
 """Gyro scale, misalignment and g-sensitivity from the rotations between still poses
-(calib/gyrorot.py, issue 11 part 3).
+(fitting/gyro/rotations.py, issue 11 part 3).
 
 1. Monte Carlo: RUNS simulated 30-pose MPU-6050 sessions (100 Hz, holds 8-12 s, moves 2-4 s,
    truth drawn within the datasheet tolerances, Earth rate in the gyro).  Per run the
@@ -21,13 +21,13 @@ import time
 
 from _common import np, median_time
 
-from imucald.calib.fit import fit_norm
-from imucald.calib.gyrorot import fit_gyro_rotations
-from imucald.calib.inputs import read_table
-from imucald.calib.models import get_model
-from imucald.calib.poses import detect_static, poses_from_slices
-from imucald.recording import Recording
-from imucald.sim.poses import random_pose_set
+from imucald.fitting.fit import fit_norm
+from imucald.fitting.gyro.rotations import fit_gyro_rotations
+from imucald.fitting.inputs import read_table
+from imucald.fitting.models.registry import get_model
+from imucald.fitting.stillness.poses import detect_static, poses_from_slices
+from imucald.files.recording import Recording
+from imucald.sim.orientations import random_pose_set
 from imucald.sim.sensor import simulate_session
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -113,7 +113,7 @@ def bench_record(d, after_s):
         p.send_signal(sig)
         rc = p.wait(30)
         sys.path.insert(0, ROOT)
-        from imucald.recording import read_recording
+        from imucald.files.recording import read_recording
         rec = read_recording(out)
         print(f"record stopped by {signal.Signals(sig).name} after {after_s:g} s: exit {rc}, "
               f"{len(rec)} samples, {rec.t[-1]:.2f} s readable")

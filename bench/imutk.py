@@ -142,7 +142,7 @@ def main():
         return 0
     sys.path.insert(0, os.path.join(ROOT, "bench"))
     from real_gap import xsens
-    from imucald.recording import write_recording
+    from imucald.files.recording import write_recording
     for tree in (ROOT, a.before):
         if tree:
             compileall.compile_dir(os.path.join(tree, "imucald"), quiet=1)

@@ -1,4 +1,4 @@
-"""Error rates of the magnetometer's determination rule (imucald/calib/magcal.py: a hard-
+"""Error rates of the magnetometer's determination rule (imucald/fitting/magcal.py: a hard-
 iron component or soft-iron term counts as determined when its standard error is within
 2 % of the field, resp. 0.02) on simulated rotations with partial coverage.
 
@@ -33,7 +33,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from imucald.calib.magcal import (HARD_IRON_SE_MAX, HARD_NAMES, SOFT_IRON_SE_MAX,  # noqa: E402
+from imucald.fitting.magcal import (HARD_IRON_SE_MAX, HARD_NAMES, SOFT_IRON_SE_MAX,  # noqa: E402
                                   SOFT_NAMES, calibrate_rotation)
 from imucald.sim.sensor import draw_truth                      # noqa: E402
 from imucald.specs import MAG                                  # noqa: E402

@@ -15,7 +15,7 @@ import tempfile
 
 from _common import np
 
-from imucald.recording import read_recording, write_recording
+from imucald.files.recording import read_recording, write_recording
 
 COMMANDS = {
     "calibrate": ["calibrate", "{f}", "--json"],
@@ -29,7 +29,7 @@ def tiled(base, n):
     span = base.t[-1] - base.t[0] + 1.0 / base.rate_hz
     t = (base.t[None, :] + span * np.arange(reps)[:, None]).ravel()[:n]
     tile = lambda a: None if a is None else np.concatenate([a] * reps)[:n]
-    from imucald.recording import Recording
+    from imucald.files.recording import Recording
     return Recording(t=t, acc=tile(base.acc), gyro=tile(base.gyro), temp=tile(base.temp),
                      meta=dict(base.meta))
 

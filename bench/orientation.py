@@ -199,7 +199,7 @@ def miscalibration(rng):
 
 def miscalibrated(rec, e):
     """The recording as a sensor with errors ``e`` would have read it (body frame, nominal units)."""
-    from imucald.recording import Recording
+    from imucald.files.recording import Recording
     return Recording(rec.t, rec.acc * e["acc_scale"] + e["acc_bias_g"], rec.gyro * e["gyro_scale"] + e["gyro_bias_dps"],
                      rec.mag @ e["mag_soft"].T + e["mag_hard_gauss"], None, dict(rec.meta))
 
@@ -211,9 +211,9 @@ def self_calibration(rec, seed):
     the daemon waits for (calibration.mag_min_coverage, 50 %), the accelerometer from the
     still poses when there are the 10 it needs (--sensor accel); returns (Calibration, what
     was fitted or why not)."""
-    from imucald.calib.fit import fit_gyro_bias, fit_norm
-    from imucald.calib.magcal import calibrate_rotation
-    from imucald.calib.poses import poses_and_pieces
+    from imucald.fitting.fit import fit_gyro_bias, fit_norm
+    from imucald.fitting.magcal import calibrate_rotation
+    from imucald.fitting.stillness.poses import poses_and_pieces
     from imucald.calibration import Calibration, SensorCal
     poses, _ = poses_and_pieces(rec)
     parts, what = {}, []

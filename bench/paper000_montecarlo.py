@@ -18,10 +18,11 @@ from multiprocessing import Pool
 
 from _common import SIGMA_POSE_G, np
 
-from imucald.calib.models import Triangular9
-from imucald.calib.optim import Problem, ga, ga_paper, hga, lm
-from imucald.calib.uncertainty import crlb, residual_variance
-from imucald.sim.poses import euler_pose_set, up_vectors
+from imucald.fitting.models.accel import Triangular9
+from imucald.fitting.solvers.lsq import Problem, lm
+from imucald.fitting.solvers.ga import ga, ga_paper, hga
+from imucald.fitting.judging.uncertainty import crlb, residual_variance
+from imucald.sim.orientations import euler_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, simulate_pose_means
 
 T9 = Triangular9()

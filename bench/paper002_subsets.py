@@ -11,9 +11,9 @@ import argparse
 
 from _common import np
 
-from imucald.calib.fit import fit_norm
-from imucald.calib.models import COSINE_SUBSETS, Cosine
-from imucald.sim.poses import random_pose_set
+from imucald.fitting.fit import fit_norm
+from imucald.fitting.models.accel import COSINE_SUBSETS, Cosine
+from imucald.sim.orientations import random_pose_set
 from imucald.sim.sensor import simulate_session
 
 

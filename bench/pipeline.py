@@ -23,7 +23,7 @@ from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, RealClock, VirtualClock
 from imucald.sim.emulators import emulated_board
 from imucald.sim.motion import PoseTour
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 import copy
 
 
@@ -55,7 +55,7 @@ _DRAIN = ("import socket, sys\n"
 THERMAL = {"order": 3, "t_min_c": 15.0, "t_ref_c": 30.0, "t_max_c": 45.0, "note": "bench"}
 
 
-#: a gyro scale/misalignment matrix and g-sensitivity (calib/gyrorot.py's terms)
+#: a gyro scale/misalignment matrix and g-sensitivity (fitting/gyro/rotations.py's terms)
 GYRO_ROT = {"matrix": np.array([1.01, 0.004, -0.003, 0.002, 0.995, 0.006, -0.005, 0.001, 1.003]),
             "g_sens_dps_per_g": np.array([0.05, -0.02, 0.01, 0.03, -0.06, 0.02, -0.01, 0.04, 0.05])}
 
@@ -111,8 +111,8 @@ def lateness(seconds):
     pipe = Pipeline(cfg, "mpu6050", 1000.0, False, executor=ex)
     # preload poses so a calibration can start at once, and keep forcing new ones
     from imucald.sim.sensor import draw_truth, simulate_pose_means
-    from imucald.sim.poses import up_vectors
-    from imucald.calib.stillness import StaticInterval
+    from imucald.sim.orientations import up_vectors
+    from imucald.fitting.stillness.detector import StaticInterval
     rng = np.random.default_rng(3)
     raw, cov = simulate_pose_means(draw_truth("mpu6050", rng).accel, up_vectors(random_pose_set(30, rng)), 1e-4, rng)
     for i, r in enumerate(raw):

@@ -18,7 +18,7 @@ from _common import np
 
 from imucald.errors import UserError
 from imucald.gap.diagnose import diagnose
-from imucald.recording import Recording
+from imucald.files.recording import Recording
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 REAL = os.path.join(ROOT, "..", "shared", "data", "real")

@@ -12,8 +12,8 @@ import os
 
 from _common import Markdown, median_time, np
 
-from imucald.calib.magcal import calibrate_rotation, rel_std
-from imucald.calib.models import MagModel
+from imucald.fitting.magcal import calibrate_rotation, rel_std
+from imucald.fitting.models.mag import MagModel
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared",
                     "data", "real", "tomisuarez_qmc5883l")

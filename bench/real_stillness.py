@@ -15,7 +15,7 @@ import tempfile
 
 from _common import np
 
-from imucald.recording import Recording, write_recording
+from imucald.files.recording import Recording, write_recording
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from real_gap import REAL, sunsided, tempsweep, xsens  # noqa: E402

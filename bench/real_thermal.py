@@ -4,7 +4,7 @@
 from 10 to 29 degC over 36 minutes (SOURCE.md; gyro at +-2000 deg/s, 16.4 counts per
 deg/s).  The record is cut into blocks of --block samples (contiguous, no gap > 0.1 s);
 blocks whose die temperature falls in every other 2 degC bin (10-12, 14-16, ...) train
-calib/thermal.py's fit_bias_series (order by the held-out test, variances inflated by the
+fitting/thermal/terms.py's fit_bias_series (order by the held-out test, variances inflated by the
 scatter the richest order leaves); each bin in between (12-14, 16-18, ...) is predicted at
 its blocks' mean temperature.  The bin's observed mean has the standard error of its block
 means (their scatter, so slow wander is counted); the prediction, the fit's covariance.
@@ -20,7 +20,7 @@ from _common import np
 
 from real_gap import REAL, tempsweep  # the one reader of the recording (counts -> g, dps, degC)
 
-from imucald.calib.thermal import _design, fit_bias_series
+from imucald.fitting.thermal.terms import _design, fit_bias_series
 
 PATH = os.path.join(REAL, "freeimu_mpu6050_tempsweep", "Tempdata01-02-14.csv")
 

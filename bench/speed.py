@@ -8,9 +8,10 @@ import time
 
 from _common import SIGMA_POSE_G, Markdown, median_time, np
 
-from imucald.calib.models import Triangular9
-from imucald.calib.optim import Problem, ga, ga_paper, hga, lm
-from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.fitting.models.accel import Triangular9
+from imucald.fitting.solvers.lsq import Problem, lm
+from imucald.fitting.solvers.ga import ga, ga_paper, hga
+from imucald.sim.orientations import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, simulate_pose_means
 
 

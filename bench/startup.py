@@ -94,7 +94,7 @@ def main():
         print(f"calibrate: skipped, {XSENS} is absent (../shared is not beside the checkout)")
         return 0
     sys.path.insert(0, ROOT)
-    from imucald.calib.inputs import read_table
+    from imucald.fitting.inputs import read_table
     ts = []
     for _ in range(a.repeats):
         t = time.perf_counter()

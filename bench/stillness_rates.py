@@ -13,9 +13,9 @@ import sys
 
 from _common import np
 
-from imucald.calib.poses import detect
-from imucald.calib.repeats import find_repeats
-from imucald.sim.poses import random_pose_set
+from imucald.fitting.stillness.poses import detect
+from imucald.fitting.stillness.repeats import find_repeats
+from imucald.sim.orientations import random_pose_set
 from imucald.sim.sensor import hold_samples, simulate_session, simulate_tumble
 
 
@@ -42,7 +42,7 @@ def main():
     # quasi-static turns: 2-10 deg/s, no linear acceleration, no gyro; the magnetometer is
     # the only witness of a turn about gravity.  What the poses found are worth: their
     # corrected |mean| against 1 g (truth calibration applied)
-    from imucald.calib.models import Triangular9
+    from imucald.fitting.models.accel import Triangular9
     t9 = Triangular9()
     for board in ("9dof", "mpu9250"):
         for rate in (3.0, 10.0):
@@ -87,7 +87,7 @@ def main():
             h = hold_samples(rec, factor * rec.rate_hz, phase=0.37)
             not_held += not find_repeats(h.t, h.acc, h.rate_hz).held
             ivs, _, det = detect(h.t, h.acc, h.gyro, h.rate_hz, chip=chip)
-            from imucald.calib.poses import merge_cut
+            from imucald.fitting.stillness.poses import merge_cut
             sl = merge_cut(ivs, det.repeats.keep)
             for h0, h1 in ss.hold:
                 tot += 1

@@ -20,7 +20,7 @@ from imucald.daemon.config import DEFAULTS
 from imucald.daemon.pipeline import Pipeline
 from imucald.drivers.board import SampleBatch
 from imucald.sim.effects import effect_session
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 
 
 def session(seed, rise, acc_mg, gyro_dps, poses=60, rate_hz=100.0, truth=False):

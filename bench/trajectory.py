@@ -16,7 +16,7 @@ import _common  # noqa: F401  (puts the repository on sys.path)
 import numpy as np
 
 from imucald.sim.motion import PoseTour
-from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.sim.orientations import random_pose_set, up_vectors
 from imucald.sim.sensor import simulate_session
 
 RATE_HZ = 100.0

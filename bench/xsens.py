@@ -16,10 +16,10 @@ import time
 
 from _common import np
 
-from imucald.calib.fit import fit_norm
-from imucald.calib.inputs import read_table
-from imucald.calib.noise import pose_colour_inflation
-from imucald.calib.poses import poses_from_recording
+from imucald.fitting.fit import fit_norm
+from imucald.fitting.inputs import read_table
+from imucald.fitting.noise.colour import pose_colour_inflation
+from imucald.fitting.stillness.poses import poses_from_recording
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PATH = os.path.join(ROOT, "..", "shared", "data", "real", "imutk_xsens_mti", "xsens_acc.mat")

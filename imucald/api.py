@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Optional
 
 from .calibration import Calibration, SensorCal, build_calibration
-from .calib.poses import PoseSet, poses_from_recording
-from .recording import Recording
+from .fitting.stillness.poses import PoseSet, poses_from_recording
+from .files.recording import Recording
 
 __all__ = ["find_poses", "fit"]
 
@@ -21,7 +21,7 @@ def fit(poses: PoseSet, model: str = "triangular9", method: str = "ga", seed: Op
         board: Optional[str] = None) -> Calibration:
     """Calibrate the accelerometer (and the gyro bias, when the poses have gyro means)
     from still poses; returns a Calibration for ``board`` (default: the recording's)."""
-    from .calib.fit import fit_gyro_bias, fit_norm
+    from .fitting.fit import fit_gyro_bias, fit_norm
     from .specs import BOARDS
     meta = poses.meta if board is None or board == poses.meta.get("board") else {"board": board}
     board = board or poses.meta.get("board", "unknown")

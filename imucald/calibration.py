@@ -8,10 +8,10 @@ names, their standard errors, optional per-parameter flags (``determined``,
 ``undetermined``, ``at_bound``) and quality figures (held-out RMS, poses...).
 Every part is an affine correction in the sensor frame, ``corrected = A raw + c``:
 
-- accel (``g``): a norm model of :mod:`imucald.calib.models` (``triangular9``,
+- accel (``g``): a norm model of :mod:`imucald.fitting.models.registry` (``triangular9``,
   ``full12``, ``cosine*``), parameters as that model reports them;
 - gyro (``deg/s``): ``bias``: ``bias_dps`` (3), optionally ``matrix`` (9, row-major
-  scale/misalignment M: corrected = M (raw - bias(T) - G a), calib/gyrorot.py fits it from
+  scale/misalignment M: corrected = M (raw - bias(T) - G a), fitting/gyro/rotations.py fits it from
   the rotations between poses; each entry of M - I within +-0.5), ``g_sens_dps_per_g``
   (9, row-major G, deg/s per g of calibrated specific force a; within +-10); its thermal
   terms are a ``thermal`` block like every part's (below).  The older form, params
@@ -22,7 +22,7 @@ Every part is an affine correction in the sensor frame, ``corrected = A raw + c`
   ``soft_iron`` (upper triangle xx yy zz xy xz yz of W, det 1) and ``field_gauss``;
   corrected = W (raw - hard_iron), so a clean field has norm ``field_gauss``.
 
-Any part may carry a ``thermal`` block (calib/thermal.py fits it): a bias polynomial
+Any part may carry a ``thermal`` block (fitting/thermal/terms.py fits it): a bias polynomial
 ``bias_poly_<unit>`` (rows k = 1..order of the coefficients of (T - t_ref_c)^k), for the
 accelerometer optionally ``scale_poly`` (1/degC, on the raw reading minus its bias), the
 range ``t_min_c``..``t_max_c`` it was fitted on and a ``note`` (what was chosen and why).
@@ -44,8 +44,10 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 
 import numpy as np
 
-from ._calcheck import (FLAGS, PARAM_LIMIT, THERMAL_UNIT, CalibrationError, _array, _fail, _flags, _keys,
-                        _provisional, _table, _thermal)
+from .files.calibration_checks import (
+    FLAGS, PARAM_LIMIT, THERMAL_UNIT, CalibrationError, _array, _fail, _flags, _keys,
+    _provisional, _table, _thermal
+)
 
 __all__ = ["Calibration", "SensorCal", "CalibrationError", "FORMAT_VERSION", "UNITS", "FLAGS",
            "load", "save", "apply"]
@@ -76,7 +78,7 @@ MAX_CONDITION = 1e3
 def param_shapes(sensor: str, model: str) -> Tuple[Dict[str, int], Dict[str, int]]:
     """(required, optional) parameter names -> length (0 scalar, -3 rows of 3) of a model."""
     if sensor == "accel":
-        from .calib.models import MODEL_NAMES, get_model
+        from .fitting.models.registry import MODEL_NAMES, get_model
         if model not in MODEL_NAMES or model.startswith("mag_"):
             raise ValueError("allowed: " + ", ".join(m for m in MODEL_NAMES if not m.startswith("mag_")))
         return {g: len(i) for g, i in get_model(model).groups.items()}, {}
@@ -116,7 +118,7 @@ class SensorCal:
     def accel(cls, model: str, theta, stderr_flat=None, method: str = "", quality=None,
               flags=None) -> "SensorCal":
         """From a norm model's flat parameter vector (and flat standard errors)."""
-        from .calib.models import get_model
+        from .fitting.models.registry import get_model
         m = get_model(model)
         th = np.asarray(theta, float)
         se = np.full(m.k, np.nan) if stderr_flat is None else np.asarray(stderr_flat, float)
@@ -126,7 +128,7 @@ class SensorCal:
 
     @classmethod
     def from_fit(cls, fit, quality=None) -> "SensorCal":
-        """From a :class:`imucald.calib.fit.FitResult` (its reported params and stderr)."""
+        """From a :class:`imucald.fitting.fit.FitResult` (its reported params and stderr)."""
         unit = {"accel": "g", "gyro": "dps", "mag": "gauss"}[fit.sensor]
         q = {"poses": int(fit.poses), f"rms_{unit}": float(fit.rms),
              f"loo_rms_{unit}": float(fit.heldout_rms), f"noise_{unit}": float(fit.noise)}
@@ -140,7 +142,7 @@ class SensorCal:
     @property
     def theta(self) -> np.ndarray:
         """accel: the model's flat parameter vector."""
-        from .calib.models import get_model
+        from .fitting.models.registry import get_model
         m = get_model(self.model)
         th = m.nominal.copy()
         for g, i in m.groups.items():
@@ -153,7 +155,7 @@ class SensorCal:
         """(A, c): corrected = raw @ A.T + c (thermal gyro terms excluded)."""
         p = self.params
         if self.sensor == "accel":
-            from .calib.models import get_model
+            from .fitting.models.registry import get_model
             A, c = get_model(self.model).affine(self.theta)
             return np.asarray(A, float), np.asarray(c, float)
         if self.sensor == "gyro":
@@ -302,7 +304,7 @@ class SensorCal:
         return part
 
 
-#: highest order of a thermal block (_calcheck._thermal)
+#: highest order of a thermal block (calibration_checks._thermal)
 _MAX_THERMAL_ORDER = 3
 
 
@@ -340,7 +342,7 @@ def _fit_flags(fit) -> Dict[str, Tuple[str, ...]]:
     u = fit.uncertainty
     if fit.sensor != "accel" or u is None or getattr(u, "posterior_std", None) is None:
         return {}                       # no determination reported (e.g. ga-paper)
-    from .calib.models import get_model
+    from .fitting.models.registry import get_model
     m = get_model(fit.model)
     why = {f["name"]: f["reason"] for f in u.flags}
     return {g: tuple(why.get(m.param_names[i], "determined") for i in idx) for g, idx in m.groups.items()}
@@ -487,7 +489,7 @@ def build_calibration(parts: Mapping[str, Optional["SensorCal"]], board: Optiona
 def save(cal: Calibration, path) -> None:
     """Write ``cal`` as YAML, atomically (temp file, fsync, rename)."""
     import yaml
-    from .atomic import atomic_write_text
+    from .files.atomic import atomic_write_text
     text = ("# imucald calibration (see docs/reference/calibration-file.md)\n"
             + yaml.safe_dump(cal.to_dict(), sort_keys=False, default_flow_style=None, width=100))
     atomic_write_text(os.fspath(path), text)
@@ -497,7 +499,7 @@ def load(path, data: Optional[bytes] = None) -> Calibration:
     """Read and validate a calibration file (or its bytes ``data``, already read); the
     hardened YAML loader (yamlsafe: size, depth, no aliases); CalibrationError names the
     file and key."""
-    from .yamlsafe import load as load_yaml, load_file
+    from .files.yamlsafe import load as load_yaml, load_file
     p = os.fspath(path)
     if data is None:
         doc = load_file(p, CalibrationError, max_bytes=MAX_CALIBRATION_BYTES)

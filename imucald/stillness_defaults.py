@@ -1,4 +1,4 @@
-"""The one set of stillness-detector defaults (their meaning: :mod:`imucald.calib.stillness`).
+"""The one set of stillness-detector defaults (their meaning: :mod:`imucald.fitting.stillness.detector`).
 
 A numpy-free leaf, so the CLI parser and the daemon's config table read it without
 importing numpy or the calibration code (``--help``, ``status`` and ``watch`` stay light)."""

@@ -28,7 +28,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 from scipy.signal import lfilter
 
-from imucald.recording import Recording
+from imucald.files.recording import Recording
 
 T_REF_K = 298.15
 EARTH_RATE_DPS = math.degrees(7.2921e-5)

@@ -51,7 +51,7 @@ from typing import Dict, Tuple
 import numpy as np
 from scipy.signal import lfilter
 
-from imucald.recording import Recording
+from imucald.files.recording import Recording
 
 OMEGA_E_DPS = math.degrees(7.2921e-5)        # IERS Earth rate
 NULLS = ["null", "null_flicker", "tremor_null", "mag_null"]

@@ -91,7 +91,7 @@ def test_calibrate_output_writes_the_calibration_file(tmp_path, capsys):
     assert cal.board == "mpu6050" and cal.gyro is None and cal.accel.method == "lm"
     for g, v in js["params"].items():
         assert np.allclose(cal.accel.params[g], v, rtol=0, atol=1e-12)
-    from imucald.calib.models import Triangular9
+    from imucald.fitting.models.accel import Triangular9
     raw = np.random.default_rng(0).normal(size=(20, 3))
     th = np.concatenate([js["params"][g] for g in ("alpha", "scale", "bias_g")])
     assert np.allclose(cal.apply_accel(raw), Triangular9().forward(th, raw), atol=1e-12)

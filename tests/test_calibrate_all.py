@@ -37,7 +37,7 @@ def xsens_merged(tmp_path_factory):
     bench/real_gap.py builds them, written as an imucald recording."""
     real_path("imutk_xsens_mti", "xsens_gyro.mat")
     from real_gap import xsens
-    from imucald.recording import write_recording
+    from imucald.files.recording import write_recording
     p = tmp_path_factory.mktemp("xsens") / "xsens_merged.csv"
     write_recording(xsens(), str(p))
     return p
@@ -85,7 +85,7 @@ def test_one_file_from_an_emulated_9dof_session_is_applied_by_replay(nine_dof, t
     printed digits).  The magnetometer part is --sensor mag's fit.  Fails when a part is left
     out of the file (checked: the mag part dropped from -o)."""
     from imucald.calibration import load
-    from imucald.recording import read_recording, write_recording
+    from imucald.files.recording import read_recording, write_recording
     out = tmp_path / "calibration.yaml"
     d = json.loads(cli("calibrate", nine_dof, "--sensor", "all", "--json", "-o", out).stdout)
     assert d["parts"] == ["accel", "mag", "gyro"] and d["skipped"] == {}
@@ -125,7 +125,7 @@ def test_api_fit_records_the_chips_and_when(nine_dof):
     """imucald.fit builds its Calibration with the one builder: the recording's chips and a
     creation time (it wrote chips {} and created '' before; the CLI had fixed that)."""
     import imucald
-    from imucald.recording import read_recording
+    from imucald.files.recording import read_recording
     cal = imucald.fit(imucald.find_poses(read_recording(str(nine_dof))), method="lm")
     assert cal.chips == {"accel": "adxl345", "gyro": "itg3200", "mag": "hmc5883l"}
     assert cal.board == "9dof" and cal.id == 1
@@ -148,13 +148,15 @@ def _compose_sample_by_sample(vd_rad, K):
 
 
 def test_rotation_scan_predicts_the_gravity_directions_of_a_sample_by_sample_composition(nine_dof):
-    """The vectorised scan (calib/rotint.py) carries each pose's gravity direction to the same
+    """The vectorised scan (fitting/gyro/integration.py) carries each pose's gravity direction to the same
     place as composing the gyro increments one sample at a time: within 1e-9 deg (float64
     rounding over ~700 products is ~1e-12 deg; issue 27 asks for 0.001 deg).  Fails when the
     blocks are joined in the wrong order (checked: degrees off)."""
-    from imucald.calib.poses import detect_static
-    from imucald.calib.rotint import _D2R, _angle_deg, _Windows, predict_directions, rotation_windows
-    from imucald.recording import read_recording
+    from imucald.fitting.stillness.poses import detect_static
+    from imucald.fitting.gyro.integration import (
+        _D2R, _angle_deg, _Windows, predict_directions, rotation_windows
+    )
+    from imucald.files.recording import read_recording
     rec = read_recording(str(nine_dof))
     sl = [s for s in detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz) if s.stop - s.start >= 2]
     wins, _ = rotation_windows(rec.t, rec.gyro, sl)
@@ -178,9 +180,9 @@ def test_gyro_heldout_update_gives_the_refits_figures(nine_dof):
     accelerometer is left uncalibrated here, so that the folds' K move far (degrees of
     gravity-direction error): the hard case.  Fails with the first step alone (checked:
     0.004 deg off)."""
-    from imucald.calib.gyrorot import fit_gyro_rotations
-    from imucald.calib.poses import detect_static
-    from imucald.recording import read_recording
+    from imucald.fitting.gyro.rotations import fit_gyro_rotations
+    from imucald.fitting.stillness.poses import detect_static
+    from imucald.files.recording import read_recording
     rec = read_recording(str(nine_dof))
     sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
     fits = [fit_gyro_rotations(rec.t, rec.gyro, rec.acc, sl, chip="itg3200", heldout_refits=r)
@@ -193,15 +195,15 @@ def test_gyro_heldout_update_gives_the_refits_figures(nine_dof):
 
 
 def test_leave_one_pose_out_without_refits_gives_the_refits_residuals(nine_dof):
-    """Every fold solved at once (calib/loo.py) gives the 14 LM refits' held-out residuals and
+    """Every fold solved at once (fitting/solvers/loo.py) gives the 14 LM refits' held-out residuals and
     predicted stds to 1e-9 g, a 1e-5 part of the pose noise (~0.1 mg; measured 1e-11 g).
     Fails when a fold keeps its held-out pose (checked: 1e-4 g off)."""
-    from imucald.calib import loo
-    from imucald.calib.fit import heldout_residuals
-    from imucald.calib.models import get_model
-    from imucald.calib.poses import poses_from_recording
-    from imucald.calib.fit import fit_norm
-    from imucald.recording import read_recording
+    from imucald.fitting.solvers import loo
+    from imucald.fitting.fit import heldout_residuals
+    from imucald.fitting.models.registry import get_model
+    from imucald.fitting.stillness.poses import poses_from_recording
+    from imucald.fitting.fit import fit_norm
+    from imucald.files.recording import read_recording
     ps = poses_from_recording(read_recording(str(nine_dof)))
     for name, x, cov in (("triangular9", ps.acc, ps.acc_cov), ("mag_sym", ps.mag, ps.mag_cov)):
         f = fit_norm(x, name, "lm", pose_cov=cov, heldout=False)

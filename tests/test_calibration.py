@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from imucald.calib.models import MagModel, Triangular9
+from imucald.fitting.models.mag import MagModel
+from imucald.fitting.models.accel import Triangular9
 from imucald.calibration import Calibration, CalibrationError, SensorCal, load, save
 
 BOARD, CHIPS = "mpu6050", {"accel": "mpu6050", "gyro": "mpu6050"}

@@ -55,7 +55,7 @@ def test_merge_keeps_every_part_as_fitted_and_replay_applies_all_three(parts, ca
     imu = [json.loads(l) for l in p.stdout.splitlines()[1:400] if '"class":"IMU"' in l]
     imu = [r for r in imu if r["cal"] == m.id]       # before the replay's own first calibration
     assert len(imu) > 100
-    from imucald.recording import read_recording
+    from imucald.files.recording import read_recording
     r = read_recording(rec)
     i = np.array([x["seq"] for x in imu])
     want = {"acc_g": m.apply_accel(r.acc[i], r.temp[i]), "mag_gauss": m.apply_mag(r.mag[i], r.temp[i])}

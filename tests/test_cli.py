@@ -85,7 +85,7 @@ def test_user_errors_are_one_line_exit_2(sim9, tmp_path, args, msg):
 
 def test_parser_choices_come_from_their_owners():
     """The CLI's board, method and format choices are the owners' lists, not copies."""
-    from imucald.calib.optim import METHODS
+    from imucald.fitting.solvers.optim import METHODS
     from imucald.cli.boards import EMULATED_BOARDS
     from imucald.cli.parser import build_parser
     from imucald.daemon.config import SCHEMA
@@ -114,7 +114,7 @@ def test_light_commands_load_no_heavy_module(argv, tmp_path):
     """--help, status and watch (here with no daemon: they stop at the missing socket after
     loading all they need) load neither numpy, the YAML parser (no configuration file is
     read), the I2C bus layer nor the calibration code (issue 15: fast start)."""
-    heavy = ("numpy", "yaml", "imucald.drivers.bus", "imucald.calib", "imucald.daemon.pipeline",
+    heavy = ("numpy", "yaml", "imucald.drivers.bus", "imucald.fitting", "imucald.daemon.pipeline",
              "imucald.specs", "dataclasses")
     extra = [] if argv == ["--help"] else ["--runtime-dir", str(tmp_path)]
     code = ("import sys, contextlib, io\nfrom imucald.cli import main\n"

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from imucald.calib.poses import write_poses, PoseSet
+from imucald.fitting.stillness.poses import write_poses, PoseSet
 from imucald.cli import main
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_pose_means
 from imucald.specs import ACCEL

@@ -3,13 +3,13 @@ scaling, byte order, temperature, FIFO parsing and overflow, burst reads."""
 import numpy as np
 import pytest
 
-from imucald.calib.models import Triangular9
+from imucald.fitting.models.accel import Triangular9
 from imucald.drivers import adxl345, ak8963, hmc5883l, itg3200, mpu6050
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, ChipMismatch, VirtualClock
 from imucald.sim.emulators import Faults, emulated_board
 from imucald.sim.motion import PoseTour
-from imucald.sim.poses import rotation_from_up
+from imucald.sim.orientations import rotation_from_up
 from imucald.specs import ACCEL, GYRO
 
 T9 = Triangular9()

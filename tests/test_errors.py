@@ -117,8 +117,8 @@ def test_pose_file_with_zero_deviations_calibrates_without_thermal_terms(tmp_pat
     """Pose means without within-pose deviations (s* columns 0: hand-made means, one-sample
     poses) fit as before; the thermal fit, which weights poses by those deviations, has no
     pose to use and is left out (it was a ValueError traceback)."""
-    from imucald.calib.poses import poses_from_recording, write_poses
-    from imucald.recording import read_recording
+    from imucald.fitting.stillness.poses import poses_from_recording, write_poses
+    from imucald.files.recording import read_recording
     p = tmp_path / "p.csv"
     write_poses(poses_from_recording(read_recording(str(sim))), str(p))
     lines = p.read_text().splitlines()

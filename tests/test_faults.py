@@ -11,7 +11,7 @@ from imucald.drivers.board import make_board
 from imucald.drivers.bus import AddressBusy, Bus, ChipMismatch, VirtualClock, kernel_driver_for
 from imucald.sim.emulators import Faults, emulated_board
 from imucald.sim.motion import PoseTour
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 
 
 def run_board(board, faults, seconds=10.0, rate=200.0, seed=3):
@@ -123,7 +123,7 @@ def test_kernel_driver_is_named_from_sysfs(tmp_path):
 
 def test_record_cli_writes_a_readable_recording(tmp_path):
     from imucald.cli import main
-    from imucald.recording import read_recording
+    from imucald.files.recording import read_recording
     out = tmp_path / "r.csv"
     assert main(["record", "--emulate", "--board", "mpu9250", "-o", str(out), "--seconds", "3",
                  "--rate", "200", "--fault", "nack=0.02"]) == 0

@@ -7,7 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from imucald.calib.coverage import TARGETS, cube_coverage, next_orientation, target_name, target_vector
+from imucald.fitting.judging.coverage import (
+    TARGETS, cube_coverage, next_orientation, target_name, target_vector
+)
 from imucald.cli import main
 
 
@@ -104,7 +106,7 @@ def test_grid_motion_serves_the_motion_itself():
     the motion model gives at the same times, on and off the chip's grid."""
     from imucald.sim.emulators.base import GridMotion
     from imucald.sim.motion import PoseTour
-    from imucald.sim.poses import random_pose_set
+    from imucald.sim.orientations import random_pose_set
     rng = np.random.default_rng(5)
     tour = PoseTour(random_pose_set(6, rng), rng=rng, tremor_dps=1.0)
 

@@ -8,10 +8,10 @@ the global minimum has a fitness no larger than the true parameters' own.
 import numpy as np
 import pytest
 
-from imucald.calib.models import Full12, Triangular9
-from imucald.calib.ga import ga, ga_core, hga
-from imucald.calib.lsq import Problem, closed_form_starts, lm, lm_converge
-from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.fitting.models.accel import Full12, Triangular9
+from imucald.fitting.solvers.ga import ga, ga_core, hga
+from imucald.fitting.solvers.lsq import Problem, closed_form_starts, lm, lm_converge
+from imucald.sim.orientations import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_pose_means
 from imucald.specs import ACCEL
 

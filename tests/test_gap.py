@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from imucald.cli import main
-from imucald.calib.noise import allan_deviation
-from imucald.calib.stats import chi2_logsf, chi2_sf, norm_sf2
+from imucald.fitting.noise.colour import allan_deviation
+from imucald.numerics.tails import chi2_logsf, chi2_sf, norm_sf2
 
 from .conftest import real_path
 
@@ -93,7 +93,7 @@ def test_saturation_check_finds_samples_at_the_rail():
     # a pose holding clipped samples is usually too vibrating for the stillness detector
     # to call still at all; this check catches those that get through
     from imucald.gap.saturation import saturated as _saturated
-    from imucald.recording import Recording
+    from imucald.files.recording import Recording
     a = np.tile([0.0, 0.0, 1.0], (300, 1))
     a[150:160, 2] = 2.0
     rec = Recording(t=np.arange(300) / 100, acc=a, meta={"board": "mpu6050", "rate_hz": "100",
@@ -137,11 +137,11 @@ def test_accel_baseline_is_calibrates_map_fit_with_the_datasheet_prior():
     moves the fit.  The gap's baseline must be calibrate's MAP fit (the deployed model), not
     the prior-free one.  They differ only in the per-pose weights (the gap uses the median
     pose variance), a small fraction of a standard error."""
-    from imucald.calib.fit import fit_norm
-    from imucald.calib.poses import detect_static, poses_from_slices
+    from imucald.fitting.fit import fit_norm
+    from imucald.fitting.stillness.poses import detect_static, poses_from_slices
     from imucald.gap.diagnose import diagnose
     from imucald.sim.effects import effect_session
-    from imucald.sim.poses import rotation_from_up
+    from imucald.sim.orientations import rotation_from_up
     g = np.random.default_rng(4)
     ups = []
     while len(ups) < 14:

@@ -14,7 +14,7 @@ import pytest
 
 from imucald.gap.diagnose import diagnose
 from imucald.sim.effects import DEFAULT_MAGNITUDE, effect_session
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 
 SINGLE = ["accel.thermal_bias", "accel.thermal_scale", "accel.nonlinearity", "accel.bias_drift",
           "gyro.thermal_bias", "gyro.g_sensitivity", "gyro.bias_drift"]
@@ -129,7 +129,7 @@ def test_ten_to_fourteen_poses_are_diagnosed_with_the_reduced_power_stated():
 def test_too_few_poses_under_json_is_one_json_error_object(tmp_path, capsys):
     import json
     from imucald.cli import main
-    from imucald.recording import write_recording
+    from imucald.files.recording import write_recording
     g = np.random.default_rng(1)
     s, _ = effect_session("mpu6050", random_pose_set(8, g), g, [], rate_hz=50.0, hold_s=(5.0, 6.0))
     path = tmp_path / "few.csv"

@@ -14,7 +14,7 @@ that the test passes with probability >= 0.95 at the stated rate and <= 0.05 at 
   (gap/norm.py ``norm_baseline``, the accelerometer's triangular9 MAP fit): 1640 null pose
   sets, at most 23 with p < 1 %: P(pass | 1 %) = 0.955, P(pass | 2 %) = 0.045;
 * the pose-mean variance that weighs it, estimated from the samples as the diagnosis does
-  (``pose_mean_variance``, calib/posecov.py through gap/posenoise.py): on white noise its "below white" decision
+  (``pose_mean_variance``, fitting/noise/posecov.py through gap/posenoise.py): on white noise its "below white" decision
   (estimate below the white figure by twice its jackknife standard error, and the
   white-only fit below it by twice its error at the white value, one-sided:
   1 - Phi(2) = 2.28 % per axis) may fire on at most 22 of 687 axes:
@@ -25,9 +25,9 @@ bench's >= 200 nulls (bench/gap_blind.py) carry the end-to-end figure.
 """
 import numpy as np
 
-from imucald.calib.fit import accel_prior
-from imucald.calib.levels import GAP_TEST_LEVEL
-from imucald.calib.models import Triangular9
+from imucald.fitting.fit import accel_prior
+from imucald.fitting.judging.levels import GAP_TEST_LEVEL
+from imucald.fitting.models.accel import Triangular9
 from imucald.gap.norm import norm_baseline
 from imucald.gap.posenoise import pose_mean_variance
 

@@ -55,4 +55,4 @@ def test_generator_imports_only_recording_from_the_project():
             used += [(node.module, a.name) for a in node.names]
         elif isinstance(node, ast.Import):
             used += [(a.name, None) for a in node.names if a.name.split(".")[0] == "imucald"]
-    assert used == [("imucald.recording", "Recording")], used
+    assert used == [("imucald.files.recording", "Recording")], used

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from imucald.gap.diagnose import GapError, diagnose
-from imucald.recording import Recording
+from imucald.files.recording import Recording
 from imucald.sim.effects import effect_session
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 
 
 def _mag_only(seed, effects, step=1, hold=(3.0, 5.0), board="9dof"):
@@ -41,7 +41,7 @@ def test_magnetometer_only_null_is_none_and_thermal_hard_iron_is_named(seed):
 def test_three_hz_tumble_noise_is_free_of_the_motion():
     """A tumble sampled at 3 Hz: second differences over every sample hold the turns'
     curvature (tens of mG).  Seen to fail with the noise taken over every sample
-    (calib.magcal.sample_noise on the whole stream, as before): the figure was ~10x the
+    (fitting.magcal.sample_noise on the whole stream, as before): the figure was ~10x the
     simulated 2 mG and the verdict 'none' hid nothing."""
     rec = _mag_only(3, [], step=33, hold=(0.0, 0.0))
     m = diagnose(rec, sims=100)["sensors"]["mag"]

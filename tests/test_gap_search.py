@@ -5,9 +5,9 @@ and every named member passing its coefficient and held-out tests."""
 import numpy as np
 import pytest
 
-from imucald.calib.fit import accel_prior
-from imucald.calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL
-from imucald.calib.models import Triangular9
+from imucald.fitting.fit import accel_prior
+from imucald.fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL
+from imucald.fitting.models.accel import Triangular9
 from imucald.gap.candidates import ACCEL_CANDIDATES, hat_columns
 from imucald.gap.norm import norm_diag
 

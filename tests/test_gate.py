@@ -1,4 +1,4 @@
-"""The acceptance gate (calib/gate.py): the signed-rank test itself, the CV scheme's
+"""The acceptance gate (fitting/gate.py): the signed-rank test itself, the CV scheme's
 pose count, the false-accept property against the truth, and its power."""
 import itertools
 import math
@@ -6,12 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from imucald.calib.coverage import sphere_lattice
-from imucald.calib.fit import fit_norm
-from imucald.calib.gate import (fitted_poses, fold_groups, gate_accel, gate_gyro_bias, gate_rule,
-                                loo_weighted_mean_residuals, paired_gate, poses_needed, signed_rank_p)
-from imucald.calib.models import Triangular9
-from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.fitting.judging.coverage import sphere_lattice
+from imucald.fitting.fit import fit_norm
+from imucald.fitting.gate import (
+    fitted_poses, fold_groups, gate_accel, gate_gyro_bias, gate_rule, loo_weighted_mean_residuals,
+    paired_gate, signed_rank_p
+)
+from imucald.numerics.folds import poses_needed
+from imucald.fitting.models.accel import Triangular9
+from imucald.sim.orientations import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma
 from imucald.specs import ACCEL
 
@@ -82,7 +85,7 @@ def test_poses_needed_follows_the_parameter_count_and_the_folds():
     assert all(n - len(g) >= 9 for g in fold_groups(n, 5))
     assert any(n - 1 - len(g) < 9 for g in fold_groups(n - 1, 5))
     assert [len(g) for g in fold_groups(61)] == [7] * 1 + [6] * 9
-    from imucald.cv import fold_sizes
+    from imucald.numerics.folds import fold_sizes
     for n in (5, 10, 37, 60, 61, 233):
         assert fold_sizes(n) == [len(g) for g in fold_groups(n)]
     from imucald.daemon.config import ACCEL_MODEL_PARAMS, accel_poses_needed
@@ -320,7 +323,7 @@ def test_a_provisional_part_is_confirmed_only_when_the_new_poses_agree_with_it()
     at odds with it)."""
     import json
     from imucald.calibration import Calibration, SensorCal
-    from imucald.daemon.calibrator import JobResult
+    from imucald.daemon.fitjob import JobResult
     from imucald.daemon.config import validate
     from imucald.daemon.pipeline import Pipeline
     part = SensorCal.accel("triangular9", T9.nominal)

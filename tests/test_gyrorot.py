@@ -1,14 +1,14 @@
 """Gyro scale, misalignment and g-sensitivity from the rotations between still poses
-(calib/gyrorot.py) and their place in the calibration type."""
+(fitting/gyro/rotations.py) and their place in the calibration type."""
 import numpy as np
 import pytest
 
-from imucald.calib.fit import fit_norm
-from imucald.calib.gyrorot import fit_gyro_rotations
-from imucald.calib.models import get_model
-from imucald.calib.poses import detect_static, poses_from_slices
+from imucald.fitting.fit import fit_norm
+from imucald.fitting.gyro.rotations import fit_gyro_rotations
+from imucald.fitting.models.registry import get_model
+from imucald.fitting.stillness.poses import detect_static, poses_from_slices
 from imucald.calibration import Calibration, CalibrationError, SensorCal
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 from imucald.sim.sensor import simulate_session
 
 
@@ -65,7 +65,7 @@ def test_integration_runs_between_the_poses_mean_orientations():
     """Noise-free rates of a hand-held session (tremor 1.5 deg/s): the composed rotation
     carries pose p's mean gravity direction onto pose p+1's to < 0.005 deg (the end samples
     alone are off by the tremor angle, ~0.03 deg)."""
-    from imucald.calib import gyrorot as gr
+    from imucald.fitting.gyro import integration as ri
     rng = np.random.default_rng(16)
     s = simulate_session("mpu6050", random_pose_set(12, rng), rng, rate_hz=100, hold_s=(6, 8),
                          move_s=(2, 3), tremor_dps=1.5)
@@ -73,10 +73,10 @@ def test_integration_runs_between_the_poses_mean_orientations():
     sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
     u = np.array([s.specific_force_g[x].mean(0) for x in sl])
     u /= np.linalg.norm(u, axis=1)[:, None]
-    wins, _ = gr.rotation_windows(rec.t, s.rate_dps, sl)
-    W = gr._Windows(rec.t, s.rate_dps, rec.acc, wins, np.zeros((len(sl), 3)), np.zeros((3, 3)))
+    wins, _ = ri.rotation_windows(rec.t, s.rate_dps, sl)
+    W = ri._Windows(rec.t, s.rate_dps, rec.acc, wins, np.zeros((len(sl), 3)), np.zeros((3, 3)))
     p = np.array([w[0] for w in wins])
-    err = gr._angle_deg(gr.predict_directions(W.integrate(np.eye(3))[0], u[p]), u[p + 1])
+    err = ri._angle_deg(ri.predict_directions(W.integrate(np.eye(3))[0], u[p]), u[p + 1])
     assert len(wins) == 11 and err.max() < 0.005, err
 
 
@@ -167,7 +167,7 @@ def test_apply_command_corrects_the_gyro_with_g_sensitivity(tmp_path, capsys):
     recording without accelerometer columns is a one-line error (exit 2), not a silent omission."""
     from imucald.calibration import save
     from imucald.cli import main
-    from imucald.recording import Recording, read_recording, write_recording
+    from imucald.files.recording import Recording, read_recording, write_recording
     rng = np.random.default_rng(1)
     K = np.eye(3) + rng.normal(scale=0.01, size=(3, 3))
     G = rng.normal(scale=0.1, size=(3, 3))
@@ -242,9 +242,9 @@ def test_calibrate_gyro_fits_the_matrix_prints_it_and_writes_it(tmp_path, capsys
 
 
 def test_daemon_bias_refit_keeps_the_matrix_and_g_sensitivity():
-    """The daemon's bias refit (daemon/calibrator.py) keeps K and G in force and refits the
+    """The daemon's bias refit (daemon/fitjob.py) keeps K and G in force and refits the
     bias on the pose means without G a (else it is off by G times the mean specific force)."""
-    from imucald.daemon.calibrator import calibration_job
+    from imucald.daemon.fitjob import calibration_job
     G = np.array([[0.08, -0.05, 0.03], [0.02, -0.09, 0.06], [-0.04, 0.05, 0.07]])
 
     def gsens(sensor, raw, ctx):

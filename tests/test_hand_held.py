@@ -12,10 +12,10 @@ import pytest
 from imucald.cli import main
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, VirtualClock
-from imucald.recording import Recording, write_recording
+from imucald.files.recording import Recording, write_recording
 from imucald.sim.emulators import emulated_board
 from imucald.sim.motion import PoseTour
-from imucald.sim.poses import random_pose_set, rotation_from_up
+from imucald.sim.orientations import random_pose_set, rotation_from_up
 from imucald.sim.sensor import draw_truth, simulate_session
 
 from .test_replay import _replay
@@ -148,12 +148,12 @@ def test_a_ready_fit_that_only_improves_the_gyro_still_confirms_the_provisional_
     """The job on a ready pose set does no significantly better for the accelerometer but
     does for the gyro bias: the gyro is applied and the provisional accelerometer part is
     confirmed as final at the same time (it stayed provisional for ever before)."""
-    from imucald.calib.gate import Decision
+    from imucald.fitting.gate import Decision
     from imucald.calibration import Calibration, SensorCal
-    from imucald.daemon.calibrator import JobResult
+    from imucald.daemon.fitjob import JobResult
     from imucald.daemon.config import load_config
     from imucald.daemon.pipeline import Pipeline
-    from imucald.calib.poses import PoseSet
+    from imucald.fitting.stillness.poses import PoseSet
     pipe = Pipeline(load_config(None), "mpu6050", 100.0, has_mag=False, chips={"accel": "mpu6050"})
     pipe.persist = lambda *a: None
     theta = np.array([0, 0, 0, 1, 1, 1, 0.01, 0, 0], float)
@@ -211,7 +211,7 @@ def test_tremor_does_not_widen_the_standard_errors(tmp_path, capsys, seed):
     tremor averages out of a pose mean, so the reported standard errors of the scales and
     biases are the sensor noise's in both: median ratio within 0.75-1.35 (seen 0.92-1.17
     over 5 seeds; the poses' estimated covariances scatter by ~10 %).  Seen to fail with the
-    pose covariance as the per-sample variance over n (calib/poses.py without the structure
+    pose covariance as the per-sample variance over n (fitting/stillness/poses.py without the structure
     function): ratio 2.4-2.55, and z-scores against the truth with RMS 0.48 (bench/calib_se.py)."""
     def stderr(tremor):
         rng = np.random.default_rng(seed)

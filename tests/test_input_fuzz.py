@@ -21,12 +21,12 @@ import yaml
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
 
-from imucald.calib.poses import POSES_MAGIC, read_poses  # noqa: E402
+from imucald.fitting.stillness.poses import POSES_MAGIC, read_poses  # noqa: E402
 from imucald.calibration import Calibration, CalibrationError, SensorCal, load  # noqa: E402
 from imucald.daemon import control as ctl  # noqa: E402
 from imucald.daemon.config import SCHEMA, ConfigError, parse_yaml, validate  # noqa: E402
 from imucald.errors import UserError  # noqa: E402
-from imucald.recording import read_recording  # noqa: E402
+from imucald.files.recording import read_recording  # noqa: E402
 
 N = 2000
 FUZZ = settings(max_examples=N, deadline=None, derandomize=True, database=None,
@@ -138,7 +138,7 @@ def test_config_loader_any_bytes(data):
 # --- the calibration file ---------------------------------------------------------------------
 
 def _good_doc():
-    from imucald.calib.models import get_model
+    from imucald.fitting.models.registry import get_model
     acc = SensorCal.accel("triangular9", get_model("triangular9").nominal, np.full(9, 1e-4),
                           method="ga", quality={"poses": 25, "rms_g": 0.001})
     acc = SensorCal(acc.sensor, acc.model, acc.params, acc.stderr, acc.flags, acc.method, acc.quality, {
@@ -489,8 +489,8 @@ def test_output_paths_only_ever_replace_a_regular_file(kind, how, data):
     thing left as it was; no temporary file left either way."""
     import shutil
     import socket as so
-    from imucald.atomic import GrowingFile, NotAFile, atomic_write_bytes
-    from imucald.recording import Recording, write_recording
+    from imucald.files.atomic import GrowingFile, NotAFile, atomic_write_bytes
+    from imucald.files.recording import Recording, write_recording
     d = tempfile.mkdtemp(dir=_DIR)
     p = os.path.join(d, "out")
     s = None

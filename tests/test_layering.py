@@ -2,20 +2,27 @@
 
 Allowed direction (an arrow: "may import"):
 
-    cli -> daemon, gap, sim, drivers, calib, mqtt, orientation, plots (the top: it builds and wires everything)
-    plots -> calib                               (pictures: matplotlib, the plots extra)
-    mqtt -> daemon                               (the bridge reads the daemon's config and control socket)
-    gap -> calib                                 (diagnosis refits; its twins are calib's)
-    daemon -> drivers, calib, orientation        (the production path: never sim or gap)
-    orientation -> (none of these)               (the filter shell and quaternion math, issue 26)
-    sim -> drivers, calib                        (the emulated chips share the drivers' register maps)
-    drivers -> (none of these)
-    calib -> (none of these)
+    cli         -> plots, mqtt, gap, daemon, orientation, sim, drivers, fitting, files, numerics
+                   (the top: it builds the board, real or emulated, and wires everything)
+    plots       -> fitting                           (pictures: matplotlib, the plots extra)
+    mqtt        -> daemon
+                   (the bridge: a client of the daemon's sockets and config)
+    gap         -> fitting, files, numerics
+                   (the diagnosis refits with fitting's kernels; never sim)
+    daemon      -> orientation, drivers, fitting, files, numerics
+                   (the production path: never sim or gap)
+    orientation -> (none of these)                   (the filter shell and quaternion math)
+    sim         -> drivers, fitting, files, numerics
+                   (the emulated chips share the drivers' register maps)
+    drivers     -> (none of these)
+                   (the bus layer, the register maps, one driver per chip)
+    fitting     -> files, numerics                   (pure functions over numpy arrays)
+    files       -> numerics                          (what imucald reads and writes)
+    numerics    -> (none of these)                   (helpers over numpy arrays and numbers)
 
-Shared leaves that import no package above: imucald.specs (datasheet figures),
-imucald.errors, imucald.recording, imucald.atomic.  Every ``import`` and
-``from ... import`` counts, at module level and inside functions, since a lazy
-import is still a dependency.
+Top-level leaves that import no package above: imucald.specs, imucald.errors,
+imucald.stillness_defaults.  Every ``import`` and ``from ... import`` counts, at module level
+and inside functions, since a lazy import is still a dependency.
 """
 import ast
 import os
@@ -23,17 +30,21 @@ import os
 import pytest
 
 ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "imucald")
-PACKAGES = ("calib", "sim", "drivers", "daemon", "gap", "cli", "mqtt", "orientation", "plots")
+PACKAGES = ("cli", "plots", "mqtt", "gap", "daemon", "orientation", "sim", "drivers",
+            "fitting", "files", "numerics")
 ALLOWED = {
-    "cli": {"daemon", "gap", "sim", "drivers", "calib", "mqtt", "orientation", "plots"},
-    "plots": {"calib"},
+    "cli": {"plots", "mqtt", "gap", "daemon", "orientation",
+            "sim", "drivers", "fitting", "files", "numerics"},
+    "plots": {"fitting"},
     "mqtt": {"daemon"},
-    "gap": {"calib"},
-    "daemon": {"drivers", "calib", "orientation"},
+    "gap": {"fitting", "files", "numerics"},
+    "daemon": {"orientation", "drivers", "fitting", "files", "numerics"},
     "orientation": set(),
-    "sim": {"drivers", "calib"},
+    "sim": {"drivers", "fitting", "files", "numerics"},
     "drivers": set(),
-    "calib": set(),
+    "fitting": {"files", "numerics"},
+    "files": {"numerics"},
+    "numerics": set(),
 }
 
 
@@ -133,7 +144,7 @@ def test_every_allowed_edge_is_one_that_exists():
 
 
 def test_leaves_import_no_package():
-    for leaf in ("specs.py", "errors.py", "recording.py", "atomic.py"):
+    for leaf in ("specs.py", "errors.py", "stillness_defaults.py"):
         mods = [m for _, m in _imports(os.path.join(ROOT, leaf)) if _package_of(m) in PACKAGES]
         assert not mods, f"{leaf} imports {mods}"
 
@@ -141,14 +152,14 @@ def test_leaves_import_no_package():
 def test_the_walker_sees_function_level_and_relative_imports(tmp_path):
     """The check itself can fail: a lazy relative import that closes a cycle is found."""
     pkg = tmp_path / "imucald"
-    for p in ("calib", "sim"):
+    for p in ("fitting", "sim"):
         (pkg / p).mkdir(parents=True)
         (pkg / p / "__init__.py").write_text("")
-    (pkg / "calib" / "fit.py").write_text("def f():\n    from ..sim.sensor import Truth\n")
-    (pkg / "sim" / "sensor.py").write_text("from ..calib import fit\n")
+    (pkg / "fitting" / "fit.py").write_text("def f():\n    from ..sim.sensor import Truth\n")
+    (pkg / "sim" / "sensor.py").write_text("from ..fitting import fit\n")
     edges = package_edges(str(pkg))
-    assert set(edges) == {("calib", "sim"), ("sim", "calib")}
-    assert _cycles(edges) == [["calib", "sim", "calib"]]
+    assert set(edges) == {("fitting", "sim"), ("sim", "fitting")}
+    assert _cycles(edges) == [["fitting", "sim", "fitting"]]
 
 
 if __name__ == "__main__":

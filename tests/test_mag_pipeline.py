@@ -3,14 +3,14 @@ the GY-273 (a QMC5883L alone) and the 9DOF board carrying a QMC5883L."""
 import numpy as np
 import pytest
 
-from imucald.calib.models import MagModel
+from imucald.fitting.models.mag import MagModel
 from imucald.daemon.config import load_config
 from imucald.daemon.pipeline import Pipeline
 from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, VirtualClock
 from imucald.sim.emulators import emulated_board
 from imucald.sim.motion import PoseTour
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 from imucald.specs import MAG
 
 

@@ -5,11 +5,11 @@ import json
 import numpy as np
 import pytest
 
-from imucald.calib.magcal import (SphereReservoir, calibrate_rotation, flat_axis, rel_std,
+from imucald.fitting.magcal import (SphereReservoir, calibrate_rotation, flat_axis, rel_std,
                                   sample_noise)
-from imucald.calib.models import MagModel
+from imucald.fitting.models.mag import MagModel
 from imucald.cli import main
-from imucald.recording import Recording, write_recording
+from imucald.files.recording import Recording, write_recording
 
 from .conftest import real_path
 
@@ -101,7 +101,7 @@ def test_flatness_test_sees_a_tilted_cloud():
 
 
 def test_daemon_reservoir_is_the_same_thinning():
-    from imucald.daemon.calibrator import MagReservoir
+    from imucald.daemon.fitjob import MagReservoir
     assert MagReservoir is SphereReservoir
 
 
@@ -214,11 +214,11 @@ def test_a_still_sensor_is_not_mistaken_for_a_plane():
     raw = V_TRUE + rng.normal(scale=0.002, size=(3000, 3))
     res = calibrate_rotation(raw, rng=0)
     assert res["determined"] is False and res["flat"]["rank"] < 2
-    from imucald.calib.magcal import flat_message
+    from imucald.fitting.magcal import flat_message
     assert "hardly turned" in flat_message(res)
 
 
-# --- determination by coverage (calib/magcal.py: undetermined_terms) -------------------
+# --- determination by coverage (fitting/magcal.py: undetermined_terms) -------------------
 
 def _cap_swing(rng, cap_deg, n=4000, noise_gauss=0.002, rate_hz=50.0):
     """Raw readings while the field direction wanders (30 deg/s) within ``cap_deg`` of one
@@ -243,7 +243,7 @@ def test_a_cap_of_the_sphere_determines_nothing_and_its_fit_is_wrong():
     terms, yet the hard iron it finds is 20-50 % of the field off: the rule (direction
     scatter below 0.02) declares every term undetermined and no calibration is given.
     Seen to fail with undetermined_terms returning [] (the fit "determined", as before)."""
-    from imucald.calib.magcal import HARD_IRON_SE_MAX
+    from imucald.fitting.magcal import HARD_IRON_SE_MAX
     res = calibrate_rotation(_cap_swing(np.random.default_rng(11), 45), rng=0)
     assert "flat" not in res and res["determined"] is False and "calibration" not in res
     assert {u["reason"] for u in res["undetermined"]} == {"coverage"} and len(res["undetermined"]) == 9

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from imucald.calib.fit import fit_norm
-from imucald.calib.metrics import G0_M_S2, path_error, roll_pitch_deg
-from imucald.calib.models import Triangular9
-from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.fitting.fit import fit_norm
+from imucald.fitting.judging.metrics import G0_M_S2, path_error, roll_pitch_deg
+from imucald.fitting.models.accel import Triangular9
+from imucald.sim.orientations import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, simulate_pose_means
 
 

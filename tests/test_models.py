@@ -2,9 +2,12 @@
 import numpy as np
 import pytest
 
-from imucald.calib.models import (MODEL_NAMES, Cosine, Full12, MagModel, Triangular9, get_model,
-                                  gyro_bias_eq6_fitness, gyro_bias_mean, mag_report)
-from imucald.calib.uncertainty import crlb
+from imucald.fitting.models.registry import (
+    MODEL_NAMES, get_model, gyro_bias_eq6_fitness, gyro_bias_mean
+)
+from imucald.fitting.models.accel import Cosine, Full12, Triangular9
+from imucald.fitting.models.mag import MagModel, mag_report
+from imucald.fitting.judging.uncertainty import crlb
 
 
 def _theta(model, rng, s=0.05):
@@ -160,7 +163,7 @@ def test_full12_canonical_gauge_keeps_the_norms():
     assert np.allclose(m.canonical(np.stack([th, th]))[1], c)
     # ga-paper averages its runs in this gauge: solutions that differ only by a frame
     # rotation average to a solution, whereas their raw average does not
-    from imucald.sim.poses import small_rotation
+    from imucald.sim.orientations import small_rotation
     sols = []
     for _ in range(5):
         M = small_rotation(rng, 0.05) @ m.matrix(th)

@@ -1,8 +1,8 @@
-"""calib/noise.py: the coloured-noise inflation of pose-mean variance (Allan model)."""
+"""fitting/noise/colour.py: the coloured-noise inflation of pose-mean variance (Allan model)."""
 import numpy as np
 import pytest
 
-from imucald.calib.noise import allan_model, colour_inflation, colour_inflation_per_pose
+from imucald.fitting.noise.colour import allan_model, colour_inflation, colour_inflation_per_pose
 
 RATE = 100.0
 DUR = 600.0
@@ -52,8 +52,8 @@ def test_short_stretch_means_white_noise_with_a_note():
 
 
 def test_fit_uses_the_inflation_for_each_poses_noise():
-    from imucald.calib.fit import fit_norm
-    from imucald.sim.poses import random_pose_set, up_vectors
+    from imucald.fitting.fit import fit_norm
+    from imucald.sim.orientations import random_pose_set, up_vectors
     from imucald.sim.sensor import draw_truth, simulate_pose_means
     rng = np.random.default_rng(5)
     truth = draw_truth("mpu6050", rng).accel

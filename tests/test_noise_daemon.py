@@ -7,12 +7,12 @@ from concurrent.futures import Executor, Future
 import numpy as np
 import pytest
 
-from imucald.calib.noise import inflation_of
-from imucald.calib.poses import PoseSet
+from imucald.fitting.noise.colour import inflation_of
+from imucald.fitting.stillness.poses import PoseSet
 from imucald.cli import main
 from imucald.daemon.config import ConfigError, validate
 from imucald.daemon.pipeline import Pipeline
-from imucald.recording import Recording, write_recording
+from imucald.files.recording import Recording, write_recording
 
 from .test_noise_figures import coloured
 

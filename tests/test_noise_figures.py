@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 import yaml
 
-from imucald.calib.allan import (FLICKER_FACTOR, characterise, chi2_ppf, edf_overlapping, kalibr_imu,
-                                 read_figures)
-from imucald.calib.noise import allan_deviation
+from imucald.fitting.noise.allan import (
+    FLICKER_FACTOR, characterise, chi2_ppf, edf_overlapping, kalibr_imu, read_figures
+)
+from imucald.fitting.noise.colour import allan_deviation
 from imucald.cli import main
-from imucald.recording import Recording, write_recording
+from imucald.files.recording import Recording, write_recording
 
 from .conftest import real_path
 
@@ -146,7 +147,7 @@ def test_real_mpu6050_white_noise_is_a_property_of_the_sensor():
     white densities (their 95 % intervals overlap on every axis; the noise does not depend on
     how long one records), near the per-sample spread of SOURCE.md (gyro 0.09-0.14 deg/s,
     acc 0.0030-0.0051 g at ~99 Hz)."""
-    from imucald.calib.inputs import load_input
+    from imucald.fitting.inputs import load_input
     out = []
     for name in ("unmoved-with-x-pointing-forward-10min", "unmoved-with-x-pointing-forward"):
         p = real_path("sunsided_mpu6050_hmc5883l", name, "mpu6050.csv")

@@ -1,11 +1,11 @@
-"""imucald.npstats.median: numpy.median's values without importing numpy.ma."""
+"""imucald.numerics.npstats.median: numpy.median's values without importing numpy.ma."""
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from imucald.npstats import median
+from imucald.numerics.npstats import median
 
 
 @pytest.mark.parametrize("shape", [(1,), (2,), (7,), (8,), (5, 3), (6, 3), (4, 5, 3)])
@@ -22,7 +22,7 @@ def test_median_equals_numpy_bit_for_bit(shape):
 
 
 def test_median_does_not_import_numpy_ma():
-    code = ("import sys, numpy as np; from imucald.npstats import median; "
+    code = ("import sys, numpy as np; from imucald.numerics.npstats import median; "
             "median(np.arange(6.0).reshape(2, 3), axis=0); print('numpy.ma' in sys.modules)")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
@@ -36,7 +36,7 @@ def test_row_reductions_equal_numpy_bit_for_bit(k):
     in another order (e.g. x[:, 0] + (x[:, 1] + x[:, 2])) differs in the last bit on about
     a third of the rows; dropping the >= 8 fallback fails k = 8 and 11 (numpy sums those
     pairwise); a max that drops NaN (fmax) fails the NaN row."""
-    from imucald.npstats import row_all, row_max, row_sum
+    from imucald.numerics.npstats import row_all, row_max, row_sum
     rng = np.random.default_rng(k)
     x = rng.normal(size=(5000, k)) * rng.lognormal(0, 3, size=(5000, k))
     assert np.array_equal(row_sum(x), x.sum(1))

@@ -200,7 +200,7 @@ def test_missing_extra_one_line_error_when_asked_and_off_in_the_banner_otherwise
     """vqf not importable: --orientation yes exits 78 with one line naming the extra and the pip
     command; auto streams without q and the banner says off and why.  Fails when load_vqf lets
     the ImportError through (a traceback; checked)."""
-    from imucald.recording import Recording, write_recording
+    from imucald.files.recording import Recording, write_recording
     n = 200
     rec = Recording(np.arange(n) / RATE_HZ, np.tile([0, 0, 1.0], (n, 1)), np.zeros((n, 3)),
                     meta={"board": "mpu6050", "rate_hz": "100"})
@@ -236,7 +236,7 @@ def test_a_converted_broad_trial_replays_with_q_on_every_sample_and_matches_the_
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "bench"))
     import broad
     import vqf
-    from imucald.recording import write_recording
+    from imucald.files.recording import write_recording
     tr = broad.load(str(path))
     n = int(75 * tr["rate_hz"])
     for k in ("acc_ms2", "gyr_rads", "mag_ut", "q_ref", "movement"):
@@ -295,7 +295,7 @@ def test_apply_writes_the_orientation_of_every_corrected_sample(tmp_path):
     accelerometer bias of the recording then tilts q by ~2.9 deg)."""
     from imucald.calibration import save
     from imucald.cli import main
-    from imucald.recording import Recording, write_recording
+    from imucald.files.recording import Recording, write_recording
     rng = np.random.default_rng(1)
     n = 400
     bias = np.array([0.05, 0.0, 0.0])          # what the calibration removes

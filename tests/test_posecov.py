@@ -1,10 +1,10 @@
 """The variance of a pose mean from the within-pose structure function
-(imucald/calib/posecov.py): what calibrate's pose covariance and the gap twin use."""
+(imucald/fitting/noise/posecov.py): what calibrate's pose covariance and the gap twin use."""
 import numpy as np
 
-from imucald.calib.posecov import pose_mean_variance, pose_mean_variance_parts
-from imucald.calib.poses import poses_and_pieces
-from imucald.sim.poses import random_pose_set
+from imucald.fitting.noise.posecov import pose_mean_variance, pose_mean_variance_parts
+from imucald.fitting.stillness.poses import poses_and_pieces
+from imucald.sim.orientations import random_pose_set
 from imucald.sim.sensor import pose_sigma, simulate_session
 from imucald.specs import ACCEL
 
@@ -63,8 +63,8 @@ def test_the_daemons_poses_keep_what_the_estimate_needs():
     by a second hold.  Seen to fail with the pipeline's job leaving them out (ratio ~6.8)."""
     from concurrent.futures import Executor, Future
 
-    from imucald.calib.stillness import StillnessDetector
-    from imucald.daemon.calibrator import _pose_cov
+    from imucald.fitting.stillness.detector import StillnessDetector
+    from imucald.daemon.fitjob import _pose_cov
     from imucald.daemon.config import validate
     from imucald.daemon.pipeline import Pipeline
 

@@ -1,14 +1,16 @@
-"""Pose-mean noise beyond the sample noise over n (imucald/calib/posefloor.py): the
+"""Pose-mean noise beyond the sample noise over n (imucald/fitting/noise/posefloor.py): the
 quantisation floor, the net rotation of a swaying hand, held columns, and the chance
-repeats of an un-dithered converter (calib/repeats.py).  Each test names the breakage it
+repeats of an un-dithered converter (fitting/stillness/repeats.py).  Each test names the breakage it
 was seen to catch."""
 import math
 
 import numpy as np
 
-from imucald.calib.posefloor import (estimate_lsb, noise_before_quantisation, quantisation_floor,
-                                     run_effective_counts, sway_rotation_variance, tilt_wander_test)
-from imucald.calib.repeats import find_repeats
+from imucald.fitting.noise.posefloor import (
+    estimate_lsb, noise_before_quantisation, quantisation_floor, run_effective_counts,
+    sway_rotation_variance, tilt_wander_test
+)
+from imucald.fitting.stillness.repeats import find_repeats
 
 
 def test_quantisation_floor_matches_monte_carlo():
@@ -144,7 +146,7 @@ def _hand_held(seed, sway=True):
     """A hand-held session: 22-31 random poses of 3-6 s, eased turns, tremor (6-12 Hz,
     0.3-3 dps) and, with ``sway``, a slow angular wander (0.2-2 Hz, 0.05-0.4 deg RMS per
     axis); MPU-6050 noise (400 ug/rtHz, 0.005 dps/rtHz), Earth's rate, nothing injected."""
-    from imucald.recording import Recording
+    from imucald.files.recording import Recording
 
     def rot(q):
         w, x, y, z = q / np.linalg.norm(q)

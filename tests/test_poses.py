@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from imucald.calib.poses import poses_from_recording, read_poses, write_poses
+from imucald.fitting.stillness.poses import poses_from_recording, read_poses, write_poses
 from imucald.errors import UserError
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 from imucald.sim.sensor import simulate_session
 
 

@@ -10,10 +10,11 @@ import json
 import numpy as np
 import pytest
 
-from imucald.calib.fit import accel_prior, fit_norm
-from imucald.calib.models import Triangular9
-from imucald.calib.optim import Problem, ga, hga, lm
-from imucald.sim.poses import random_pose_set, up_vectors
+from imucald.fitting.fit import accel_prior, fit_norm
+from imucald.fitting.models.accel import Triangular9
+from imucald.fitting.solvers.lsq import Problem, lm
+from imucald.fitting.solvers.ga import ga, hga
+from imucald.sim.orientations import random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_pose_means
 from imucald.specs import ACCEL
 

@@ -8,7 +8,7 @@ from imucald.drivers.bus import Bus, ChipMismatch, VirtualClock
 from imucald.sim.emulators import Faults, emulated_board
 from imucald.drivers.probe import detect_board, magnetometer, probe
 from imucald.sim.motion import PoseTour
-from imucald.sim.poses import rotation_from_up
+from imucald.sim.orientations import rotation_from_up
 from imucald.specs import MAG
 
 R = qmc5883l.REGMAP

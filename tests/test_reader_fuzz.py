@@ -13,10 +13,10 @@ import pytest
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
 
-from imucald.calib.inputs import read_table  # noqa: E402
+from imucald.fitting.inputs import read_table  # noqa: E402
 from imucald.errors import UserError  # noqa: E402
-from imucald.recording import MAGIC, read_recording  # noqa: E402
-from imucald.tables import TableSpec, _parse_fast, _parse_slow  # noqa: E402
+from imucald.files.recording import MAGIC, read_recording  # noqa: E402
+from imucald.files.tables import TableSpec, _parse_fast, _parse_slow  # noqa: E402
 
 N = 2000
 FUZZ = settings(max_examples=N, deadline=None, derandomize=True,
@@ -134,7 +134,7 @@ def test_trailing_garbage_is_dropped_with_a_warning_or_a_one_line_error(tail, ch
     """After 30 good rows, any tail: the 30 rows (+ whole valid rows of the tail) or the
     one-line error; a tail that is NUL bytes only, or one cut row (no newline, not a valid
     row), keeps exactly the 30 rows with exactly one warning line naming the file."""
-    from imucald.recording import RecordingReader
+    from imucald.files.recording import RecordingReader
     path = _file(f"{MAGIC}\n# board: x\n# rate_hz: 100\nt,ax,ay,az\n".encode() + _GOOD_ROWS + tail)
 
     def read():

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from imucald.calib.fit import fit_norm
-from imucald.calib.inputs import read_table
-from imucald.calib.poses import poses_from_recording
+from imucald.fitting.fit import fit_norm
+from imucald.fitting.inputs import read_table
+from imucald.fitting.stillness.poses import poses_from_recording
 
 from .conftest import real_path
 
@@ -40,11 +40,11 @@ def test_xsens_held_out_residuals_match_their_predicted_std(xsens_poses):
     """Leave-one-pose-out residuals over their predicted std (each pose's own noise,
     coloured-noise inflation from the initial rest, excess scatter): RMS near 1.  For N
     independent unit normals the RMS has s.e. ~ 1/sqrt(2N); the band is 3 of those."""
-    from imucald.calib.noise import pose_colour_inflation
+    from imucald.fitting.noise.colour import pose_colour_inflation
     p = real_path("imutk_xsens_mti", "xsens_acc.mat")
     rec = read_table(str(p), ["t", "ax", "ay", "az"], XSENS_COUNTS_PER_G, 32768.0)
     ps = xsens_poses
-    from imucald.calib.posecov import allan_still_needed
+    from imucald.fitting.noise.posecov import allan_still_needed
     k = None
     if allan_still_needed((ps.noise or {}).get("accel")):     # as calibrate does (cli/offline.py)
         k, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, ps.t0, ps.t1, ps.n)

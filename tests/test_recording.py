@@ -2,7 +2,9 @@
 import numpy as np
 import pytest
 
-from imucald.recording import MAGIC, Recording, RecordingError, read_recording, write_recording
+from imucald.files.recording import (
+    MAGIC, Recording, RecordingError, read_recording, write_recording
+)
 
 
 def _rec(n=50, mag=False):
@@ -118,7 +120,7 @@ def test_missing_file_and_directory(tmp_path):
 
 
 def test_chunked_read_matches_whole_and_lines_count_across_blocks(tmp_path):
-    from imucald.recording import open_recording
+    from imucald.files.recording import open_recording
     r = _rec(n=3000, mag=True)
     p = tmp_path / "r.csv"
     write_recording(r, p)
@@ -145,7 +147,7 @@ def test_chunked_read_matches_whole_and_lines_count_across_blocks(tmp_path):
 def test_whole_read_when_later_lines_are_shorter_than_the_first_block(tmp_path):
     """read() sizes its arrays from the first block's bytes per row; lines that are shorter
     later (fewer digits) overrun that estimate: the arrays grow and hold every row."""
-    from imucald.recording import open_recording
+    from imucald.files.recording import open_recording
     n = 4000
     t = np.arange(n) / 100.0
     acc = np.where(np.arange(n)[:, None] < 200, np.pi * np.arange(1, 4), 0.0) + np.zeros((n, 3))
@@ -160,7 +162,7 @@ def test_whole_read_when_later_lines_are_shorter_than_the_first_block(tmp_path):
 
 
 def test_table_nan_and_1e308_named(tmp_path):
-    from imucald.calib.inputs import read_table
+    from imucald.fitting.inputs import read_table
     p = tmp_path / "raw.txt"
     rows = [f"{i / 100:.2f} 32768 32768 {32768 + 16384}" for i in range(50)]
     for bad, what in (("nan", "not a finite"), ("1e308", "beyond what a sensor reads")):
@@ -203,7 +205,7 @@ from imucald.errors import UserError  # noqa: E402
 def test_replay_streamed_in_small_blocks_gives_the_same_stream(tmp_path, monkeypatch, capsysbinary):
     """Replay reads the recording block by block; the stream (batch boundaries, sequence
     numbers) must not depend on where the blocks end."""
-    from imucald import tables
+    from imucald.files import tables
     from imucald.cli import main
     p = tmp_path / "m.csv"
     assert main(["simulate", "-o", str(p), "--board", "mpu9250", "--poses", "3", "--hold", "2",
@@ -223,7 +225,7 @@ def test_light_commands_do_not_import_numpy(tmp_path, argv):
     import subprocess
     import sys
     code = ("import sys\nfrom imucald.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n"
-            "    pass\nprint(sorted(m for m in ('numpy', 'imucald.calib', 'imucald.recording') "
+            "    pass\nprint(sorted(m for m in ('numpy', 'imucald.fitting', 'imucald.files.recording') "
             "if m in sys.modules))")
     p = subprocess.run([sys.executable, "-c", code, *[a.format(d=tmp_path) for a in argv]],
                        capture_output=True, text=True)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from imucald.cli import main
-from imucald.recording import MAGIC, read_recording
+from imucald.files.recording import MAGIC, read_recording
 
 PY = sys.executable
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -332,16 +332,16 @@ def test_a_bom_is_accepted_in_every_text_input(tmp_path, sim, capsys):
     assert len(read_recording(str(rec))) == len(read_recording(str(sim)))
     raw = tmp_path / "raw.txt"
     raw.write_bytes(bom + b"t ax ay az\n" + b"".join(f"{i * 0.01:.2f} 0 0 1\n".encode() for i in range(50)))
-    from imucald.calib.inputs import read_table
+    from imucald.fitting.inputs import read_table
     assert len(read_table(str(raw), ["t", "ax", "ay", "az"])) == 50
     cal = tmp_path / "cal.yaml"
     poses = tmp_path / "poses.csv"
     assert run_main(capsys, "calibrate", sim, "-o", cal)[0] == 0
     cal.write_bytes(bom + cal.read_bytes())
     assert load(cal).accel is not None
-    from imucald.calib.poses import read_poses, write_poses
-    from imucald.calib.inputs import load_input
-    from imucald.calib.poses import poses_from_recording
+    from imucald.fitting.stillness.poses import read_poses, write_poses
+    from imucald.fitting.inputs import load_input
+    from imucald.fitting.stillness.poses import poses_from_recording
     write_poses(poses_from_recording(read_recording(str(sim))), str(poses))
     poses.write_bytes(bom + poses.read_bytes())
     assert len(read_poses(str(poses))) >= 10

@@ -128,7 +128,7 @@ def test_recalibrate_refuses_up_front_with_the_poses_needed_and_status_says_prov
     from imucald.daemon.pipeline import Pipeline
     from imucald.daemon.run import Daemon
     from imucald.drivers.board import SampleBatch
-    from imucald.recording import read_recording
+    from imucald.files.recording import read_recording
     rec = tmp_path / "h.csv"
     assert main(["simulate", "-o", str(rec), "--poses", "10", "--hold", "6", "--seed", "4"]) == 0
     r = read_recording(str(rec))

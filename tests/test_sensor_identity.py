@@ -16,7 +16,7 @@ from imucald.drivers.board import make_board
 from imucald.drivers.bus import Bus, VirtualClock
 from imucald.sim.emulators import emulated_board
 from imucald.sim.motion import PoseTour
-from imucald.sim.poses import random_pose_set
+from imucald.sim.orientations import random_pose_set
 
 from .test_daemon import control, start_daemon, wait_for
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from imucald.sim.poses import euler_pose_set, random_pose_set, up_vectors
+from imucald.sim.orientations import euler_pose_set, random_pose_set, up_vectors
 from imucald.sim.motion import temperature_profile
 from imucald.sim.sensor import draw_truth, pose_sigma, simulate_session
 from imucald.specs import ACCEL, BOARDS, GYRO, MAG
@@ -55,7 +55,7 @@ def test_stream_noise_quantisation_and_still_truth():
     q = np.sqrt(sig ** 2 + spec.lsb_g ** 2 / 12)
     assert np.all(np.abs(sd / q - 1) < 4 / np.sqrt(2 * n))
     # the hold's mean equals the inverse model of the true up vector within 5 sigma_pose
-    from imucald.calib.models import Triangular9
+    from imucald.fitting.models.accel import Triangular9
     expect = Triangular9().inverse(s.truth.accel, up_vectors(R[1:2]))[0]
     assert np.all(np.abs(rec.acc[m].mean(0) - expect) < 5 * q / np.sqrt(n))
     assert np.allclose(s.specific_force_g[m], up_vectors(R[1:2]), atol=1e-12)

@@ -129,7 +129,7 @@ class FakeI2cDev:
 
 
 def _tour(seed):
-    from imucald.sim.poses import random_pose_set
+    from imucald.sim.orientations import random_pose_set
     rng = np.random.default_rng(seed + 100)
     return PoseTour(random_pose_set(6, rng), rng=rng, loop=True)
 

@@ -3,10 +3,10 @@ poses; hand tremor passes; non-finite and absurd samples do not wipe detection o
 import numpy as np
 import pytest
 
-from imucald.calib.poses import detect_static, merge_cut
-from imucald.calib.stillness import StillnessDetector
-from imucald.recording import Recording
-from imucald.sim.poses import random_pose_set
+from imucald.fitting.stillness.poses import detect_static, merge_cut
+from imucald.fitting.stillness.detector import StillnessDetector
+from imucald.files.recording import Recording
+from imucald.sim.orientations import random_pose_set
 from imucald.sim.sensor import simulate_session
 
 from .conftest import real_path
@@ -58,7 +58,7 @@ def test_batch_and_streaming_find_the_same_poses_simulated(batch_n):
 def test_whole_file_call_in_chunks_finds_what_one_update_finds(monkeypatch):
     """detect_intervals feeds the detector in chunks (bounded memory on long files): the
     intervals, means included, equal those of the whole file fed as one batch."""
-    from imucald.calib import poses
+    from imucald.fitting.stillness import poses
     s, rec = _hand_session(5)
     det = StillnessDetector(rec.rate_hz)
     one = det.update(rec.t, rec.acc, rec.gyro)[1] + det.flush()
@@ -157,7 +157,7 @@ def test_the_daemon_pipeline_and_calibrate_find_the_same_poses():
 def test_floors_are_numpy_percentiles_value_for_value():
     """The vectorised floors equal np.percentile over each window's history bit for bit
     (random, quantised with zeros, and a history shorter and longer than FLOOR_WINDOWS)."""
-    from imucald.calib.stillfloor import FLOOR_WINDOWS, floor as _floor, floors as _floors
+    from imucald.fitting.stillness.floor import FLOOR_WINDOWS, floor as _floor, floors as _floors
     rng = np.random.default_rng(3)
     for hist in (rng.gamma(2.0, 1e-6, 700), np.round(rng.gamma(1.0, 1.0, 450)) * 1e-8,
                  np.zeros(20), rng.gamma(2.0, 1.0, 1)):
@@ -212,7 +212,7 @@ def test_the_daemon_keeps_nearby_but_distinct_poses():
     it): the accumulator keeps it; a repeat of a pose within its noise refines that pose.
     (It used to replace the older pose within 12 deg, so replaying the real Xsens file left
     14 of its 38 poses.)"""
-    from imucald.calib.stillness import StaticInterval
+    from imucald.fitting.stillness.detector import StaticInterval
     from imucald.daemon.accumulator import PoseAccumulator
     cov = np.eye(3) * (1e-4) ** 2
     iv = lambda u, t: StaticInterval(np.asarray(u, float) / np.linalg.norm(u), cov, cov * 100, 100, t, t + 1, 25.0)
@@ -255,8 +255,8 @@ def test_sample_and_hold_keeps_every_pose_and_its_standard_errors(factor):
     off (find_repeats never calling rows held), poses kept 46-96 % of their 10 s holds (the
     onset cut, which assumes independent samples, fired halfway) and the standard errors
     were 0.71-0.77x (held 2x) to 1.43-1.71x (3-4x: shorter poses, excess scatter)."""
-    from imucald.calib.fit import fit_norm
-    from imucald.calib.poses import poses_and_pieces
+    from imucald.fitting.fit import fit_norm
+    from imucald.fitting.stillness.poses import poses_and_pieces
     from imucald.sim.sensor import hold_samples
     s = _bench_session(11)
     base, _ = poses_and_pieces(s.recording)
@@ -278,7 +278,7 @@ def test_duplicated_rows_are_dropped_with_one_warning(tmp_path, capsys):
     noise reported 200 Hz for a 100 Hz recording."""
     import json
     from imucald.cli import main
-    from imucald.recording import write_recording
+    from imucald.files.recording import write_recording
     from imucald.sim.sensor import duplicate_rows
     s = _bench_session(12, hold=4.0)
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
@@ -315,7 +315,7 @@ def test_a_slow_tumble_without_a_still_moment_is_refused_in_one_line(tmp_path, c
     exited 0 on all three (issue 20: '11 still poses', exit 0); the main code of issue 20
     found 6-22 per 120 s tumble."""
     from imucald.cli import main
-    from imucald.recording import write_recording
+    from imucald.files.recording import write_recording
     from imucald.sim.sensor import simulate_tumble
     p = tmp_path / "tumble.csv"
     rec = simulate_tumble(board, np.random.default_rng(int(rate) + 40), rate_hz=rate, duration_s=150).recording
@@ -352,7 +352,7 @@ def test_rejected_stretches_name_their_reason():
     """A hold whose mean is not ~1 g (here scaled to 0.55 g, as issue 20's tumble pose) is
     not a pose and is reported with that reason; the others count.  Seen to catch: without
     the |mean| check the 0.55 g stretch was a pose (12 found, not 11)."""
-    from imucald.calib.poses import detect
+    from imucald.fitting.stillness.poses import detect
     s = _bench_session(13, hold=4.0)
     rec = s.recording
     acc = rec.acc.copy()
@@ -370,7 +370,7 @@ def test_repeat_detection_does_not_fire_on_quantised_noise():
     """An ADXL345 (3.9 mg/LSB, ~3 mg noise: one axis in two repeats by chance) without hold
     is not called held; the same held 2x is.  Seen to catch: a rule dropping every whole-row
     repeat dropped 3 % (169 of 5600) of the ADXL345's genuine samples."""
-    from imucald.calib.repeats import find_repeats
+    from imucald.fitting.stillness.repeats import find_repeats
     from imucald.sim.sensor import hold_samples
     rng = np.random.default_rng(14)
     s = simulate_session("9dof", random_pose_set(8, rng), rng, hold_s=5.0, move_s=2.0)
@@ -388,7 +388,7 @@ def test_streaming_finds_the_poses_of_the_whole_file_in_a_held_stream(batch_n):
     that the stream is held (3x) and then finds the poses the whole-file call finds, at the
     effective rate.  Seen to catch: a streaming decision that ignored the hold (_decide
     starting the core with held=False) ran at 300 Hz on the held rows."""
-    from imucald.calib.poses import detect
+    from imucald.fitting.stillness.poses import detect
     from imucald.sim.sensor import hold_samples
     s = _bench_session(15, n_poses=5, hold=6.0)
     h = hold_samples(s.recording, 3 * s.recording.rate_hz)
@@ -411,8 +411,8 @@ def test_a_turn_about_gravity_without_a_gyro_is_seen_by_the_magnetometer():
     same; no gyro, as issue 20's accelerometer + magnetometer tumbles) is not a pose: the
     magnetometer's field direction turns; the reason is reported.  Seen to catch: without
     the magnetometer check (_mag_turn) the turning stretch was a pose (8 of 8)."""
-    from imucald.calib.poses import detect
-    from imucald.sim.poses import axis_angle
+    from imucald.fitting.stillness.poses import detect
+    from imucald.sim.orientations import axis_angle
     rng = np.random.default_rng(16)
     s = simulate_session("9dof", random_pose_set(8, rng), rng, hold_s=5.0, move_s=2.0)
     rec = s.recording
@@ -434,9 +434,9 @@ def test_a_turn_about_gravity_without_a_gyro_is_seen_by_the_magnetometer():
 def test_simulate_writes_what_real_loggers_do(tmp_path):
     """`simulate --logger-rate` (sample-and-hold) and `--duplicate-rows`: the rows as a
     logger writes them, the distinct samples those of the chip."""
-    from imucald.calib.repeats import find_repeats
+    from imucald.fitting.stillness.repeats import find_repeats
     from imucald.cli import main
-    from imucald.recording import read_recording
+    from imucald.files.recording import read_recording
     p, q = tmp_path / "held.csv", tmp_path / "dup.csv"
     assert main(["simulate", "-o", str(p), "--poses", "3", "--hold", "3", "--logger-rate", "300"]) == 0
     assert main(["simulate", "-o", str(q), "--poses", "3", "--hold", "3", "--duplicate-rows"]) == 0

@@ -9,8 +9,8 @@ import numpy as np
 from imucald.cli import main
 from imucald.daemon.accumulator import PoseAccumulator
 from imucald.daemon.outputs import encode_samples
-from imucald.calib.stillness import StaticInterval
-from imucald.recording import Recording, read_recording, write_recording
+from imucald.fitting.stillness.detector import StaticInterval
+from imucald.files.recording import Recording, read_recording, write_recording
 
 
 def strict(line):
@@ -86,7 +86,7 @@ def test_merging_poses_keeps_an_unknown_temperature_unknown():
 
 def test_real_accelerometer_only_recording_streams_strict_json(tmp_path):
     """The Xsens MTi log: accelerometer only, no temperature; replayed as a user would."""
-    from imucald.calib.inputs import read_table
+    from imucald.fitting.inputs import read_table
     from imucald.calibration import load
     from .conftest import real_path
     rec = read_table(str(real_path("imutk_xsens_mti", "xsens_acc.mat")), ["t", "ax", "ay", "az"],

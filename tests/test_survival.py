@@ -424,7 +424,7 @@ def test_bad_calibration_file_is_set_aside_in_one_line(tmp_path, caplog, body, w
 def test_nan_in_poses_csv_is_set_aside_in_one_line(tmp_path, caplog, name, value, what):
     """A NaN, or a value no sensor reads (1e300 in ax: the fit overflowed for minutes), in the
     saved poses or thermal log: set aside naming line and column, the daemon starts afresh."""
-    from imucald.calib.poses import PoseSet, write_poses
+    from imucald.fitting.stillness.poses import PoseSet, write_poses
     from imucald.daemon.state import load_poses
     rng = np.random.default_rng(0)
     acc = rng.normal(size=(12, 3))

@@ -1,13 +1,13 @@
-"""The thermal terms (calib/thermal.py): the order the gap's held-out test chooses, the
+"""The thermal terms (fitting/thermal/terms.py): the order the gap's held-out test chooses, the
 coefficients within their stated standard errors, and only a constant below the span."""
 import re
 
 import numpy as np
 import pytest
 
-from imucald.calib.fit import accel_prior
-from imucald.calib.models import Triangular9
-from imucald.calib.thermal import fit_bias_series, fit_norm_thermal
+from imucald.fitting.fit import accel_prior
+from imucald.fitting.models.accel import Triangular9
+from imucald.fitting.thermal.terms import fit_bias_series, fit_norm_thermal
 
 SD_DPS = 0.004          # a still interval's mean rate: ~0.05 dps/sqrt(Hz) over ~150 samples
 
@@ -88,7 +88,7 @@ def test_too_few_still_intervals_give_a_constant_untested_and_say_so(n):
 def test_calibrate_gyro_on_one_still_pose_notes_it_and_exits_0(tmp_path, capsys):
     import json
     from imucald.cli import main
-    from imucald.recording import Recording, write_recording
+    from imucald.files.recording import Recording, write_recording
     rng = np.random.default_rng(5)
     n = 6000                                       # 60 s at 100 Hz, never moved
     rec = Recording(t=np.arange(n) / 100.0, acc=np.array([0.0, 0.0, 1.0]) + rng.normal(size=(n, 3)) * 2e-3,

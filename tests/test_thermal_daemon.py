@@ -68,7 +68,7 @@ def test_below_the_minimum_span_only_a_constant_and_the_status_says_why(bt):
 
 def test_the_magnetometer_hard_iron_learnt_in_the_field(bt):
     from imucald.sim.effects import effect_session
-    from imucald.sim.poses import random_pose_set
+    from imucald.sim.orientations import random_pose_set
     rng = np.random.default_rng(3)
     s, eff = effect_session("9dof", random_pose_set(36, rng), rng, [("mag.thermal_bias", 1e-3)], 100.0,
                             (6.4, 9.6), (2.1, 3.9), "heatcool", 15.0)
@@ -84,7 +84,7 @@ def test_the_magnetometer_hard_iron_learnt_in_the_field(bt):
 def test_the_thermal_log_survives_a_restart(tmp_path):
     """The log is saved as thermal.csv (a pose file with the gyro's deviations) and resumed:
     a daemon that reboots every day keeps learning over the days."""
-    from imucald.calib.stillness import StaticInterval
+    from imucald.fitting.stillness.detector import StaticInterval
     from imucald.daemon.state import load_poses, save_poses
     from imucald.daemon.thermallog import ThermalLog
     rng = np.random.default_rng(1)
@@ -107,7 +107,7 @@ def test_the_thermal_log_survives_a_restart(tmp_path):
 
 
 def test_the_log_is_bounded_and_a_long_still_spell_does_not_push_out_the_range():
-    from imucald.calib.stillness import StaticInterval
+    from imucald.fitting.stillness.detector import StaticInterval
     from imucald.daemon.thermallog import ThermalLog
     log = ThermalLog(max_intervals=50)
     c = np.eye(3) * 1e-8

@@ -6,11 +6,11 @@ import json
 import numpy as np
 import pytest
 
-from imucald.calib.coverage import sphere_lattice
-from imucald.calib.models import Triangular9
+from imucald.fitting.judging.coverage import sphere_lattice
+from imucald.fitting.models.accel import Triangular9
 from imucald.calibration import load
 from imucald.cli import main
-from imucald.recording import read_recording
+from imucald.files.recording import read_recording
 
 
 def _simulate(d, name, *args):

@@ -40,7 +40,7 @@ def test_gap_then_calibrate_closes_the_thermal_gap_on_the_one_placement_warm_up(
     from real_gap import tempsweep
     from imucald.calibration import load
     from imucald.cli import main
-    from imucald.recording import write_recording
+    from imucald.files.recording import write_recording
     rec, cal, out = tmp_path / "sweep.csv", tmp_path / "cal.yaml", tmp_path / "corrected.csv"
     write_recording(tempsweep(), str(rec))
 

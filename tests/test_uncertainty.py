@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from imucald.calib.models import Triangular9
-from imucald.calib.lsq import Problem, lm_converge
-from imucald.calib.uncertainty import crlb, residual_variance
-from imucald.sim.poses import euler_pose_set, random_pose_set, up_vectors
+from imucald.fitting.models.accel import Triangular9
+from imucald.fitting.solvers.lsq import Problem, lm_converge
+from imucald.fitting.judging.uncertainty import crlb, residual_variance
+from imucald.sim.orientations import euler_pose_set, random_pose_set, up_vectors
 from imucald.sim.sensor import draw_truth
 
 T9 = Triangular9()

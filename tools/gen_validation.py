@@ -43,7 +43,7 @@ def verbatim_page(name, title, cmd):
             f"Python {p['python']}, numpy {p['numpy']}; {p['date']}.\n\n"
             f"What it measures (the script's own description):\n\n```text\n{doc.strip()}\n```\n\n"
             f"Its output:\n\n```text\n{r.stdout.rstrip()}\n```\n")
-    from imucald.atomic import atomic_write_text
+    from imucald.files.atomic import atomic_write_text
     atomic_write_text(os.path.join(ROOT, "docs", "validation", f"{name}.md"), text)
     print(f"wrote docs/validation/{name}.md")
 

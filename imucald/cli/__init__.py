@@ -70,7 +70,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         return _fail(args, _one_line(e), EX_UNAVAILABLE)
     finally:
         sys.stdout = stdout
-        from .. import atomic
+        from ..files import atomic
         atomic.STDOUT = None
 
 

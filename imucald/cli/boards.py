@@ -31,7 +31,7 @@ def emulated_bus(board: str, speed: Optional[float] = None, seed: int = 0, poses
     from ..drivers.bus import Bus, ScaledClock, VirtualClock
     from ..sim.emulators import emulated_board
     from ..sim.motion import PoseTour
-    from ..sim.poses import random_pose_set
+    from ..sim.orientations import random_pose_set
     clock = VirtualClock() if speed is None else ScaledClock(speed)
     rng = np.random.default_rng(seed)
     motion = PoseTour(random_pose_set(poses, rng), rng=rng, loop=True, **(tour or {}))

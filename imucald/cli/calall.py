@@ -66,7 +66,7 @@ def _part_name(sensor: str, part) -> str:
 
 def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
     """sensor -> {part (SensorCal for the file), json, lines, thermal} or {skipped: why}."""
-    from ..calib.poses import poses_and_pieces
+    from ..fitting.stillness.poses import poses_and_pieces
     out: Dict[str, Dict[str, Any]] = {}
     poses = pieces = None
     if rec.acc is not None:
@@ -81,8 +81,8 @@ def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
 
 
 def _accel(args, rec, poses, pieces, progress):
-    from ..calib.fit import fit_norm
-    from ..calib.noise import pose_colour_inflation
+    from ..fitting.fit import fit_norm
+    from ..fitting.noise.colour import pose_colour_inflation
     from ..specs import BOARDS
     from .offline import DEFAULT_MODEL, _check_rest_norms, _file_part
     from .thermal import fit_thermal, pieces_colour_inflation, thermal_json, thermal_lines
@@ -97,9 +97,9 @@ def _accel(args, rec, poses, pieces, progress):
         progress(f"imucald: accel: fitting {model} with {args.method}")
     kw = {"progress": progress} if args.method == "ga-paper" and progress else {}
     chip = BOARDS.get(poses.meta.get("board", ""), (None,))[0]
-    from ..calib.posecov import allan_still_needed
+    from ..fitting.noise.posecov import allan_still_needed
     infl = None
-    if allan_still_needed((poses.noise or {}).get("accel")):    # not counted twice (calib/posecov.py)
+    if allan_still_needed((poses.noise or {}).get("accel")):    # not counted twice (fitting/noise/posecov.py)
         infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
     cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed, chip=chip,
                    noise_inflation=infl, **kw)
@@ -116,7 +116,7 @@ def _accel(args, rec, poses, pieces, progress):
 
 
 def _mag(args, rec, progress):
-    from ..calib.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
+    from ..fitting.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
     from .offline import DEFAULT_MODEL, _file_part
     from .thermal import thermal_json, thermal_lines
     if rec.mag is None:
@@ -140,7 +140,7 @@ def _mag(args, rec, progress):
 
 
 def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any]:
-    from ..calib.fit import fit_gyro_bias
+    from ..fitting.fit import fit_gyro_bias
     from .gyrorot import file_line, fit_rotations, rotation_json, rotation_lines
     from .offline import DEFAULT_MODEL, _file_part
     from .thermal import fit_thermal, thermal_json, thermal_lines

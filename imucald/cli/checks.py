@@ -114,7 +114,7 @@ def output_file(path: str, flag: str) -> None:
     in a directory that exists and is writable."""
     if path == "-":
         return
-    from ..atomic import check_output
+    from ..files.atomic import check_output
     if os.path.isdir(path):
         raise CannotCreate(f"{flag} {path}: is a directory; give a file name, e.g. "
                            f"{os.path.join(path, 'out' + _ext(flag))}")
@@ -174,7 +174,7 @@ def check_args(args) -> None:
         _check_simulation_size(args)
     if cmd in ("calibrate", "noise") and "-" in (getattr(args, "output", None), getattr(args, "kalibr", None)):
         import sys
-        from .. import atomic
+        from ..files import atomic
         atomic.STDOUT = sys.stdout  # the file goes to standard output alone; the report to stderr
         sys.stdout = sys.stderr
     if cmd == "record":

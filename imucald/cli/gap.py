@@ -70,7 +70,7 @@ def gap_summary(res) -> str:
 
 def cmd_gap(args) -> int:
     from ..gap.diagnose import diagnose
-    from ..calib.inputs import load_input
+    from ..fitting.inputs import load_input
     columns = args.columns.split(",") if args.columns else None
     kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
     if kind != "recording":

@@ -1,5 +1,5 @@
 """``calibrate --sensor gyro`` on a recording: scale, misalignment and g-sensitivity from
-the rotations between the still poses (calib/gyrorot.py), printed, as JSON, and in the
+the rotations between the still poses (fitting/gyro/rotations.py), printed, as JSON, and in the
 calibration file."""
 from __future__ import annotations
 
@@ -19,9 +19,9 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
     settings).  mag_cal: the magnetometer's rotation-cloud FitResult when already fitted
     (None: fitted here, mag_sym); slices: the poses' sample ranges (None: read back from
     ``poses``, :func:`pose_slices`, else the detector is run again with the same settings)."""
-    from ..calib.fit import fit_norm
-    from ..calib.gyrorot import fit_gyro_rotations
-    from ..calib.poses import detect_static
+    from ..fitting.fit import fit_norm
+    from ..fitting.gyro.rotations import fit_gyro_rotations
+    from ..fitting.stillness.poses import detect_static
     from ..specs import BOARDS, GYRO
     if rec is None or rec.acc is None or rec.gyro is None:
         return None, "needs a recording with accelerometer and gyro columns"
@@ -75,7 +75,7 @@ def _gravity_reference(rec, poses, pieces, acc_cal, chip, seed):
     still pieces, each sample corrected at its own temperature.  Any span is tried here (the
     order test guards against fitting noise): a bias drifting 0.7 mg/degC over 6 degC turns
     the gravity directions by ~0.2 deg, far beyond a gyro rotation's noise."""
-    from ..calib.models import get_model
+    from ..fitting.models.registry import get_model
     from .thermal import fit_thermal, pieces_colour_inflation, thermal_part
     tf = None
     if pieces is not None and rec.temp is not None and len(pieces) >= 10:
@@ -96,7 +96,7 @@ def _calibrated_mag(rec, seed, cal=None):
         return None
     from ..calibration import SensorCal
     if cal is None:
-        from ..calib.magcal import calibrate_rotation
+        from ..fitting.magcal import calibrate_rotation
         res = calibrate_rotation(rec.mag, "mag_sym", "lm", rng=seed)
         if not res["determined"]:
             return None

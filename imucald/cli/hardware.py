@@ -133,7 +133,7 @@ def _open_writer(path, meta, board, head, last):
     board reads one (a gy273 with an HMC5883L does not).  ``last`` gets the first finite
     magnetometer reading and temperature: the rows before them are filled with them."""
     import numpy as np
-    from ..recording import Recording, RecordingWriter
+    from ..files.recording import Recording, RecordingWriter
     temp = np.concatenate([h.temp for h in head])
     if board.has_mag:
         mag = np.concatenate([h.mag for h in head])
@@ -173,7 +173,7 @@ def _fill(a, last):
 
 
 def _as_recording(b, board, cols_temp, last):
-    from ..recording import Recording
+    from ..files.recording import Recording
     mag = temp = None
     if board.has_mag:
         mag, last["mag"] = _fill(b.mag, last["mag"])

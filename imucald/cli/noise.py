@@ -34,9 +34,9 @@ def still_stretch(t, start_s=None, end_s=None, max_gap_s: float = 1.0):
 def cmd_noise(args) -> int:
     import numpy as np
     import yaml
-    from ..atomic import atomic_write_text
-    from ..calib.allan import characterise, figures_document, kalibr_text
-    from ..calib.inputs import load_input
+    from ..files.atomic import atomic_write_text
+    from ..fitting.noise.allan import characterise, figures_document, kalibr_text
+    from ..fitting.inputs import load_input
     columns = args.columns.split(",") if args.columns else None
     kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
     if kind != "recording":
@@ -51,7 +51,7 @@ def cmd_noise(args) -> int:
     if ref is not None and i1 - i0 > 3:
         # repeated rows (sample-and-hold, duplicated rows) are not samples: the figures come
         # from the distinct ones at their effective rate (README: repeated samples)
-        from ..calib.repeats import find_repeats
+        from ..fitting.stillness.repeats import find_repeats
         rep = find_repeats(rec.t[i0:i1], np.asarray(ref[i0:i1], float), rate)
         if rep.repeated:
             keep = rep.keep

@@ -19,8 +19,8 @@ DEFAULT_MODEL = {"accel": "triangular9", "mag": "mag_sym", "gyro": "mean"}
 
 def cmd_simulate(args) -> int:
     import numpy as np
-    from ..recording import write_recording
-    from ..sim.poses import euler_pose_set, random_pose_set
+    from ..files.recording import write_recording
+    from ..sim.orientations import euler_pose_set, random_pose_set
     from ..sim.sensor import simulate_session
     rng = np.random.default_rng(args.seed)
     if args.euler:
@@ -72,7 +72,7 @@ def cmd_simulate(args) -> int:
     except OSError as e:
         raise write_failure(e, "-o", args.output) from None
     if args.truth:
-        from ..atomic import atomic_write_text
+        from ..files.atomic import atomic_write_text
         tr = s.truth
         d = {"board": tr.board, "accel_triangular9": tr.accel.tolist(),
              "gyro_bias_dps": tr.gyro_bias_dps.tolist(), "gyro_matrix": tr.gyro_matrix.tolist(),
@@ -139,9 +139,9 @@ def _accel_model_order(path, model, n_poses, default, det, progress):
     model is judged by its own count; the default (triangular9, no --model) with fewer poses
     than it needs but enough for a smaller model becomes ``auto`` (said on stderr); fewer
     poses than any model needs: one line, exit 2 (no still moment at all: why)."""
-    from ..calib.fit import AUTO_MODELS
-    from ..calib.models import get_model
-    from ..calib.poses import no_still_message
+    from ..fitting.fit import AUTO_MODELS
+    from ..fitting.models.registry import get_model
+    from ..fitting.stillness.poses import no_still_message
     k = lambda m: int(get_model(m).free_mask.sum())
     need = min(k(m) for m in AUTO_MODELS) + 1 if model == "auto" else k(model) + 1
     smallest = min(k(m) for m in AUTO_MODELS) + 1
@@ -179,13 +179,13 @@ def cmd_calibrate(args) -> int:
 def _calibrate(args) -> int:
     """parse (input, sensor, model) -> poses -> fit -> rotations and thermal terms -> write
     and present; each step a function below."""
-    from .. import _malloc
-    # the fit tunes the allocator anyway (calib/lsq.py); tuned before reading, the reader's
+    from ..numerics import allocator
+    # the fit tunes the allocator anyway (fitting/solvers/lsq.py); tuned before reading, the reader's
     # and the detector's MB-sized temporaries are reused from the heap, not page-faulted
     # afresh each time (measured: 3.5 ms of reading, 1.5 ms of detection on the Xsens file)
-    _malloc.tune()
-    from ..calib.inputs import load_input
-    from ..calib.poses import poses_and_pieces
+    allocator.tune()
+    from ..fitting.inputs import load_input
+    from ..fitting.stillness.poses import poses_and_pieces
     columns = args.columns.split(",") if args.columns else None
     kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
     if args.sensor == "all":    # every part the recording supports, into one file (cli/calall.py)
@@ -238,7 +238,7 @@ def _calibrate(args) -> int:
 def _sensor_and_model(args, kind: str, obj):
     """The sensor to calibrate (a magnetometer-only recording: the magnetometer) and the
     model asked for (else the sensor's default), refused in one line when it does not fit."""
-    from ..calib.models import MODEL_NAMES
+    from ..fitting.models.registry import MODEL_NAMES
     sensor = args.sensor
     if sensor is None:
         sensor = "mag" if kind == "recording" and obj.acc is None and obj.mag is not None else "accel"
@@ -257,12 +257,12 @@ def _fit_accel(args, rec, poses, pieces, det, model, progress):
     """The accelerometer on the still poses: the model the pose count supports, the chip's
     datasheet prior, the coloured-noise inflation from the recording; returns (FitResult,
     chip, the pieces' inflation for the thermal fit)."""
-    from ..calib.fit import fit_norm
+    from ..fitting.fit import fit_norm
     from ..specs import BOARDS
     need, model = _accel_model_order(args.input, model, len(poses), args.model is None, det, progress)
     _check_rest_norms(args.input, poses)
     if progress:
-        from ..calib.poses import still_report
+        from ..fitting.stillness.poses import still_report
         for line in still_report(det)[1:]:
             progress(f"imucald: {line}")
         progress(f"imucald: {len(poses)} still poses; fitting {model} with {args.method}")
@@ -270,9 +270,9 @@ def _fit_accel(args, rec, poses, pieces, det, model, progress):
     chip = BOARDS.get(poses.meta.get("board", ""), (None,))[0]
     infl = infl_pieces = None
     if rec is not None:     # coloured noise: the Allan model of the longest still pose
-        from ..calib.noise import pose_colour_inflation
+        from ..fitting.noise.colour import pose_colour_inflation
         from .thermal import pieces_colour_inflation
-        from ..calib.posecov import allan_still_needed
+        from ..fitting.noise.posecov import allan_still_needed
         if allan_still_needed((poses.noise or {}).get("accel")):
             infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
         infl_pieces = pieces_colour_inflation(rec, poses, pieces)
@@ -283,7 +283,7 @@ def _fit_accel(args, rec, poses, pieces, det, model, progress):
 
 def _fit_mag_poses(args, poses, model):
     """The magnetometer from a pose file: the pose means are the points."""
-    from ..calib.fit import fit_norm
+    from ..fitting.fit import fit_norm
     if poses.mag is None:
         raise UserError(f"{args.input}: no magnetometer columns (mx, my, mz)")
     _check_mag_span(args.input, poses.mag)
@@ -293,7 +293,7 @@ def _fit_mag_poses(args, poses, model):
 def _fit_gyro_poses(args, rec, poses, det, model):
     """The gyro bias from the still poses (``eq6``: from their distinct still samples)."""
     import numpy as np
-    from ..calib.fit import fit_gyro_bias
+    from ..fitting.fit import fit_gyro_bias
     if poses.gyro is None:
         raise UserError(f"{args.input}: no gyro columns (gx, gy, gz)")
     if len(poses) == 0:
@@ -303,7 +303,7 @@ def _fit_gyro_poses(args, rec, poses, det, model):
     if model == "eq6":
         if rec is None:
             raise UserError("--model eq6 needs the still samples: give a recording")
-        from ..calib.poses import detect_static
+        from ..fitting.stillness.poses import detect_static
         sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
         keep = det.repeats.keep if det is not None else np.ones(len(rec.t), bool)
         samples = np.concatenate([rec.gyro[s][keep[s]] for s in sl])     # distinct samples
@@ -396,7 +396,7 @@ def _print_cal(sensor: str, cal) -> None:
 def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     """Magnetometer from the rotation cloud (any recording with mx, my, mz).
     Exit 3 when the cloud does not determine a calibration (a one-plane swing)."""
-    from ..calib.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
+    from ..fitting.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
     if progress:
         progress(f"imucald: {len(rec)} magnetometer samples; thinning over the sphere and fitting "
                  f"{model} with {args.method}")
@@ -450,7 +450,7 @@ def _write_calibration(path: str, meta, part, thermal=None) -> None:
 
 
 def get_free(cal) -> int:
-    from ..calib.models import get_model
+    from ..fitting.models.registry import get_model
     return int(get_model(cal.model).free_mask.sum())
 
 
@@ -461,12 +461,13 @@ def cmd_demo(args) -> int:
     import numpy as np
 
     from .. import __version__
-    from ..calib.fit import fit_norm
-    from ..calib.metrics import rms
-    from ..calib.models import Triangular9
-    from ..calib.optim import Problem, ga
-    from ..calib.poses import poses_from_recording
-    from ..sim.poses import random_pose_set
+    from ..fitting.fit import fit_norm
+    from ..fitting.judging.metrics import rms
+    from ..fitting.models.accel import Triangular9
+    from ..fitting.solvers.lsq import Problem
+    from ..fitting.solvers.ga import ga
+    from ..fitting.stillness.poses import poses_from_recording
+    from ..sim.orientations import random_pose_set
     from ..sim.sensor import simulate_session
     rng = np.random.default_rng(args.seed)
     print(f"imucald {__version__} demo: a calibration on a simulated MPU6050 (seed {args.seed}); "
@@ -499,8 +500,8 @@ def cmd_demo(args) -> int:
         print(f"{n:<10} {tr[i]:12.6f} {cal.theta[i]:12.6f} {e:10.2e} {cal.crlb_std[i]:10.2e} "
               f"{e / cal.crlb_std[i]:7.2f}")
     # paper 001's measure: roll and pitch from the accelerometer against the true attitude
-    from ..calib.metrics import roll_pitch_deg
-    from ..sim.poses import up_vectors
+    from ..fitting.judging.metrics import roll_pitch_deg
+    from ..sim.orientations import up_vectors
     true_up = up_vectors(R)[:len(raw)] if len(raw) == len(R) else None
     if true_up is not None:
         r0, p0 = roll_pitch_deg(true_up)

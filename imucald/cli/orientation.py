@@ -49,7 +49,7 @@ def orientation_table(rec, cal, batch_s: float = 0.02):
 
 def write_orientation(rec, cal, path: str, source: str) -> str:
     """Write the table atomically; returns the heading reference."""
-    from ..atomic import atomic_write_text
+    from ..files.atomic import atomic_write_text
     rows, heading = orientation_table(rec, cal)
     buf = io.StringIO()
     buf.write(f"# imucald orientation of {source} (calibration {cal.id}); q body -> ENU (REP-103); "

@@ -21,7 +21,7 @@ def status_plot(path: str, status: dict, poses: dict) -> str:
 def calibrate_plots(outdir: str, poses, part, name: str = "") -> list:
     """``coverage.png`` (the still poses found) and ``residuals.png`` (|a| - 1 g per pose,
     raw and corrected by ``part``, the accelerometer calibration just fitted) in ``outdir``."""
-    from ..calib.coverage import cube_coverage, next_orientation
+    from ..fitting.judging.coverage import cube_coverage, next_orientation
     from ..errors import CannotCreate
     from ..plots.coverage import write_coverage
     from ..plots.residuals import write_residuals

@@ -77,7 +77,7 @@ def cmd_replay(args) -> int:
     from ..daemon.pipeline import Pipeline
     from ..daemon.state import save_calibration
     from ..drivers.board import SampleBatch
-    from ..recording import open_recording
+    from ..files.recording import open_recording
     cfg, _ = _daemon_config(args)
     _setup_logging(cfg["log"]["level"])
     with open_recording(args.recording) as reader:      # streamed: memory bounded by one block

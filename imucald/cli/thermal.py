@@ -1,5 +1,5 @@
 """The thermal terms offline: ``imucald calibrate`` fits them when the recording spans
-enough temperature (calib/thermal.py chooses the order and says why), and
+enough temperature (fitting/thermal/terms.py chooses the order and says why), and
 ``imucald apply`` writes a recording corrected by a calibration file (so that ``gap``
 can be run on the corrected data: the loop of README "Closing the loop")."""
 from __future__ import annotations
@@ -17,19 +17,19 @@ UNIT = {"accel": ("g", "mg", 1e3), "gyro": ("dps", "deg/s", 1.0), "mag": ("gauss
 
 def fit_thermal(sensor: str, poses, fit, chip: Optional[str], infl, min_span_c: float, seed):
     """The thermal fit of ``sensor`` on the still poses (None: no temperatures), started
-    from the constant fit ``fit`` (calib.fit.FitResult).  From a recording the poses are the
-    detector's pieces (calib.poses.poses_and_pieces), not the joined placements."""
+    from the constant fit ``fit`` (fitting.fit.FitResult).  From a recording the poses are the
+    detector's pieces (fitting.stillness.poses.poses_and_pieces), not the joined placements."""
     if poses.temp is None or not np.any(np.isfinite(poses.temp)):
         return None
-    from ..calib.thermal import fit_bias_series, fit_norm_thermal
+    from ..fitting.thermal.terms import fit_bias_series, fit_norm_thermal
     if sensor == "gyro":
         var = np.einsum("nii->ni", poses.gyro_cov) if poses.gyro_cov is not None else np.full((len(poses), 3), 1e-4)
         return fit_bias_series(poses.temp, poses.gyro, np.maximum(var, 1e-12), min_span_c, rng=seed)
-    if sensor == "mag":             # a pose file's magnetometer means (recordings: calib/magcal.py)
+    if sensor == "mag":             # a pose file's magnetometer means (recordings: fitting/magcal.py)
         return None
-    from ..calib.fit import accel_prior
-    from ..calib.models import get_model
-    from ..calib.uncertainty import residual_variance
+    from ..fitting.fit import accel_prior
+    from ..fitting.models.registry import get_model
+    from ..fitting.judging.uncertainty import residual_variance
     m = get_model(fit.model)
     cov = poses.acc_cov if sensor == "accel" else poses.mag_cov
     if cov is None:
@@ -47,9 +47,9 @@ def fit_thermal(sensor: str, poses, fit, chip: Optional[str], infl, min_span_c: 
 
 
 def pieces_colour_inflation(rec, poses, pieces):
-    """The accelerometer's coloured-noise inflation of each piece (calib/noise.py), read from
+    """The accelerometer's coloured-noise inflation of each piece (fitting/noise/colour.py), read from
     the Allan model of the longest pose, as the constant fit's is."""
-    from ..calib.noise import colour_inflation_per_pose
+    from ..fitting.noise.colour import colour_inflation_per_pose
     if len(poses) == 0 or len(pieces) == 0 or rec.temp is None:
         return None         # (no temperatures: no thermal fit to weigh)
     i = int(np.argmax(poses.t1 - poses.t0))
@@ -96,7 +96,8 @@ def thermal_part(sensor: str, fit, tf):
     if sensor == "accel":
         a = SensorCal.accel(fit.model, tf.base, tf.base_stderr, sc.method, sc.quality, sc.flags)
         return replace(a, thermal=th)
-    from ..calib.models import get_model, mag_report
+    from ..fitting.models.registry import get_model
+    from ..fitting.models.mag import mag_report
     m = get_model(fit.model)
     p, se = mag_report(m, tf.base, tf.cov[:m.k, :m.k])
     arr = lambda d: {k: np.asarray(v, float) for k, v in d.items()}
@@ -109,7 +110,7 @@ def cmd_apply(args) -> int:
     """Correct a recording with a calibration file: every sensor the file has a part for,
     each sample at its own temperature (thermal terms)."""
     from ..calibration import load
-    from ..recording import Recording, read_recording, write_recording
+    from ..files.recording import Recording, read_recording, write_recording
     if getattr(args, "orientation", None):          # the extra missing: say so before writing
         from ..orientation import load_vqf
         load_vqf()

@@ -5,7 +5,7 @@ it is the same pose: the two are averaged (refined).  Any other pose is kept, ev
 few degrees of tilt away (it carries its own information); past ``max_poses`` the
 oldest pose in the most crowded region gives way.  Coverage
 is measured against the 26 directions of a cube's faces, edges and corners
-(calib/coverage.py); the accumulator says which ones still lack a pose, and what
+(fitting/judging/coverage.py); the accumulator says which ones still lack a pose, and what
 CRLB the current pose set predicts for the calibration.
 """
 from __future__ import annotations
@@ -14,13 +14,13 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from ..calib.coverage import cube_coverage
-from ..calib.models import Triangular9
-from ..calib.posecov import MAX_HOLDS
-from ..calib.poses import PoseSet
-from ..calib.stillness import StaticInterval
-from ..calib.uncertainty import crlb, residual_variance
-from ..npstats import median
+from ..fitting.judging.coverage import cube_coverage
+from ..fitting.models.accel import Triangular9
+from ..fitting.noise.posecov import MAX_HOLDS
+from ..fitting.stillness.poses import PoseSet
+from ..fitting.stillness.detector import StaticInterval
+from ..fitting.judging.uncertainty import crlb, residual_variance
+from ..numerics.npstats import median
 
 __all__ = ["PoseAccumulator"]
 
@@ -85,7 +85,7 @@ class PoseAccumulator:
     def pose_set(self) -> PoseSet:
         """The poses as a PoseSet (the covariances of the means: each pose's sample
         covariance over n; the worker rescales them from the holds' structure functions
-        each pose keeps, ``acc_sf``: daemon/calibrator.py)."""
+        each pose keeps, ``acc_sf``: daemon/fitjob.py)."""
         P = self.poses
         N = len(P)
         g = lambda f: np.array([getattr(p, f) for p in P]) if N and all(

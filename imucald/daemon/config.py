@@ -60,7 +60,7 @@ SCHEMA: Dict[str, Tuple[Any, str, Any]] = {
     # magnetometer cloud only: points withheld from its fit to validate it (poses are
     # cross-validated, every one of them)
     "calibration.holdout_fraction": (0.2, "float", (0.05, 0.5)),
-    # the gate's stated rate of accepting a calibration that is no better (calib/gate.py)
+    # the gate's stated rate of accepting a calibration that is no better (fitting/gate.py)
     "calibration.false_accept_rate": (0.05, "float", (0.001, 0.5)),
     "calibration.recalibrate_every_poses": (5, "int", (1, 1000)),
     "calibration.mag_min_coverage": (0.5, "float", (0.05, 1.0)),
@@ -182,7 +182,7 @@ def _scan(text: str, path: str) -> Tuple[Dict[str, int], Dict[str, str]]:
     lines: Dict[str, int] = {}
     plain: Dict[str, str] = {}
     import yaml
-    from ..yamlsafe import compose
+    from ..files.yamlsafe import compose
     node = compose(text, path, ConfigError, base=_loader(), max_bytes=MAX_CONFIG_BYTES)
 
     def walk(n, prefix):
@@ -306,14 +306,14 @@ def validate(cfg: Dict[str, Any], path: str = "", lines: Optional[Dict[str, int]
 
 
 #: parameters of the daemon's accelerometer model, triangular9 (a test checks it against
-#: calib.models; not imported here: loading the configuration must not need numpy)
+#: fitting.models.registry; not imported here: loading the configuration must not need numpy)
 ACCEL_MODEL_PARAMS = 9
 
 
 def accel_poses_needed() -> int:
     """Fewest poses the daemon's accelerometer fit (triangular9) and its
     leave-one-pose-out scoring need."""
-    from ..cv import poses_needed
+    from ..numerics.folds import poses_needed
     return poses_needed(ACCEL_MODEL_PARAMS)
 
 
@@ -380,7 +380,7 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
 def parse_yaml(raw: bytes, path: str) -> Tuple[Any, Dict[str, int], Dict[str, str]]:
     """(data, key lines, unquoted scalars) of a configuration file's bytes; ConfigError
     (one line, file:line) for bytes that are not UTF-8, invalid YAML or a duplicate key."""
-    from ..yamlsafe import load
+    from ..files.yamlsafe import load
     if len(raw) > MAX_CONFIG_BYTES:
         raise ConfigError(f"{path}: {len(raw)} bytes, more than the {MAX_CONFIG_BYTES >> 10} KiB a "
                           f"configuration may hold: is it the right file?")

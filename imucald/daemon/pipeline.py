@@ -16,11 +16,11 @@ from typing import Any, Callable, Deque, Dict, List, Optional
 
 import numpy as np
 
-from ..calib.coverage import next_orientation
-from ..calib.stillness import StillnessDetector
+from ..fitting.judging.coverage import next_orientation
+from ..fitting.stillness.detector import StillnessDetector
 from ..calibration import Calibration
 from .accumulator import PoseAccumulator
-from .calibrator import JobResult, MagReservoir, calibration_job
+from .fitjob import JobResult, MagReservoir, calibration_job
 from .config import accel_poses_needed
 from .outputs import encode_samples, event
 from .thermallog import ThermalLog, thermal_status
@@ -111,7 +111,7 @@ class Pipeline:
         self._tried_raw_at = 0           #: acc.added at the last attempt on the raw sensor
         self._job_ready = True           #: the pending job's pose set met the readiness targets
         self._job_missing: List[str] = []
-        #: noise figures (calib.allan.read_figures of noise.file), or None
+        #: noise figures (fitting.noise.allan.read_figures of noise.file), or None
         self.noise: Optional[Dict[str, Dict[str, np.ndarray]]] = None
         self._cov_key = None
         self._cov_text = ""
@@ -191,7 +191,7 @@ class Pipeline:
         """Load noise.file (``imucald noise -o``); a bad file is a configuration error."""
         if not path:
             return
-        from ..calib.allan import read_figures
+        from ..fitting.noise.allan import read_figures
         from ..errors import UserError
         from .config import ConfigError
         try:
@@ -302,7 +302,7 @@ class Pipeline:
             self.temp_range = [min(self.temp_range[0], iv.temp), max(self.temp_range[1], iv.temp)]
         cov = self.acc.coverage()
         need = self.cfg["calibration"]["min_poses"]
-        # the hint moves through the missing orientations (calib/coverage.py)
+        # the hint moves through the missing orientations (fitting/judging/coverage.py)
         self.next_hint = next_orientation(cov["missing"], self._hinted, iv.acc)
         if self.next_hint is not None:
             self._hinted[self.next_hint] = self._hinted.get(self.next_hint, 0) + 1
@@ -340,7 +340,7 @@ class Pipeline:
         return self.pending is not None
 
     def _mag_noise(self):
-        from ..calib.magcal import sample_noise
+        from ..fitting.magcal import sample_noise
         return sample_noise(np.array(self.mag_recent)) if len(self.mag_recent) >= 20 else None
 
     def _maybe_calibrate_mag_only(self) -> None:
@@ -353,7 +353,7 @@ class Pipeline:
             return
         noise = self._mag_noise()
         if not self.force and noise is not None:
-            from ..calib.magcal import flat_axis
+            from ..fitting.magcal import flat_axis
             flat = flat_axis(r.points(), noise)
             if flat is not None:       # not turned in 3-D yet: wait, and say so once
                 self._next_mag_seen = r.seen + int(MAG_RECAL_S * self.rate_hz)
@@ -422,14 +422,14 @@ class Pipeline:
         k = None
         if self.noise is not None and "accel" in self.noise and acc_cov is not None:
             # coloured noise: a pose mean over T s varies k(T) times more than white noise
-            # says (calib/noise.py), k from the noise file's Allan coefficients (the worker
+            # says (fitting/noise/colour.py), k from the noise file's Allan coefficients (the worker
             # takes it out where the holds' structure functions decide)
-            from ..calib.noise import inflation_of
+            from ..fitting.noise.colour import inflation_of
             k = np.array([inflation_of(self.noise["accel"]["avar_coef"], n / self.rate_hz)[0]
                           for n in ps.n])
             acc_cov = acc_cov * k[:, None, None]
         # tremor averages out of a pose mean: the worker forms the covariances from the
-        # holds' structure functions (daemon/calibrator.py _pose_cov, calib/posecov.py)
+        # holds' structure functions (daemon/fitjob.py _pose_cov, fitting/noise/posecov.py)
         job = {"acc": ps.acc, "acc_cov": acc_cov, "acc_colour_k": k,
                "acc_sf": [p.acc_sf or [] for p in self.acc.poses],
                "acc_s2": np.einsum("nii->ni", ps.acc_sample_cov) if ps.acc_sample_cov is not None else None,
@@ -475,7 +475,7 @@ class Pipeline:
         gates = res.notes.get("gate", {})
         undet = _undetermined(cand.accel) if "accel" in take else None
         parts = self._outcome_texts(res, take, gates, undet)
-        # the gate's figures and reasons (calib/gate.py Decision), in the CAL event too
+        # the gate's figures and reasons (fitting/gate.py Decision), in the CAL event too
         gate_ev = {k: d.to_dict() for k, d in gates.items()} or None
         if not take:
             return self._keep_applied(cand, gates, parts, gate_ev)
@@ -501,10 +501,10 @@ class Pipeline:
                 f" {'applied' if ent['accepted'] else 'kept the current one'} (p = {ent['p_value']:.2g})"
                 if "p_value" in ent else ""))
         if "mag_flat" in res.notes:
-            from ..calib.magcal import flat_message
+            from ..fitting.magcal import flat_message
             parts.append("mag not determined: " + flat_message({"flat": res.notes["mag_flat"]}))
         elif "mag_undetermined" in res.notes:
-            from ..calib.magcal import flat_message
+            from ..fitting.magcal import flat_message
             parts.append("mag not determined: " + flat_message(res.notes["mag_undetermined"]))
         elif m:
             parts.append(f"mag held-out {m.quality['heldout_rel_rms'] * 100:.2f} % vs "
@@ -557,7 +557,7 @@ class Pipeline:
         prov = self._provisional_after(cand, take, gates, parts, len(ps))
         new = ap.replace(id=ap.id + 1, created=now, provisional=prov,
                          temperature_range_c=(round(lo, 2), round(hi, 2)) if np.isfinite(lo) else None,
-                         # the poses the accelerometer part in force was fitted on (calib/gate.py
+                         # the poses the accelerometer part in force was fitted on (fitting/gate.py
                          # scores it on the others): kept when only the gyro or mag part changes
                          poses_used=({"columns": POSE_COLUMNS, "rows": rows} if len(ps) else None)
                          if "accel" in take or ap.accel is None else ap.poses_used,
@@ -623,7 +623,7 @@ def _temps(t):
 
 def _confirms(gates) -> bool:
     """A refused accelerometer candidate on a ready pose set confirms the provisional part in
-    force, unless the gate found the new poses at odds with it (calib/gate.py rule 1)."""
+    force, unless the gate found the new poses at odds with it (fitting/gate.py rule 1)."""
     d = gates.get("accel")
     return not (d is not None and d.consistency_p is not None and not d.consistent)
 
@@ -641,7 +641,7 @@ def _undetermined(part) -> Optional[Dict[str, str]]:
     the poses did not determine; None when every one is determined or none is flagged."""
     if part is None or not part.flags:
         return None
-    from ..calib.models import get_model
+    from ..fitting.models.registry import get_model
     m = get_model(part.model)
     out = {m.param_names[i]: f for g, idx in m.groups.items()
            for i, f in zip(idx, part.flags.get(g, ())) if f != "determined"}

@@ -45,9 +45,9 @@ def _now() -> str:
 
 
 def _read_sensor(state_dir: str) -> Optional[Dict[str, Any]]:
-    from ..atomic import read_own_file
+    from ..files.atomic import read_own_file
     from ..errors import UserError
-    from ..yamlsafe import load
+    from ..files.yamlsafe import load
     p = os.path.join(state_dir, SENSOR_FILE)
     if not os.path.lexists(p):
         return None
@@ -65,7 +65,7 @@ def _read_sensor(state_dir: str) -> Optional[Dict[str, Any]]:
 
 def _write_sensor(state_dir: str, d: Dict[str, Any]) -> None:
     import yaml
-    from ..atomic import atomic_write_text
+    from ..files.atomic import atomic_write_text
     atomic_write_text(os.path.join(state_dir, SENSOR_FILE),
                       "# imucald: the physical sensor the files beside this one belong to\n" +
                       yaml.safe_dump(d, sort_keys=False))
@@ -88,9 +88,9 @@ def _move_files(src: str, dst: str, names=(*SENSOR_FILES, SENSOR_FILE)) -> int:
 
 def _calibration_sensor(path: str) -> Optional[str]:
     """The ``sensor`` id a calibration file names ('' if none, None if unreadable)."""
-    from ..atomic import read_own_file
+    from ..files.atomic import read_own_file
     from ..errors import UserError
-    from ..yamlsafe import load
+    from ..files.yamlsafe import load
     try:
         d = load(read_own_file(path, 1 << 20, UserError), path, UserError)
     except UserError:

@@ -14,11 +14,11 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from ..calib.poses import PoseSet, read_poses, write_poses
-from ..atomic import read_own_file
+from ..fitting.stillness.poses import PoseSet, read_poses, write_poses
+from ..files.atomic import read_own_file
 from ..calibration import MAX_CALIBRATION_BYTES, Calibration, CalibrationError, load, save
 from ..errors import UserError
-from ..recording import MAX_SMALL_BYTES
+from ..files.recording import MAX_SMALL_BYTES
 
 __all__ = ["save_calibration", "load_calibration", "save_poses", "load_poses",
            "set_aside"]

@@ -3,11 +3,11 @@
 With the still intervals of the thermal log (daemon/thermallog.py) spanning at least
 ``calibration.thermal_min_span_c``: the accelerometer's bias polynomial (and scale term)
 through the norm model, the gyro's from its still means, each order chosen by
-calib/thermal.py's held-out test and then gated (calib/thermal_gate.py) against the
+fitting/thermal/terms.py's held-out test and then gated (fitting/thermal/gate.py) against the
 calibration in force, applied at each interval's own temperature.  A candidate that
 passes replaces the constant one of the same job.  Below the span nothing is fitted and
 the note says why; with the terms in force, the constant refits of later jobs keep them
-(calibrator.py fits on the thermally corrected poses).
+(fitjob.py fits on the thermally corrected poses).
 """
 from __future__ import annotations
 
@@ -16,14 +16,15 @@ from typing import Any, Dict
 
 import numpy as np
 
-from ..calib.fit import accel_prior
-from ..calib.levels import GATE_FALSE_ACCEPT_RATE
-from ..calib.models import MagModel, Triangular9, mag_report
-from ..calib.thermal import fit_bias_series, fit_norm_thermal
-from ..calib.thermal_gate import gate_bias_thermal, gate_norm_thermal
-from ..calib.uncertainty import residual_variance
+from ..fitting.fit import accel_prior
+from ..fitting.judging.levels import GATE_FALSE_ACCEPT_RATE
+from ..fitting.models.mag import MagModel, mag_report
+from ..fitting.models.accel import Triangular9
+from ..fitting.thermal.terms import fit_bias_series, fit_norm_thermal
+from ..fitting.thermal.gate import gate_bias_thermal, gate_norm_thermal
+from ..fitting.judging.uncertainty import residual_variance
 from ..calibration import Calibration, SensorCal
-from ..npstats import median
+from ..numerics.npstats import median
 
 __all__ = ["thermal_parts", "mag_thermal"]
 

@@ -5,7 +5,7 @@ nearby, so its temperatures are the latest); the thermal terms need the same
 orientations at *different* temperatures.  This log keeps every still interval the
 detector closes (accelerometer mean and covariance, gyro mean and its variance,
 temperature), bounded: when full, the oldest interval of the most crowded cell of
-(1 degC of temperature) x (the 26 cube directions, calib/coverage.py) goes, so a board
+(1 degC of temperature) x (the 26 cube directions, fitting/judging/coverage.py) goes, so a board
 that sits still for hours at one temperature does not push out the rest of the range.
 """
 from __future__ import annotations
@@ -14,8 +14,8 @@ from typing import Any, Dict, List, Optional
 
 import numpy as np
 
-from ..calib.poses import PoseSet
-from ..calib.stillness import StaticInterval
+from ..fitting.stillness.poses import PoseSet
+from ..fitting.stillness.detector import StaticInterval
 
 __all__ = ["ThermalLog", "MAX_INTERVALS", "thermal_status"]
 

@@ -15,7 +15,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from ..calib import effect_forms as ef
+from ..fitting.models import effect_forms as ef
 
 __all__ = ["Candidate", "ACCEL_CANDIDATES", "MAG_CANDIDATES", "GYRO_CANDIDATES", "SEPARATE", "TRACELESS",
            "hat_columns", "kron_cols"]

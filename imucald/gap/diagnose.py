@@ -29,9 +29,9 @@ Method (../shared/reference/error-models.md sections 3-5):
    ``partially_explained`` or ``unexplained``.  Fewer than 10 poses or 6 orientations:
    the time-series path (:mod:`.single`, :mod:`.series`).
 
-Modules: ``candidates`` (the effects), :mod:`imucald.calib.heldout` (fitting kernels,
+Modules: ``candidates`` (the effects), :mod:`imucald.fitting.judging.heldout` (fitting kernels,
 twin), ``posenoise`` (the pose means' noise, disturbed poses), ``signif`` and
-:mod:`imucald.calib.stats` (tests and distributions), :mod:`imucald.calib.levels`
+:mod:`imucald.numerics.tails` (tests and distributions), :mod:`imucald.fitting.judging.levels`
 (the significance levels), ``verdict`` (one verdict for every path), ``norm`` and ``linear`` (the
 accelerometer/magnetometer and gyro paths), ``where``, ``saturation``; this module only
 segments the recording, measures the noise and calls them (:func:`pose_setup`, then one
@@ -44,14 +44,14 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from ..calib.coverage import cube_coverage
-from ..calib.fit import accel_prior
-from ..calib.models import Triangular9
-from ..calib.noise import MIN_STRETCH_S, allan_model, colour_inflation
-from ..calib.optim import Problem, lm
-from ..calib.poses import PoseSet, detect_static, poses_from_slices
+from ..fitting.judging.coverage import cube_coverage
+from ..fitting.fit import accel_prior
+from ..fitting.models.accel import Triangular9
+from ..fitting.noise.colour import MIN_STRETCH_S, allan_model, colour_inflation
+from ..fitting.solvers.lsq import Problem, lm
+from ..fitting.stillness.poses import PoseSet, detect_static, poses_from_slices
 from ..errors import UserError
-from ..recording import Recording
+from ..files.recording import Recording
 from ..specs import BOARDS, MAG, recording_chips
 from .candidates import ACCEL_CANDIDATES, GYRO_CANDIDATES, MAG_CANDIDATES, hat_columns
 from .gyrostill import split_at_time_gaps, trim_turns
@@ -59,8 +59,10 @@ from .linear import gyro_diag
 from .magpath import diagnosable, mag_model, mag_points, mag_still_slices, quiet_noise
 from .norm import norm_diag
 from .posenoise import flag_disturbed, pose_mean_variance
-from ..calib.posefloor import (estimate_lsb, noise_before_quantisation, quantisation_floor, radial_series,
-                               run_effective_counts, sway_rotation_variance, tilt_wander_test)
+from ..fitting.noise.posefloor import (
+    estimate_lsb, noise_before_quantisation, quantisation_floor, radial_series,
+    run_effective_counts, sway_rotation_variance, tilt_wander_test
+)
 from .saturation import saturated
 from .series import orientation_groups, within_pose_inflation
 from .single import diagnose_single
@@ -111,7 +113,7 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
 def _allan_compare(r, x_still, rate, unit) -> None:
     """A random-walk wandering bias's intensity beside the Allan figures of the longest still
     stretch (rate random walk: AVAR = q tau / 3, IEEE Std 952-1997 annex C), when it is long
-    enough (calib.noise.MIN_STRETCH_S)."""
+    enough (fitting.noise.colour.MIN_STRETCH_S)."""
     ent = next((e for e in r.get("effects", []) if e.get("stochastic")), None)
     if ent is None:
         return
@@ -179,9 +181,9 @@ def _mag(rec, sl, pose_mag, pose_var, pose_idx, acc_theta, skip, sims, rng,
 
 def distinct_samples(rec: Recording) -> Recording:
     """The recording without its repeated rows (sample-and-hold, duplicated rows: issue 20,
-    :mod:`imucald.calib.repeats`), at the effective rate: noise and block statistics need
+    :mod:`imucald.fitting.stillness.repeats`), at the effective rate: noise and block statistics need
     distinct samples.  Unchanged when none is repeated."""
-    from ..calib.repeats import find_repeats
+    from ..fitting.stillness.repeats import find_repeats
     ref = rec.acc if rec.acc is not None else rec.mag
     if ref is None or len(rec.t) < 4:
         return rec
@@ -263,7 +265,7 @@ def pose_setup(rec: Recording, sl: List[slice], ps: PoseSet) -> PoseSetup:
 
 def _quant_floor(x: np.ndarray, slices) -> tuple:
     """Per axis (C,): the variance of a pose mean's quantisation offset, from the LSB seen in
-    the data and the noise before the quantiser (calib/posefloor.py); and a summary."""
+    the data and the noise before the quantiser (fitting/noise/posefloor.py); and a summary."""
     lsb = estimate_lsb(x, slices)
     if not np.any(lsb > 0):
         return np.zeros(x.shape[1]), {"lsb": lsb.tolist()}
@@ -281,7 +283,7 @@ def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     # 0.48 on simulated swaying nulls); without wander the three axes estimate the same
     # noise with less scatter (the radial figure alone: 3 of 20 hand-held nulls called a
     # gap against 1 of 20).  The radial figure is used when the tangential per-sample
-    # variance exceeds the radial one beyond 2 standard errors over poses (calib/posefloor.py)
+    # variance exceeds the radial one beyond 2 standard errors over poses (fitting/noise/posefloor.py)
     kept = u.kept(u.sl)
     tilt = tilt_wander_test(rec.acc, kept)
     x_a = rec.acc
@@ -359,7 +361,7 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     gvar, pinfo = pose_mean_variance(rec.gyro, u.kept(gsl))
     white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
     gvar = gvar * np.where(white_ax, kap_g, 1.0)[None, :]
-    # a swaying hand's net rotation over each hold, and the quantisation floor (calib/posefloor.py)
+    # a swaying hand's net rotation over each hold, and the quantisation floor (fitting/noise/posefloor.py)
     sway, pinfo["sway"] = sway_rotation_variance(rec.acc, rec.gyro, u.kept(gsl), rate)
     qf, pinfo["quantisation"] = _quant_floor(rec.gyro, u.kept(gsl))
     gvar = np.maximum(gvar, sway[:, None]) + qf[None, :]
@@ -382,9 +384,9 @@ def _mag_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     ps, keep = u.ps, u.keep
     mv = np.einsum("nii->n", ps.mag_cov) / 3 if ps.mag_cov is not None else None
     # a magnetometer held at its own rate inside a faster log: its distinct readings count
-    # (calib/posefloor.py run_effective_counts), not the rows (mag_cov is over the rows / n)
+    # (fitting/noise/posefloor.py run_effective_counts), not the rows (mag_cov is over the rows / n)
     n_eff = ps.n[keep]
-    from ..calib.repeats import find_repeats
+    from ..fitting.stillness.repeats import find_repeats
     if len(rec.t) > 3 and find_repeats(rec.t, rec.mag, rec.rate_hz).held:
         n_eff = run_effective_counts(rec.mag, u.kept(u.sl))
     mvar = np.median(mv[keep] * ps.n[keep]) / n_eff

@@ -11,11 +11,11 @@ import numpy as np
 from .candidates import GYRO_CANDIDATES, TRACELESS, kron_cols
 from .earth import earth_rate_report, horizontal_variance, vertical_column
 from .signif import p_and_log10, proj_sig, score
-from ..calib.heldout import heldout, twin_rms
-from ..calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
+from ..fitting.judging.heldout import heldout, twin_rms
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
 from .verdict import decide
 from .where import linear_where
-from ..calib.metrics import rms
+from ..fitting.judging.metrics import rms
 
 __all__ = ["gyro_diag", "gyro_baseline", "GyroBaseline"]
 

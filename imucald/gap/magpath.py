@@ -2,7 +2,7 @@
 still poses.
 
 The daemon and ``calibrate --sensor mag`` fit hard + soft iron (``mag_sym``, no prior)
-to a rotation cloud thinned over the sphere (:class:`imucald.calib.magcal.SphereReservoir`,
+to a rotation cloud thinned over the sphere (:class:`imucald.fitting.magcal.SphereReservoir`,
 per-sample noise from second differences).  The gap takes the same points: every
 magnetometer reading outside the still poses (each held reading once), thinned by the
 same reservoir, plus the still poses' means (precise points), each with its own noise
@@ -18,9 +18,10 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..calib.magcal import SphereReservoir, flat_axis, sample_noise
-from ..calib.models import MagModel, Triangular9
-from ..calib.optim import sphere_fit
+from ..fitting.magcal import SphereReservoir, flat_axis, sample_noise
+from ..fitting.models.mag import MagModel
+from ..fitting.models.accel import Triangular9
+from ..fitting.solvers.lsq import sphere_fit
 from .candidates import hat_columns
 
 __all__ = ["mag_points", "MIN_MAG_POINTS", "quiet_noise", "mag_still_slices"]

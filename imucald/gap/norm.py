@@ -8,15 +8,16 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..calib.fit import _mag_bounds
-from ..calib.heldout import hat_diag, heldout, lm_weighted, numjac, twin_rms
-from ..calib.metrics import rms
-from ..calib.models import MagModel, NormModel
-from ..calib.optim import Problem, lm, sphere_fit
-from ..calib.stats import chi2_sf
-from ..calib.uncertainty import residual_variance
+from ..fitting.fit import _mag_bounds
+from ..fitting.judging.heldout import hat_diag, heldout, lm_weighted, numjac, twin_rms
+from ..fitting.judging.metrics import rms
+from ..fitting.models.mag import MagModel
+from ..fitting.models.base import NormModel
+from ..fitting.solvers.lsq import Problem, lm, sphere_fit
+from ..numerics.tails import chi2_sf
+from ..fitting.judging.uncertainty import residual_variance
 from .candidates import Candidate
-from ..calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
 from .signif import p_and_log10, proj_sig, score
 from .search import MIN_DOF, stepwise
 from .verdict import confusable, verdict
@@ -379,7 +380,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     ``pose_var`` (squared units of x); ``scale`` converts residuals to ``unit``.
 
     ``prior``: (mean, std) over the model's parameters, the Gaussian prior the deployed
-    calibration uses (calib.fit.accel_prior, MAP): the baseline is then the same MAP fit
+    calibration uses (fitting.fit.accel_prior, MAP): the baseline is then the same MAP fit
     (weights 1/variance, so the prior term is sum ((theta - mean) / std)^2), and the
     leverages, the twin and the projection of each candidate's signature hold the prior
     precision, so what the gap sees is what the deployed fit leaves.

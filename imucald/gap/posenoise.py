@@ -1,7 +1,7 @@
 """The variance of a pose mean from the recording's own within-pose statistics, tremor
 included (the twin's noise; issue 25 item 1), and the disturbed poses.
 
-The structure-function estimate lives in :mod:`imucald.calib.posecov` (the calibration's
+The structure-function estimate lives in :mod:`imucald.fitting.noise.posecov` (the calibration's
 pose covariance uses it too); the gap twin calls it one-sided: it replaces the white
 figure only when clearly below it (its colour inflation is handled elsewhere).
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..calib.posecov import FRACTIONS, MIN_SAMPLES, pose_mean_variance
+from ..fitting.noise.posecov import FRACTIONS, MIN_SAMPLES, pose_mean_variance
 
 __all__ = ["pose_mean_variance", "flag_disturbed", "FRACTIONS", "MIN_SAMPLES"]
 

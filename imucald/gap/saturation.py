@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..recording import Recording
+from ..files.recording import Recording
 
 __all__ = ["saturated"]
 

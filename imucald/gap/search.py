@@ -47,8 +47,8 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from ..calib.heldout import hat_diag, numjac
-from ..calib.levels import GAP_HELDOUT_LEVEL
+from ..fitting.judging.heldout import hat_diag, numjac
+from ..fitting.judging.levels import GAP_HELDOUT_LEVEL
 from .signif import p_and_log10
 from .wander import random_walk_fit
 

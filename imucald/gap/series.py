@@ -33,8 +33,8 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from ..calib.stats import chi2_logsf
-from ..calib.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
+from ..numerics.tails import chi2_logsf
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
 from .verdict import verdict
 
 __all__ = ["make_blocks", "block_noise_var", "series_diagnose", "orientation_groups",

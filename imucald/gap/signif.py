@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ..calib.stats import chi2_logsf, norm_sf2
+from ..numerics.tails import chi2_logsf, norm_sf2
 
 __all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p"]
 

@@ -33,7 +33,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 import numpy as np
 
 from .candidates import SEPARATE
-from ..calib.levels import GAP_ATTRIBUTION_LEVEL
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL
 from .signif import canon
 
 __all__ = ["decide", "verdict", "confusable"]

@@ -17,7 +17,7 @@ are profiled out (REML).  Then:
 * significance: the likelihood-ratio statistic of q = 0 on the boundary, p = 1/2 P(chi2_1 > LR);
 * held-out residuals: the mixed model's leave-one-out e_i = (P r)_i / P_ii with
   P = S^-1 - S^-1 J (J' S^-1 J + Lambda)^-1 J' S^-1 (exact for a Gaussian process with fixed
-  effects; with q = 0 it is the hat-matrix formula of calib/heldout.py);
+  effects; with q = 0 it is the hat-matrix formula of fitting/judging/heldout.py);
 * the twin: the same leave-one-out on re-simulations of noise plus a walk of strength q
   (the model's own prediction of its held-out residual).
 
@@ -29,7 +29,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from ..calib.stats import chi2_sf
+from ..numerics.tails import chi2_sf
 
 __all__ = ["random_walk_fit"]
 

@@ -6,7 +6,8 @@ from typing import Dict, Tuple
 
 import numpy as np
 
-from ..calib.models import MagModel, NormModel
+from ..fitting.models.mag import MagModel
+from ..fitting.models.base import NormModel
 from .signif import corr_p
 
 __all__ = ["norm_where", "linear_where", "region"]

@@ -1,6 +1,6 @@
 """The pose-coverage sphere: where the board's up vector (the direction of the measured
 specific force, sensor frame) has been held still, against the 26 orientations of a cube's
-faces, edges and corners that imucald asks for (calib/coverage.py).
+faces, edges and corners that imucald asks for (fitting/judging/coverage.py).
 
 Two discs, the +Z and -Z hemispheres seen from outside along Z (Lambert equal-area, so
 equal areas of the sphere look equal), the X axis to the right and Y up: a dot per pose,
@@ -12,7 +12,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..calib.coverage import TARGETS, target_name
+from ..fitting.judging.coverage import TARGETS, target_name
 from ._mpl import pyplot, save
 
 __all__ = ["coverage_figure", "write_coverage", "lambert_disc"]

@@ -22,7 +22,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from ..calib import effect_forms as ef
+from ..fitting.models import effect_forms as ef
 from ..specs import ACCEL, GYRO
 
 __all__ = ["EFFECTS", "DEFAULT_MAGNITUDE", "make_effect", "parse_effect_name"]

@@ -33,7 +33,7 @@ from typing import Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from ..rng import RngLike, as_rng
+from ..numerics.rng import RngLike, as_rng
 
 __all__ = ["PoseTour", "Tumble", "HandTremor", "log_so3", "temperature_profile",
            "earth_rate_body_dps", "TREMOR_BAND_HZ", "EARTH_RATE_RAD_S"]
@@ -356,7 +356,7 @@ class Tumble:
                  speed_dps: Tuple[float, float] = (15.0, 60.0), move_accel_g: float = 0.05,
                  fine_hz: float = 200.0, field_gauss: float = 0.5, dip_deg: float = 60.0,
                  temp0_c: float = 22.0):
-        from .poses import axis_angle
+        from .orientations import axis_angle
         rng = as_rng(rng)
         self.fine_hz = fine_hz
         nf = int(round(duration_s * fine_hz))

@@ -19,10 +19,10 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from ..rng import RngLike, as_rng
+from ..numerics.rng import RngLike, as_rng
 
-from ..calib.models import Triangular9
-from ..recording import Recording
+from ..fitting.models.accel import Triangular9
+from ..files.recording import Recording
 from .motion import PoseTour, Tumble, earth_rate_body_dps
 from ..specs import ACCEL, BOARDS, GYRO, MAG
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import Dict, Optional
 
-from ...rng import as_rng
+from ...numerics.rng import as_rng
 from ...drivers import ak8963 as _ak, hmc5883l as _hmc
 from ...drivers.bus import Clock, VirtualClock
 from ..sensor import Truth, draw_truth

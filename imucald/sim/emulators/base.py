@@ -14,7 +14,7 @@ from typing import Dict, List, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
-from ...rng import RngLike, as_rng
+from ...numerics.rng import RngLike, as_rng
 
 from ...drivers.bus import BLOCK_MAX, Clock, VirtualClock
 from ...drivers.regmap import RegisterMap

@@ -1,0 +1,221 @@
+"""Background calibration: a pure job function and the acceptance gate.
+
+:func:`calibration_job` is pure (arrays and the calibration in force in, a
+candidate :class:`~imucald.calibration.Calibration` and a decision per sensor
+out), so the daemon runs it in a worker process and replay runs it inline.
+Every candidate part is fitted on all poses and scored by leave-one-pose-out
+against the calibration in force (the raw sensor before the first), both out of
+sample on the same poses: those the calibration in force was not fitted on (its
+``poses_used`` table).  fitting/gate.py decides: the fit on more data replaces it when
+the new poses agree with it, else the candidate must predict significantly better, at
+the configured false-accept rate (job key ``alpha``).
+The magnetometer cloud goes through the same test on its withheld points and is
+then refitted on all of them.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import Any, Dict, NamedTuple
+
+import numpy as np
+
+from ..fitting.fit import fit_norm
+from ..fitting.models.registry import gyro_bias_scatter_se
+from ..fitting.gate import Decision, fitted_poses, gate_accel, gate_gyro_bias, paired_gate
+from ..fitting.judging.levels import GATE_FALSE_ACCEPT_RATE
+from ..fitting.magcal import SphereReservoir as MagReservoir
+from ..fitting.magcal import coverage, flat_axis, missing_axes, undetermined_terms
+from ..fitting.models.mag import MagModel
+from ..fitting.models.accel import Triangular9
+from ..calibration import Calibration, SensorCal, build_calibration
+from ..fitting.judging.metrics import rms
+from ..numerics.npstats import median
+
+__all__ = ["calibration_job", "JobResult", "MagReservoir"]
+
+_T9 = Triangular9()
+_MAG = MagModel("sym")
+
+
+class JobResult(NamedTuple):
+    candidate: Calibration          #: the parts fitted (quality: held-out before/after)
+    accept: Dict[str, bool]         #: sensor -> the gate's decision
+    #: notes: "gate": sensor -> fitting.gate.Decision (p-value, alpha, cross-validated RMS...)
+    wall_s: float
+    #: mag_flat: the plane of a one-plane swing; mag_undetermined: the terms a partial
+    #: rotation leaves undetermined (no magnetometer part in either case)
+    notes: Dict[str, Any]
+
+
+def _holdout(n: int, frac: float) -> np.ndarray:
+    k = max(2, int(round(1 / frac)))
+    mask = np.zeros(n, bool)
+    mask[k - 1::k] = True
+    return mask
+
+
+def calibration_job(job: Dict[str, Any]) -> JobResult:
+    """Fit, validate and decide.  Pure: no I/O, no globals.
+
+    job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3) (each
+    pose's sample covariance over n), acc_sf and acc_s2 (the holds' structure functions and
+    per-sample variances, fitting/noise/posecov.py) or None, acc_colour_k (N,) (the Allan inflation
+    acc_cov carries) or None, t0 (N,),
+    t1 (N,) (the poses' still intervals, s: matched against the incumbent's poses_used), n (N,),
+    gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
+    per-sample noise or None, current (the Calibration in force), method, holdout_fraction
+    (magnetometer points), alpha (the gate's false-accept rate), seed; thermal (the thermal
+    log's arrays, daemon/thermallog.py) or None and thermal_min_span_c (daemon/thermaljob.py).
+    """
+    t_start = time.perf_counter()
+    cur: Calibration = job.get("current") or Calibration()
+    parts: Dict[str, SensorCal] = {}
+    accept: Dict[str, bool] = {}
+    notes: Dict[str, Any] = {"gate": {}}
+    if job.get("acc") is not None:
+        job = _pose_cov(job, notes)
+        _accel_gyro(job, cur, parts, accept, notes["gate"], notes)
+    mp = job.get("mag_points")
+    if mp is not None and len(mp) >= 30:
+        _mag(np.asarray(mp, float), job, cur, parts, accept, notes)
+    candidate = build_calibration(parts, cur.board, cur.chips, id=0, created="")   # not in force yet
+    return JobResult(candidate, accept, time.perf_counter() - t_start, notes)
+
+
+def _pose_cov(job: Dict[str, Any], notes: Dict[str, Any]) -> Dict[str, Any]:
+    """The job with acc_cov from the holds' structure functions (job["acc_sf"], fitting/
+    posecov.py; here in the worker: ~80 ms at 60 poses) where they decide; the noise
+    file's Allan inflation (job["acc_colour_k"], already in job["acc_cov"]) is then taken
+    out again: the two measure the same thing and are not counted twice."""
+    from ..fitting.noise.posecov import allan_still_needed, scale_pose_cov_stats
+    if job.get("acc_sf") is None or job.get("acc_s2") is None:
+        return job
+    k = job.get("acc_colour_k")
+    own = np.asarray(job["acc_cov"], float)
+    if k is not None:
+        own = own / np.asarray(k, float)[:, None, None]
+    cov, info = scale_pose_cov_stats(job["n"], job["acc_s2"], job["acc_sf"], own)
+    notes["pose_noise"] = info
+    if allan_still_needed(info):
+        return job
+    return dict(job, acc_cov=cov)
+
+
+def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict[str, bool],
+                gates: Dict[str, Decision], notes: Dict[str, Any]) -> None:
+    acc = np.asarray(job["acc"], float)
+    alpha = job.get("alpha", GATE_FALSE_ACCEPT_RATE)
+    temp = job.get("temp")
+    # thermal terms in force: the constant part is refitted on the poses with them removed
+    # (each at its own temperature) and the candidate keeps them
+    ta = cur.accel.thermal if cur.accel is not None and temp is not None else None
+    acc_fit = cur.accel.thermal_offset(acc, temp) if ta else acc
+    # the poses the calibration in force was fitted on: in-sample for it, never scored
+    fitted, nested = fitted_poses(acc, job.get("t0"), job.get("t1"), cur.poses_used)
+    # --- accelerometer: fitted on all poses, gated on their cross-validated residuals ---
+    cal, _, dec = gate_accel(acc_fit, job["acc_cov"], cur.apply_accel(acc, temp), job["method"], alpha,
+                             against="raw" if cur.accel is None else "current", rng=job.get("seed"),
+                             chip=cur.chips.get("accel"),      # the datasheet prior of this chip
+                             fitted=fitted if cur.accel is not None else None, nested=nested,
+                             incumbent=None if cur.accel is None else (cur.accel.model, cur.accel.theta))
+    # predicted cross-validated residual: each pose's noise plus the uncertainty of the
+    # refit without it (fitting.fit.heldout_residuals)
+    pred = rms(cal.info["heldout_predicted_std"])
+    # heldout_rms_g and heldout_rms_before_g: both out of sample on the same gate_poses poses
+    # (those the calibration in force was not fitted on); loo_rms_g: the candidate's over all
+    q = {"fitness": float(cal.fitness), "heldout_rms_g": dec.rms_cv,
+         "heldout_rms_before_g": dec.rms_incumbent, "predicted_heldout_rms_g": pred,
+         "poses": int(len(acc)), "gate_poses": int(dec.n), "gate_p_value": dec.p_value,
+         "false_accept_rate": dec.alpha}
+    parts["accel"] = SensorCal.from_fit(cal, {k: v for k, v in q.items() if np.isfinite(v)})
+    if ta:
+        parts["accel"] = replace(parts["accel"], thermal=ta)
+    accept["accel"], gates["accel"] = dec.accept, dec
+    # --- gyro bias: count-weighted mean of the still poses, gated the same way ---
+    g = job.get("gyro")
+    if g is not None:
+        g = np.asarray(g, float)
+        w = np.asarray(job["n"], float)
+        tg = cur.gyro.thermal if cur.gyro is not None and temp is not None else None
+        # the incumbent is scored as the daemon applies it: with the calibrated specific
+        # force for its g-sensitivity term (else G a counts against it)
+        acc_cal = cur.apply_accel(acc, temp)
+        g_inc = cur.apply_gyro(g, temp if temp is not None else np.full(len(g), np.nan), acc_cal)
+        g = cur.gyro.thermal_offset(g, temp) if tg else g
+        # the scale/misalignment matrix and g-sensitivity in force (calibrate --sensor gyro,
+        # fitting/gyro/rotations.py) are kept; the bias is refitted on the means without G a
+        kept = [k for k in ("matrix", "g_sens_dps_per_g") if cur.gyro is not None and k in cur.gyro.params]
+        if kept:
+            g = cur.gyro.g_offset(g, acc_cal)
+        b, gdec = gate_gyro_bias(g, w, g_inc, alpha, against="raw" if cur.gyro is None else "current",
+                                 fitted=fitted if cur.gyro is not None else None, nested=nested)
+        sd = gyro_bias_scatter_se(g, w, b)
+        carry = lambda d: {k: d[k] for k in kept if k in d}
+        parts["gyro"] = SensorCal("gyro", "bias", {"bias_dps": b, **carry(cur.gyro.params if kept else {})},
+                                  {"bias_dps": sd, **carry(cur.gyro.stderr if kept else {})},
+                                  carry(cur.gyro.flags if kept else {}), method="mean",
+                                  quality={k: v for k, v in {
+                                      "heldout_rms_dps": gdec.rms_cv,
+                                      "heldout_rms_before_dps": gdec.rms_incumbent, "poses": int(len(g)),
+                                      "gate_poses": int(gdec.n), "gate_p_value": gdec.p_value}.items()
+                                      if np.isfinite(v)},
+                                  thermal=tg)
+        accept["gyro"], gates["gyro"] = gdec.accept, gdec
+    # --- thermal terms from the thermal log (daemon/thermaljob.py) ---
+    if job.get("thermal"):
+        from .thermaljob import thermal_parts
+        thermal_parts(job, cur, parts, accept, gates, notes)
+
+
+def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
+    """The rotation-cloud calibration (fitting.magcal), validated on every k-th point.
+
+    A cloud from a one-plane swing is reported (notes["mag_flat"]: the undetermined
+    axis) and never applied; so is one whose terms the determination rule of
+    fitting/magcal.py does not accept (notes["mag_undetermined"])."""
+    noise = job.get("mag_noise")
+    cov = None
+    if noise is not None and np.all(np.isfinite(noise)) and np.all(np.asarray(noise) > 0):
+        flat = flat_axis(mp, np.asarray(noise, float))
+        if flat is not None:
+            notes["mag_flat"] = flat
+            return
+        cov = np.diag(np.asarray(noise, float) ** 2)
+    mt = job.get("mag_temp")
+    tm = cur.mag.thermal if cur.mag is not None and mt is not None else None
+    raw = mp
+    if tm:      # thermal terms in force: the constant part is refitted without them, and keeps them
+        mp = cur.mag.thermal_offset(mp, mt)
+    mho = _holdout(len(mp), job["holdout_fraction"])
+    pc = lambda n: None if cov is None else np.broadcast_to(cov, (n, 3, 3))
+    mc = fit_norm(mp[~mho], "mag_sym", "lm", rng=job.get("seed"), heldout=False,
+                  pose_cov=pc(int((~mho).sum())))
+    r_new = np.linalg.norm(_MAG.forward(mc.theta, mp[mho]), axis=1) - 1
+    if cur.mag is None:
+        hc = np.linalg.norm(mp[mho], axis=1)
+        r_cur = hc / median(np.linalg.norm(mp, axis=1)) - 1
+    else:
+        hc = np.linalg.norm(cur.apply_mag(raw[mho], None if mt is None else mt[mho]), axis=1)
+        r_cur = hc / float(cur.mag.params["field_gauss"]) - 1
+    # the same paired test on the withheld points; the applied fit then uses every point
+    dec = paired_gate(r_cur ** 2, r_new ** 2, job.get("alpha", GATE_FALSE_ACCEPT_RATE),
+                      "raw" if cur.mag is None else "current")
+    mc = fit_norm(mp, "mag_sym", "lm", rng=job.get("seed"), heldout=False, pose_cov=pc(len(mp)))
+    cv = coverage(_MAG, mc.theta, mp)
+    und = undetermined_terms(mc, cv["direction_eigenvalues"][-1])
+    if und:     # a cap, a wobbly planar turn, no turning at all: never applied (fitting/magcal.py)
+        notes["mag_undetermined"] = {"undetermined": und, "coverage": cv,
+                                     "field_gauss": float(mc.params["field_gauss"]),
+                                     "missing_axes": missing_axes(_MAG, mc.theta, mp)}
+        return
+    parts["mag"] = SensorCal.from_fit(mc, {
+        "points": int(len(mp)), "heldout_rel_rms": dec.rms_cv, "heldout_rel_rms_before": dec.rms_incumbent,
+        "gate_p_value": dec.p_value,
+        "coverage_fraction": cv["fraction"], "coverage_min_eigenvalue": cv["direction_eigenvalues"][-1]})
+    if tm:
+        parts["mag"] = replace(parts["mag"], thermal=tm)
+    accept["mag"], notes["gate"]["mag"] = dec.accept, dec
+    if job.get("thermal") and mt is not None:
+        from .thermaljob import mag_thermal
+        mag_thermal(job, cur, raw, mt, cov, mc.theta, parts, accept, notes)

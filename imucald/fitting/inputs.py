@@ -1,0 +1,140 @@
+"""Loading calibration inputs: a recording, a pose file, or a raw numeric table.
+
+A raw table (no imucald magic line) is whitespace- or comma-separated numbers
+whose columns are named by ``columns`` (e.g. ``t,ax,ay,az``); sensor columns
+in raw counts are converted with ``(value - nominal_offset) / nominal_scale``.
+This is how the IMU-TK Xsens files (ASCII, unsigned 16-bit counts) are read.
+
+Lines that are blank or start with ``#`` or ``%`` are skipped, and so are
+non-numeric lines before the first row of numbers (a column header).  Every
+named column must hold finite numbers, sensor values within
+:data:`imucald.files.recording.PLAUSIBLE_LIMIT` after scaling, and t must not
+decrease; otherwise the one-line error names file:line and the column.  Columns
+named ``-`` are skipped (any number).  The body is parsed in bulk by
+:mod:`imucald.files.tables`.
+"""
+from __future__ import annotations
+
+import math
+import os
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..errors import UserError
+from ..files.recording import (BOM, COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, _open_binary,
+                         read_recording)
+from ..numerics.npstats import median
+from ..files.tables import TableSpec, collect, decode_line, iter_blocks
+from .stillness.poses import POSES_MAGIC, read_poses
+
+__all__ = ["load_input", "read_table"]
+
+_SENSOR = {"ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"}
+
+
+def _first_line(path: str) -> str:
+    with _open_binary(path, UserError) as fh:
+        raw = fh.readline(4096)
+    return raw[len(BOM):].decode("utf-8", errors="replace").rstrip("\r\n") if raw.startswith(BOM) \
+        else raw.decode("utf-8", errors="replace").rstrip("\r\n")
+
+
+def _numeric(parts) -> bool:
+    try:
+        [float(p) for p in parts]
+        return True
+    except ValueError:
+        return False
+
+
+def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
+               nominal_offset: float = 0.0, rate_hz: Optional[float] = None) -> Recording:
+    """A headerless numeric table as a Recording (units after nominal scaling)."""
+    cols = list(columns)
+    bad = [c for c in cols if c not in COLUMNS and c != "-"]
+    if bad:
+        raise UserError(f"--columns: unknown column {bad[0]!r}; allowed {', '.join(COLUMNS)} "
+                        f"(or - to skip one)")
+    named = [c for c in cols if c != "-"]
+    if len(set(named)) != len(named):
+        raise UserError(f"--columns: a column is repeated in {','.join(cols)}")
+    if not math.isfinite(nominal_scale) or nominal_scale == 0:
+        raise UserError(f"--nominal-scale {nominal_scale}: must be a finite, non-zero number "
+                        f"(counts per unit, e.g. 16384)")
+    if not math.isfinite(nominal_offset):
+        raise UserError(f"--nominal-offset {nominal_offset}: must be a finite number "
+                        f"(counts at zero input, e.g. 32768)")
+    if rate_hz is not None and not (0 < rate_hz < math.inf):
+        raise UserError(f"--rate-hz {rate_hz}: must be a number of samples per second > 0")
+    sensor = [c in _SENSOR for c in cols]
+    centre = [nominal_offset if s else 0.0 for s in sensor]
+    half = [PLAUSIBLE_LIMIT * abs(nominal_scale) if s else (PLAUSIBLE_LIMIT if c == "temp" else np.inf)
+            for s, c in zip(sensor, cols)]
+    spec = TableSpec(path, cols, UserError, comma_only=False, skip="#%", centre=centre,
+                     halfwidth=half, tcol=cols.index("t") if "t" in cols else None,
+                     checked=[c != "-" for c in cols],
+                     limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
+    with _open_binary(path, UserError) as fh:
+        lineno, offset = 1, 0
+        if fh.read(len(BOM)) == BOM:        # a UTF-8 byte-order mark: skipped
+            offset = len(BOM)
+        fh.seek(offset)
+        while True:             # skip blank, comment and header lines before the first numbers
+            raw = fh.readline(1 << 16)
+            if lineno > 1000 or (len(raw) >= 1 << 16 and not raw.endswith(b"\n")):
+                raise UserError(f"{path}:{lineno}: no row of {len(cols)} numbers in the first "
+                                f"{lineno} lines: not a numeric table ({','.join(cols)})")
+            if not raw:
+                raise UserError(f"{path}: no numeric rows (expected {len(cols)} numbers per line: "
+                                f"{','.join(cols)})")
+            s = decode_line(path, raw, lineno, offset).strip()
+            if s and s[0] not in "#%" and _numeric(s.replace(",", " ").split()):
+                fh.seek(offset)
+                break
+            lineno, offset = lineno + 1, offset + len(raw)
+        idx = {name: i for i, name in enumerate(cols) if name != "-"}
+        groups = [(k, [idx[k]]) for k in ("t", "temp") if k in idx]
+        for g, ks in (("acc", ["ax", "ay", "az"]), ("gyro", ["gx", "gy", "gz"]), ("mag", ["mx", "my", "mz"])):
+            if all(k in idx for k in ks):
+                groups.append((g, [idx[k] for k in ks]))
+        n, c = collect(iter_blocks(fh, spec, lineno, offset), groups, fh, offset)
+    if not n:
+        raise UserError(f"{path}: no whole numeric rows (expected {len(cols)} numbers per line: "
+                        f"{','.join(cols)})")
+    for g in ("acc", "gyro", "mag"):
+        if g in c:
+            c[g] -= nominal_offset
+            c[g] /= nominal_scale
+    if "t" in c:
+        t = c["t"]
+        dt = np.diff(t)
+        dt = dt[dt > 0]
+        if not rate_hz and not len(dt):
+            raise UserError(f"{path}: t never advances, so the sample rate is unknown: give --rate-hz")
+        rate = rate_hz or 1.0 / float(median(dt))
+    else:
+        if not rate_hz:
+            raise UserError(f"{path}: no t column: give --rate-hz")
+        rate = rate_hz
+        t = np.arange(n) / rate
+    meta = {"board": "unknown", "rate_hz": f"{rate:g}", "source": os.path.basename(path)}
+    return Recording(t=t, acc=c.get("acc"), gyro=c.get("gyro"), mag=c.get("mag"),
+                     temp=c.get("temp"), meta=meta)
+
+
+def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: float = 1.0,
+               nominal_offset: float = 0.0, rate_hz: Optional[float] = None):
+    """Return (kind, obj): ('recording', Recording) or ('poses', PoseSet)."""
+    first = _first_line(path)
+    if first == MAGIC:
+        return "recording", read_recording(path)
+    if first.strip() == POSES_MAGIC:
+        return "poses", read_poses(path)
+    if first.startswith("# imucald"):
+        raise UserError(f"{path}:1: unsupported imucald file {first!r} "
+                        f"(this version reads {MAGIC!r} and {POSES_MAGIC!r})")
+    if columns is None:
+        raise UserError(f"{path}: not an imucald recording or pose file; for a raw numeric "
+                        f"table name its columns, e.g. --columns t,ax,ay,az")
+    return "recording", read_table(path, columns, nominal_scale, nominal_offset, rate_hz)

@@ -1,0 +1,505 @@
+"""Magnetometer calibration from rotation alone (no still poses, no accelerometer).
+
+Hard and soft iron come from turning the sensor: the raw readings of a fixed
+field lie on an ellipsoid, m = W^-1 h + v with |h| = F.  This module takes the
+raw cloud (a recording's mx, my, mz, or the daemon's reservoir), thins it over
+the sphere with the daemon's own :class:`SphereReservoir` (so the still start of
+a recording or a slow sweep does not dominate), and fits the same hard + soft iron
+model, with the same CRLB and held-out machinery, as the accelerometer-paired
+path (:func:`imucald.fitting.fit.fit_norm`).
+
+What the cloud can determine is said, not assumed:
+
+* coverage: the fraction of direction cells (Fibonacci lattice) the corrected
+  cloud reaches, and the eigenvalues of the scatter (covariance) of its unit
+  directions (1/3 each for the whole sphere; one near 0 for a swing in one plane);
+* a swing in one plane (the out-of-plane spread of the raw cloud is within
+  ``FLAT_K`` noise standard deviations) leaves the axis normal to the plane
+  undetermined: then no 3-D calibration is returned, only the plane, its normal
+  and the ring's centre in the plane;
+* a cloud that spans three dimensions can still leave terms undetermined: a cap of
+  the sphere (the sensor tilted a little, never rolled over), a planar turn with a
+  wobble, or a sensor carried about without turning (the field's spatial changes then
+  make a small blob that an ellipsoid fits as a tiny sphere).  Each hard-iron
+  component and soft-iron term counts as determined only when its standard error
+  (the fit's covariance: the Cramer-Rao bound at the per-point noise, scaled up by
+  the excess scatter when the residuals reject that noise) is within
+  ``HARD_IRON_SE_MAX`` of the fitted field (hard iron) or ``SOFT_IRON_SE_MAX``
+  (soft-iron terms, W normalised to det 1), and not on a search bound.  2 % is about
+  a degree of heading error at one standard error.  That bound is a linearisation: it
+  holds only when the field directions spread in every plane, so first the corrected
+  cloud's direction scatter must have its smallest eigenvalue at least
+  ``MIN_DIRECTION_EIG`` (1/3 for the whole sphere; 0.02 is a cap of about 60 degrees
+  about the mean direction, a quarter of the sphere), else every term is undetermined:
+  on simulated caps of 45-60 degrees and planar turns with a 10 degree wobble, terms
+  whose standard error passed had errors 40-50x the limit.  Otherwise no calibration
+  is returned either: what is undetermined, how much of the sphere the field
+  directions reached and which sensor axes never pointed along the field.  The
+  rule's error rates on simulated partial rotations and its decisions on the real
+  BROAD trials: bench/mag_determination.py, docs/guide/magnetometer.md.
+
+Noise per sample comes from second differences of the time series (robust: a
+smooth hand rotation contributes little to them at 10-200 Hz).
+"""
+from __future__ import annotations
+
+from typing import Any, Dict, List, Optional, Tuple
+
+import numpy as np
+
+from .judging.coverage import sphere_lattice
+from .fit import FitResult, fit_norm
+from .models.mag import MagModel
+from .models.registry import get_model
+from .solvers.lsq import sphere_fit
+from .judging.uncertainty import residual_variance
+from ..numerics.npstats import median
+
+__all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage", "undetermined_terms",
+           "missing_axes", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
+           "SOFT_IRON_SE_MAX", "MIN_DIRECTION_EIG"]
+
+#: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
+#: along the plane normal is flat: the normal axis is not determined (3 sigma)
+FLAT_K = 3.0
+#: rows a SphereReservoir queues before binning them
+QUEUE_ROWS = 64
+#: a hard-iron component is determined when its standard error is at most this fraction
+#: of the fitted field (module doc)
+HARD_IRON_SE_MAX = 0.02
+#: a soft-iron term (W normalised to det 1, dimensionless) is determined when its
+#: standard error is at most this
+SOFT_IRON_SE_MAX = 0.02
+#: smallest eigenvalue of the corrected unit directions' scatter for the standard errors
+#: to be trusted at all (module doc)
+MIN_DIRECTION_EIG = 0.02
+SOFT_NAMES = ("soft_iron_xx", "soft_iron_yy", "soft_iron_zz", "soft_iron_xy", "soft_iron_xz",
+              "soft_iron_yz")
+HARD_NAMES = ("hard_iron_x", "hard_iron_y", "hard_iron_z")
+
+
+class SphereReservoir:
+    """Magnetometer samples thinned over the sphere: at most ``per_cell`` in each of
+    ``cells`` direction cells (about a running centre), so no region dominates.
+    Newer samples replace older ones in a full cell.  Used by the daemon (fed as
+    samples arrive), by the offline rotation calibration (fed a whole recording) and by
+    the gap diagnosis, which passes ``tags`` (e.g. sample indices) to find each kept
+    point's time, temperature and orientation (:meth:`tags`)."""
+
+    def __init__(self, cells: int = 200, per_cell: int = 5):
+        self.P = sphere_lattice(cells)
+        self.per_cell = per_cell
+        self.buf = np.full((cells, per_cell, 3), np.nan)
+        self.tag = np.full((cells, per_cell), -1, np.int64)
+        self.count = np.zeros(cells, int)
+        self.centre: Optional[np.ndarray] = None
+        self._seen = 0
+        self._pending: List[np.ndarray] = []
+        self._pending_tags: List[np.ndarray] = []
+        # add() only queues (a daemon adds one or two readings a batch); the queue is worked
+        # off in bulk, with the same result as adding each batch at once (see _flush)
+        self._queue: List[Tuple[np.ndarray, Optional[np.ndarray]]] = []
+        self._queued = 0
+
+    @property
+    def seen(self) -> int:
+        """Finite samples added so far."""
+        self._flush()
+        return self._seen
+
+    def add(self, m: np.ndarray, tags: Optional[np.ndarray] = None) -> None:
+        m = np.asarray(m, float).reshape(-1, 3)
+        if len(m):
+            self._queue.append((m, None if tags is None else np.asarray(tags, np.int64).reshape(-1)))
+            self._queued += len(m)
+            if self._queued >= QUEUE_ROWS:
+                self._flush()
+
+    def _flush(self) -> None:
+        """Work off the queue as if each queued batch had been added on its own: the first
+        centre is fitted at the first batch that brings 50 spread samples, and the points are
+        re-binned after the batch that doubles the samples seen; between those events the
+        centre is fixed, so binning the batches together gives the same reservoir."""
+        if not self._queue:
+            return
+        q, self._queue, self._queued = self._queue, [], 0
+        ms = [m for m, _ in q]
+        M = ms[0] if len(q) == 1 else np.concatenate(ms)
+        T = np.concatenate([np.full(len(m), -1, np.int64) if t is None else t for m, t in q])
+        ok = np.all(np.isfinite(M), axis=1)
+        ends = np.cumsum([len(m) for m in ms])
+        kept = np.cumsum(ok)[ends - 1]                      # finite rows up to each batch's end
+        i = 0
+        while i < len(q):
+            lo = ends[i - 1] if i else 0
+            if self.centre is None:                          # rare: the first samples
+                ok_i = ok[lo:ends[i]]
+                self._add_one(M[lo:ends[i]][ok_i], T[lo:ends[i]][ok_i])
+                i += 1
+                continue
+            base = self._seen - (int(kept[i - 1]) if i else 0)
+            hit = np.flatnonzero(base + kept[i:] >= self._next_recentre)
+            j = int(hit[0]) + i if len(hit) else len(q) - 1
+            hi = ends[j]
+            self._bin(M[lo:hi][ok[lo:hi]], T[lo:hi][ok[lo:hi]])
+            self._seen = int(base + kept[j])
+            if self._seen >= self._next_recentre:    # 2x, 4x, 8x ... the first centre's samples
+                self._next_recentre = 2 * self._seen
+                self.recentre()
+            i = j + 1
+
+    def _add_one(self, m: np.ndarray, tg: np.ndarray) -> None:
+        """One batch of finite samples (m, their tags), binned at once."""
+        if not len(m):
+            return
+        self._seen += len(m)
+        if self.centre is None:
+            self._pending.append(m)
+            self._pending_tags.append(tg)
+            pts = np.vstack(self._pending)
+            if len(pts) < 50 or np.ptp(pts, axis=0).min() < 1e-3:
+                return
+            self.centre, _ = sphere_fit(pts)
+            tg = np.concatenate(self._pending_tags)
+            self._pending, self._pending_tags = [], []
+            m = pts
+            self._next_recentre = 2 * len(pts)
+        self._bin(m, tg)
+        if self._seen >= self._next_recentre:      # 2x, 4x, 8x ... the first centre's samples
+            self._next_recentre = 2 * self._seen
+            self.recentre()
+
+    def _bin(self, m: np.ndarray, tags: Optional[np.ndarray] = None) -> None:
+        d = m - self.centre
+        cell = np.argmax(d @ self.P.T, axis=1)
+        tags = np.full(len(m), -1, np.int64) if tags is None else tags
+        for c, x, tg in zip(cell, m, tags):
+            k = self.count[c] % self.per_cell
+            self.buf[c, k] = x
+            self.tag[c, k] = tg
+            self.count[c] += 1
+
+    def points(self) -> np.ndarray:
+        self._flush()
+        return self.buf[~np.isnan(self.buf[..., 0])]
+
+    def tags(self) -> np.ndarray:
+        """The tag of each point of :meth:`points`, in the same order (-1: none given)."""
+        self._flush()
+        return self.tag[~np.isnan(self.buf[..., 0])]
+
+    def coverage(self) -> float:
+        """Fraction of direction cells the kept points reach about *their* sphere fit (the
+        running centre, fixed early from a small arc, can be far off)."""
+        pts = self.points()
+        if len(pts) < 20:
+            return float((self.count > 0).mean())
+        c, _ = sphere_fit(pts)
+        d = pts - c
+        return float(len(np.unique(np.argmax(d @ self.P.T, axis=1))) / len(self.P))
+
+    def recentre(self) -> None:
+        """Refit the centre to the kept points and re-bin them about it."""
+        pts, tg = self.points(), self.tags()
+        if len(pts) >= 20:
+            self.centre, _ = sphere_fit(pts)
+            self.buf[:] = np.nan
+            self.tag[:] = -1
+            self.count[:] = 0
+            self._bin(pts, tg)
+
+
+def sample_noise(m: np.ndarray) -> np.ndarray:
+    """Per-axis white-noise standard deviation (sensor units) of a time series
+    (N, 3): robust scale (1.4826 MAD) of second differences / sqrt(6)."""
+    m = np.asarray(m, float)
+    d2 = np.diff(m, 2, axis=0)
+    d2 = d2[np.all(np.isfinite(d2), axis=1)]
+    if len(d2) < 10:
+        return np.full(3, np.nan)
+    mad = median(np.abs(d2 - median(d2, axis=0)), axis=0)
+    sd = 1.4826 * mad / np.sqrt(6.0)
+    # noise below one count: most second differences are 0 and the MAD with them; the
+    # plain standard deviation still sees the quantisation
+    return np.where(sd > 0, sd, d2.std(axis=0) / np.sqrt(6.0))
+
+
+def flat_axis(points: np.ndarray, noise: np.ndarray, k: float = FLAT_K) -> Optional[Dict[str, Any]]:
+    """The plane of a one-plane swing, or None when the cloud spans three dimensions.
+
+    Flat when the raw cloud's standard deviation along its least-spread principal
+    axis is below ``k`` times the noise's along that axis; ``rank`` counts the axes
+    along which it does spread (2: one plane; 0 or 1: the sensor was hardly turned)."""
+    x = np.asarray(points, float)
+    c = x.mean(0)
+    ev, V = np.linalg.eigh(np.cov((x - c).T))
+    S = np.diag(np.asarray(noise, float) ** 2)
+    sd_axes = np.sqrt(np.clip(ev, 0, None))
+    sd_noise_axes = np.sqrt(np.einsum("ij,ik,kj->j", V, S, V))
+    # principal axes along which the cloud spreads beyond the noise: 3 = turned in 3-D,
+    # 2 = one plane, 0-1 = hardly turned at all
+    rank = int(np.sum(sd_axes >= k * sd_noise_axes))
+    n = V[:, 0]
+    sd_out, sd_noise = float(sd_axes[0]), float(sd_noise_axes[0])
+    if rank == 3 or not np.all(np.isfinite(sd_noise_axes)):
+        return None
+    # the ring in the plane: algebraic conic fit A u^2 + B uv + C v^2 + D u + E v = 1
+    e1, e2 = V[:, 2], V[:, 1]
+    u, v = (x - c) @ e1, (x - c) @ e2
+    s = max(np.std(u), np.std(v), 1e-300)
+    u, v = u / s, v / s
+    D = np.column_stack([u * u, u * v, v * v, u, v])
+    sol, *_ = np.linalg.lstsq(D, np.ones(len(u)), rcond=None)
+    M = np.array([[2 * sol[0], sol[1]], [sol[1], 2 * sol[2]]])
+    try:
+        u0, v0 = np.linalg.solve(M, -sol[3:5]) * s
+    except np.linalg.LinAlgError:
+        u0 = v0 = 0.0
+    return {"normal": (n * np.sign(n[np.argmax(np.abs(n))])).tolist(), "rank": rank,
+            "out_of_plane_std": sd_out, "noise_std_along_normal": sd_noise,
+            "ring_centre": (c + u0 * e1 + v0 * e2).tolist()}
+
+
+def coverage(model: MagModel, theta: np.ndarray, points: np.ndarray, cells: int = 200
+             ) -> Dict[str, Any]:
+    """How much of the sphere the corrected cloud spans: fraction of direction cells
+    reached, and the eigenvalues (descending) and axes of the covariance of the
+    corrected unit directions (1/3 each for a full sphere)."""
+    h = model.forward(theta, np.asarray(points, float))
+    d = h / np.linalg.norm(h, axis=1, keepdims=True)
+    P = sphere_lattice(cells)
+    reached = np.unique(np.argmax(d @ P.T, axis=1))
+    ev, V = np.linalg.eigh(np.cov(d.T))
+    order = np.argsort(ev)[::-1]
+    return {"fraction": float(len(reached) / cells), "cells": cells,
+            "direction_eigenvalues": [float(x) for x in ev[order]],
+            "least_spread_axis": V[:, order[-1]].tolist()}
+
+
+def undetermined_terms(cal: FitResult, min_direction_eig: float = np.inf) -> List[Dict[str, Any]]:
+    """The hard-iron components and soft-iron terms a rotation fit does not determine
+    (module doc: every term when the direction scatter's smallest eigenvalue
+    ``min_direction_eig`` is below ``MIN_DIRECTION_EIG``, reason "coverage"; else each
+    whose standard error is above ``HARD_IRON_SE_MAX`` of the field or above
+    ``SOFT_IRON_SE_MAX``, reason "stderr", or on a search bound): one dict each (name,
+    stderr, limit, reason).  The terms a model holds fixed (mag_diag's off-diagonal,
+    mag_sphere's shape) have standard error 0 and are listed only for coverage."""
+    F = float(cal.params["field_gauss"])
+    if not min_direction_eig >= MIN_DIRECTION_EIG:
+        hi = np.asarray(cal.stderr.get("hard_iron_gauss", [np.inf] * 3), float)
+        si = np.asarray(cal.stderr.get("soft_iron", [np.inf] * 6), float)
+        return ([{"name": n, "stderr": float(hi[k]), "limit": HARD_IRON_SE_MAX * abs(F), "unit": "gauss",
+                  "reason": "coverage"} for k, n in enumerate(HARD_NAMES)]
+                + [{"name": n, "stderr": float(si[k]), "limit": SOFT_IRON_SE_MAX, "unit": "",
+                    "reason": "coverage"} for k, n in enumerate(SOFT_NAMES)])
+    hi = np.asarray(cal.stderr.get("hard_iron_gauss", [np.inf] * 3), float)
+    si = np.asarray(cal.stderr.get("soft_iron", [np.inf] * 6), float)
+    bound = {f["name"] for f in cal.uncertainty.flags if "at_bound" in f["reason"]}
+    out: List[Dict[str, Any]] = []
+    for k, name in enumerate(HARD_NAMES):
+        lim = HARD_IRON_SE_MAX * abs(F)
+        if not hi[k] <= lim or f"{name}_gauss" in bound:
+            out.append({"name": name, "stderr": float(hi[k]), "limit": lim, "unit": "gauss",
+                        "reason": "at_bound" if hi[k] <= lim else "stderr"})
+    for k, name in enumerate(SOFT_NAMES):
+        if not si[k] <= SOFT_IRON_SE_MAX:
+            out.append({"name": name, "stderr": float(si[k]), "limit": SOFT_IRON_SE_MAX, "unit": "",
+                        "reason": "stderr"})
+    return out
+
+
+def missing_axes(model: MagModel, theta: np.ndarray, points: np.ndarray,
+                 cover_angle_deg: float = 30.0) -> List[str]:
+    """The sensor axes (+X, -X, ... faces of a cube, then edges) the field direction never
+    came within ``cover_angle_deg`` of, in the corrected cloud: where to turn the sensor."""
+    from .judging.coverage import cube_coverage
+    h = model.forward(theta, np.asarray(points, float))
+    d = h / np.linalg.norm(h, axis=1, keepdims=True)
+    miss = cube_coverage(d, cover_angle_deg)["missing"]
+    return [m.replace(" up", "") for m in miss]
+
+
+def rel_std(norms: np.ndarray) -> float:
+    """Relative standard deviation of a field norm: std / mean."""
+    n = np.asarray(norms, float)
+    return float(np.std(n) / np.mean(n))
+
+
+def _fit(model, points, noise, method, rng, heldout=True) -> FitResult:
+    cov = np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (len(points), 3, 3))
+    return fit_norm(points, model, method, pose_cov=cov, rng=rng, heldout=heldout)
+
+
+def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "lm",
+                       holdout_fraction: float = 0.3, rng=None, noise: Optional[np.ndarray] = None,
+                       cells: int = 200, per_cell: int = 5, temp_c: Optional[np.ndarray] = None,
+                       thermal_min_span_c: float = 10.0) -> Dict[str, Any]:
+    """Hard + soft iron from a rotation time series ``mag`` (N, 3), in time order.
+
+    Returns a dict: ``determined`` (False for a one-plane swing, with ``flat``
+    describing the plane), ``calibration`` (a :class:`FitResult` fitted on the
+    whole thinned cloud), ``coverage``, ``noise`` (per-axis, sensor units),
+    ``norm_rel_std`` (corrected norm over every sample), ``predicted_rel_std``
+    (what the noise alone would give), and ``heldout``: the calibration fitted on
+    the first ``1 - holdout_fraction`` of the samples in time and tested on the
+    rest (relative std of the corrected norm there).  With ``temp_c`` (N,) degC: also
+    ``thermal``, the hard iron's temperature polynomial (fitting/thermal/terms.py) on the thinned
+    cloud, each point at its own temperature (order 0 below ``thermal_min_span_c``).
+    """
+    mag = np.asarray(mag, float)
+    keep = np.all(np.isfinite(mag), axis=1)
+    # a board that samples faster than its magnetometer holds the last reading: keep
+    # each reading once (repeats would fake a zero noise and weigh one direction more)
+    if keep.sum() > 1:
+        ix = np.flatnonzero(keep)
+        keep[ix[1:]] &= np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
+    mag = mag[keep]
+    temp = None if temp_c is None else np.asarray(temp_c, float)[keep]
+    mdl = get_model(model)
+    if not isinstance(mdl, MagModel):
+        raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")
+    sigma = sample_noise(mag) if noise is None else np.asarray(noise, float)
+    res = SphereReservoir(cells, per_cell)
+    res.add(mag, np.arange(len(mag)))
+    pts = res.points()
+    out: Dict[str, Any] = {"samples": int(len(mag)), "points": int(len(pts)),
+                           "noise": sigma.tolist()}
+    if len(pts) <= int(mdl.free_mask.sum()):
+        from ..errors import UserError
+        raise UserError(f"{len(mag)} magnetometer samples reach only {len(pts)} direction cells: "
+                        f"rotate the sensor through many orientations")
+    flat = flat_axis(pts, sigma)
+    if flat is not None:
+        out.update(determined=False, flat=flat)
+        return out
+    cal = _fit(mdl, pts, sigma, method, rng)
+    cal.noise_source = "second differences"
+    out["coverage"] = coverage(mdl, cal.theta, pts, cells)
+    und = undetermined_terms(cal, out["coverage"]["direction_eigenvalues"][-1])
+    if und:
+        # the fit is kept for the report only ("rejected_fit"): a file from it would be wrong
+        out.update(determined=False, undetermined=und, rejected_fit=cal,
+                   field_gauss=float(cal.params["field_gauss"]),
+                   missing_axes=missing_axes(mdl, cal.theta, pts))
+        return out
+    out["determined"] = True
+    out["calibration"] = cal
+    hn = np.linalg.norm(mdl.forward(cal.theta, mag), axis=1)
+    out["norm_rel_std"] = rel_std(hn)
+    var = residual_variance(mdl, cal.theta, pts, np.broadcast_to(np.diag(sigma ** 2), (len(pts), 3, 3)))
+    out["predicted_rel_std"] = float(np.sqrt(np.mean(var)))
+    if temp is not None and np.all(np.isfinite(temp[res.tags()])):
+        from .thermal.terms import fit_norm_thermal
+        out["thermal"] = fit_norm_thermal(mdl, pts, var, temp[res.tags()], cal.theta, None,
+                                          thermal_min_span_c, scale=False, rng=rng)
+    k = int(round(len(mag) * (1 - holdout_fraction)))
+    if 0 < k < len(mag):
+        r_tr = SphereReservoir(cells, per_cell)
+        r_tr.add(mag[:k])
+        p_tr = r_tr.points()
+        if len(p_tr) > int(mdl.free_mask.sum()) and flat_axis(p_tr, sigma) is None:
+            c_tr = _fit(mdl, p_tr, sigma, "lm", rng, heldout=False)
+            out["heldout"] = {
+                "train_samples": k, "test_samples": int(len(mag) - k),
+                "norm_rel_std": rel_std(np.linalg.norm(mdl.forward(c_tr.theta, mag[k:]), axis=1)),
+                "train_coverage": coverage(mdl, c_tr.theta, p_tr, cells)["fraction"]}
+        else:
+            out["heldout"] = {"train_samples": k, "note": "the first part of the rotation alone "
+                              "does not span three dimensions: no held-out figure"}
+    return out
+
+
+def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:
+    """The JSON object ``imucald calibrate --sensor mag`` prints for a rotation fit."""
+    d: Dict[str, Any] = {"sensor": "mag", "input": "rotation", "determined": bool(res["determined"]),
+                         "samples": res["samples"], "points": res["points"], "noise_gauss": res["noise"]}
+    if not res["determined"] and "undetermined" in res:
+        cal = res["rejected_fit"]
+        d["undetermined"] = res["undetermined"]
+        d["missing_axes"] = res["missing_axes"]
+        d["coverage"] = res["coverage"]
+        d["rejected_fit"] = {"params": cal.params, "stderr": cal.stderr, "model": cal.model}
+        return d
+    if not res["determined"]:
+        f = res["flat"]
+        d["undetermined_axis"] = f["normal"]
+        d["flat"] = {"out_of_plane_std_gauss": f["out_of_plane_std"],
+                     "noise_std_along_normal_gauss": f["noise_std_along_normal"],
+                     "ring_centre_gauss": f["ring_centre"]}
+        return d
+    d.update(res["calibration"].to_json())
+    d["input"] = "rotation"
+    d["coverage"] = res["coverage"]
+    d["norm_rel_std"] = res["norm_rel_std"]
+    d["predicted_rel_std"] = res["predicted_rel_std"]
+    if "heldout" in res:
+        d["heldout_time_split"] = res["heldout"]
+    return d
+
+
+def flat_message(res: Dict[str, Any]) -> str:
+    """One line: why the rotation determines no calibration and what to record."""
+    if "undetermined" in res:
+        return undetermined_message(res)
+    f = res["flat"]
+    if f.get("rank", 2) < 2:
+        return ("the magnetometer was hardly turned (its readings spread no more than its noise "
+                "in at least two directions): nothing is determined; turn the sensor through every "
+                "orientation and record again")
+    n = ", ".join(f"{x:+.3f}" for x in f["normal"])
+    return (f"the rotation stayed in one plane (normal [{n}] in sensor axes: spread across it "
+            f"{f['out_of_plane_std']:.4g} vs noise {f['noise_std_along_normal']:.4g}): hard and soft "
+            f"iron along that axis are not determined, so no calibration is given; tilt the sensor "
+            f"onto another face and keep turning it (in-plane ring centre: "
+            f"[{', '.join(f'{x:.6g}' for x in f['ring_centre'])}])")
+
+
+def undetermined_message(res: Dict[str, Any]) -> str:
+    """One line for a cloud that leaves terms undetermined (module doc): what, why, and
+    which sensor axes never pointed along the field."""
+    und = res["undetermined"]
+    c = res["coverage"]
+    if und[0]["reason"] == "coverage":
+        ax = ", ".join(f"{x:+.2f}" for x in c["least_spread_axis"])
+        what = (f"hard and soft iron: the field directions hardly spread along [{ax}] (direction "
+                f"scatter eigenvalue {c['direction_eigenvalues'][-1]:.3f}; the rule needs "
+                f"{MIN_DIRECTION_EIG:g}, the whole sphere gives 1/3)")
+    else:
+        F = abs(float(res["field_gauss"]))
+        hard = [u for u in und if u["name"].startswith("hard")]
+        soft = [u for u in und if u["name"].startswith("soft")]
+        parts = []
+        if hard:
+            worst = max(u["stderr"] for u in hard)
+            parts.append(f"hard iron {','.join(u['name'][-1] for u in hard)} (standard error up to "
+                         f"{worst / F:.0%} of the field, the rule needs {HARD_IRON_SE_MAX:.0%})")
+        if soft:
+            worst = max(u["stderr"] for u in soft)
+            parts.append(f"soft iron {','.join(u['name'].split('_')[-1] for u in soft)} (standard "
+                         f"error up to {worst:.2g}, the rule needs {SOFT_IRON_SE_MAX:g})")
+        what = " and ".join(parts)
+    miss = res.get("missing_axes") or []
+    faces = [m for m in miss if len(m) == 2] or miss[:4]
+    toward = (f"; the field never came near the sensor's {', '.join(faces)} axes: turn the sensor "
+              f"so that each of those in turn points along the field (north, dipping down)") if faces else ""
+    return (f"the rotation does not determine {what}; the field directions reached "
+            f"{c['fraction']:.0%} of the sphere{toward}; no calibration is given: turn the sensor "
+            f"through every orientation (roll it over each face, not only round in one plane) "
+            f"and record again")
+
+
+def rotation_lines(res: Dict[str, Any]) -> List[str]:
+    """Text lines for coverage, corrected-norm spread and the held-out figure."""
+    c = res["coverage"]
+    ev = ", ".join(f"{x:.3f}" for x in c["direction_eigenvalues"])
+    out = [f"  coverage: {c['fraction']:.0%} of {c['cells']} direction cells; direction scatter "
+           f"eigenvalues [{ev}] (1/3 each for the whole sphere)",
+           f"  corrected |h| relative std {res['norm_rel_std']:.4f} over {res['samples']} samples "
+           f"(noise alone would give {res['predicted_rel_std']:.4f})"]
+    h = res.get("heldout")
+    if h and "norm_rel_std" in h:
+        out.append(f"  held out in time: fitted on the first {h['train_samples']} samples, "
+                   f"relative std {h['norm_rel_std']:.4f} on the last {h['test_samples']}")
+    elif h:
+        out.append(f"  held out in time: {h['note']}")
+    return out

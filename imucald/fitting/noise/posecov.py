@@ -1,0 +1,261 @@
+"""The variance of a pose mean from the recording's own within-pose statistics: hand
+tremor and short-correlated coloured noise included (issue 25 item 1 for the gap twin;
+the calibration's pose covariance since issue 20's check).
+
+A pose mean over n samples is Theta(n) / n, with Theta the running sum of the readings.
+Its variance is D(n) / n^2, where D(tau) = E[(Theta(t + tau) - Theta(t))^2] is the
+structure function of the running sum.  White noise of variance s^2 gives D = s^2 tau
+(the familiar s^2 / n); hand tremor (a band-limited oscillation at 4-12 Hz, no power near
+0 Hz) gives a D that stops growing after a fraction of a second: its running sum is
+bounded, and the pose mean holds only the end effect 2 var(int tremor) / n^2.  Taking the
+per-sample variance over n (s^2 / n) instead overstates a tremor-filled pose mean (the
+gap twin was "pessimistic under tremor": ratio 0.17 on hand-held sessions; calibrate's
+standard errors were 2x too wide: z-score RMS 0.47 on simulated hand-held sessions at
+3 deg/s).  Noise correlated over a short time (e.g. a low-pass filtered drift, an AR(1)
+process of 0.2 s) gives D = a + b tau with b above s^2: the pose mean is noisier than
+s^2 / n (z-score RMS 1.8 before).
+
+Model, per axis, for lags beyond the tremor's (or the colour's) correlation time:
+D(tau) = a + b tau (a: bounded part, b: white part).  Inside a pose only the running sum
+of the readings minus the pose's own mean is seen (a bridge); for the model above its
+increments have E = a (1 + tau^2 / n^2) + b tau (1 - tau / n) (derivation: the covariance
+of an inner increment with Theta(n) is b tau).  a, b >= 0 are fitted by least squares to
+the pooled increments at tau = n/8 .. n/2 of every pose, and each pose mean's variance
+is (a + b n) / n^2.  Noise whose structure keeps growing faster than tau over the pose
+(flicker, random walk) is beyond this model: fitting/noise/colour.py's Allan inflation is for it.
+
+The white part b is kept only where it is clear of twice its jackknife error or where
+the bounded part does not dominate (the estimate at least a quarter of the white figure):
+b >= 0 clipped from noise is biased upwards and b n dominates the extrapolation; there
+the unconstrained least-squares split (unbiased, either sign) is used instead.
+
+Decision (stated error rate): the estimate replaces the white one (s^2 / n) only when it
+differs from it beyond twice its jackknife standard error over poses: below it
+(``two_sided`` False, the gap twin: one-sided ~2 %), or either way (the calibration:
+~5 % of white-noise axes take the estimate, which is then near the white figure
+anyway); otherwise the white figure stands.  Measured by bench/calib_se.py (z-scores of
+calibrate's parameters against the simulator's truth, docs/guide/hand-held.md).
+"""
+from __future__ import annotations
+
+from typing import Dict, List, Sequence, Tuple
+
+import numpy as np
+
+__all__ = ["pose_mean_variance", "pose_mean_variance_parts", "pose_mean_variance_stats", "pose_sf_rows",
+           "scale_pose_cov", "scale_pose_cov_stats", "allan_still_needed", "FRACTIONS", "MIN_SAMPLES",
+           "MIN_POSES"]
+
+FRACTIONS = (0.125, 0.1875, 0.25, 0.375, 0.5)    #: lags as fractions of the pose length
+MIN_SAMPLES = 16                                 #: shortest pose whose increments count
+MIN_POSES = 5                                    #: fewest such poses for an estimate
+MAX_HOLDS = 8                                    #: holds a refined daemon pose keeps
+
+
+def pose_sf_rows(x: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """Design rows (len(FRACTIONS), 2) and observed mean squared increments (len, C) of one
+    pose's samples x (n, C): the structure function of its bridge (module doc)."""
+    x = np.asarray(x, float)
+    n = len(x)
+    # means as sum / count: numpy's mean(axis=0) bit for bit, without its wrapper (called
+    # for every pose twice, and 5 lags each)
+    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x - x.sum(0) / n, axis=0)])
+    rows, obs = [], []
+    for f in FRACTIONS:
+        tau = max(1, int(round(f * n)))
+        d = c[tau:] - c[:-tau]
+        rows.append([1 + (tau / n) ** 2, tau * (1 - tau / n)])
+        obs.append((d * d).sum(0) / len(d))
+    return np.array(rows), np.array(obs)
+
+
+def _nnls2(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """min |A z - y| with z >= 0 for two columns (closed form over the active sets)."""
+    best, bz = np.inf, np.zeros(2)
+    cands = []
+    z = np.linalg.lstsq(A, y, rcond=None)[0]
+    cands.append(z)
+    for j in (0, 1):
+        zz = np.zeros(2)
+        a = A[:, j]
+        zz[j] = max(float(a @ y) / max(float(a @ a), 1e-300), 0.0)
+        cands.append(zz)
+    for z in cands:
+        if np.all(z >= 0):
+            r = float(np.sum((A @ z - y) ** 2))
+            if r < best:
+                best, bz = r, z
+    return bz
+
+
+def _fit(rows, obs, ns, idx, white=True):
+    """a, b per axis from poses ``idx`` (``white`` False: b = 0); each pose's rows scaled by
+    1/n (its increments' scale grows with n).  ``rows`` (E, L, 2) and ``obs`` (E, L, C)
+    stacked: the poses' scaled rows gathered by one indexing, the same numbers in the same
+    order as stacking them pose by pose (which was ~80 % of the jackknife's time)."""
+    C = obs.shape[2]
+    idx = np.asarray(idx, dtype=np.intp)
+    sc = ns[idx][:, None, None]
+    A = (rows[idx] / sc).reshape(-1, rows.shape[2])
+    Y = obs[idx] / sc
+    out = np.zeros((2, C))
+    for j in range(C):
+        y = Y[:, :, j].reshape(-1)
+        if white == "b":              # the white part alone (a = 0)
+            b = A[:, 1]
+            out[1, j] = max(float(b @ y) / float(b @ b), 0.0)
+        elif white == "ls":
+            out[:, j] = np.linalg.lstsq(A, y, rcond=None)[0]
+        elif white:
+            out[:, j] = _nnls2(A, y)
+        else:
+            a = A[:, 0]
+            out[0, j] = max(float(a @ y) / float(a @ a), 0.0)
+    return out
+
+
+def pose_mean_variance(x: np.ndarray, slices: Sequence[slice], two_sided: bool = False
+                       ) -> Tuple[np.ndarray, Dict[str, object]]:
+    """Variance (N, C) of each pose mean of ``x`` (samples, C) over ``slices`` (sensor
+    units squared), and a summary.  Poses shorter than 16 samples get the white figure."""
+    return pose_mean_variance_parts([x[s] for s in slices], two_sided)
+
+
+def pose_mean_variance_parts(parts: List[np.ndarray], two_sided: bool = False
+                             ) -> Tuple[np.ndarray, Dict[str, object]]:
+    """:func:`pose_mean_variance` from each pose's samples (a list of (n_i, C) arrays)."""
+    ns = np.array([len(p) for p in parts], float)
+    C = np.asarray(parts[0]).shape[1] if parts else 1
+    s2 = np.array([np.asarray(p, float).var(0, ddof=1) if len(p) > 1 else np.full(C, np.nan)
+                   for p in parts]).reshape(len(parts), C)
+    sf = [[(len(p),) + pose_sf_rows(p)] if len(p) >= MIN_SAMPLES else [] for p in parts]
+    return pose_mean_variance_stats(ns, s2, sf, two_sided)
+
+
+def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],
+                             two_sided: bool = False) -> Tuple[np.ndarray, Dict[str, object]]:
+    """:func:`pose_mean_variance` from per-pose statistics, for poses whose samples are
+    gone (the daemon keeps these, a few hundred bytes a pose): ``ns`` (N,) samples per
+    pose, ``s2`` (N, C) per-sample variances, ``sf[i]`` the holds averaged into pose i,
+    each (n_k, rows, obs) of :func:`pose_sf_rows` (one for a pose from one hold, several
+    for a pose refined by later holds, none when unknown, e.g. read back from a file).
+    A pose of K holds has variance (K a + b n) / n^2 (independent holds)."""
+    ns = np.asarray(ns, float)
+    s2 = np.asarray(s2, float).reshape(len(ns), -1)
+    C = s2.shape[1]
+    if len(ns) == 0 or not np.isfinite(s2).any():
+        return np.full((len(ns), C), np.nan), {"method": "white", "poses_used": 0}
+    s2_pool = np.nanmedian(s2, axis=0)
+    white = s2_pool[None, :] / ns[:, None]
+    ent = [e for holds in sf for e in holds if e[0] >= MIN_SAMPLES]
+    info: Dict[str, object] = {"method": "white", "poses_used": len(ent)}
+    if len(ent) < MIN_POSES or not np.all(s2_pool > 0):
+        info["note"] = (f"fewer than {MIN_POSES} poses of {MIN_SAMPLES} samples (or a constant "
+                        f"axis): per-sample variance over n")
+        return white, info
+    rows = np.array([e[1] for e in ent], float)         # (E, len(FRACTIONS), 2)
+    obs = np.array([e[2] for e in ent], float)          # (E, len(FRACTIONS), C)
+    hn = np.array([e[0] for e in ent], float)
+    use = list(range(len(ent)))
+    ab = _fit(rows, obs, hn, use)
+    ref = np.median(hn)
+    m = len(use)
+    jk_ab = np.array([_fit(rows, obs, hn, [k for k in use if k != i]) for i in use])     # (m, 2, C)
+    jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
+    # the white part only where it is clear of its jackknife error: a b >= 0 clipped from
+    # noise is biased upwards, and b n dominates the extrapolation to the pose length
+    # (only where the bounded part dominates: the pose mean's variance below a quarter of
+    # the white figure, a tremor-filled gyro; an accelerometer keeps its white part)
+    ratio_ab = (ab[0] + ab[1] * ref) / ref ** 2 / (s2_pool / ref)
+    drop_b = (ab[1] < 2 * jse(jk_ab[:, 1])) & (ratio_ab < 0.25)
+    if drop_b.any():
+        # there the unconstrained least-squares split (unbiased, either sign) replaces it
+        ab0 = _fit(rows, obs, hn, use, white="ls")
+        jk0 = np.array([_fit(rows, obs, hn, [k for k in use if k != i], white="ls") for i in use])
+        ab[:, drop_b] = ab0[:, drop_b]
+        jk_ab[:, :, drop_b] = jk0[:, :, drop_b]
+    est = lambda ab_: (ab_[0] + ab_[1] * ref) / ref ** 2          # (C,) at the median length
+    # jackknife over poses: the standard error of the ratio to the white figure
+    full = est(ab) / (s2_pool / ref)
+    jk = np.array([est(a_) / (s2_pool / ref) for a_ in jk_ab])
+    se = jse(jk)
+    # the white part alone (a = 0), one parameter per axis: unbiased on white noise (1.00 of
+    # white) where the constrained split is not (its clipping picks the bounded part alone
+    # on some white axes: 0.89 of white on average)
+    ab_ls = _fit(rows, obs, hn, use, white="b")
+    jk_ls = np.array([_fit(rows, obs, hn, [k for k in use if k != i], white="b") for i in use])
+    full_ls = est(ab_ls) / (s2_pool / ref)
+    se_ls = jse(np.array([est(a_) / (s2_pool / ref) for a_ in jk_ls]))
+    # clearly below white, per axis: by twice the estimate's jackknife error AND by twice
+    # the white-only fit's error, which is what the estimate scatters by when the noise
+    # is white (a variance's error shrinks with the estimate, so a falsely low estimate
+    # came with a falsely small error: `full + 2 se < 1` alone fired on 8.4 % of white
+    # axes against the rule's 2.3 %, tests/test_gap_blind_calibration.py)
+    lower = (full + 2 * se < 1.0) & (full_ls < 1.0 - 2 * se_ls / np.maximum(full_ls, 1e-12))
+    higher = np.zeros(C, bool)
+    if two_sided:
+        # above white: the white part alone, one parameter per axis: the split into a and b
+        # is ill-conditioned over lags n/8..n/2 (its jackknife error came out as large as
+        # the estimate on AR(1) noise, and most coloured axes stayed white); a
+        # short-correlated colour's negative a biases b low by a few per cent
+        higher = (full_ls - 2 * se_ls > 1.0) & ~lower
+        ab[:, higher] = ab_ls[:, higher]
+        full[higher], se[higher] = full_ls[higher], se_ls[higher]
+    # each pose's number of holds (one, unless a daemon refined it; a daemon keeps the
+    # longest MAX_HOLDS: the others are counted at the kept ones' mean length)
+    K = np.array([n / np.mean([e[0] for e in holds]) if len(holds) else 1.0 for holds, n in zip(sf, ns)])
+    var = white.copy()
+    for j in range(C):
+        if lower[j] or higher[j]:
+            sf_var = (ab[0, j] * K + ab[1, j] * ns) / ns ** 2
+            var[:, j] = np.maximum(sf_var, (1.0 if higher[j] else 1e-3) * white[:, j])
+    info.update({"method": "structure function" if (lower | higher).any() else "white",
+                 "ratio_to_white": np.round(full, 4).tolist(), "ratio_stderr": np.round(se, 4).tolist(),
+                 "bounded_part": ab[0].tolist(), "white_part": ab[1].tolist(),
+                 "axes_below_white": lower.tolist(), "axes_above_white": higher.tolist()})
+    return var, info
+
+
+def scale_pose_cov(parts: List[np.ndarray], cov_mean: np.ndarray
+                   ) -> Tuple[np.ndarray, Dict[str, object]]:
+    """Each pose's covariance of the mean (N, C, C), formed as its own sample covariance
+    over n, rescaled per axis by the structure-function estimate's ratio to the white
+    figure (:func:`pose_mean_variance_parts`, two-sided): S_i cov_i S_i with
+    S_i = diag(sqrt(ratio_i)).  Each pose keeps its own scatter (a disturbed pose stays
+    noisier); the averaging is what changes.  Returns (covariances, summary)."""
+    if len(parts) == 0:
+        return np.asarray(cov_mean, float), {"method": "white", "poses_used": 0}
+    C = np.asarray(parts[0]).shape[1]
+    ns = np.array([len(p) for p in parts], float)
+    s2 = np.array([np.asarray(p, float).var(0, ddof=1) if len(p) > 1 else np.full(C, np.nan)
+                   for p in parts]).reshape(len(parts), C)
+    sf = [[(len(p),) + pose_sf_rows(p)] if len(p) >= MIN_SAMPLES else [] for p in parts]
+    return scale_pose_cov_stats(ns, s2, sf, cov_mean)
+
+
+def scale_pose_cov_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],
+                         cov_mean: np.ndarray) -> Tuple[np.ndarray, Dict[str, object]]:
+    """:func:`scale_pose_cov` from per-pose statistics (:func:`pose_mean_variance_stats`)."""
+    cov_mean = np.asarray(cov_mean, float)
+    if len(ns) == 0:
+        return cov_mean, {"method": "white", "poses_used": 0}
+    var, info = pose_mean_variance_stats(ns, s2, sf, two_sided=True)
+    if info["method"] == "white":
+        return cov_mean, info
+    ns = np.asarray(ns, float)
+    s2_pool = np.nanmedian(np.asarray(s2, float).reshape(len(ns), -1), axis=0)
+    ratio = var / (s2_pool[None, :] / ns[:, None])
+    s = np.sqrt(np.where(np.isfinite(ratio) & (ratio > 0), ratio, 1.0))
+    return cov_mean * s[:, :, None] * s[:, None, :], info
+
+
+def allan_still_needed(noise_info) -> bool:
+    """Whether the Allan colour inflation (fitting/noise/colour.py, read from the longest still
+    stretch) should still multiply covariances formed by :func:`scale_pose_cov`: only
+    when the structure function left every axis at the white figure.  Where it decided,
+    it measured the pose mean's variance at the poses' own length, which is what the
+    Allan inflation estimates too: applied both, the colour would be counted twice (on
+    the IMU-TK Xsens file the product came out at chi-square / dof 1.6 and held-out
+    residuals 1.27x their predicted std; the structure function alone, with the fit's
+    excess-scatter test, 0.95x)."""
+    return not (isinstance(noise_info, dict) and noise_info.get("method") == "structure function")

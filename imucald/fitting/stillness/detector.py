@@ -1,0 +1,672 @@
+"""The one stillness detector (streaming; the batch call in fitting.stillness.poses runs it over a whole file).
+
+Defaults (``DEFAULTS``) and what they mean, documented once here and in the README:
+
+* ``window_s`` = 1.0 s: trailing window of the moving statistics.
+* ``k`` = 6: a window is quiet when the summed variance of the three accelerometer
+  axes is at most ``k`` x the learnt floor.  Hand-held poses sit at 1.3-3.2x the floor
+  (tremor), and the floor itself is a low percentile of window variances (for 100
+  samples per window it is ~0.85x the mean still variance), so 6 leaves margin.
+* ``max_turn_deg`` = 0.5 deg: the gyro does not vote on tremor; it only rules out real
+  rotation (e.g. about gravity, which the accelerometer cannot see): the angle turned
+  over the window, |mean rate - bias| x window_s, must stay below it.  Derivation:
+  tremor of 2 deg/s RMS at 6-12 Hz averages over a 1 s window to <= 2*sqrt(2)/(pi*6)
+  ~ 0.15 deg/s, and an MPU-6050's mean-rate noise over 1 s is ~0.01 deg/s; a hand
+  moving a board turns tens of deg/s.  0.5 deg sits 3x above the worst tremor residue.
+  The bias is the median window-mean rate of the accelerometer-quiet windows seen.
+* ``min_still_s`` = 1.0 s, ``trim_s`` = 0.25 s: a sample is still when some quiet
+  window contains it, and two neighbouring still samples belong to one run only when some
+  quiet window contains both and the quiet windows just before and just from the second
+  agree in mean (within 5 sigma of two still means: 25 x 2 x k x floor / w summed over the
+  axes), so an instant change of orientation between two quiet stretches (samples lost
+  while the board turned, sessions appended, a board set down again a little differently)
+  splits them; a run of still samples, cut ``trim_s`` at its start and (after
+  the motion-onset cut) at its end, is a pose when it lasts ``min_still_s``.  A 1.5 s
+  hold therefore counts.  Runs longer than ``max_pose_s`` (20 s) are cut in several.
+
+Noise floor: the ``FLOOR_PCT`` (5th) percentile of the accelerometer variances of the
+last ``FLOOR_WINDOWS`` (300) non-overlapping windows.  No decision is taken before
+``WARMUP_WINDOWS`` (8) windows are seen: the first samples wait and are judged with
+the floor at that point, so a pose at the very start of a file counts.  A floor is
+fixed once per window; every sample is judged by the floor of the windows before it,
+so the result does not depend on how the stream is cut in batches.
+
+Non-finite samples, and samples with any value beyond ``ABSURD`` (1e6: no IMU range
+comes near), are never still and never averaged; they are counted in ``dropped``.
+
+Distinct samples (issue 20): repeated rows (sample-and-hold, duplicated rows;
+:mod:`imucald.fitting.stillness.repeats`) are dropped before anything above is computed, and ``rate``
+is the effective rate of the distinct samples, so windows, the onset cut (which compares
+a moving mean with sd / sqrt(10), i.e. assumes independent samples) and every pose's
+covariance see independent samples.
+
+Still in absolute terms (issue 20), :func:`still_limits`: the learnt floor is capped by
+what the chip can show at rest (datasheet density, or a generic one, over the noise
+bandwidth), so a recording without a still moment cannot learn its floor from motion; and
+a run makes a pose only when it lasts ``min_still_s`` by its timestamps, holds
+``MIN_EFFECTIVE`` (5) distinct samples, scatters no more than k x the cap and reads
+|mean| within the chip's band around 1 g.  Runs that fail are kept in ``rejected`` with
+the reason (``rejected_counts`` by kind: short, few, noise, norm, and turn: with a
+magnetometer, a field direction that turns within the stretch, :func:`_mag_turn`).  Rates:
+bench/stillness_rates.py (docs/changes/issue-20a.md).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from ...numerics.npstats import median, row_all, row_sum
+from .floor import FLOOR_WINDOWS, floors as _floors, onset as _onset
+from ..noise.posecov import MIN_SAMPLES as SF_MIN_SAMPLES, pose_sf_rows
+
+__all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS", "still_limits"]
+
+from ...stillness_defaults import STILLNESS_DEFAULTS as DEFAULTS
+WARMUP_WINDOWS = 8
+#: fewest distinct samples a pose holds (its covariance has n - 1 degrees of freedom)
+MIN_EFFECTIVE = 5
+#: rejected stretches kept for the report (their count by reason is kept whole)
+MAX_REJECTED = 1000
+ABSURD = 1e6
+_CH = ("t", "acc", "gyro", "temp", "mag", "fresh", "oi")
+
+
+@dataclass
+class StaticInterval:
+    acc: np.ndarray               #: mean specific force, g (3,)
+    acc_cov: np.ndarray           #: covariance of the mean, g^2 (3, 3)
+    acc_sample_cov: np.ndarray    #: within-interval sample covariance, g^2
+    n: int
+    t0: float                     #: s
+    t1: float
+    temp: float                   #: mean, degC (nan when unknown)
+    gyro: Optional[np.ndarray] = None       #: mean, deg/s
+    gyro_cov: Optional[np.ndarray] = None   #: covariance of the mean
+    mag: Optional[np.ndarray] = None        #: mean of fresh readings, gauss
+    i0: int = -1                  #: first sample, index in the stream since start
+    i1: int = -1                  #: one past the last sample
+    #: the structure function of each hold averaged into this pose, [(n, rows, obs)] of
+    #: fitting/noise/posecov.py (a daemon's pose covariance under tremor); None: unknown
+    acc_sf: Optional[list] = None
+
+
+class _Core:
+    """The detector on distinct samples at their effective rate (:class:`StillnessDetector`
+    feeds it)."""
+
+    def __init__(self, rate_hz: float, window_s: float = DEFAULTS["window_s"],
+                 k: float = DEFAULTS["k"], min_still_s: float = DEFAULTS["min_still_s"],
+                 max_pose_s: float = DEFAULTS["max_pose_s"], trim_s: float = DEFAULTS["trim_s"],
+                 max_turn_deg: float = DEFAULTS["max_turn_deg"], floor_cap: float = np.inf,
+                 rest_norm_g=(0.0, np.inf), keep_structure: bool = False):
+        self.rate = float(rate_hz)
+        self.keep_structure = bool(keep_structure)
+        self.floor_cap = float(floor_cap)
+        self.rest_norm_g = tuple(rest_norm_g)
+        self.min_still_s = float(min_still_s)
+        #: stretches that were quiet but did not make a pose: dicts t0_s, t1_s, n, reason, kind
+        #: (the last MAX_REJECTED), and the count of each kind since start
+        self.rejected: List[dict] = []
+        self.rejected_counts: Dict[str, int] = {}
+        self.w = max(3, int(round(window_s * rate_hz)))
+        self.window_s = self.w / self.rate
+        self.k, self.max_turn_deg = float(k), float(max_turn_deg)
+        self.min_n = max(3, int(round(min_still_s * rate_hz)))
+        self.max_n = max(self.min_n, int(round(max_pose_s * rate_hz)))
+        self.trim_n = int(round(trim_s * rate_hz))
+        self.dropped = 0
+        self.floor_a: Optional[float] = None
+        self.bias_g: Optional[np.ndarray] = None
+        self._seen = 0                       # samples received
+        self._last = None                    # last good row, fills bad ones for the statistics
+        self._tail = None                    # last w-1 rows of [acc | gyro] (filled)
+        self._blk: List[np.ndarray] = []      # rows of the partial non-overlapping window
+        self._blk_n = 0
+        self._hist_a = np.zeros(0)              # variances of the last FLOOR_WINDOWS windows
+        self._hist_g = np.zeros((0, 3))         # and their mean rates (with a gyro)
+        self._F: Dict[int, tuple] = {}       # windows completed -> (floor, bias)
+        self._nblk = 0
+        self._buf: Optional[dict] = None     # samples whose still flag is not decided yet
+        self._pend: List[dict] = []          # batches not yet joined (warm-up, or < w/4)
+        self._pend_n = 0
+        self._pend_i0 = 0                    # stream index of the first pending row
+        self._q_done = 0                     # quiet flags known for stream index < this
+        self._run: List[dict] = []
+        self._run_n = 0
+        self._run_i0 = 0
+        self._run_cut = False                # run continues a piece cut at max_pose_s
+        self._prev_am = None                 # trailing accelerometer mean at the last decided sample
+        self._prev_q = False                 # and whether its window was quiet
+
+    # -- statistics -------------------------------------------------------------------
+    def _blocks(self, x: np.ndarray, gy: bool) -> None:
+        # rows wait in a list until a window is complete (no copy per small batch)
+        self._blk.append(x)
+        self._blk_n += len(x)
+        if self._blk_n < self.w:
+            return
+        buf = self._blk[0] if len(self._blk) == 1 else np.concatenate(self._blk)
+        m = len(buf) // self.w
+        b = buf[:m * self.w].reshape(m, self.w, buf.shape[1])
+        # the m completed windows at once; each one's floor is a percentile of the variances
+        # of the FLOOR_WINDOWS windows up to it (itself included), its bias the median mean
+        # rate of the quiet ones among them
+        hist_a = np.concatenate([self._hist_a, b[:, :, :3].var(1, ddof=1).sum(1)])
+        # the learnt floor, capped by the chip's noise bound (a recording without a still
+        # moment learns its floor from motion)
+        fas = np.minimum(_floors(hist_a, m), self.floor_cap)
+        hist_g = np.concatenate([self._hist_g, b[:, :, 3:].mean(1)]) if gy else None
+        n0 = len(hist_a) - m
+        for j in range(m):
+            fa, bias = float(fas[j]), None
+            if gy:
+                lo = max(0, n0 + j + 1 - FLOOR_WINDOWS)
+                ha, ga = hist_a[lo:n0 + j + 1], hist_g[lo:n0 + j + 1]
+                qa = ha <= self.k * fa
+                bias = median(ga[qa] if qa.any() else ga, axis=0)
+            self._nblk += 1
+            self._F[self._nblk] = (fa, bias)
+            self.floor_a, self.bias_g = fa, bias
+        self._hist_a = hist_a[-FLOOR_WINDOWS:]
+        if gy:
+            self._hist_g = hist_g[-FLOOR_WINDOWS:]
+        rest = buf[m * self.w:]
+        self._blk = [rest] if len(rest) else []
+        self._blk_n = len(rest)
+
+    def _window_stats(self, x: np.ndarray):
+        """Trailing-window (w samples) accelerometer variance sum and mean of the other
+        columns at each row of x, from running sums about the window's first row."""
+        full = x if self._tail is None else np.concatenate([self._tail, x])
+        n, L, k = len(x), len(full), x.shape[1]
+        self._tail = full[-(self.w - 1):]
+        ref = full[0]
+        d = full - ref
+        c = np.empty((L + 1, 2 * k))       # cumulative sums of d and d**2, column by column
+        c[0] = 0.0
+        c[1:, :k] = d
+        np.multiply(d, d, out=c[1:, k:])
+        np.cumsum(c, 0, out=c)
+        if L - n + 1 >= self.w:            # every window full (after the first w-1 rows)
+            cnt = self.w
+            s = c[L - n + 1:] - c[L - n + 1 - self.w:L + 1 - self.w]
+            full_w = np.ones(n, bool)
+        else:
+            hi = np.arange(L - n, L) + 1
+            lo = np.maximum(hi - self.w, 0)
+            cnt = (hi - lo)[:, None]
+            s = c[hi] - c[lo]
+            full_w = cnt[:, 0] >= self.w
+        s1, s2 = s[:, :k], s[:, k:]
+        var = np.maximum(s2[:, :3] - s1[:, :3] * s1[:, :3] / cnt, 0) / np.maximum(cnt - 1, 1)
+        return row_sum(var), s1[:, 3:] / cnt + ref[3:], s1[:, :3] / cnt + ref[:3], full_w
+
+    # -- streaming --------------------------------------------------------------------
+    def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None, oi=None):
+        """Feed one batch; returns (quiet flag per sample of the batch, intervals completed).
+
+        The quiet flag is the trailing-window test (during the warm-up, with the floor
+        known so far); poses are emitted up to a window after their end.  ``oi``: each
+        row's index in the caller's stream (default: the rows counted here)."""
+        acc = np.asarray(acc, float)
+        n = len(acc)
+        if oi is None:
+            oi = np.arange(self._seen, self._seen + n)
+        x = acc if gyro is None else np.concatenate([acc, np.asarray(gyro, float)], 1)
+        good = row_all(np.abs(x) < ABSURD)             # False for NaN and inf too
+        if not good.all():
+            self.dropped += int((~good).sum())
+            x = x.copy()
+            idx = np.where(good, np.arange(n), -1)
+            np.maximum.accumulate(idx, out=idx)
+            fill = self._last if self._last is not None else np.zeros(x.shape[1])
+            x = np.where((idx >= 0)[:, None], x[np.maximum(idx, 0)], fill)
+        if n:
+            self._last = x[-1]
+        self._blocks(x, gyro is not None)
+        va, gm, am, full = self._window_stats(x)
+        # stream index, quiet flag and its known mark are made for the joined pending rows
+        new = {"t": np.asarray(t, float), "acc": acc,
+               "gyro": None if gyro is None else np.asarray(gyro, float),
+               "temp": None if temp is None else np.asarray(temp, float), "mag": mag,
+               "fresh": mag_fresh, "oi": np.asarray(oi), "good": good & full, "ok": good, "va": va, "gm": gm, "am": am}
+        if not self._pend:
+            self._pend_i0 = self._seen
+        self._seen += n
+        self._pend.append(new)
+        self._pend_n += n
+        # the live flag: this batch against the floor known now (it does not wait)
+        q_batch = self._quiet(new, *self._F[self._nblk]) if self._nblk else np.zeros(n, bool)
+        if self._nblk < WARMUP_WINDOWS or self._pend_n < max(1, self.w // 4):
+            # poses are decided in chunks of a quarter window (the decisions do not depend
+            # on the chunking; the per-batch cost at 1-2 samples a batch does)
+            return q_batch, []
+        self._join()
+        self._judge()
+        return q_batch, self._advance(final=False)
+
+    def _join(self) -> None:
+        pend, m = self._pend, self._pend_n
+        self._pend, self._pend_n = [], 0
+        new = pend[0] if len(pend) == 1 else {
+            k: (None if pend[0][k] is None else np.concatenate([p[k] for p in pend]))
+            for k in pend[0]}
+        new.update(i=np.arange(self._pend_i0, self._pend_i0 + m), q=np.zeros(m, bool),
+                   known=np.zeros(m, bool), fa=np.zeros(m))
+        b = self._buf
+        self._buf = new if b is None else {
+            k: (None if b[k] is None else np.concatenate([b[k], new[k]])) for k in b}
+
+    def _quiet(self, b, fa, bias) -> np.ndarray:
+        """Quiet trailing windows: accelerometer variance <= k floor, turn <= max_turn_deg."""
+        q = b["good"] & (b["va"] <= self.k * fa)
+        if bias is not None:
+            d = b["gm"] - bias
+            q &= np.sqrt(row_sum(d * d)) * self.window_s <= self.max_turn_deg
+        return q
+
+    def flush(self) -> List[StaticInterval]:
+        """End of stream: judge what waits (with the floor known so far) and close the run."""
+        if self._pend:
+            self._join()
+        if self._buf is None:
+            return []
+        self._judge(final=True)
+        out = self._advance(final=True)
+        if self._run:
+            iv = self._close(trim=True)
+            if iv is not None:
+                out.append(iv)
+        return out
+
+    def _judge(self, final: bool = False) -> None:
+        b = self._buf
+        todo = ~b["known"]
+        if not todo.any() or not self._F:
+            return
+        j = np.maximum(b["i"] // self.w, WARMUP_WINDOWS)
+        if final:
+            j = np.minimum(j, self._nblk)
+        idx = np.flatnonzero(todo & (j <= self._nblk))
+        if len(idx):
+            # each sample against the floor and bias of its window (j is non-decreasing)
+            jv = j[idx]
+            u = jv[np.concatenate([[True], jv[1:] != jv[:-1]])].tolist()
+            pos = np.searchsorted(u, jv)
+            fa = np.array([self._F[jj][0] for jj in u])[pos]
+            bias = None if self._F[u[0]][1] is None else np.array([self._F[jj][1] for jj in u])[pos]
+            b["q"][idx] = self._quiet({k: b[k][idx] for k in ("good", "va", "gm")}, fa, bias)
+            b["fa"][idx] = fa
+            b["known"][idx] = True
+        lo = max(int(b["i"][0]) // self.w, WARMUP_WINDOWS) if len(b["i"]) else self._nblk
+        for kk in [kk for kk in self._F if kk < min(lo, self._nblk)]:
+            del self._F[kk]              # no waiting sample needs these floors any more
+
+    def _advance(self, final: bool) -> List[StaticInterval]:
+        """Decide 'still' (some quiet window holds the sample) where the look-ahead is known."""
+        b = self._buf
+        known = b["known"]
+        nk = int(np.argmin(known)) if not known.all() else len(known)
+        # sample i is still if any window ending in [i, i+w-1] is quiet (and it is good)
+        q = b["q"][:nk]
+        nd = nk if final else max(0, nk - (self.w - 1))
+        if nd == 0:
+            return []
+        c = np.concatenate([[0], np.cumsum(q)])
+        ar = np.arange(nd)
+        hi = np.minimum(ar + self.w, nk)
+        still = (c[hi] - c[ar] > 0) & b["ok"][:nd]
+        # a run breaks before sample i when no quiet window holds both i - 1 and i (the
+        # windows ending in [i, i + w - 2]): two quiet stretches either side of an instant
+        # change of orientation (samples lost while the board turned, a spliced file) are
+        # two poses, not one pose with the mean of both.  A time gap alone does not break a
+        # run (loggers pause with the board unmoved); a turn during it shows as a step.
+        brk = c[np.minimum(ar + self.w - 1, nk)] - c[ar] == 0
+        # ... and where the mean of the window before i and of the window from i differ by
+        # more than a still board's means can (a step too small for the variance test to see
+        # when a window holds only a few samples of the other side): per axis the
+        # difference of two w-sample means has variance 2 s^2 / w, s^2 <= k x floor on a
+        # quiet window; 25 x that (5 sigma) summed over the axes
+        # Only two quiet windows are compared (a window reaching into a move differs anyway).
+        if nd:
+            am = b["am"][:nk]
+            before = np.concatenate([[self._prev_am if self._prev_am is not None else am[0]],
+                                     am[:nd - 1]])
+            q_before = np.concatenate([[self._prev_q], q[:nd - 1]])
+            ia = np.minimum(ar + self.w - 1, nk - 1)
+            after, q_after = am[ia], q[ia]
+            brk |= q_before & q_after & (
+                row_sum((after - before) ** 2) > 25.0 * 2.0 * self.k * b["fa"][:nd] / self.w)
+            self._prev_am, self._prev_q = am[nd - 1].copy(), bool(q[nd - 1])
+        out = self._runs(still, {k: (None if b[k] is None else b[k][:nd]) for k in _CH + ("i",)}, brk)
+        self._buf = {k: (None if v is None else v[nd:]) for k, v in b.items()}
+        return out
+
+    # -- intervals --------------------------------------------------------------------
+    def _runs(self, still, ch, brk) -> List[StaticInterval]:
+        out: List[StaticInterval] = []
+        n = len(still)
+        if n == 0:
+            return out
+        # where the value changes, and where a still run breaks (brk[i]: before sample i)
+        cut = np.flatnonzero((still[1:] != still[:-1]) | (still[1:] & brk[1:])) + 1
+        cut = cut.tolist()
+        for i, j in zip([0] + cut, cut + [n]):
+            if still[i] and brk[i] and self._run:
+                iv = self._close(trim=True)
+                if iv is not None:
+                    out.append(iv)
+            if still[i]:
+                s = i
+                while s < j:
+                    take = min(j - s, self.max_n - self._run_n)
+                    if not self._run:
+                        self._run_i0 = int(ch["i"][s])
+                    self._run.append({k: (None if ch[k] is None else ch[k][s:s + take]) for k in _CH})
+                    self._run_n += take
+                    s += take
+                    if self._run_n >= self.max_n:
+                        iv = self._close(trim=False)
+                        if iv is not None:
+                            out.append(iv)
+                        self._run_cut = True
+            elif self._run:
+                iv = self._close(trim=True)
+                if iv is not None:
+                    out.append(iv)
+        return out
+
+    def _close(self, trim: bool) -> Optional[StaticInterval]:
+        run, self._run, self._run_n = self._run, [], 0
+        start = 0 if self._run_cut else self.trim_n
+        if trim:
+            self._run_cut = False
+        # one piece (most runs): its rows as they are (C order, as a concatenation makes them)
+        cat = lambda k: None if run[0][k] is None else np.ascontiguousarray(run[0][k]) \
+            if len(run) == 1 else np.concatenate([r[k] for r in run])
+        t, acc = cat("t"), cat("acc")
+        end = len(t)
+        if trim:
+            # a slow motion onset shows in the means before the variance: cut where a
+            # short moving average first leaves the first half's mean by 5 sigma
+            end = max(0, _onset(acc) - self.trim_n)
+        if end - start < self.min_n:
+            if end > start:
+                self._reject(t[start], t[end - 1], end - start, "short",
+                             f"still {(t[end - 1] - t[start]) + 1 / self.rate:.2f} s, under the "
+                             f"{self.min_still_s:g} s minimum")
+            return None
+        sl = slice(start, end)
+        t, acc = t[sl], acc[sl]
+        gyro, temp, mag, fresh, oi = cat("gyro"), cat("temp"), cat("mag"), cat("fresh"), cat("oi")
+        m = acc.mean(0)
+        d = acc - m
+        sc = d.T @ d / (len(acc) - 1)
+        n = len(acc)
+        dur = float(t[-1] - t[0]) + 1.0 / self.rate
+        norm = float(np.sqrt(m @ m))
+        if dur < self.min_still_s * (1 - 1e-9):
+            self._reject(t[0], t[-1], n, "short", f"still {dur:.2f} s, under the {self.min_still_s:g} s minimum")
+            return None
+        if n < MIN_EFFECTIVE:
+            self._reject(t[0], t[-1], n, "few", f"{n} distinct samples, under the {MIN_EFFECTIVE} a pose needs")
+            return None
+        if np.trace(sc) > self.k * self.floor_cap:
+            self._reject(t[0], t[-1], n, "noise",
+                         f"scatter {np.sqrt(np.trace(sc) / 3) * 1e3:.3g} mg per axis, above the chip's bound "
+                         f"{np.sqrt(self.k * self.floor_cap / 3) * 1e3:.3g} mg")
+            return None
+        if not self.rest_norm_g[0] <= norm <= self.rest_norm_g[1]:
+            self._reject(t[0], t[-1], n, "norm",
+                         f"|mean| {norm:.3g} g, not {self.rest_norm_g[0]:.3g}..{self.rest_norm_g[1]:.3g} g "
+                         f"(a sensor at rest reads ~1 g)")
+            return None
+        if mag is not None:
+            why = _mag_turn(np.asarray(mag, float)[sl], None if fresh is None else np.asarray(fresh, bool)[sl])
+            if why:
+                self._reject(t[0], t[-1], n, "turn", why)
+                return None
+        tmp = float("nan")
+        if temp is not None and np.isfinite(temp[sl]).any():
+            tmp = float(np.nanmean(temp[sl]))
+        iv = StaticInterval(m, sc / len(acc), sc, len(acc), float(t[0]), float(t[-1]), tmp,
+                            i0=int(oi[sl][0]), i1=int(oi[sl][-1]) + 1)
+        if self.keep_structure and n >= SF_MIN_SAMPLES:     # 25 numbers a pose: what the
+                                    # daemon's pose covariance needs (calibrate has the rows)
+            iv.acc_sf = [(n,) + pose_sf_rows(acc)]
+        if gyro is not None:
+            g = gyro[sl]
+            iv.gyro = g.mean(0)
+            dg = g - iv.gyro
+            iv.gyro_cov = dg.T @ dg / (len(g) - 1) / len(g)
+        if mag is not None:
+            mm = np.asarray(mag, float)[sl]
+            f = np.asarray(fresh, bool)[sl].copy() if fresh is not None else np.ones(len(mm), bool)
+            f &= np.all(np.isfinite(mm), axis=1)
+            if f.any():
+                iv.mag = mm[f].mean(0)
+        return iv
+
+    def _reject(self, t0, t1, n, kind, reason) -> None:
+        self.rejected_counts[kind] = self.rejected_counts.get(kind, 0) + 1
+        self.rejected.append({"t0_s": float(t0), "t1_s": float(t1), "n": int(n), "kind": kind,
+                              "reason": reason})
+        del self.rejected[:-MAX_REJECTED]
+
+
+#: a stretch whose magnetometer field direction turns more than this (or 5 of its noise
+#: standard deviations) between its first and last thirds is turning, not still: a rotation
+#: about gravity is invisible to the accelerometer (issue 20's 3-5 Hz hand tumbles carry a
+#: magnetometer and no gyro); tremor averages out over a third of a pose
+MAG_TURN_DEG = 1.0
+
+
+def _mag_turn(m: np.ndarray, fresh: Optional[np.ndarray]) -> Optional[str]:
+    """Why the magnetometer says the stretch turned (None when it does not, or cannot tell).
+    Only new readings count (fresh, finite, changed: a held magnetometer repeats)."""
+    ok = np.all(np.isfinite(m), axis=1)
+    if fresh is not None:
+        ok &= fresh
+    ch = np.r_[True, np.any(np.diff(m, axis=0) != 0, axis=1)]
+    x = m[ok & ch]
+    n3 = len(x) // 3
+    if n3 < 2:
+        return None
+    a, b = x[:n3].mean(0), x[-n3:].mean(0)
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if not (na > 0 and nb > 0):
+        return None
+    ang = float(np.arccos(np.clip(a @ b / (na * nb), -1.0, 1.0)))
+    d2 = np.diff(x, 2, axis=0)
+    s2 = float(np.mean(d2 ** 2)) * 3 / 6.0 if len(d2) else 0.0     # summed per-sample variance
+    noise = np.sqrt(2.0 * s2 / n3) / (0.5 * (na + nb))
+    lim = max(np.radians(MAG_TURN_DEG), 5.0 * noise)
+    if ang > lim:
+        return (f"the magnetometer turned {np.degrees(ang):.2g} deg within it (limit "
+                f"{np.degrees(lim):.2g} deg): turning about gravity, which the accelerometer cannot see")
+    return None
+
+
+# --- absolute limits: what a sensor at rest can read -----------------------------------------
+
+#: a part's noise may exceed its datasheet's typical density: the floor is capped at this many
+#: times the datasheet variance (measured: the real MPU-6050s of ../shared read 1.8x in summed
+#: variance, z the noisiest; hand tremor adds 1.3-3.2x inside a window, which k covers)
+CAP_FACTOR = 4.0
+#: noise bandwidth a logger sees at least, Hz: a chip filters at its own output rate, not at
+#: the logger's, so a logger reading a 100 Hz part at 3 Hz sees the part's full (aliased) noise;
+#: consumer parts' default bandwidths are >= ~50 Hz (MPU-6050 DLPF 0: 260 Hz, ADXL345 at its
+#: 100 Hz default ODR: 50 Hz)
+MIN_NOISE_BW_HZ = 50.0
+#: density assumed for an accelerometer not in imucald.specs: the MPU-6050's 400 ug/rtHz, near
+#: the noisiest consumer parts (ADXL345 430, ICM-20948 230, LSM9DS1 ~?: datasheets); 2x it
+#: (4x the variance, CAP_FACTOR) still rejects a hand tumble (bench/stillness_rates.py)
+GENERIC_DENSITY_G_RTHZ = 400e-6
+#: |mean| band of a pose for an unknown chip, g: 1 g +- 0.35 (a generic part's prior box:
+#: +-0.25 g offset, 15 % scale, summed with margin)
+GENERIC_REST_TOL_G = 0.35
+
+
+def still_limits(chip: Optional[str], rate_hz: float):
+    """(floor cap, |mean| band) for an accelerometer at rest sampled at ``rate_hz``
+    (effective, distinct samples).  Floor cap: the summed per-sample variance of the three
+    axes a still part can show, g^2: CAP_FACTOR x 3 x density^2 x max(rate / 2,
+    MIN_NOISE_BW_HZ) with the datasheet density (imucald.specs), else GENERIC_DENSITY_G_RTHZ.
+    Band: 1 g +- 1.5 x (scale tolerance + |zero-g tolerance|) (at least 0.1 g), else
+    +- GENERIC_REST_TOL_G."""
+    from ...specs import ACCEL
+    spec = ACCEL.get(chip or "")
+    nd = spec.noise_density_g_rthz if spec is not None else GENERIC_DENSITY_G_RTHZ
+    cap = CAP_FACTOR * 3.0 * nd ** 2 * max(rate_hz / 2.0, MIN_NOISE_BW_HZ)
+    if spec is not None:
+        tol = max(0.1, 1.5 * (spec.scale_tol + float(np.linalg.norm(spec.bias_tol_g))))
+    else:
+        tol = GENERIC_REST_TOL_G
+    return cap, (1.0 - tol, 1.0 + tol)
+
+
+# --- the detector: repeated samples out, then the core ---------------------------------------
+
+#: the streaming detector decides whether the stream holds repeated samples once it has
+#: DECIDE_ROWS rows spanning DECIDE_S seconds (or DECIDE_MAX_ROWS rows): before the core's
+#: warm-up ends (WARMUP_WINDOWS windows) at usual rates, so no pose waits for the decision;
+#: a whole file is judged at once
+DECIDE_ROWS, DECIDE_S, DECIDE_MAX_ROWS = 16, 7.0, 4096
+
+
+class StillnessDetector:
+    """The stillness detector (criterion and defaults: module docstring).
+
+    Repeated samples (:mod:`imucald.fitting.stillness.repeats`) are dropped before anything is judged,
+    and the detector runs at the effective rate of the distinct samples: a whole file's are
+    found by the caller (``repeats``); a stream's from its first DECIDE_S seconds, which
+    meanwhile run through a core at the nominal rate (its live flags are returned, its poses
+    wait for the decision); when the stream turns out held (or its rate not the nominal one)
+    those rows are judged again by a core at the effective rate.  ``chip``: the
+    accelerometer (specs.ACCEL name, else the generic bounds of :func:`still_limits`).
+    Intervals index the caller's rows (i0, i1).  ``keep_structure``: each interval keeps its
+    accelerometer's within-pose structure function (``acc_sf``, fitting/noise/posecov.py), which
+    the daemon needs because it keeps no samples; a caller holding the rows leaves it off."""
+
+    def __init__(self, rate_hz: float, window_s: float = DEFAULTS["window_s"],
+                 k: float = DEFAULTS["k"], min_still_s: float = DEFAULTS["min_still_s"],
+                 max_pose_s: float = DEFAULTS["max_pose_s"], trim_s: float = DEFAULTS["trim_s"],
+                 max_turn_deg: float = DEFAULTS["max_turn_deg"], chip: Optional[str] = None,
+                 repeats=None, keep_structure: bool = False):
+        self.nominal_rate = float(rate_hz)
+        self._kw = dict(window_s=window_s, k=k, min_still_s=min_still_s, max_pose_s=max_pose_s,
+                        trim_s=trim_s, max_turn_deg=max_turn_deg, keep_structure=keep_structure)
+        self.chip = chip
+        self.repeats = None          #: the repeats.Repeats the detector runs on, once decided
+        self._core: Optional[_Core] = None
+        self._wait: List[tuple] = []     # rows seen before the decision
+        self._wait_n = 0
+        self._waiting: List[StaticInterval] = []   # poses the provisional core found meanwhile
+        self._seen = 0
+        self._held = False
+        self._prev = None            # (t, acc row) of the last row fed
+        self._last_q = False
+        if repeats is not None:
+            self._start(repeats)
+        else:
+            self._start_core(self.nominal_rate, False)
+
+    # what the core knows
+    dropped = property(lambda self: self._core.dropped)
+    floor_a = property(lambda self: self._core.floor_a)
+    bias_g = property(lambda self: self._core.bias_g)
+    rate = property(lambda self: self._core.rate)
+    floor_cap = property(lambda self: self._core.floor_cap)
+    rejected = property(lambda self: self._core.rejected)
+    rejected_counts = property(lambda self: self._core.rejected_counts)
+
+    @property
+    def undecided(self) -> bool:
+        return self.repeats is None
+
+    def _start_core(self, rate: float, held: bool) -> None:
+        self._held = bool(held)
+        cap, band = still_limits(self.chip, rate)
+        self._core = _Core(rate, floor_cap=cap, rest_norm_g=band, **self._kw)
+        self._seen, self._prev, self._last_q = 0, None, False
+
+    def _start(self, rep) -> None:
+        self.repeats = rep
+        self._start_core(rep.rate_hz if rep.rate_changed else self.nominal_rate, rep.held)
+
+    def _decide(self, final: bool = False):
+        """Judge the waiting rows; returns the intervals to emit now."""
+        from .repeats import find_repeats
+        wait, self._wait, self._wait_n = self._wait, [], 0
+        waiting, self._waiting = self._waiting, []
+        t = np.concatenate([w[0] for w in wait])
+        acc = np.concatenate([w[1] for w in wait])
+        rep = find_repeats(t, acc, self.nominal_rate)
+        if not (rep.held or rep.rate_changed):
+            self.repeats = rep              # the provisional core was right: keep it
+            return waiting, None
+        self._start(rep)                    # judged again, at the effective rate
+        out, q = [], None
+        for w in wait:
+            q, got = self._feed(*w)
+            out += got
+        return out, q
+
+    def update(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
+        """Feed one batch; returns (quiet flag per sample of the batch, intervals completed)."""
+        if not self.undecided:
+            return self._feed(t, acc, gyro, temp, mag, mag_fresh)
+        t = np.asarray(t, float)
+        acc = np.asarray(acc, float)
+        self._wait.append((t, acc, gyro, temp, mag, mag_fresh))
+        self._wait_n += len(t)
+        q, got = self._feed(t, acc, gyro, temp, mag, mag_fresh)
+        self._waiting += got
+        t0 = next((w[0][0] for w in self._wait if len(w[0])), None)
+        span = float(t[-1] - t0) if len(t) and t0 is not None else 0.0
+        if (self._wait_n >= DECIDE_ROWS and span >= DECIDE_S) or self._wait_n >= DECIDE_MAX_ROWS:
+            out, q2 = self._decide()
+            return (q if q2 is None else q2), out
+        return q, []
+
+    def _feed(self, t, acc, gyro=None, temp=None, mag=None, mag_fresh=None):
+        t = np.asarray(t, float)
+        acc = np.asarray(acc, float)
+        n = len(t)
+        if not n:
+            return np.zeros(0, bool), []
+        same = np.zeros(n, bool)
+        st = np.zeros(n, bool)
+        if self._prev is not None:
+            same[0] = bool(np.all(acc[0] == self._prev[1]))
+            st[0] = t[0] == self._prev[0]
+        same[1:] = row_all(acc[1:] == acc[:-1])
+        st[1:] = t[1:] == t[:-1]
+        self._prev = (t[-1], acc[-1].copy())
+        drop = same & (st | self._held)
+        oi = np.arange(self._seen, self._seen + n)
+        self._seen += n
+        if not drop.any():
+            q, ivs = self._core.update(t, acc, gyro, temp, mag, mag_fresh, oi=oi)
+            if len(q):
+                self._last_q = bool(q[-1])
+            return q, ivs
+        keep = ~drop
+        pick = lambda a: None if a is None else np.asarray(a)[keep]
+        qk, ivs = self._core.update(t[keep], acc[keep], pick(gyro), pick(temp), pick(mag),
+                                    pick(mag_fresh), oi=oi[keep])
+        # a dropped row has the flag of the distinct sample it repeats
+        pos = np.cumsum(keep) - 1
+        q = np.where(pos >= 0, qk[np.maximum(pos, 0)] if len(qk) else False, self._last_q)
+        if len(qk):
+            self._last_q = bool(qk[-1])
+        return q.astype(bool), ivs
+
+    def flush(self) -> List[StaticInterval]:
+        """End of stream: judge what waits (with the floor known so far) and close the run."""
+        out: List[StaticInterval] = []
+        if self.undecided and self._wait_n:
+            out, _ = self._decide(final=True)
+        return out + self._core.flush()

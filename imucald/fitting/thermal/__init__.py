@@ -1,0 +1,1 @@
+"""Temperature terms: their fit and order choice (``terms``), and their acceptance gate (``gate``)."""

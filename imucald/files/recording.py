@@ -233,7 +233,7 @@ def _spool(path: str, error) -> str:
     return tmp.name
 
 
-def _open_binary(path: str, error=None):
+def open_binary(path: str, error=None):
     """Open ``path`` for reading bytes, or raise the one-line error saying why not.  A
     stream (``-`` for stdin, a pipe, a FIFO, a character device) is read once, whole, into
     a temporary file (_spool): the opens after the first see the same bytes."""
@@ -270,7 +270,7 @@ def read_small(path: str, error=None, what: str = "this file", limit: int = MAX_
     """The bytes of a file read whole (at most ``limit``; a UTF-8 BOM dropped), or the one-line
     error naming it."""
     error = error or RecordingError
-    with _open_binary(path, error) as fh:
+    with open_binary(path, error) as fh:
         try:
             raw = fh.read(limit + 1)
         except OSError as e:
@@ -290,7 +290,7 @@ class RecordingReader:
 
     def __init__(self, path: Union[str, os.PathLike]):
         self.path = os.fspath(path)
-        self._fh = _open_binary(self.path)
+        self._fh = open_binary(self.path)
         try:
             self._read_header()
         except BaseException:

@@ -26,7 +26,7 @@ from .judging.uncertainty import (
 )
 from ..numerics.npstats import median
 
-__all__ = ["FitResult", "fit_norm", "heldout_residuals", "fit_gyro_bias",
+__all__ = ["FitResult", "fit_norm", "mag_bounds", "heldout_residuals", "fit_gyro_bias",
            "select_model", "accel_prior", "AUTO_MODELS"]
 
 
@@ -321,7 +321,7 @@ def _setup(raw, model, pose_cov, target, bounds, chip, noise_inflation, prior, m
     if bounds is not None:
         lo, hi = bounds
     elif isinstance(model, MagModel):
-        lo, hi = _mag_bounds(model, raw, target)
+        lo, hi = mag_bounds(model, raw, target)
     else:
         lo, hi = (b[free] for b in accel_bounds(model, chip))
     pc = _pose_cov(pose_cov, N, noise_inflation)
@@ -504,7 +504,7 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
                      {"optim": {k: v for k, v in res.info.items() if k != "iterations"}, **rep.info})
 
 
-def _mag_bounds(model: MagModel, raw: np.ndarray, target: float):
+def mag_bounds(model: MagModel, raw: np.ndarray, target: float):
     """Search box for the magnetometer around a sphere fit (hard iron +- radius,
     soft iron within a factor 3 of 1/radius)."""
     c, r = sphere_fit(raw)

@@ -22,8 +22,8 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..errors import UserError
-from ..files.recording import (BOM, COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, _open_binary,
-                         read_recording)
+from ..files.recording import (BOM, COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, open_binary,
+                                read_recording)
 from ..numerics.npstats import median
 from ..files.tables import TableSpec, collect, decode_line, iter_blocks
 from .stillness.poses import POSES_MAGIC, read_poses
@@ -34,7 +34,7 @@ _SENSOR = {"ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"}
 
 
 def _first_line(path: str) -> str:
-    with _open_binary(path, UserError) as fh:
+    with open_binary(path, UserError) as fh:
         raw = fh.readline(4096)
     return raw[len(BOM):].decode("utf-8", errors="replace").rstrip("\r\n") if raw.startswith(BOM) \
         else raw.decode("utf-8", errors="replace").rstrip("\r\n")
@@ -75,7 +75,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
                      halfwidth=half, tcol=cols.index("t") if "t" in cols else None,
                      checked=[c != "-" for c in cols],
                      limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
-    with _open_binary(path, UserError) as fh:
+    with open_binary(path, UserError) as fh:
         lineno, offset = 1, 0
         if fh.read(len(BOM)) == BOM:        # a UTF-8 byte-order mark: skipped
             offset = len(BOM)

@@ -8,7 +8,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..fitting.fit import _mag_bounds
+from ..fitting.fit import mag_bounds
 from ..fitting.judging.heldout import hat_diag, heldout, lm_weighted, numjac, twin_rms
 from ..fitting.judging.metrics import rms
 from ..fitting.models.mag import MagModel
@@ -66,7 +66,7 @@ def _unweighted_fit(x: np.ndarray, model: NormModel) -> Tuple[Problem, np.ndarra
         # started from a sphere fit inside the calibration's search box: a hard iron several
         # field radii off (the QMC5883L recording: 6x) is out of the default start's reach
         c, rad = sphere_fit(x)
-        lo, hi = _mag_bounds(model, x, 1.0)
+        lo, hi = mag_bounds(model, x, 1.0)
         prob = Problem(model, x, lo=lo, hi=hi)
         kd = min(model.kw, 3)
         th0 = np.concatenate([[1.0 / rad] * kd, np.zeros(model.kw - kd), c])

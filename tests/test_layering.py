@@ -164,3 +164,19 @@ def test_the_walker_sees_function_level_and_relative_imports(tmp_path):
 
 if __name__ == "__main__":
     pytest.main([__file__])
+
+
+def test_no_function_in_imucald_is_over_80_lines():
+    """Issue 24: a function that does one step of a pipeline fits on a screen.  Seen to fail
+    on the merged tree before gap/search.py's stepwise (159 lines) was split into its moves."""
+    import ast
+    import pathlib
+    root = pathlib.Path(__file__).resolve().parent.parent / "imucald"
+    long = []
+    for p in sorted(root.rglob("*.py")):
+        for n in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = n.end_lineno - n.lineno + 1
+                if lines > 80:
+                    long.append(f"{p.relative_to(root.parent)}:{n.lineno} {n.name} ({lines} lines)")
+    assert not long, "functions over 80 lines: " + "; ".join(long)

@@ -276,9 +276,8 @@ class Search:
         return max(pc / self.bonf, pho / GAP_HELDOUT_LEVEL)
 
 
-def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_with) -> Dict[str, object]:
-    """Forward and backward over the visible candidates of ``tested`` (score-test entries of
-    norm.score_candidates) and the random walk; returns the final model and the steps."""
+def _entry_variants(tested: List[dict], walk_ok: bool, bonf: float):
+    """The variants that may enter, by class, and their visible coefficient counts."""
     variants: Dict[str, list] = {}
     vis_q = {}
     for d in tested:
@@ -290,6 +289,163 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
         if d["q"] > 0 and not (walk_ok and d["cand"].name == WALK) and d["p"] < bonf:
             variants.setdefault(d["cand"].name, []).append(d["cand"])
             vis_q[id(d["cand"])] = d["q"]
+    return variants, vis_q
+
+
+def _add_moves(s, cur, variants, visited, bonf) -> list:
+    """Forward: a class not in the model, in any variant (the walk is a variant of its class)."""
+    moves = []
+    have = set(cur.classes)
+    for cls in (variants if len(have) < MAX_MEMBERS else []):
+        if cls in have or any(frozenset({cls, h}) in _NESTED for h in have):
+            continue
+        # with every variant of the members already in (a member's best variant alone can
+        # be the wrong one beside a second effect: a 3-term nonlinearity beats the 10-term
+        # one alone while a thermal bias is unmodelled, and loses to it beside one)
+        base = [()]
+        for c in cur.cands:
+            base = [b_ + (v,) for b_ in base for v in variants[c.name]]
+        opts = [(b_ + (c,), cur.walk) for b_ in base for c in variants.get(cls, [])]
+        for cands, walk in opts:
+            if not s.dof_ok(cands, walk):
+                continue
+            m = s.fit(cands, walk)
+            if m is None or m.key in visited or not m.excess < cur.excess:
+                continue
+            if not cur.classes and not m.nrms < cur.nrms:
+                # the first effect must predict the held-out poses better than the
+                # baseline (its held-out RMS falls, as a single candidate's must)
+                continue
+            pc = m.member_p.get(cls, 1.0)
+            if pc >= bonf:
+                continue
+            pho = s.heldout_p(s.without(m, cls), m)
+            if s.passes(pc, pho):
+                what = f"add {cls}" + (" (random walk)" if walk and not cur.walk else
+                                       f" ({cands[-1].q} coefficients)")
+                moves.append((m, what + "".join(f"; {c.name} {c.q}" for c in cands[:len(cur.cands)]
+                                                if c not in cur.cands), pc, pho))
+    return moves
+
+
+def _variant_moves(s, cur, variants, visited) -> list:
+    """Another variant of a member, every member still passing."""
+    moves = []
+    for c in cur.cands:
+        for v in variants.get(c.name, []):
+            if v is c:
+                continue
+            cands = tuple(v if x is c else x for x in cur.cands)
+            if not s.dof_ok(cands, cur.walk):
+                continue
+            m = s.fit(cands, cur.walk)
+            if m is None or m.key in visited or not m.excess < cur.excess:
+                continue
+            if all(s.passes(*t) for t in s.tests(m).values()):
+                moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], None))
+    return moves
+
+
+def _walk_moves(s, cur, visited, bonf, moves) -> list:
+    """The random walk in a drift's place, or joining fixed forms that are stuck."""
+    have = set(cur.classes)
+    if "bias_drift" in have and cur.ratio > cur.q99:
+        # the drift's straight line is one path of a walk: the walk in its place, on the
+        # walk's terms (below)
+        m = s.fit(tuple(c for c in cur.cands if c.name != "bias_drift"), True)
+        if m is not None and m.key not in visited and m.excess < cur.excess \
+                and all(s.passes(*t) for t in s.tests(m).values()):
+            moves = moves + [(m, "bias_drift -> wandering_bias (random walk)", m.member_p[WALK], None)]
+    if not moves and cur.ratio > cur.q99 and len(have) < MAX_MEMBERS and s.dof_ok(cur.cands, True):
+        # the fixed forms are stuck with a model its own twin rejects: the random walk
+        # (the least specific form: any misfit smooth in time) joins them when its
+        # likelihood ratio is significant and the held-out ratio against each model's own
+        # twin falls (a walk is not predictable from its neighbours, so its held-out RMS
+        # keeps the walk's increments: the comparison is with what each model predicts)
+        m = s.fit(cur.cands, True)
+        if m is not None and m.key not in visited and m.excess < cur.excess and m.member_p[WALK] < bonf:
+            pho = s.heldout_p(cur, m)
+            if s.passes(m.member_p[WALK], pho):
+                moves = moves + [(m, "add wandering_bias (random walk)", m.member_p[WALK], pho)]
+    return moves
+
+
+def _backward(s, cur, steps, visited):
+    """Drop the member that fails a test by most, until every member passes."""
+    while len(cur.classes) > 1:
+        t = s.tests(cur)
+        bad = {k: s.failure(*v) for k, v in t.items() if not s.passes(*v)}
+        if not bad:
+            break
+        worst = max(bad, key=bad.get)
+        nxt = s.without(cur, worst)
+        if nxt is None:
+            break
+        steps.append({"step": f"drop {worst}", "heldout_ratio": nxt.ratio,
+                      "coefficient_p_value": t[worst][0], "heldout_p_value": t[worst][1]})
+        cur = nxt
+        visited.add(cur.key)
+    return cur
+
+
+def _path(s, cur, variants, walk_ok, bonf):
+    """Forward and backward steps from ``cur`` until no move passes; (end model, steps)."""
+    visited = {cur.key}
+    steps: List[Dict[str, object]] = []
+    for _ in range(MAX_STEPS):
+        moves = _add_moves(s, cur, variants, visited, bonf) + _variant_moves(s, cur, variants, visited)
+        if walk_ok and not cur.walk:
+            moves = _walk_moves(s, cur, visited, bonf, moves)
+        if not moves:
+            break
+        # the simplest move that closes the gap (within its own twin's 99th percentile); else
+        # the one leaving least to explain
+        m, what, pc, pho = min(moves, key=lambda t: (t[0].ratio > t[0].q99,
+                                                     t[0].n_coef if t[0].ratio <= t[0].q99 else 0,
+                                                     t[0].excess, t[0].n_coef))
+        steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
+                      "heldout_p_value": pho})
+        cur = m
+        visited.add(cur.key)
+        cur = _backward(s, cur, steps, visited)
+    return cur, steps
+
+
+def _members(s, b, cur) -> List[dict]:
+    """Each named member's coefficients, standard errors and both tests' p-values."""
+    members = []
+    if not cur.classes:
+        return members
+    t = s.tests(cur)
+    o = b.p0
+    for c in cur.cands:
+        key = c.name + (f"_{c.units}" if c.units else "")
+        ent = {"name": c.name, "coefficients": c.q, "coefficient_p_value": t[c.name][0],
+               "heldout_p_value": t[c.name][1],
+               "params": {key: cur.z[o:o + c.q].tolist()}, "stderr": {key: cur.sd[o:o + c.q].tolist()}}
+        if c.parts:
+            ent["params"], ent["stderr"] = {}, {}
+            oo = o
+            for u, k in c.parts:
+                ent["params"][f"{c.name}_{u}"] = cur.z[oo:oo + k].tolist()
+                ent["stderr"][f"{c.name}_{u}"] = cur.sd[oo:oo + k].tolist()
+                oo += k
+        members.append(ent)
+        o += c.q
+    if cur.walk:
+        gp = cur.gp
+        members.append({"name": WALK, "form": "random walk (REML strength, gap/wander.py)",
+                        "coefficient_p_value": t[WALK][0], "heldout_p_value": t[WALK][1],
+                        "params": {"random_walk_intensity": [gp["q"]] * 3},
+                        "random_walk": {"q_ci95": gp["q_ci95"], "likelihood_ratio": gp["lr"],
+                                        "effective_parameters": round(gp["edf"], 2)}})
+    return members
+
+
+def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_with) -> Dict[str, object]:
+    """Forward and backward over the visible candidates of ``tested`` (score-test entries of
+    norm.score_candidates) and the random walk; returns the final model and the steps."""
+    variants, vis_q = _entry_variants(tested, walk_ok, bonf)
     s = Search(b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with)
     base = s.fit((), False)
     # the walk is a candidate at all only when it predicts: alone, its held-out RMS falls below
@@ -297,109 +453,13 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
     # enough: a walk of large strength "closes" any misfit), with its likelihood ratio significant
     w0 = s.fit((), True) if walk_ok else None
     walk_ok = bool(w0 is not None and w0.nrms < base.nrms and w0.member_p[WALK] < bonf)
-
-    def path(cur):
-        visited = {cur.key}
-        steps: List[Dict[str, object]] = []
-        for _ in range(MAX_STEPS):
-            moves = []
-            have = set(cur.classes)
-            # forward: a class not in the model, in any variant (the walk is a variant of its class)
-            for cls in (variants if len(have) < MAX_MEMBERS else []):
-                if cls in have or any(frozenset({cls, h}) in _NESTED for h in have):
-                    continue
-                # with every variant of the members already in (a member's best variant alone can
-                # be the wrong one beside a second effect: a 3-term nonlinearity beats the 10-term
-                # one alone while a thermal bias is unmodelled, and loses to it beside one)
-                base = [()]
-                for c in cur.cands:
-                    base = [b_ + (v,) for b_ in base for v in variants[c.name]]
-                opts = [(b_ + (c,), cur.walk) for b_ in base for c in variants.get(cls, [])]
-                for cands, walk in opts:
-                    if not s.dof_ok(cands, walk):
-                        continue
-                    m = s.fit(cands, walk)
-                    if m is None or m.key in visited or not m.excess < cur.excess:
-                        continue
-                    if not cur.classes and not m.nrms < cur.nrms:
-                        # the first effect must predict the held-out poses better than the
-                        # baseline (its held-out RMS falls, as a single candidate's must)
-                        continue
-                    pc = m.member_p.get(cls, 1.0)
-                    if pc >= bonf:
-                        continue
-                    pho = s.heldout_p(s.without(m, cls), m)
-                    if s.passes(pc, pho):
-                        what = f"add {cls}" + (" (random walk)" if walk and not cur.walk else
-                                               f" ({cands[-1].q} coefficients)")
-                        moves.append((m, what + "".join(f"; {c.name} {c.q}" for c in cands[:len(cur.cands)]
-                                                        if c not in cur.cands), pc, pho))
-            # another variant of a member, every member still passing
-            for c in cur.cands:
-                for v in variants.get(c.name, []):
-                    if v is c:
-                        continue
-                    cands = tuple(v if x is c else x for x in cur.cands)
-                    if not s.dof_ok(cands, cur.walk):
-                        continue
-                    m = s.fit(cands, cur.walk)
-                    if m is None or m.key in visited or not m.excess < cur.excess:
-                        continue
-                    if all(s.passes(*t) for t in s.tests(m).values()):
-                        moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], None))
-            if walk_ok and not cur.walk and "bias_drift" in have and cur.ratio > cur.q99:
-                # the drift's straight line is one path of a walk: the walk in its place, on the
-                # walk's terms (below)
-                m = s.fit(tuple(c for c in cur.cands if c.name != "bias_drift"), True)
-                if m is not None and m.key not in visited and m.excess < cur.excess \
-                        and all(s.passes(*t) for t in s.tests(m).values()):
-                    moves.append((m, "bias_drift -> wandering_bias (random walk)", m.member_p[WALK], None))
-            if not moves and walk_ok and not cur.walk and cur.ratio > cur.q99 and len(have) < MAX_MEMBERS \
-                    and s.dof_ok(cur.cands, True):
-                # the fixed forms are stuck with a model its own twin rejects: the random walk
-                # (the least specific form: any misfit smooth in time) joins them when its
-                # likelihood ratio is significant and the held-out ratio against each model's own
-                # twin falls (a walk is not predictable from its neighbours, so its held-out RMS
-                # keeps the walk's increments: the comparison is with what each model predicts)
-                m = s.fit(cur.cands, True)
-                if m is not None and m.key not in visited and m.excess < cur.excess and m.member_p[WALK] < bonf:
-                    pho = s.heldout_p(cur, m)
-                    if s.passes(m.member_p[WALK], pho):
-                        moves.append((m, "add wandering_bias (random walk)", m.member_p[WALK], pho))
-            if not moves:
-                break
-            # the simplest move that closes the gap (within its own twin's 99th percentile); else
-            # the one leaving least to explain
-            m, what, pc, pho = min(moves, key=lambda t: (t[0].ratio > t[0].q99,
-                                                         t[0].n_coef if t[0].ratio <= t[0].q99 else 0,
-                                                         t[0].excess, t[0].n_coef))
-            steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
-                          "heldout_p_value": pho})
-            cur = m
-            visited.add(cur.key)
-            # backward: drop the member that fails a test by most, until every member passes
-            while len(cur.classes) > 1:
-                t = s.tests(cur)
-                bad = {k: s.failure(*v) for k, v in t.items() if not s.passes(*v)}
-                if not bad:
-                    break
-                worst = max(bad, key=bad.get)
-                nxt = s.without(cur, worst)
-                if nxt is None:
-                    break
-                steps.append({"step": f"drop {worst}", "heldout_ratio": nxt.ratio,
-                              "coefficient_p_value": t[worst][0], "heldout_p_value": t[worst][1]})
-                cur = nxt
-                visited.add(cur.key)
-
-        return cur, steps
-    cur, steps = path(base)
+    cur, steps = _path(s, base, variants, walk_ok, bonf)
     if walk_ok:
         # a second path from the walk alone (the fixed forms first can soak up a walk: a
         # thermal bias on a warm-up, a nonlinearity's terms); the two ends are compared by
         # their likelihood gain over the baseline less Akaike's penalty (2 per coefficient,
         # the walk's strength one), as the walk and the parametric choice were before
-        cw, sw = path(w0)
+        cw, sw = _path(s, w0, variants, walk_ok, bonf)
 
         def aic(m):
             k = sum(s.vis_q[id(c)] for c in m.cands) + (1 if m.walk else 0)
@@ -409,29 +469,4 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                               "coefficient beats the path from the baseline's)",
                       "other_path_end": cur.names}] + sw
             cur = cw
-    members = []
-    if cur.classes:
-        t = s.tests(cur)
-        o = b.p0
-        for c in cur.cands:
-            key = c.name + (f"_{c.units}" if c.units else "")
-            ent = {"name": c.name, "coefficients": c.q, "coefficient_p_value": t[c.name][0],
-                   "heldout_p_value": t[c.name][1],
-                   "params": {key: cur.z[o:o + c.q].tolist()}, "stderr": {key: cur.sd[o:o + c.q].tolist()}}
-            if c.parts:
-                ent["params"], ent["stderr"] = {}, {}
-                oo = o
-                for u, k in c.parts:
-                    ent["params"][f"{c.name}_{u}"] = cur.z[oo:oo + k].tolist()
-                    ent["stderr"][f"{c.name}_{u}"] = cur.sd[oo:oo + k].tolist()
-                    oo += k
-            members.append(ent)
-            o += c.q
-        if cur.walk:
-            gp = cur.gp
-            members.append({"name": WALK, "form": "random walk (REML strength, gap/wander.py)",
-                            "coefficient_p_value": t[WALK][0], "heldout_p_value": t[WALK][1],
-                            "params": {"random_walk_intensity": [gp["q"]] * 3},
-                            "random_walk": {"q_ci95": gp["q_ci95"], "likelihood_ratio": gp["lr"],
-                                            "effective_parameters": round(gp["edf"], 2)}})
-    return {"model": cur, "members": members, "steps": steps, "models_fitted": len(s.cache)}
+    return {"model": cur, "members": _members(s, b, cur), "steps": steps, "models_fitted": len(s.cache)}

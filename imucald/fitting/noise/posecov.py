@@ -132,6 +132,20 @@ def pose_mean_variance_parts(parts: List[np.ndarray], two_sided: bool = False
     return pose_mean_variance_stats(ns, s2, sf, two_sided)
 
 
+def _pose_vars(white, ab, lower, higher, sf, ns) -> np.ndarray:
+    """Each pose mean's variance (N, C): the structure function's (a K + b n) / n^2 on the
+    axes it decided, the white figure elsewhere."""
+    # each pose's number of holds (one, unless a daemon refined it; a daemon keeps the
+    # longest MAX_HOLDS: the others are counted at the kept ones' mean length)
+    K = np.array([n / np.mean([e[0] for e in holds]) if len(holds) else 1.0 for holds, n in zip(sf, ns)])
+    var = white.copy()
+    for j in range(white.shape[1]):
+        if lower[j] or higher[j]:
+            sf_var = (ab[0, j] * K + ab[1, j] * ns) / ns ** 2
+            var[:, j] = np.maximum(sf_var, (1.0 if higher[j] else 1e-3) * white[:, j])
+    return var
+
+
 def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],
                              two_sided: bool = False) -> Tuple[np.ndarray, Dict[str, object]]:
     """:func:`pose_mean_variance` from per-pose statistics, for poses whose samples are
@@ -201,14 +215,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
         higher = (full_ls - 2 * se_ls > 1.0) & ~lower
         ab[:, higher] = ab_ls[:, higher]
         full[higher], se[higher] = full_ls[higher], se_ls[higher]
-    # each pose's number of holds (one, unless a daemon refined it; a daemon keeps the
-    # longest MAX_HOLDS: the others are counted at the kept ones' mean length)
-    K = np.array([n / np.mean([e[0] for e in holds]) if len(holds) else 1.0 for holds, n in zip(sf, ns)])
-    var = white.copy()
-    for j in range(C):
-        if lower[j] or higher[j]:
-            sf_var = (ab[0, j] * K + ab[1, j] * ns) / ns ** 2
-            var[:, j] = np.maximum(sf_var, (1.0 if higher[j] else 1e-3) * white[:, j])
+    var = _pose_vars(white, ab, lower, higher, sf, ns)
     info.update({"method": "structure function" if (lower | higher).any() else "white",
                  "ratio_to_white": np.round(full, 4).tolist(), "ratio_stderr": np.round(se, 4).tolist(),
                  "bounded_part": ab[0].tolist(), "white_part": ab[1].tolist(),

@@ -46,8 +46,11 @@ run: $(STAMP)
 	$(BIN)/imucald run --state-dir .imucald/state --runtime-dir .imucald/run --echo --duration 200
 
 # pytest exits 5 when it collected no test: that is a failure too (make stops on any non-zero exit).
+# Two workers (pytest-xdist), each test file on one worker (module fixtures computed once):
+# the suite is ~5 min in one process on a 2-core machine, ~half of it waiting on the daemons
+# and CLI processes it starts.
 test: $(TSTAMP) test-deps
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 # The MQTT tests run a real broker, Debian's mosquitto: installed here where we may (root
 # with apt-get), else those tests skip and say why.

@@ -114,6 +114,51 @@ def _fit(rows, obs, ns, idx, white=True):
     return out
 
 
+def _fit_jack(rows, obs, ns, white=True):
+    """:func:`_fit` on all poses and on each leave-one-pose-out fold at once, from each
+    pose's 2x2 normal-equation statistics (A_e^T A_e, A_e^T y_e, y_e^T y_e): a fold's are
+    the totals less its pose's, so the m folds cost O(m), not m refits.  The same
+    estimates as :func:`_fit` up to rounding (sums in another order).  Returns (full
+    (2, C), folds (m, 2, C))."""
+    A = rows / ns[:, None, None]                      # (E, L, 2)
+    Y = obs / ns[:, None, None]                       # (E, L, C)
+    G_e = np.einsum("eli,elj->eij", A, A)             # (E, 2, 2)
+    h_e = np.einsum("eli,elc->eic", A, Y)             # (E, 2, C)
+    yy_e = np.einsum("elc,elc->ec", Y, Y)             # (E, C)
+    G = np.concatenate([G_e.sum(0)[None], G_e.sum(0)[None] - G_e])
+    h = np.concatenate([h_e.sum(0)[None], h_e.sum(0)[None] - h_e])
+    yy = np.concatenate([yy_e.sum(0)[None], yy_e.sum(0)[None] - yy_e])
+    out = _solve_stats(G, h, yy, white)
+    return out[0], out[1:]
+
+
+def _solve_stats(G, h, yy, white):
+    """(F, 2, C) fits from (F, 2, 2), (F, 2, C), (F, C) statistics, as :func:`_fit`."""
+    F, _, C = h.shape
+    out = np.zeros((F, 2, C))
+    if white == "b":
+        out[:, 1] = np.maximum(h[:, 1] / G[:, 1, 1][:, None], 0.0)
+        return out
+    if white is False:
+        out[:, 0] = np.maximum(h[:, 0] / G[:, 0, 0][:, None], 0.0)
+        return out
+    ls = np.linalg.solve(G, h)                       # (F, 2, C)
+    if white == "ls":
+        return ls
+    # non-negative: the least-squares split when feasible, else the better one-column fit
+    # (the same candidates in the same order as _nnls2, the first of equal residuals kept)
+    cands = [ls, np.zeros_like(ls), np.zeros_like(ls)]
+    cands[1][:, 0] = np.maximum(h[:, 0] / G[:, 0, 0][:, None], 0.0)
+    cands[2][:, 1] = np.maximum(h[:, 1] / G[:, 1, 1][:, None], 0.0)
+    best = np.full((F, C), np.inf)
+    for z in cands:
+        r = yy - 2 * np.einsum("fic,fic->fc", z, h) + np.einsum("fic,fij,fjc->fc", z, G, z)
+        take = np.all(z >= 0, axis=1) & (r < best)
+        best = np.where(take, r, best)
+        out = np.where(take[:, None, :], z, out)
+    return out
+
+
 def pose_mean_variance(x: np.ndarray, slices: Sequence[slice], two_sided: bool = False
                        ) -> Tuple[np.ndarray, Dict[str, object]]:
     """Variance (N, C) of each pose mean of ``x`` (samples, C) over ``slices`` (sensor
@@ -171,10 +216,9 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     obs = np.array([e[2] for e in ent], float)          # (E, len(FRACTIONS), C)
     hn = np.array([e[0] for e in ent], float)
     use = list(range(len(ent)))
-    ab = _fit(rows, obs, hn, use)
+    ab, jk_ab = _fit_jack(rows, obs, hn)
     ref = np.median(hn)
     m = len(use)
-    jk_ab = np.array([_fit(rows, obs, hn, [k for k in use if k != i]) for i in use])     # (m, 2, C)
     jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
     # the white part only where it is clear of its jackknife error: a b >= 0 clipped from
     # noise is biased upwards, and b n dominates the extrapolation to the pose length
@@ -184,8 +228,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     drop_b = (ab[1] < 2 * jse(jk_ab[:, 1])) & (ratio_ab < 0.25)
     if drop_b.any():
         # there the unconstrained least-squares split (unbiased, either sign) replaces it
-        ab0 = _fit(rows, obs, hn, use, white="ls")
-        jk0 = np.array([_fit(rows, obs, hn, [k for k in use if k != i], white="ls") for i in use])
+        ab0, jk0 = _fit_jack(rows, obs, hn, white="ls")
         ab[:, drop_b] = ab0[:, drop_b]
         jk_ab[:, :, drop_b] = jk0[:, :, drop_b]
     est = lambda ab_: (ab_[0] + ab_[1] * ref) / ref ** 2          # (C,) at the median length
@@ -196,8 +239,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     # the white part alone (a = 0), one parameter per axis: unbiased on white noise (1.00 of
     # white) where the constrained split is not (its clipping picks the bounded part alone
     # on some white axes: 0.89 of white on average)
-    ab_ls = _fit(rows, obs, hn, use, white="b")
-    jk_ls = np.array([_fit(rows, obs, hn, [k for k in use if k != i], white="b") for i in use])
+    ab_ls, jk_ls = _fit_jack(rows, obs, hn, white="b")
     full_ls = est(ab_ls) / (s2_pool / ref)
     se_ls = jse(np.array([est(a_) / (s2_pool / ref) for a_ in jk_ls]))
     # clearly below white, per axis: by twice the estimate's jackknife error AND by twice

@@ -148,18 +148,9 @@ def _hand_held(seed, sway=True):
     axis); MPU-6050 noise (400 ug/rtHz, 0.005 dps/rtHz), Earth's rate, nothing injected."""
     from imucald.files.recording import Recording
 
-    def rot(q):
-        w, x, y, z = q / np.linalg.norm(q)
-        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    from .blindgen2 import _rot, _slerp_path
 
-    def slerp(q0, q1, u):
-        d = float(np.dot(q0, q1))
-        if d < 0:
-            q1, d = -q1, -d
-        th = math.acos(min(d, 1.0))
-        return (np.sin((1 - u) * th)[:, None] * q0 + np.sin(u * th)[:, None] * q1) / math.sin(th)
+    rot, slerp = _rot, _slerp_path            # the blind generator's quaternion helpers
 
     def band(t, lo, hi):
         f, ph, a = rng.uniform(lo, hi, (10, 3)), rng.uniform(0, 2 * np.pi, (10, 3)), rng.uniform(0.5, 1, (10, 3))

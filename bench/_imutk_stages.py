@@ -49,7 +49,7 @@ def main(path: str) -> dict:
     _mark()
     tf = fit_thermal("accel", pieces, cal, chip, infl, args.thermal_min_span, args.seed)
     json.dumps(offline._calibrate_json("accel", cal, poses.detector, rec, None, None,
-                                       offline._file_part(cal, tf, None), tf))
+                                       offline.file_part(cal, tf, None), tf))
     _mark()
     names = ["numpy import", "parser + first imports", "reading", "pose detection",
              "fit imports", "fit", "thermal + JSON"]

@@ -20,7 +20,7 @@ from _common import np
 
 from real_gap import REAL, tempsweep  # the one reader of the recording (counts -> g, dps, degC)
 
-from imucald.fitting.thermal.terms import _design, fit_bias_series
+from imucald.fitting.thermal.terms import thermal_design, fit_bias_series
 
 PATH = os.path.join(REAL, "freeimu_mpu6050_tempsweep", "Tempdata01-02-14.csv")
 
@@ -41,7 +41,7 @@ def blocks(block):
 def predict(tf, T):
     """Bias and its standard error at temperatures T (N,) -> (N, 3), (N, 3)."""
     u = (np.clip(T, tf.t_min_c, tf.t_max_c) - tf.t_ref_c) / tf._scale_c
-    X = _design(u, tf.order)
+    X = thermal_design(u, tf.order)
     y = X @ np.concatenate([tf.base, (tf.bias_poly * np.array([tf._scale_c ** (k + 1)
                                                                 for k in range(tf.order)])[:, None]).ravel()])
     var = np.einsum("ij,jk,ik->i", X, tf.cov, X)

@@ -45,8 +45,8 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 import numpy as np
 
 from .files.calibration_checks import (
-    FLAGS, PARAM_LIMIT, THERMAL_UNIT, CalibrationError, _array, _fail, _flags, _keys,
-    _provisional, _table, _thermal
+    FLAGS, PARAM_LIMIT, THERMAL_UNIT, CalibrationError, check_array, fail_check, check_flags, check_keys,
+    check_provisional, check_table, check_thermal
 )
 
 __all__ = ["Calibration", "SensorCal", "CalibrationError", "FORMAT_VERSION", "UNITS", "FLAGS",
@@ -253,58 +253,58 @@ class SensorCal:
     def from_dict(cls, sensor: str, d: Any, path: str = "") -> "SensorCal":
         path = path or sensor
         if not isinstance(d, Mapping):
-            _fail(path, f"expected a mapping, got {type(d).__name__}", "see docs/reference/calibration-file.md")
-        _keys(d, path, {"model", "params"}, {"method", "stderr", "flags", "quality", "thermal"})
+            fail_check(path, f"expected a mapping, got {type(d).__name__}", "see docs/reference/calibration-file.md")
+        check_keys(d, path, {"model", "params"}, {"method", "stderr", "flags", "quality", "thermal"})
         model = d["model"]
         try:
             req, opt = param_shapes(sensor, model if isinstance(model, str) else "")
         except ValueError as e:
-            _fail(f"{path}.model", f"{model!r} is not a {sensor} model", str(e))
+            fail_check(f"{path}.model", f"{model!r} is not a {sensor} model", str(e))
         method = d.get("method", "")
         if not isinstance(method, str):
-            _fail(f"{path}.method", f"expected text, got {type(method).__name__}", "e.g. method: ga")
+            fail_check(f"{path}.method", f"expected text, got {type(method).__name__}", "e.g. method: ga")
         pd = d["params"]
         if not isinstance(pd, Mapping):
-            _fail(f"{path}.params", f"expected a mapping, got {type(pd).__name__}",
+            fail_check(f"{path}.params", f"expected a mapping, got {type(pd).__name__}",
                   "give " + ", ".join(req))
-        _keys(pd, f"{path}.params", set(req), set(opt))
-        params = {k: _array(pd[k], f"{path}.params.{k}", {**req, **opt}[k], limit=PARAM_LIMIT) for k in pd}
+        check_keys(pd, f"{path}.params", set(req), set(opt))
+        params = {k: check_array(pd[k], f"{path}.params.{k}", {**req, **opt}[k], limit=PARAM_LIMIT) for k in pd}
         for k, (lim, what) in (_GYRO_BOUNDS.items() if sensor == "gyro" else ()):
             if k in params and np.max(np.abs(params[k] - (np.eye(3).ravel() if k == "matrix" else 0))) > lim:
-                _fail(f"{path}.params.{k}", f"{params[k].tolist()} is not plausible ({what})",
+                fail_check(f"{path}.params.{k}", f"{params[k].tolist()} is not plausible ({what})",
                       "check the row-major order and units, or remove it")
         sd = d.get("stderr", {})
         if not isinstance(sd, Mapping):
-            _fail(f"{path}.stderr", f"expected a mapping, got {type(sd).__name__}", "or leave it out")
-        _keys(sd, f"{path}.stderr", set(), set(params))
-        stderr = {k: _array(sd[k], f"{path}.stderr.{k}", params[k].shape, nullable=True,
+            fail_check(f"{path}.stderr", f"expected a mapping, got {type(sd).__name__}", "or leave it out")
+        check_keys(sd, f"{path}.stderr", set(), set(params))
+        stderr = {k: check_array(sd[k], f"{path}.stderr.{k}", params[k].shape, nullable=True,
                             nonneg=True) for k in sd}
         fl = d.get("flags", {})
         if not isinstance(fl, Mapping):
-            _fail(f"{path}.flags", f"expected a mapping, got {type(fl).__name__}", "or leave it out")
-        _keys(fl, f"{path}.flags", set(), set(params))
-        flags = {k: _flags(fl[k], f"{path}.flags.{k}", params[k].size) for k in fl}
+            fail_check(f"{path}.flags", f"expected a mapping, got {type(fl).__name__}", "or leave it out")
+        check_keys(fl, f"{path}.flags", set(), set(params))
+        flags = {k: check_flags(fl[k], f"{path}.flags.{k}", params[k].size) for k in fl}
         q = d.get("quality", {})
         if not isinstance(q, Mapping):
-            _fail(f"{path}.quality", f"expected a mapping, got {type(q).__name__}", "or leave it out")
+            fail_check(f"{path}.quality", f"expected a mapping, got {type(q).__name__}", "or leave it out")
         quality = {}
         for k, v in q.items():
             if not isinstance(k, str) or isinstance(v, bool) or not isinstance(v, (int, float)) \
                     or not math.isfinite(v):
-                _fail(f"{path}.quality.{k}", f"{v!r} is not a finite number", "fix or remove it")
+                fail_check(f"{path}.quality.{k}", f"{v!r} is not a finite number", "fix or remove it")
             quality[k] = v
-        thermal = None if d.get("thermal") is None else _thermal(d["thermal"], f"{path}.thermal", sensor)
+        thermal = None if d.get("thermal") is None else check_thermal(d["thermal"], f"{path}.thermal", sensor)
         part = cls(sensor, model, params, stderr, flags, method, quality, thermal)    # migrates an older form
         A = part.affine[0]
         cond = np.linalg.cond(A) if np.isfinite(A).all() else math.inf
         if not cond <= MAX_CONDITION:
-            _fail(f"{path}.params", f"the correction matrix is singular or nearly so (condition "
+            fail_check(f"{path}.params", f"the correction matrix is singular or nearly so (condition "
                   f"number {cond:.3g} > {MAX_CONDITION:g}): it would lose an axis",
                   "a scale of 0 or a degenerate soft iron is not a calibration: recalibrate")
         return part
 
 
-#: highest order of a thermal block (calibration_checks._thermal)
+#: highest order of a thermal block (calibration_checks.check_thermal)
 _MAX_THERMAL_ORDER = 3
 
 
@@ -317,14 +317,14 @@ def _legacy_gyro_thermal(params, stderr, flags, thermal, path: str):
     temp_ref_c.  One difference: without any temperature (temp_c None) the older form raised;
     a thermal block corrects as at t_ref_c."""
     if ("bias_temp_poly_dps" in params) != ("temp_ref_c" in params):
-        _fail(f"{path}.params.temp_ref_c", "bias_temp_poly_dps and temp_ref_c go together",
+        fail_check(f"{path}.params.temp_ref_c", "bias_temp_poly_dps and temp_ref_c go together",
               "give both or neither")
     if thermal is not None:
-        _fail(f"{path}.thermal", "given together with params.bias_temp_poly_dps",
+        fail_check(f"{path}.thermal", "given together with params.bias_temp_poly_dps",
               "keep one of the two thermal terms (thermal: supersedes the older one)")
     poly = np.asarray(params["bias_temp_poly_dps"], float).reshape(-1, 3)
     if len(poly) > _MAX_THERMAL_ORDER:
-        _fail(f"{path}.params.bias_temp_poly_dps", f"{len(poly)} rows; a thermal bias polynomial "
+        fail_check(f"{path}.params.bias_temp_poly_dps", f"{len(poly)} rows; a thermal bias polynomial "
               f"has at most {_MAX_THERMAL_ORDER}", "keep the first 3 rows, or refit the thermal terms")
     ref = float(params["temp_ref_c"])
     th: Dict[str, Any] = {"order": len(poly), "t_ref_c": ref, "t_min_c": min(LEGACY_GYRO_RANGE_C[0], ref),
@@ -414,52 +414,52 @@ class Calibration:
             d["poses_used"] = {"columns": list(self.poses_used["columns"]),
                                "rows": [[_num(x) for x in r] for r in self.poses_used["rows"]]}
         if self.provisional is not None:
-            d["provisional"] = _provisional(self.provisional, "provisional")
+            d["provisional"] = check_provisional(self.provisional, "provisional")
         return d
 
     @classmethod
     def from_dict(cls, d: Any) -> "Calibration":
         if not isinstance(d, Mapping):
-            _fail("(top level)", f"expected a mapping, got {type(d).__name__}",
+            fail_check("(top level)", f"expected a mapping, got {type(d).__name__}",
                   "see docs/reference/calibration-file.md")
         if d.get("format_version") == 1:
             d = _from_v1(d)
-        _keys(d, "", {"format_version", "id", "board", "units"},
+        check_keys(d, "", {"format_version", "id", "board", "units"},
               {"created", "chips", "temperature_range_c", "poses_used", "provisional", "sensor", *SENSORS})
         if d["format_version"] != FORMAT_VERSION:
-            _fail("format_version", f"{d['format_version']!r} is not supported",
+            fail_check("format_version", f"{d['format_version']!r} is not supported",
                   f"this imucald reads 1 and {FORMAT_VERSION}")
         if isinstance(d["id"], bool) or not isinstance(d["id"], int) or d["id"] < 0:
-            _fail("id", f"{d['id']!r} is not a non-negative integer", "e.g. id: 1")
+            fail_check("id", f"{d['id']!r} is not a non-negative integer", "e.g. id: 1")
         for k in ("board", "created", "sensor"):
             if not isinstance(d.get(k, ""), str):
-                _fail(k, f"expected text, got {type(d[k]).__name__}", "quote it")
+                fail_check(k, f"expected text, got {type(d[k]).__name__}", "quote it")
         chips = d.get("chips", {})
         if not isinstance(chips, Mapping):
-            _fail("chips", "expected a mapping of sensor -> chip name", "e.g. {accel: mpu6050}")
+            fail_check("chips", "expected a mapping of sensor -> chip name", "e.g. {accel: mpu6050}")
         for k, v in chips.items():
             if k not in SENSORS or not isinstance(v, str):
-                _fail(f"chips.{k}", f"{v!r} is not a chip name of a sensor",
+                fail_check(f"chips.{k}", f"{v!r} is not a chip name of a sensor",
                       "keys accel, gyro, mag; values e.g. mpu6050")
         if d["units"] != UNITS:
             u = d["units"] if isinstance(d["units"], Mapping) else {}
             bad = next((k for k in UNITS if u.get(k) != UNITS[k]), "units")
-            _fail(f"units.{bad}" if bad != "units" else "units", f"{u.get(bad)!r} is not the stored unit",
+            fail_check(f"units.{bad}" if bad != "units" else "units", f"{u.get(bad)!r} is not the stored unit",
                   "imucald stores " + ", ".join(f"{k}: {v}" for k, v in UNITS.items()))
         tr = d.get("temperature_range_c")
         if tr is not None:
-            tr = _array(tr, "temperature_range_c", 2)
+            tr = check_array(tr, "temperature_range_c", 2)
             if tr[0] > tr[1]:
-                _fail("temperature_range_c", f"{tr.tolist()} is not [low, high]", "swap them")
+                fail_check("temperature_range_c", f"{tr.tolist()} is not [low, high]", "swap them")
             tr = (float(tr[0]), float(tr[1]))
         parts = {s: SensorCal.from_dict(s, d[s]) for s in SENSORS if d.get(s) is not None}
         pu = d.get("poses_used")
         if pu is not None:
-            pu = _table(pu, "poses_used")
+            pu = check_table(pu, "poses_used")
         pv = d.get("provisional")
         return cls(d["board"], dict(chips), d["id"], d.get("created", ""), tr, parts.get("accel"),
                    parts.get("gyro"), parts.get("mag"), pu,
-                   None if pv is None else _provisional(pv, "provisional"), d.get("sensor", ""))
+                   None if pv is None else check_provisional(pv, "provisional"), d.get("sensor", ""))
 
 
 def build_calibration(parts: Mapping[str, Optional["SensorCal"]], board: Optional[str] = None,
@@ -559,7 +559,7 @@ def _from_v1(d: Mapping) -> Dict[str, Any]:
         if p is None:
             continue
         if not isinstance(p, Mapping):
-            _fail(s, f"expected a mapping, got {type(p).__name__}", "see docs/reference/calibration-file.md")
+            fail_check(s, f"expected a mapping, got {type(p).__name__}", "see docs/reference/calibration-file.md")
         q = {k: p[k] for k in _V1_QUALITY[s] if p.get(k) is not None}
         rest = {k: v for k, v in p.items()
                 if k not in (*_V1_QUALITY[s], "theta", "crlb_std", "coverage")}

@@ -154,20 +154,20 @@ def test_rotation_scan_predicts_the_gravity_directions_of_a_sample_by_sample_com
     blocks are joined in the wrong order (checked: degrees off)."""
     from imucald.fitting.stillness.poses import detect_static
     from imucald.fitting.gyro.integration import (
-        _D2R, _angle_deg, _Windows, predict_directions, rotation_windows
+        D2R, angle_deg, RotationWindows, predict_directions, rotation_windows
     )
     from imucald.files.recording import read_recording
     rec = read_recording(str(nine_dof))
     sl = [s for s in detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz) if s.stop - s.start >= 2]
     wins, _ = rotation_windows(rec.t, rec.gyro, sl)
     offsets = np.array([rec.gyro[s].mean(0) for s in sl])
-    W = _Windows(rec.t, rec.gyro, rec.acc, wins, offsets, np.zeros((3, 3)))
+    W = RotationWindows(rec.t, rec.gyro, rec.acc, wins, offsets, np.zeros((3, 3)))
     K = np.eye(3) + np.array([[8e-3, 1e-2, -1e-2], [1.7e-2, -1e-2, -3e-3], [-1.4e-2, -3e-3, 1e-2]])
     D = W.integrate(K)[0]
-    ref = _compose_sample_by_sample(W.vd * _D2R, K)
+    ref = _compose_sample_by_sample(W.vd * D2R, K)
     u = np.array([rec.acc[sl[w[0]]].mean(0) for w in wins])
     u /= np.linalg.norm(u, axis=1, keepdims=True)
-    err = _angle_deg(predict_directions(D, u), predict_directions(ref, u))
+    err = angle_deg(predict_directions(D, u), predict_directions(ref, u))
     assert len(wins) >= 10 and err.max() < 1e-9
 
 

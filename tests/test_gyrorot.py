@@ -74,9 +74,9 @@ def test_integration_runs_between_the_poses_mean_orientations():
     u = np.array([s.specific_force_g[x].mean(0) for x in sl])
     u /= np.linalg.norm(u, axis=1)[:, None]
     wins, _ = ri.rotation_windows(rec.t, s.rate_dps, sl)
-    W = ri._Windows(rec.t, s.rate_dps, rec.acc, wins, np.zeros((len(sl), 3)), np.zeros((3, 3)))
+    W = ri.RotationWindows(rec.t, s.rate_dps, rec.acc, wins, np.zeros((len(sl), 3)), np.zeros((3, 3)))
     p = np.array([w[0] for w in wins])
-    err = ri._angle_deg(ri.predict_directions(W.integrate(np.eye(3))[0], u[p]), u[p + 1])
+    err = ri.angle_deg(ri.predict_directions(W.integrate(np.eye(3))[0], u[p]), u[p + 1])
     assert len(wins) == 11 and err.max() < 0.005, err
 
 

@@ -84,14 +84,14 @@ def _accel(args, rec, poses, pieces, progress):
     from ..fitting.fit import fit_norm
     from ..fitting.noise.colour import pose_colour_inflation
     from ..specs import BOARDS
-    from .offline import DEFAULT_MODEL, _check_rest_norms, _file_part
+    from .offline import DEFAULT_MODEL, check_rest_norms, file_part
     from .thermal import fit_thermal, pieces_colour_inflation, thermal_json, thermal_lines
     if rec.acc is None:
         return {"skipped": "no accelerometer columns (ax, ay, az)"}, None
     if len(poses) < 10:
         return {"skipped": f"only {len(poses)} still poses found; the 9-parameter model needs at least "
                            f"10 (about 25 recommended), well spread over the sphere"}, None
-    _check_rest_norms(args.input, poses)
+    check_rest_norms(args.input, poses)
     model = DEFAULT_MODEL["accel"]
     if progress:
         progress(f"imucald: accel: fitting {model} with {args.method}")
@@ -112,12 +112,12 @@ def _accel(args, rec, poses, pieces, progress):
     if tf is not None:
         d["thermal"] = thermal_json("accel", tf)
         lines += thermal_lines("accel", tf)
-    return {"part": _file_part(cal, tf), "json": d, "lines": lines, "thermal": tf}, cal
+    return {"part": file_part(cal, tf), "json": d, "lines": lines, "thermal": tf}, cal
 
 
 def _mag(args, rec, progress):
     from ..fitting.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
-    from .offline import DEFAULT_MODEL, _file_part
+    from .offline import DEFAULT_MODEL, file_part
     from .thermal import thermal_json, thermal_lines
     if rec.mag is None:
         return {"skipped": "no magnetometer columns (mx, my, mz)"}, None
@@ -135,14 +135,14 @@ def _mag(args, rec, progress):
     if tf is not None:
         d["thermal"] = thermal_json("mag", tf)
         lines += thermal_lines("mag", tf)
-    return ({"part": _file_part(res["calibration"], tf), "json": d, "lines": lines, "thermal": tf},
+    return ({"part": file_part(res["calibration"], tf), "json": d, "lines": lines, "thermal": tf},
             res["calibration"])
 
 
 def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any]:
     from ..fitting.fit import fit_gyro_bias
     from .gyrorot import file_line, fit_rotations, rotation_json, rotation_lines
-    from .offline import DEFAULT_MODEL, _file_part
+    from .offline import DEFAULT_MODEL, file_part
     from .thermal import fit_thermal, thermal_json, thermal_lines
     if rec.gyro is None:
         return {"skipped": "no gyro columns (gx, gy, gz)"}
@@ -158,7 +158,7 @@ def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any
     tf = None
     if args.method != "ga-paper":
         tf = fit_thermal("gyro", pieces, cal, None, None, args.thermal_min_span, args.seed)
-    part = _file_part(cal, tf, rot)
+    part = file_part(cal, tf, rot)
     d = cal.to_json()
     d["rotations"] = rotation_json(rot, why)
     d["file"] = {"bias_dps": part.params["bias_dps"].tolist(), "matrix": "matrix" in part.params,
@@ -171,13 +171,13 @@ def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any
 
 
 def _print_lines(sensor: str, cal) -> List[str]:
-    """The lines ``calibrate --sensor SENSOR`` prints for a fit (offline._print_cal)."""
+    """The lines ``calibrate --sensor SENSOR`` prints for a fit (offline.print_cal)."""
     import contextlib
     import io
-    from .offline import _print_cal
+    from .offline import print_cal
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
-        _print_cal(sensor, cal)
+        print_cal(sensor, cal)
     return buf.getvalue().splitlines()
 
 

@@ -7,9 +7,9 @@ import threading
 
 def cmd_mqtt(args) -> int:
     from ..mqtt.bridge import Bridge
-    from .service import _daemon_config, _setup_logging
-    cfg, _ = _daemon_config(args)
-    _setup_logging(cfg["log"]["level"])
+    from .service import daemon_config, setup_logging
+    cfg, _ = daemon_config(args)
+    setup_logging(cfg["log"]["level"])
     bridge = Bridge(cfg)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):

@@ -105,7 +105,7 @@ def _fmt_vec(v, unit_scale=1.0, fmt="{:+.6f}"):
 REST_NORM_G = (0.5, 2.0)
 
 
-def _check_rest_norms(path: str, poses) -> None:
+def check_rest_norms(path: str, poses) -> None:
     import numpy as np
     norm = np.linalg.norm(poses.acc, axis=1)
     bad = np.flatnonzero(~((norm >= REST_NORM_G[0]) & (norm <= REST_NORM_G[1])))
@@ -222,7 +222,7 @@ def _calibrate(args) -> int:
         # the thermal terms: the order the held-out test supports (docs: thermal terms)
         from .thermal import fit_thermal
         tf = fit_thermal(sensor, pieces, cal, chip, infl_pieces, args.thermal_min_span, args.seed)
-    part = _file_part(cal, tf, rot)             # what -o writes (and the file's bias for the gyro)
+    part = file_part(cal, tf, rot)             # what -o writes (and the file's bias for the gyro)
     if args.output:
         _write_calibration(args.output, poses.meta, part, tf)
     if getattr(args, "plot", None) and sensor == "accel":     # coverage sphere, residuals (plots extra)
@@ -260,7 +260,7 @@ def _fit_accel(args, rec, poses, pieces, det, model, progress):
     from ..fitting.fit import fit_norm
     from ..specs import BOARDS
     need, model = _accel_model_order(args.input, model, len(poses), args.model is None, det, progress)
-    _check_rest_norms(args.input, poses)
+    check_rest_norms(args.input, poses)
     if progress:
         from ..fitting.stillness.poses import still_report
         for line in still_report(det)[1:]:
@@ -333,7 +333,7 @@ def _calibrate_json(sensor, cal, det, rec, rot, why, part, tf) -> dict:
 
 def _print_report(sensor, cal, rec, rot, why, part, tf) -> None:
     """calibrate's text report: the fit, then the rotations, the file's gyro line, the thermal terms."""
-    _print_cal(sensor, cal)
+    print_cal(sensor, cal)
     if rec is not None and sensor == "gyro":
         from .gyrorot import rotation_lines
         print("\n".join(rotation_lines(rot, why)))
@@ -345,7 +345,7 @@ def _print_report(sensor, cal, rec, rot, why, part, tf) -> None:
         print("\n".join(thermal_lines(sensor, tf)))
 
 
-def _print_cal(sensor: str, cal) -> None:
+def print_cal(sensor: str, cal) -> None:
     unit = {"accel": ("mg", 1e3), "mag": ("mG", 1e3), "gyro": ("deg/s", 1.0)}[sensor]
     what = "points (thinned rotation samples)" if cal.noise_source == "second differences" else "poses"
     print(f"{sensor} {cal.model} by {cal.method}: {cal.poses} {what}, fitness {cal.fitness:.6g}")
@@ -415,7 +415,7 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     if not res["determined"]:
         _eprint(f"imucald: {args.input}: {flat_message(res)}")
         return 3
-    _print_cal("mag", res["calibration"])
+    print_cal("mag", res["calibration"])
     print("\n".join(rotation_lines(res)))
     if tf is not None:
         from .thermal import thermal_lines
@@ -423,7 +423,7 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     return 0
 
 
-def _file_part(fit, thermal=None, rotations=None):
+def file_part(fit, thermal=None, rotations=None):
     """The part --output writes: the fitted one with its thermal terms and, for the gyro,
     the scale/misalignment (and g-sensitivity) from the rotations when they beat bias only."""
     from ..calibration import SensorCal
@@ -436,12 +436,12 @@ def _file_part(fit, thermal=None, rotations=None):
 
 
 def _write_calibration(path: str, meta, part, thermal=None) -> None:
-    """--output: ``part`` (a fit: its part, see _file_part) as a calibration file (the
+    """--output: ``part`` (a fit: its part, see file_part) as a calibration file (the
     daemon's and imucald.load_calibration's format), written atomically; board and chips
     from the input's meta (chips: the recorded ones, else the board's usual), created now."""
     from ..calibration import SensorCal, build_calibration, save
     if not isinstance(part, SensorCal):
-        part = _file_part(part, thermal)
+        part = file_part(part, thermal)
     tr = None if thermal is None else (round(thermal.t_min_c, 2), round(thermal.t_max_c, 2))
     try:
         save(build_calibration({part.sensor: part}, meta=meta, temperature_range_c=tr), path)

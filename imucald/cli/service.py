@@ -10,7 +10,7 @@ from ..errors import UserError
 DEFAULT_CONFIG = "/etc/imucald/imucald.yaml"
 
 
-def _setup_logging(level: str) -> None:
+def setup_logging(level: str) -> None:
     import logging
     logging.basicConfig(level=getattr(logging, level.upper()), stream=sys.stderr,
                         format="imucald: %(message)s")
@@ -34,7 +34,7 @@ def _overrides(args):
     return out
 
 
-def _daemon_config(args, with_overrides: bool = False):
+def daemon_config(args, with_overrides: bool = False):
     from ..daemon.config import apply_overrides, load_config
     path = args.config
     if path is None and os.path.exists(DEFAULT_CONFIG):
@@ -51,8 +51,8 @@ def cmd_run(args) -> int:
     from ..daemon.run import Daemon
     from .boards import RUN_TOUR, open_board
     from .faults import faults_from_options
-    cfg, path, overrides = _daemon_config(args, with_overrides=True)
-    _setup_logging(cfg["log"]["level"])
+    cfg, path, overrides = daemon_config(args, with_overrides=True)
+    setup_logging(cfg["log"]["level"])
     s = cfg["sensor"]
     emulate = "yes" if args.emulate else ("no" if args.no_emulate else s["emulate"])
     kw = {}
@@ -78,8 +78,8 @@ def cmd_replay(args) -> int:
     from ..daemon.state import save_calibration
     from ..drivers.board import SampleBatch
     from ..files.recording import open_recording
-    cfg, _ = _daemon_config(args)
-    _setup_logging(cfg["log"]["level"])
+    cfg, _ = daemon_config(args)
+    setup_logging(cfg["log"]["level"])
     with open_recording(args.recording) as reader:      # streamed: memory bounded by one block
         cols = reader.header
         if "ax" not in cols and "mx" not in cols:
@@ -176,7 +176,7 @@ def _cat(parts):
 
 
 def _control_path(args) -> str:
-    cfg, _ = _daemon_config(args)
+    cfg, _ = daemon_config(args)
     p = cfg["control"]["socket"]
     return p if os.path.isabs(p) else os.path.join(cfg["runtime"]["directory"], p)
 
@@ -239,7 +239,7 @@ def cmd_recalibrate(args) -> int:
 
 def cmd_watch(args) -> int:
     import socket as _socket
-    cfg, _ = _daemon_config(args)
+    cfg, _ = daemon_config(args)
     p = cfg["output"]["socket"]
     p = p if os.path.isabs(p) else os.path.join(cfg["runtime"]["directory"], p)
     s = _socket.socket(_socket.AF_UNIX, _socket.SOCK_STREAM)

@@ -15,7 +15,7 @@ from ...numerics.npstats import median
 RAIL_FRACTION = 1.0 - 4.0 / 32768.0
 #: a time step longer than this many median steps means samples were lost
 GAP_FACTOR = 1.5
-_D2R = np.pi / 180.0
+D2R = np.pi / 180.0
 
 
 def rotation_windows(t_s, gyro_dps, slices: Sequence[slice], range_dps: Optional[float] = None):
@@ -106,7 +106,7 @@ def _prefix_rotations(theta_rad):
     return P
 
 
-class _Windows:
+class RotationWindows:
     """The rotations' increments, padded to one length (zeros): weight x (raw - b(t) - G a) x
     dt (deg, trapezoid).  A window runs from the
     first sample of pose p to the last of pose p+1; inside the poses the increments are
@@ -155,7 +155,7 @@ class _Windows:
         K = np.asarray(K, float)
         if idx is None and getattr(self, "_last", None) is not None and np.array_equal(self._last[0], K):
             return self._last[1]            # the fit asks again at its solution (frame, RMS)
-        vd = (self.vd if idx is None else self.vd[idx]) * _D2R
+        vd = (self.vd if idx is None else self.vd[idx]) * D2R
         R, L = vd.shape[:2]
         P = _prefix_rotations(vd @ K.T)
         S = np.matmul(P.reshape(R, L, 9).transpose(0, 2, 1), vd).reshape(R, 3, 3, 3)
@@ -164,7 +164,7 @@ class _Windows:
         return P[:, -1], S
 
 
-def _tangent(u):
+def tangent_basis(u):
     """Two unit vectors perpendicular to each row of u (R, 3): (R, 3, 2)."""
     ref = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
     e1 = np.cross(u, ref)
@@ -177,5 +177,5 @@ def predict_directions(Delta, start):
     return np.einsum("rji,rj->ri", Delta, start)
 
 
-def _angle_deg(x, y):
+def angle_deg(x, y):
     return np.degrees(np.arctan2(np.linalg.norm(np.cross(x, y), axis=1), np.einsum("ri,ri->r", x, y)))

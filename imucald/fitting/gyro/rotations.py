@@ -45,8 +45,8 @@ import numpy as np
 
 from ...numerics.npstats import median
 from ..judging.metrics import rms
-from .integration import (GAP_FACTOR, RAIL_FRACTION, _D2R, _angle_deg, _tangent, _Windows,  # noqa: F401
-                     predict_directions, rotation_windows)
+from .integration import (D2R, GAP_FACTOR, RAIL_FRACTION, RotationWindows, angle_deg,
+                          predict_directions, rotation_windows, tangent_basis)
 from ..judging.uncertainty import UNDETERMINED_RATIO
 
 __all__ = ["GyroRotFit", "fit_gyro_rotations", "rotation_windows", "predict_directions",
@@ -158,7 +158,7 @@ class _Problem:
         self.W = W
         self.refs = refs        # list of (start (R,3), end (R,3), start cov, end cov): unit vectors
         self.var_ang = var_ang  # (R,) rad^2, isotropic angle noise from the gyro
-        self.B = [_tangent(e) for _, e, _, _ in refs]
+        self.B = [tangent_basis(e) for _, e, _, _ in refs]
 
     def subset(self, idx) -> "_Problem":
         """The same problem over rotations ``idx`` only (their rows are unchanged)."""
@@ -206,7 +206,7 @@ class _Problem:
 
 
 class _SubWindows:
-    """Some of a _Windows' rotations (integrated without copying the others)."""
+    """Some of a RotationWindows' rotations (integrated without copying the others)."""
 
     def __init__(self, W, idx):
         self.W, self.idx = W, np.asarray(idx)
@@ -232,7 +232,7 @@ def _solve(prob, lam, phi=1.0, E0=None, iters=20):
 
 def _build(t, gyro, acc, mag, slices, wins, offsets, G, acc_cov, mag_cov, sample_var, offset_var, wobble):
     """The problem over windows ``wins``."""
-    W = _Windows(t, gyro, acc, wins, offsets, G)
+    W = RotationWindows(t, gyro, acc, wins, offsets, G)
     p0 = np.array([w[0] for w in wins])
     refs = []
     for means, covs in ((acc, acc_cov), (mag, mag_cov)):
@@ -248,7 +248,7 @@ def _build(t, gyro, acc, mag, slices, wins, offsets, G, acc_cov, mag_cov, sample
     for q in (p0, p0 + 1):      # the wobble's share: (end - start angle) x (1/2 + T_motion / 2 T_pose)
         Tq = np.array([t[slices[i].stop - 1] - t[slices[i].start] for i in q])
         var_ang = var_ang + 2 * wobble[q] * (0.5 + W.T / (2 * np.maximum(Tq, 1e-9))) ** 2
-    var_ang = var_ang * _D2R ** 2
+    var_ang = var_ang * D2R ** 2
     return _Problem(W, refs, var_ang)
 
 
@@ -320,7 +320,7 @@ def fit_gyro_rotations(t_s, gyro_dps, acc_g, slices: Sequence[slice], mag=None, 
     ho = (_heldout(build, wins, lam, phi, folds, K) if heldout_refits
           else _heldout_update(prob, lam, phi, folds, E, r, J))
     Delta = prob.W.integrate(K)[0]
-    rms_deg = rms([_angle_deg(predict_directions(Delta, s), e) for s, e, _, _ in prob.refs])
+    rms_deg = rms([angle_deg(predict_directions(Delta, s), e) for s, e, _, _ in prob.refs])
     return GyroRotFit(K, se.reshape(3, 3), flags, b, bse, G, Gse, gflags, len(wins), left, float(phi),
                       chi2 / dof, rms_deg, ho, "gravity" if mg is None else "gravity+field")
 
@@ -385,7 +385,7 @@ def _heldout_update(prob, lam, phi, folds, E_all, r, J):
     H_all, g_all = Hw.sum(0), gw.sum(0)
     k, split = _folds(R, folds)
     s, e = prob.refs[0][:2]
-    raw = _angle_deg(predict_directions(prob.W.integrate(np.eye(3))[0], s), e)
+    raw = angle_deg(predict_directions(prob.W.integrate(np.eye(3))[0], s), e)
     cal, ok = np.zeros(R), np.zeros(R, bool)
     for test, train in split:
         if len(train) < 3:
@@ -400,7 +400,7 @@ def _heldout_update(prob, lam, phi, folds, E_all, r, J):
             if np.max(np.abs(step)) < FOLD_STEP_TOL:
                 break
         D = prob.W.integrate(np.eye(3) + Ef.reshape(3, 3), test)[0]
-        cal[test] = _angle_deg(predict_directions(D, s[test]), e[test])
+        cal[test] = angle_deg(predict_directions(D, s[test]), e[test])
         ok[test] = True
     return _heldout_figures(raw, cal, ok, k, GATE_FALSE_ACCEPT_RATE, paired_gate)
 
@@ -441,7 +441,7 @@ def _heldout(build, wins, lam, phi, folds, K_all):
         Ef, _, _, _ = _solve(build([wins[i] for i in train]), lam, phi, (K_all - np.eye(3)).ravel())
         pt = build([wins[i] for i in test])
         s, e = pt.refs[0][:2]
-        raw[test] = _angle_deg(predict_directions(pt.W.integrate(np.eye(3))[0], s), e)
-        cal[test] = _angle_deg(predict_directions(pt.W.integrate(np.eye(3) + Ef.reshape(3, 3))[0], s), e)
+        raw[test] = angle_deg(predict_directions(pt.W.integrate(np.eye(3))[0], s), e)
+        cal[test] = angle_deg(predict_directions(pt.W.integrate(np.eye(3) + Ef.reshape(3, 3))[0], s), e)
         ok[test] = True
     return _heldout_figures(raw, cal, ok, k, GATE_FALSE_ACCEPT_RATE, paired_gate)

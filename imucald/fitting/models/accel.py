@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import NormModel, _bias_form_jac, _unit_upper_from_off
+from .base import NormModel, bias_form_jac, unit_upper_from_off
 
 __all__ = ["Triangular9", "Diag6", "Full12", "Cosine", "COSINE_SUBSETS"]
 
@@ -79,7 +79,7 @@ class Triangular9(NormModel):
         dM[..., 5, 0, 2] = a_zy
         dM[..., 5, 1, 2] = a_zx
         dM[..., 5, 2, 2] = 1.0
-        return _bias_form_jac(dM, M, theta[..., 6:9])
+        return bias_form_jac(dM, M, theta[..., 6:9])
 
     def from_ellipsoid(self, center, Q):
         # Q = (TK)^T (TK); the upper Cholesky factor R (R^T R = Q) is exactly T K.
@@ -127,7 +127,7 @@ class Full12(NormModel):
     @staticmethod
     def matrix(theta):
         theta = np.asarray(theta, float)
-        T = _unit_upper_from_off(theta[..., 0:6], _FULL_IDX)
+        T = unit_upper_from_off(theta[..., 0:6], _FULL_IDX)
         return T * theta[..., None, 6:9]
 
     def affine(self, theta):
@@ -138,14 +138,14 @@ class Full12(NormModel):
     def affine_jac(self, theta):
         theta = np.asarray(theta, float)
         M = self.matrix(theta)
-        T = _unit_upper_from_off(theta[..., 0:6], _FULL_IDX)
+        T = unit_upper_from_off(theta[..., 0:6], _FULL_IDX)
         S = theta[..., 6:9]
         dM = np.zeros(theta.shape[:-1] + (9, 3, 3))
         for k, (i, j) in enumerate(_FULL_IDX):
             dM[..., k, i, j] = S[..., j]
         for j in range(3):
             dM[..., 6 + j, :, j] = T[..., :, j]
-        return _bias_form_jac(dM, M, theta[..., 9:12])
+        return bias_form_jac(dM, M, theta[..., 9:12])
 
     def unobservable_directions(self, theta):
         """The 3 tangent directions of M -> (I + [w]x) M, expressed in theta.
@@ -154,7 +154,7 @@ class Full12(NormModel):
         """
         theta = np.asarray(theta, float)
         M = self.matrix(theta)
-        T = _unit_upper_from_off(theta[0:6], _FULL_IDX)
+        T = unit_upper_from_off(theta[0:6], _FULL_IDX)
         S = theta[6:9]
         out = []
         for axis in range(3):

@@ -12,10 +12,10 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ["NormModel"]
+__all__ = ["NormModel", "bias_form_jac", "unit_upper_from_off"]
 
 
-def _unit_upper_from_off(off: np.ndarray, idx: Sequence[Tuple[int, int]]) -> np.ndarray:
+def unit_upper_from_off(off: np.ndarray, idx: Sequence[Tuple[int, int]]) -> np.ndarray:
     shape = off.shape[:-1]
     T = np.zeros(shape + (3, 3))
     T[..., 0, 0] = T[..., 1, 1] = T[..., 2, 2] = 1.0
@@ -163,7 +163,7 @@ class NormModel:
         raise NotImplementedError
 
 
-def _bias_form_jac(dM: np.ndarray, M: np.ndarray, b: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+def bias_form_jac(dM: np.ndarray, M: np.ndarray, b: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """For h = M (x - b) with theta = [m-params..., b]: assemble dA, dc.
 
     dM: (..., km, 3, 3) derivative of M w.r.t. its own parameters.

@@ -6,7 +6,7 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-from .base import NormModel, _bias_form_jac
+from .base import NormModel, bias_form_jac
 
 __all__ = ["MagModel", "mag_report"]
 
@@ -73,7 +73,7 @@ class MagModel(NormModel):
                 i, j = _SYM_IDX[k]
                 dM[..., k, i, j] = 1.0
                 dM[..., k, j, i] = 1.0
-        return _bias_form_jac(dM, W, theta[..., self.kw:])
+        return bias_form_jac(dM, W, theta[..., self.kw:])
 
     def from_ellipsoid(self, center, Q):
         # symmetric square root of Q = W^T W = W^2

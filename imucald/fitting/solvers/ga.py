@@ -9,7 +9,7 @@ import numpy as np
 
 from ...numerics.rng import as_rng
 
-from .lsq import OptimResult, Problem, _result, closed_form_starts, lm_converge, lm_steps
+from .lsq import OptimResult, Problem, optim_result, closed_form_starts, lm_converge, lm_steps
 from ...numerics.rng import RngLike
 from ..models.base import NormModel
 
@@ -196,7 +196,7 @@ def ga_paper(prob: Problem, rng: RngLike = None, runs: int = 20, iterations: int
     info = {"iterations": per_iter, "runs": runs}
     if had_prior:
         info["prior"] = "not used: ga-paper is paper 000's protocol as written"
-    return _result(prob, mean, fit, gens, "ga-paper", info)
+    return optim_result(prob, mean, fit, gens, "ga-paper", info)
 
 
 def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
@@ -215,7 +215,7 @@ def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
         it += its
         if fs < fp:
             zp, fp, ga_won = zs, fs, False
-    return _result(prob, zp, fp, int(g[0]) + it, "ga",
+    return optim_result(prob, zp, fp, int(g[0]) + it, "ga",
                        {"ga_fitness": float(f[0]), "ga_generations": int(g[0]), "lm_iterations": it,
                         "ga_start_won": ga_won})
 
@@ -271,4 +271,4 @@ def hga(prob: Problem, rng: RngLike = None, pop: int = 300, max_gen: int = 200,
             if (old - F[0]) / max(abs(F[0]), 1e-300) < tol:
                 break
     zp, fp, it = lm_converge(prob, X[0]) if polish else (X[0], float(F[0]), 0)
-    return _result(prob, zp, fp, gen + 1 + it, "hga", {"generations": gen + 1, "lm_iterations": it})
+    return optim_result(prob, zp, fp, gen + 1 + it, "hga", {"generations": gen + 1, "lm_iterations": it})

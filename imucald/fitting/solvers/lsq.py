@@ -25,7 +25,7 @@ from ...numerics import allocator
 from ..models.base import NormModel
 
 __all__ = ["Problem", "OptimResult", "lm", "lm_converge", "lm_steps", "closed_form_starts",
-           "sphere_fit", "ellipsoid_fit"]
+           "sphere_fit", "ellipsoid_fit", "optim_result"]
 
 
 
@@ -164,7 +164,7 @@ class OptimResult:
         self.theta = np.asarray(self.theta, float)
 
 
-def _result(prob: "Problem", z: np.ndarray, fitness: float, iterations: int, method: str,
+def optim_result(prob: "Problem", z: np.ndarray, fitness: float, iterations: int, method: str,
             info: Dict[str, object]) -> "OptimResult":
     nfev = prob.nfev
     dfit = float(prob.data_fitness(z))
@@ -327,4 +327,4 @@ def lm(prob: Problem, z0: Optional[np.ndarray] = None, max_iter: int = 200,
         iters += it
         if best is None or f < best[1]:
             best = (z, f)
-    return _result(prob, best[0], best[1], iters, "lm", {"starts": len(starts)})
+    return optim_result(prob, best[0], best[1], iters, "lm", {"starts": len(starts)})

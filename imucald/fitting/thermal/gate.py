@@ -18,7 +18,7 @@ import numpy as np
 
 from ..gate import Decision, fold_groups, paired_gate
 from ..judging.levels import GATE_FALSE_ACCEPT_RATE
-from .terms import ThermalFit, _design, norm_residuals, refit_norm
+from .terms import ThermalFit, thermal_design, norm_residuals, refit_norm
 
 __all__ = ["gate_norm_thermal", "gate_bias_thermal", "FOLDS", "MIN_OUTSIDE"]
 
@@ -71,9 +71,9 @@ def gate_bias_thermal(tf: ThermalFit, temp_c, y, incumbent, alpha: float = GATE_
     for g in fold_groups(len(y), FOLDS):
         keep = np.ones(len(y), bool)
         keep[g] = False
-        X = _design(u[keep], tf.order)
+        X = thermal_design(u[keep], tf.order)
         wv = 1 / v[keep].reshape(-1)
         beta = np.linalg.lstsq(X * np.sqrt(wv)[:, None], y[keep].reshape(-1) * np.sqrt(wv), rcond=None)[0]
-        e[g] = y[g] - (_design(u[g], tf.order) @ beta).reshape(-1, 3)
+        e[g] = y[g] - (thermal_design(u[g], tf.order) @ beta).reshape(-1, 3)
     inc = np.asarray(incumbent, float)[ok]
     return e, _decide((inc ** 2).sum(1), (e ** 2).sum(1), T, current, alpha, against)

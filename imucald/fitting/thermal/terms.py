@@ -43,7 +43,7 @@ from ..judging.levels import THERMAL_TREND_LEVEL
 from ...numerics.tails import chi2_logsf
 from ...numerics.npstats import median
 
-__all__ = ["ThermalFit", "fit_bias_series", "fit_norm_thermal", "MIN_SPAN_C", "MAX_ORDER"]
+__all__ = ["ThermalFit", "fit_bias_series", "fit_norm_thermal", "thermal_design", "MIN_SPAN_C", "MAX_ORDER"]
 
 MIN_SPAN_C = 10.0       #: default calibration.thermal_min_span_c: below it only a constant
 MAX_ORDER = 3
@@ -155,7 +155,7 @@ def _span_note(span: float, min_span_c: float) -> str:
 
 # --- direct bias observations -----------------------------------------------------------------
 
-def _design(u: np.ndarray, order: int) -> np.ndarray:
+def thermal_design(u: np.ndarray, order: int) -> np.ndarray:
     """(3N, 3 (order + 1)) design: per axis, powers u^0..u^order (rows x0 y0 z0 x1 ...)."""
     N = len(u)
     X = np.zeros((3 * N, 3 * (order + 1)))
@@ -196,7 +196,7 @@ def fit_bias_series(temp_c, y, var, min_span_c: float = MIN_SPAN_C, max_order: i
         orders = orders[:1] or [0]
     fits = {}
     for k in orders:
-        X = _design(u, k)
+        X = thermal_design(u, k)
         fits[k] = X
     # excess scatter left by the richest order inflates every variance (steps, hysteresis)
     infl = 1.0

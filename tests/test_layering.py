@@ -180,3 +180,20 @@ def test_no_function_in_imucald_is_over_80_lines():
                 if lines > 80:
                     long.append(f"{p.relative_to(root.parent)}:{n.lineno} {n.name} ({lines} lines)")
     assert not long, "functions over 80 lines: " + "; ".join(long)
+
+
+def test_no_module_imports_another_modules_private_names():
+    """Issue 24: what one module takes from another is public where it lives (no `_name`
+    imported across modules).  Seen to fail before the helpers were renamed (calibration.py
+    took seven `_check` helpers from files/calibration_checks, cli/calall took offline's)."""
+    import ast
+    import pathlib
+    root = pathlib.Path(__file__).resolve().parent.parent / "imucald"
+    found = []
+    for p in sorted(root.rglob("*.py")):
+        for n in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if isinstance(n, ast.ImportFrom) and (n.level > 0 or (n.module or "").startswith("imucald")):
+                priv = [a.name for a in n.names if a.name.startswith("_") and not a.name.startswith("__")]
+                if priv:
+                    found.append(f"{p.relative_to(root.parent)}:{n.lineno} {n.module} {priv}")
+    assert not found, "private names imported across modules: " + "; ".join(found)

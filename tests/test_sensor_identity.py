@@ -1,6 +1,7 @@
 """Calibrations tied to the physical sensor: fingerprints from chip ID, bus, address and
 factory trim; per-sensor state; a swapped board never gets another board's calibration."""
 import os
+import signal
 import subprocess
 import time
 
@@ -102,18 +103,28 @@ def test_a_calibration_of_another_sensor_copied_in_is_moved_not_applied(tmp_path
 
 
 def _run_once(tmp_path, seed, query=False):
-    """One daemon start on the emulated MPU-6050 of ``seed`` (10 s of sensor time, 5x: the
-    identity is written at the first sample; 2 s of wall time leaves the status query room)."""
-    p, rt, st = start_daemon(tmp_path, "--speed", "5", "--seed", str(seed), "--duration", "10")
+    """One daemon start on the emulated MPU-6050 of ``seed``, stopped by SIGTERM once it has
+    written the identity (at the first sample) and, with ``query``, answered a status that
+    carries it.  It used to run a fixed 10 s of sensor time at 5x (2 s of wall time), which
+    under load could end before the status query connected (ConnectionRefusedError, seen
+    once on two pytest workers)."""
+    p, rt, st = start_daemon(tmp_path, "--speed", "5", "--seed", str(seed), "--duration", "600")
     status = None
     try:
         if query:
             wait_for(rt / "control.sock", p)
-            for _ in range(50):
-                status = control(rt, "status")
-                if "sensor" in status:
+            deadline = time.time() + 60
+            while time.time() < deadline:
+                try:
+                    status = control(rt, "status")
+                except ConnectionRefusedError:      # bound, not yet listening
+                    status = None
+                if status and "sensor" in status:
                     break
                 time.sleep(0.05)
+        else:
+            wait_for(st / "sensor.yaml", p)
+        p.send_signal(signal.SIGTERM)
         out, err = p.communicate(timeout=120)
     finally:
         if p.poll() is None:

@@ -148,9 +148,7 @@ def _hand_held(seed, sway=True):
     axis); MPU-6050 noise (400 ug/rtHz, 0.005 dps/rtHz), Earth's rate, nothing injected."""
     from imucald.files.recording import Recording
 
-    from .blindgen2 import _rot, _slerp_path
-
-    rot, slerp = _rot, _slerp_path            # the blind generator's quaternion helpers
+    from .blindgen2 import _quat_rate_body, _rot as rot, _slerp_path as slerp   # its quaternion helpers
 
     def band(t, lo, hi):
         f, ph, a = rng.uniform(lo, hi, (10, 3)), rng.uniform(0, 2 * np.pi, (10, 3)), rng.uniform(0.5, 1, (10, 3))
@@ -174,11 +172,7 @@ def _hand_held(seed, sway=True):
     n = len(Q)
     t = np.arange(n) / rate
     R = np.stack([rot(q) for q in Q])
-    dq = np.gradient(Q, 1 / rate, axis=0)
-    w_, x_, y_, z_ = Q.T
-    w = np.degrees(2 * np.stack([w_ * dq[:, 1] - x_ * dq[:, 0] - y_ * dq[:, 3] + z_ * dq[:, 2],
-                                 w_ * dq[:, 2] + x_ * dq[:, 3] - y_ * dq[:, 0] - z_ * dq[:, 1],
-                                 w_ * dq[:, 3] - x_ * dq[:, 2] + y_ * dq[:, 1] - z_ * dq[:, 0]], 1))
+    w = _quat_rate_body(Q, 1 / rate)
     f = np.einsum("nji,j->ni", R, np.array([0, 0, 1.0]))
     _, r_t = band(t, 6, 12)
     r_t *= rng.uniform(0.3, 3.0) / r_t.std(0)

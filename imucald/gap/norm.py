@@ -14,10 +14,9 @@ from ..fitting.judging.metrics import rms
 from ..fitting.models.mag import MagModel
 from ..fitting.models.base import NormModel
 from ..fitting.solvers.lsq import Problem, lm, sphere_fit
-from ..numerics.tails import chi2_sf
 from ..fitting.judging.uncertainty import residual_variance
 from .candidates import Candidate
-from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
 from .signif import p_and_log10, proj_sig, score
 from .search import MIN_DOF, stepwise
 from .verdict import confusable, verdict
@@ -200,7 +199,6 @@ class CandidateFits:
     effects: List[Dict[str, object]] = field(default_factory=list)
     fits: Dict[str, tuple] = field(default_factory=dict)        #: kept variant: (chi2, e, ratio)
     cand_of: Dict[str, Candidate] = field(default_factory=dict)  #: the kept variant of each name
-    fits_all: Dict[int, tuple] = field(default_factory=dict)     #: every variant's fit, by id
 
 
 def _single_entry(b: NormBaseline, c: Candidate, d: Dict[str, object], f: CandidateFit,
@@ -247,7 +245,6 @@ def fit_candidates(b: NormBaseline, tested: List[Dict[str, object]], ctx: Dict[s
         f = refit_with(b, [c], ctx, sims, rng)
         entry.update(_single_entry(b, c, d, f, bonf))
         ra_after = entry["ratio_after"]
-        out.fits_all[id(c)] = (f.chi2, f.e, ra_after)
         if c.name in out.fits:                     # a second variant of the same class
             if out.fits[c.name][2] <= ra_after:
                 continue
@@ -288,48 +285,6 @@ def random_walk_variant(b: NormBaseline, cf: CandidateFits, ctx: Dict[str, np.nd
     cf.effects = [ef for ef in cf.effects if ef["name"] != "wandering_bias"] + [entry]
     cf.fits.pop("wandering_bias", None)
     cf.cand_of.pop("wandering_bias", None)
-
-
-def second_effect(b: NormBaseline, tested: List[Dict[str, object]], cf: CandidateFits,
-                  ctx: Dict[str, np.ndarray], sims: int, rng, bonf: float,
-                  first: str) -> Optional[Dict[str, object]]:
-    """With ``first`` modelled (any of its fitted variants), the second effect that still
-    explains a significant part (nested test) and lowers the held-out residual most;
-    None when none does."""
-    if first not in cf.fits:
-        return None                           # the random-walk form: no parametric pair
-    N, p0 = b.n, b.p0
-    best_pair = None
-    firsts = [d["cand"] for d in tested if d["cand"].name == first and id(d["cand"]) in cf.fits_all]
-    for c1 in firsts:
-        chi2_best, e_best, _ = cf.fits_all[id(c1)]
-        q_best = c1.q
-        if chi2_sf(chi2_best, N - p0 - q_best) >= GAP_REMAINING_LEVEL:
-            continue
-        for d in tested:
-            other = d["cand"]
-            # every variant of a kept class (a smaller one may fit where the kept one has
-            # too many parameters for the pair)
-            if other.name == first or d["q"] == 0 or other.name not in cf.cand_of:
-                continue
-            if {first, other.name} == {"bias_drift", "wandering_bias"}:
-                continue                      # nested: the drift's line is in the wandering span
-            if p0 + q_best + other.q > N - MIN_DOF:
-                continue
-            f = refit_with(b, [c1, other], ctx, sims, rng)
-            rr = b.nrms(f.e) / f.twin
-            pn, _ = p_and_log10(max(chi2_best - f.chi2, 0.0), other.q)
-            if pn < bonf and b.nrms(f.e) < b.nrms(e_best) and \
-                    (best_pair is None or rr < best_pair[1]):
-                best_pair = (other.name, rr, f.z, f.sd, pn, rr <= f.q99, float(b.chi2 - f.chi2),
-                             q_best + other.q, f.wald_p)
-    if best_pair is None:
-        return None
-    return {"effects": [first, best_pair[0]], "ratio_after": best_pair[1],
-            "nested_p_value": best_pair[4], "closed": bool(best_pair[5]), "lr": best_pair[6],
-            "wald_p_value": best_pair[8],
-            "q": best_pair[7], "params": best_pair[2][p0:].tolist(),
-            "stderr": best_pair[3][p0:].tolist()}
 
 
 def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str, object]],

@@ -239,7 +239,6 @@ class PoseTour:
         self.R = np.asarray(rotations, float)
         n = len(self.R)
         self.loop = loop
-        self.move_accel_g = move_accel_g
         t = 0.0
         holds, moves, ends = [], [], []
         self.axis = np.zeros((n, 3))

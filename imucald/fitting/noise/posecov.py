@@ -69,57 +69,12 @@ def pose_sf_rows(x: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     return np.array(rows), np.array(obs)
 
 
-def _nnls2(A: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """min |A z - y| with z >= 0 for two columns (closed form over the active sets)."""
-    best, bz = np.inf, np.zeros(2)
-    cands = []
-    z = np.linalg.lstsq(A, y, rcond=None)[0]
-    cands.append(z)
-    for j in (0, 1):
-        zz = np.zeros(2)
-        a = A[:, j]
-        zz[j] = max(float(a @ y) / max(float(a @ a), 1e-300), 0.0)
-        cands.append(zz)
-    for z in cands:
-        if np.all(z >= 0):
-            r = float(np.sum((A @ z - y) ** 2))
-            if r < best:
-                best, bz = r, z
-    return bz
-
-
-def _fit(rows, obs, ns, idx, white=True):
-    """a, b per axis from poses ``idx`` (``white`` False: b = 0); each pose's rows scaled by
-    1/n (its increments' scale grows with n).  ``rows`` (E, L, 2) and ``obs`` (E, L, C)
-    stacked: the poses' scaled rows gathered by one indexing, the same numbers in the same
-    order as stacking them pose by pose (which was ~80 % of the jackknife's time)."""
-    C = obs.shape[2]
-    idx = np.asarray(idx, dtype=np.intp)
-    sc = ns[idx][:, None, None]
-    A = (rows[idx] / sc).reshape(-1, rows.shape[2])
-    Y = obs[idx] / sc
-    out = np.zeros((2, C))
-    for j in range(C):
-        y = Y[:, :, j].reshape(-1)
-        if white == "b":              # the white part alone (a = 0)
-            b = A[:, 1]
-            out[1, j] = max(float(b @ y) / float(b @ b), 0.0)
-        elif white == "ls":
-            out[:, j] = np.linalg.lstsq(A, y, rcond=None)[0]
-        elif white:
-            out[:, j] = _nnls2(A, y)
-        else:
-            a = A[:, 0]
-            out[0, j] = max(float(a @ y) / float(a @ a), 0.0)
-    return out
-
-
-def _fit_jack(rows, obs, ns, white=True):
-    """:func:`_fit` on all poses and on each leave-one-pose-out fold at once, from each
-    pose's 2x2 normal-equation statistics (A_e^T A_e, A_e^T y_e, y_e^T y_e): a fold's are
-    the totals less its pose's, so the m folds cost O(m), not m refits.  The same
-    estimates as :func:`_fit` up to rounding (sums in another order).  Returns (full
-    (2, C), folds (m, 2, C))."""
+def _jack_stats(rows, obs, ns):
+    """Each pose's 2x2 normal-equation statistics (A_e^T A_e, A_e^T y_e, y_e^T y_e; each
+    pose's rows scaled by 1/n: its increments' scale grows with n), totalled over all poses
+    (first) and over each leave-one-pose-out fold (a fold's are the totals less its pose's,
+    so the m folds cost O(m), not m refits).  Returns (G (m+1, 2, 2), h (m+1, 2, C),
+    yy (m+1, C))."""
     A = rows / ns[:, None, None]                      # (E, L, 2)
     Y = obs / ns[:, None, None]                       # (E, L, C)
     G_e = np.einsum("eli,elj->eij", A, A)             # (E, 2, 2)
@@ -128,12 +83,19 @@ def _fit_jack(rows, obs, ns, white=True):
     G = np.concatenate([G_e.sum(0)[None], G_e.sum(0)[None] - G_e])
     h = np.concatenate([h_e.sum(0)[None], h_e.sum(0)[None] - h_e])
     yy = np.concatenate([yy_e.sum(0)[None], yy_e.sum(0)[None] - yy_e])
-    out = _solve_stats(G, h, yy, white)
+    return G, h, yy
+
+
+def _fit_jack(stats, white=True):
+    """a, b per axis on all poses (2, C) and on each leave-one-pose-out fold (m, 2, C) from
+    :func:`_jack_stats`; ``white`` True: both non-negative, "ls": unconstrained, "b": the
+    white part alone (a = 0), False: the bounded part alone (b = 0)."""
+    out = _solve_stats(*stats, white)
     return out[0], out[1:]
 
 
 def _solve_stats(G, h, yy, white):
-    """(F, 2, C) fits from (F, 2, 2), (F, 2, C), (F, C) statistics, as :func:`_fit`."""
+    """(F, 2, C) fits from (F, 2, 2), (F, 2, C), (F, C) statistics (see :func:`_fit_jack`)."""
     F, _, C = h.shape
     out = np.zeros((F, 2, C))
     if white == "b":
@@ -146,7 +108,7 @@ def _solve_stats(G, h, yy, white):
     if white == "ls":
         return ls
     # non-negative: the least-squares split when feasible, else the better one-column fit
-    # (the same candidates in the same order as _nnls2, the first of equal residuals kept)
+    # (the candidates in this order, the first of equal residuals kept)
     cands = [ls, np.zeros_like(ls), np.zeros_like(ls)]
     cands[1][:, 0] = np.maximum(h[:, 0] / G[:, 0, 0][:, None], 0.0)
     cands[2][:, 1] = np.maximum(h[:, 1] / G[:, 1, 1][:, None], 0.0)
@@ -215,10 +177,10 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     rows = np.array([e[1] for e in ent], float)         # (E, len(FRACTIONS), 2)
     obs = np.array([e[2] for e in ent], float)          # (E, len(FRACTIONS), C)
     hn = np.array([e[0] for e in ent], float)
-    use = list(range(len(ent)))
-    ab, jk_ab = _fit_jack(rows, obs, hn)
+    stats = _jack_stats(rows, obs, hn)
+    ab, jk_ab = _fit_jack(stats)
     ref = np.median(hn)
-    m = len(use)
+    m = len(ent)
     jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
     # the white part only where it is clear of its jackknife error: a b >= 0 clipped from
     # noise is biased upwards, and b n dominates the extrapolation to the pose length
@@ -228,7 +190,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     drop_b = (ab[1] < 2 * jse(jk_ab[:, 1])) & (ratio_ab < 0.25)
     if drop_b.any():
         # there the unconstrained least-squares split (unbiased, either sign) replaces it
-        ab0, jk0 = _fit_jack(rows, obs, hn, white="ls")
+        ab0, jk0 = _fit_jack(stats, white="ls")
         ab[:, drop_b] = ab0[:, drop_b]
         jk_ab[:, :, drop_b] = jk0[:, :, drop_b]
     est = lambda ab_: (ab_[0] + ab_[1] * ref) / ref ** 2          # (C,) at the median length
@@ -239,7 +201,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     # the white part alone (a = 0), one parameter per axis: unbiased on white noise (1.00 of
     # white) where the constrained split is not (its clipping picks the bounded part alone
     # on some white axes: 0.89 of white on average)
-    ab_ls, jk_ls = _fit_jack(rows, obs, hn, white="b")
+    ab_ls, jk_ls = _fit_jack(stats, white="b")
     full_ls = est(ab_ls) / (s2_pool / ref)
     se_ls = jse(np.array([est(a_) / (s2_pool / ref) for a_ in jk_ls]))
     # clearly below white, per axis: by twice the estimate's jackknife error AND by twice

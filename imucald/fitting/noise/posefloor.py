@@ -60,12 +60,12 @@ Held columns (a magnetometer read at its own 75 or 100 Hz inside a 400 Hz log).
 from __future__ import annotations
 
 import math
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Dict, Sequence, Tuple
 
 import numpy as np
 
 __all__ = ["quantisation_floor", "noise_before_quantisation", "estimate_lsb", "run_effective_counts",
-           "radial_series", "sway_rotation_variance", "tilt_wander_test"]
+           "radial_series", "sway_rotation_variance", "tilt_wander_test", "tilt_wander_test_parts"]
 
 _K = np.arange(1, 401, dtype=float)     #: the tail beyond is below 0.2 % of LSB^2 / 12
 
@@ -168,16 +168,21 @@ def radial_series(acc_g: np.ndarray, slices: Sequence[slice]) -> np.ndarray:
 
 
 def tilt_wander_test(acc_g: np.ndarray, slices: Sequence[slice], min_samples: int = 16) -> Dict[str, object]:
-    """Whether the accelerometer's direction wanders within the still stretches: the mean
-    over poses of log(tangential / radial per-sample variance) (tangential: the mean of the
-    two components across the pose's mean direction) above 2 of its standard errors over
-    poses (one-sided ~2 %; isotropic sensor noise gives 0)."""
+    """:func:`tilt_wander_test_parts` on the still stretches ``slices`` of ``acc_g``."""
     a = np.asarray(acc_g, float)
+    return tilt_wander_test_parts([a[s] for s in slices], min_samples)
+
+
+def tilt_wander_test_parts(parts: Sequence[np.ndarray], min_samples: int = 16) -> Dict[str, object]:
+    """Whether the accelerometer's direction wanders within the still stretches (each pose's
+    samples, (n_i, 3) g): the mean over poses of log(tangential / radial per-sample variance)
+    (tangential: the mean of the two components across the pose's mean direction) above 2 of
+    its standard errors over poses (one-sided ~2 %; isotropic sensor noise gives 0)."""
     lr = []
-    for s in slices:
-        if s.stop - s.start < min_samples:
+    for x in parts:
+        x = np.asarray(x, float)
+        if len(x) < min_samples:
             continue
-        x = a[s]
         m = x.mean(0)
         u = m / max(float(np.linalg.norm(m)), 1e-300)
         vr = float(np.var(x @ u, ddof=1))

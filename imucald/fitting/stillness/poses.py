@@ -23,7 +23,6 @@ import numpy as np
 from ...errors import UserError
 from ...files.recording import Recording
 from .detector import StillnessDetector
-from ...numerics.npstats import median
 
 __all__ = ["PoseSet", "detect_static", "detect_intervals", "detect", "poses_from_recording",
            "poses_and_pieces", "still_report", "no_still_message",
@@ -285,26 +284,20 @@ def _structure(ps: PoseSet, rec: Recording, rows) -> PoseSet:
     its mean direction by the radial series' own; ``rows``: each pose's rows."""
     if len(rows):
         from ..noise.posecov import radial_pose_cov, scale_pose_cov
-        from ..noise.posefloor import tilt_wander_test
+        from ..noise.posefloor import tilt_wander_test_parts
         ps.noise = {}
         parts = [rec.acc[s] for s in rows]
         ps.acc_cov, ps.noise["accel"] = scale_pose_cov(parts, ps.acc_cov)
         # along each pose's direction from the radial series where the direction wanders
         # within the poses (a hand's sway, which the norm model does not see: radial_pose_cov;
         # the test is gap's, fitting/noise/posefloor.py, one-sided ~2 %)
-        tilt = tilt_wander_test(np.concatenate(parts), _slices([len(p) for p in parts]))
+        tilt = tilt_wander_test_parts(parts)
         if tilt["wander"]:
             ps.acc_cov, ps.noise["accel_radial"] = radial_pose_cov(parts, ps.acc, ps.acc_cov)
             ps.noise["accel_radial"]["tilt_wander"] = tilt
         if ps.gyro_cov is not None:
             ps.gyro_cov, ps.noise["gyro"] = scale_pose_cov([rec.gyro[s] for s in rows], ps.gyro_cov)
     return ps
-
-
-def _slices(ns) -> List[slice]:
-    """Consecutive slices of lengths ``ns``."""
-    e = np.concatenate([[0], np.cumsum(ns)]).astype(int)
-    return [slice(int(a), int(b)) for a, b in zip(e[:-1], e[1:])]
 
 
 # --- pose-average file ----------------------------------------------------------------

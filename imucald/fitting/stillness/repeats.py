@@ -40,7 +40,7 @@ from typing import Optional
 
 import numpy as np
 
-from ...numerics.npstats import row_all
+from ...numerics.npstats import row_all, row_prod
 
 __all__ = ["Repeats", "find_repeats", "chance_repeats", "effective_rate", "repeat_flags",
            "HOLD_RATIO", "RATE_MISMATCH"]
@@ -146,22 +146,13 @@ def chance_repeats(full: np.ndarray, eq: np.ndarray, window: int = CHANCE_WINDOW
         pc[:, j] = np.where(cnt > 0, num / np.maximum(cnt, 1.0), glob[j])
     p = pc.copy()
     for _ in range(50):
-        P = _row_prod(p)[:, None]
+        P = row_prod(p)[:, None]
         p_new = pc * (1 - P) + P
         done = np.max(np.abs(p_new - p)) < 1e-12
         p = p_new
         if done:
             break
-    return float(np.sum(_row_prod(p)))
-
-
-def _row_prod(p: np.ndarray) -> np.ndarray:
-    """np.prod(p, axis=1) column by column (the same products in the same order, without
-    a reduction over a 3-wide axis, which was most of chance_repeats' time)."""
-    out = p[:, 0].copy()
-    for j in range(1, p.shape[1]):
-        out *= p[:, j]
-    return out
+    return float(np.sum(row_prod(p)))
 
 
 def effective_rate(t: np.ndarray, keep: Optional[np.ndarray] = None) -> float:
@@ -190,7 +181,6 @@ def find_repeats(t: np.ndarray, x: np.ndarray, rate_hz: Optional[float] = None) 
     """Repeated rows of x (n, c) with timestamps t (see the module docstring)."""
     t = np.asarray(t, float)
     x = np.asarray(x, float)
-    n = len(x)
     full, tt, eq = repeat_flags(t, x)
     dup_rows = full & tt
     # the hold test on the rows that are not duplicated rows (those are dropped anyway)

@@ -65,8 +65,9 @@ def test_gap_names_it_calibrate_removes_it_gap_says_none(request, capsys, sensor
     20/20 (gyro) and only 9/20 (mag).
     The mag's "none" is not asserted, because there the code is weak, not the seed: the
     standard error calibrate states for the mag's thermal slope is 4-9x the one of gap's
-    estimate (gap fits ~700 points of the corrected recording), so the ~1 SE calibrate leaves (2-14 % of the
-    simulated slope) is for gap a residual at p ~ 1e-9..1e-58 on 11/20 sessions.  The
+    estimate (gap fits ~700 points of the corrected recording), so the 2-14 % of the
+    simulated slope calibrate leaves (about one of its SEs) is for gap a residual at
+    p ~ 1e-12..1e-58 on 11/20 sessions.  The
     verdict was a coin flip per seed (seed 2 -> 3 when the generator changed); the residual
     check holds on every seed (P(|z| > 4) ~ 6e-5 per axis if calibrate's SE is right).
     Seen to fail: apply not applying the thermal terms (calibration.py thermal_offset

@@ -4,41 +4,14 @@ import json
 import os
 import re
 import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
 
-from imucald.cli import main
 from imucald.errors import NO_RESTART
 
-PY = sys.executable
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def run_main(capsys, *argv):
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as e:         # argparse's own exit (usage errors)
-        rc = e.code
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def one_line(err):
-    lines = [l for l in err.splitlines() if l.strip()]
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
-
-
-@pytest.fixture(scope="module")
-def sim(tmp_path_factory):
-    d = tmp_path_factory.mktemp("sim")
-    rec = d / "sim.csv"
-    assert main(["simulate", "-o", str(rec), "--poses", "12", "--hold", "3", "--move", "1"]) == 0
-    return rec
+from ._helpers import PY, ROOT, one_line, run_main
 
 
 @pytest.mark.parametrize("argv,code,msg", [

@@ -17,9 +17,7 @@ from imucald.daemon.worker import WorkerDied, WorkerRunner, WorkerTimeout
 
 from .test_daemon import control as _control
 from .test_daemon import start_daemon, wait_for
-
-PY = sys.executable
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from ._helpers import PY, ROOT, wait_until
 
 
 def alive(pid):
@@ -44,16 +42,6 @@ def children(pid):
             except OSError:
                 pass
     return out
-
-
-def wait_until(pred, timeout=30, step=0.05):
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        v = pred()
-        if v:
-            return v
-        time.sleep(step)
-    raise AssertionError("timed out waiting")
 
 
 # --- the worker -------------------------------------------------------------------------------

@@ -61,7 +61,7 @@ def test_readme_stream_example_reads_the_daemon(tmp_path, capsys):
     try:
         t0 = time.time()
         while not os.path.exists(rt / "control.sock"):         # bound after the data socket
-            assert p.poll() is None and time.time() - t0 < 30, p.stderr.read() if p.poll() else "timeout"
+            assert p.poll() is None and time.time() - t0 < 120, p.stderr.read() if p.poll() else "timeout"
             time.sleep(0.05)
         code = readme_block("<!-- api-example-stream:").replace("/run/imucald/imucald.sock",
                                                                str(rt / "imucald.sock"))

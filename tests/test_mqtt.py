@@ -180,7 +180,9 @@ def test_round_trip_from_the_emulated_daemon(tmp_path):
     assert sub.of(f"{sid}/status")[0] == "online" and sub.of(f"{sid}/status")[-1] == "offline"
     sub.close()
     # a new subscriber gets the retained status; a killed bridge leaves its last will
-    d2, rt2, _ = start_daemon(tmp_path / "second", "--speed", "5", "--duration", "60")
+    # (a long duration, killed below: 60 s at 5x ended the daemon after 12 s of wall time,
+    # which the waits below, a bridge's start-up included, can outlast on a loaded machine)
+    d2, rt2, _ = start_daemon(tmp_path / "second", "--speed", "5", "--duration", "3600")
     try:
         sid2 = _status(rt2, d2)["sensor"]["id"]
         late = Sub(broker.port, topics=(f"imucald/{sid}/status", f"imucald/{sid2}/status",

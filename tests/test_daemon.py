@@ -32,7 +32,9 @@ def start_daemon(tmp_path, *extra, env=None, stdout=subprocess.PIPE):
     return p, rt, st
 
 
-def wait_for(path, proc, timeout=30):
+def wait_for(path, proc, timeout=120):
+    """Until ``path`` exists (the daemon's sockets); the deadline is for a daemon that hangs
+    at start-up, not a slow one: Python and numpy start slowly on a loaded machine."""
     t0 = time.time()
     while not os.path.exists(path):
         if proc.poll() is not None:
@@ -104,7 +106,9 @@ def test_end_to_end_calibrates_and_streams_every_sample(tmp_path, board, speed, 
     p, rt, st = start_daemon(tmp_path, "--board", board, "--speed", str(speed), "--duration",
                              str(duration), "--fifo", "imucald.fifo", "--seed", "2")
     try:
-        wait_for(rt / "imucald.sock", p)
+        # the control socket is made after the data socket listens and the FIFO exists
+        # (daemon/run.py): waiting for the data socket alone, the FIFO could be missing
+        wait_for(rt / "control.sock", p, timeout=120)
         fast = Reader(sock_file(rt / "imucald.sock"))
         fifo = Reader(lambda: open(rt / "imucald.fifo", "rb"))
         quitter = Reader(sock_file(rt / "imucald.sock"), limit=200)   # disconnects mid-stream
@@ -241,7 +245,7 @@ def test_bus_faults_do_not_stop_the_daemon(tmp_path):
     p, rt, st = start_daemon(tmp_path, "--speed", "20", "--duration", "1200", "--fault", "nack=0.05",
                              "--fault", "reset=0x68@20", "--fault", "stuck=30+0.8")
     try:
-        wait_for(rt / "imucald.sock", p, timeout=120)
+        wait_for(rt / "control.sock", p, timeout=120)     # made after the data socket listens
         r = Reader(sock_file(rt / "imucald.sock"))
         r.start()
         s = wait_until(lambda: _status_once(p, rt, lambda s: s["board_stats"]["samples"] >= 4000),

@@ -28,6 +28,8 @@ from imucald.daemon.config import SCHEMA, ConfigError, parse_yaml, validate  # n
 from imucald.errors import UserError  # noqa: E402
 from imucald.files.recording import read_recording  # noqa: E402
 
+from ._helpers import or_none, wait_until  # noqa: E402
+
 N = 2000
 FUZZ = settings(max_examples=N, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
@@ -407,10 +409,18 @@ def test_hostile_requests_to_a_running_daemon(tmp_path):
             "ERROR", "STATUS"]
     try:
         t0 = time.time()
-        while not (rt / "control.sock").exists() and p.poll() is None and time.time() - t0 < 60:
+        while not (rt / "control.sock").exists() and p.poll() is None and time.time() - t0 < 120:
             time.sleep(0.05)
-        c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        c.connect(str(rt / "control.sock"))
+        def connect():
+            c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                c.connect(str(rt / "control.sock"))
+                return c
+            except OSError:
+                c.close()
+                raise
+        # the socket file exists a moment before it listens (bind, chmod, listen): retry
+        c = wait_until(lambda: or_none(connect), timeout=60)
         c.settimeout(30)
         c.sendall(b"\n".join(lines) + b"\n")
         buf = b""

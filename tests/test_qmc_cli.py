@@ -15,6 +15,7 @@ import yaml
 from imucald.cli import main
 from imucald.daemon.state import load_calibration
 
+from ._helpers import or_none, wait_until
 from .test_daemon import control, sock_file, start_daemon, wait_for
 
 
@@ -40,9 +41,10 @@ def test_run_nine_dof_with_qmc_end_to_end(tmp_path):
     err_lines = []
     drain = threading.Thread(target=lambda: err_lines.extend(p.stderr), daemon=True)
     try:
-        wait_for(rt / "control.sock", p)
+        wait_for(rt / "control.sock", p, timeout=120)
         drain.start()
-        s = control(rt, "status")
+        # the socket file exists a moment before it listens: wait for an answer
+        s = wait_until(lambda: or_none(lambda: control(rt, "status", 90)), timeout=120, step=0.1)
         assert s["chips"] == {"accel": "adxl345", "gyro": "itg3200", "mag": "qmc5883l"}
         f = sock_file(rt / "imucald.sock")()
         banner = json.loads(f.readline())

@@ -17,7 +17,7 @@ from imucald.daemon.worker import WorkerDied, WorkerRunner, WorkerTimeout
 
 from .test_daemon import control as _control
 from .test_daemon import start_daemon, wait_for
-from ._helpers import PY, ROOT, wait_until
+from ._helpers import PY, ROOT, or_none, wait_until
 
 
 def alive(pid):
@@ -201,7 +201,10 @@ def start(tmp_path, *extra):
     p.err_thread = threading.Thread(target=lambda: p.err_lines.extend(iter(p.stderr.readline, "")),
                                     daemon=True)
     p.err_thread.start()
-    wait_for(rt / "control.sock", p, timeout=60)
+    wait_for(rt / "control.sock", p, timeout=120)
+    # the socket file exists a moment before it listens (bind, chmod, then listen): the
+    # first request could be refused; wait until one is answered
+    wait_until(lambda: or_none(lambda: control(rt, "status")), timeout=120, step=0.1)
     return p, rt, st
 
 

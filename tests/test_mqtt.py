@@ -105,7 +105,7 @@ def _refused_bridge(sub, cfg_path, rt):
     its last connect error."""
     b, stop, t = _bridge_thread(cfg_path, rt)
     try:
-        assert sub.wait(lambda: b.last_connect_error is not None, 10)
+        assert sub.wait(lambda: b.last_connect_error is not None, 60)
         assert b.stats["connects"] == 0 and b.stats["published"] == 0
         return b.last_connect_error
     finally:
@@ -266,7 +266,7 @@ def test_username_and_password_from_a_file(tmp_path):
     b, stop, t = _bridge_thread(_cfg(tmp_path, broker.port, username="imu", password_file=str(secret)),
                                 tmp_path)
     try:
-        assert sub.wait(lambda: "online" in sub.of("/status"), 10), broker.log()[-1500:]
+        assert sub.wait(lambda: "online" in sub.of("/status"), 60), broker.log()[-1500:]
     finally:
         stop.set()
         t.join(10)
@@ -291,7 +291,7 @@ def test_tls_with_a_private_ca(tmp_path):
     sub = Sub(broker.port, topics=(f"imucald/{SID}/imu",), tls_ca=ca)
     b, stop, t = _bridge_thread(_cfg(tmp_path, broker.port, tls="true", ca_file=ca), tmp_path)
     try:
-        assert sub.wait(lambda: len(sub.of("/imu")) >= 5, 10), broker.log()[-1500:]
+        assert sub.wait(lambda: len(sub.of("/imu")) >= 5, 60), broker.log()[-1500:]
     finally:
         stop.set()
         t.join(10)
@@ -330,9 +330,9 @@ def test_a_swapped_sensor_gets_its_own_topics(tmp_path):
     b, stop, t = _bridge_thread(_cfg(tmp_path, broker.port, sample_rate_hz=50), tmp_path)
     new = "fedcba987654"
     try:
-        assert sub.wait(lambda: len(sub.of(f"{SID}/imu")) > 5, 10)
+        assert sub.wait(lambda: len(sub.of(f"{SID}/imu")) > 5, 60)
         fake.sid = new
-        assert sub.wait(lambda: len(sub.of(f"{new}/imu")) > 5 and "online" in sub.of(f"{new}/status"), 10)
+        assert sub.wait(lambda: len(sub.of(f"{new}/imu")) > 5 and "online" in sub.of(f"{new}/status"), 60)
     finally:
         stop.set()
         t.join(10)

@@ -79,8 +79,11 @@ class _Capture(Executor):
 
 
 def test_pose_covariances_are_inflated_by_the_noise_model(noise_file):
-    """The job's pose covariances are the poses' own times k(T) of the noise file's Allan
-    model at each pose's length (k > 1 here: the accelerometer has flicker noise)."""
+    """The fit job's pose covariances are the poses' own times k(T) of the noise file's Allan
+    model at each pose's length (k > 1 here: the accelerometer has flicker noise), applied
+    once, by the worker (daemon/fitjob.py _pose_cov: these poses, read back from a file,
+    keep no structure function, so nothing else decides); the job carries them as they are."""
+    from imucald.daemon.fitjob import _pose_cov
     path, doc = noise_file
     cfg = validate({"noise": {"file": str(path)}})
     ex = _Capture()
@@ -99,6 +102,7 @@ def test_pose_covariances_are_inflated_by_the_noise_model(noise_file):
     job = ex.jobs[-1]
     k = np.array([inflation_of(np.array(doc["accel"]["avar_coef"]), nn / FS)[0] for nn in n])
     assert k.max() > 1.2                                   # the file's flicker shows at 20 s
-    got = job["acc_cov"][:, 0, 0] / 1e-9
+    assert np.array_equal(job["acc_cov"], p.acc.pose_set().acc_cov)        # not inflated twice
+    got = _pose_cov(job, {})["acc_cov"][:, 0, 0] / 1e-9
     order = np.argsort(p.acc.pose_set().n)
     assert got[order] == pytest.approx(np.sort(k), rel=1e-9)

@@ -59,9 +59,10 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     """Fit, validate and decide.  Pure: no I/O, no globals.
 
     job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3) (each
-    pose's sample covariance over n), acc_sf and acc_s2 (the holds' structure functions and
-    per-sample variances, fitting/noise/posecov.py) or None, acc_colour_k (N,) (the Allan inflation
-    acc_cov carries) or None, t0 (N,),
+    pose's sample covariance over n), acc_sample_cov (N,3,3) (within-pose sample covariances)
+    or None, acc_sf (the holds' structure functions, fitting/noise/posecov.py) or None,
+    acc_colour_k (N,) (the noise file's Allan inflation, applied by :func:`_pose_cov` where
+    the structure function decided nothing) or None, t0 (N,),
     t1 (N,) (the poses' still intervals, s: matched against the incumbent's poses_used), n (N,),
     gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
     per-sample noise or None, current (the Calibration in force), method, holdout_fraction
@@ -84,21 +85,29 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
 
 
 def _pose_cov(job: Dict[str, Any], notes: Dict[str, Any]) -> Dict[str, Any]:
-    """The job with acc_cov from the holds' structure functions (job["acc_sf"], fitting/
-    posecov.py; here in the worker: ~80 ms at 60 poses) where they decide; the noise
-    file's Allan inflation (job["acc_colour_k"], already in job["acc_cov"]) is then taken
-    out again: the two measure the same thing and are not counted twice."""
+    """The job with acc_cov formed as calibrate forms its poses' (fitting/stillness/poses.py
+    _structure, cli/offline.py _fit_accel), from the statistics each pose keeps instead of
+    its samples (here in the worker: ~80 ms at 60 poses):
+
+    1. each pose's own covariance of the mean (job["acc_cov"]: sample covariance over n)
+       rescaled per axis by the holds' structure functions (job["acc_sf"],
+       fitting/noise/posecov.py scale_pose_cov_stats);
+    2. the Allan colour inflation (job["acc_colour_k"], the noise file's) only where the
+       structure function decided nothing (allan_still_needed).
+
+    The inflation is applied here and nowhere else: the pipeline used to multiply it in
+    and this function divided it out again where the structure function decided."""
     from ..fitting.noise.posecov import allan_still_needed, scale_pose_cov_stats
-    if job.get("acc_sf") is None or job.get("acc_s2") is None:
-        return job
+    cov = np.asarray(job["acc_cov"], float)
+    sc, n, info = job.get("acc_sample_cov"), job["n"], None
+    if job.get("acc_sf") is not None and sc is not None:
+        sc = np.asarray(sc, float)
+        cov, info = scale_pose_cov_stats(n, np.einsum("nii->ni", sc), job["acc_sf"], cov)
+        notes["pose_noise"] = info
     k = job.get("acc_colour_k")
-    own = np.asarray(job["acc_cov"], float)
-    if k is not None:
-        own = own / np.asarray(k, float)[:, None, None]
-    cov, info = scale_pose_cov_stats(job["n"], job["acc_s2"], job["acc_sf"], own)
-    notes["pose_noise"] = info
-    if allan_still_needed(info):
-        return job
+    if k is not None and allan_still_needed(info):
+        cov = cov * np.asarray(k, float)[:, None, None]
+        notes["colour_inflation_median"] = float(median(np.asarray(k, float)))
     return dict(job, acc_cov=cov)
 
 

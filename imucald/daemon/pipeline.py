@@ -418,21 +418,20 @@ class Pipeline:
             mag_pts = self.reservoir.points()
             tg = self.reservoir.tags()
             mag_temp = None if np.any(tg < 0) else tg / 100.0 - 273.15
-        acc_cov = ps.acc_cov
         k = None
-        if self.noise is not None and "accel" in self.noise and acc_cov is not None:
+        if self.noise is not None and "accel" in self.noise:
             # coloured noise: a pose mean over T s varies k(T) times more than white noise
-            # says (fitting/noise/colour.py), k from the noise file's Allan coefficients (the worker
-            # takes it out where the holds' structure functions decide)
+            # says (fitting/noise/colour.py), k from the noise file's Allan coefficients; the
+            # worker applies it where the holds' structure functions decide nothing
             from ..fitting.noise.colour import inflation_of
             k = np.array([inflation_of(self.noise["accel"]["avar_coef"], n / self.rate_hz)[0]
                           for n in ps.n])
-            acc_cov = acc_cov * k[:, None, None]
-        # tremor averages out of a pose mean: the worker forms the covariances from the
-        # holds' structure functions (daemon/fitjob.py _pose_cov, fitting/noise/posecov.py)
-        job = {"acc": ps.acc, "acc_cov": acc_cov, "acc_colour_k": k,
+        # tremor averages out of a pose mean: the worker forms
+        # the covariances from the holds' structure functions as calibrate does from its
+        # samples (daemon/fitjob.py _pose_cov, fitting/noise/posecov.py)
+        job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "acc_colour_k": k,
                "acc_sf": [p.acc_sf or [] for p in self.acc.poses],
-               "acc_s2": np.einsum("nii->ni", ps.acc_sample_cov) if ps.acc_sample_cov is not None else None,
+               "acc_sample_cov": ps.acc_sample_cov,
                "t0": ps.t0, "t1": ps.t1, "n": ps.n,
                "temp": _temps(ps.temp),
                "gyro": ps.gyro, "mag_points": mag_pts, "mag_temp": mag_temp, "mag_noise": self._mag_noise(),

@@ -85,7 +85,7 @@ class PoseAccumulator:
     def pose_set(self) -> PoseSet:
         """The poses as a PoseSet (the covariances of the means: each pose's sample
         covariance over n; the worker rescales them from the holds' structure functions
-        each pose keeps, ``acc_sf``: daemon/fitjob.py)."""
+        each pose keeps, ``acc_sf`` and ``acc_radial_sf``: daemon/fitjob.py)."""
         P = self.poses
         N = len(P)
         g = lambda f: np.array([getattr(p, f) for p in P]) if N and all(
@@ -134,7 +134,9 @@ def _merge(a: StaticInterval, b: StaticInterval) -> StaticInterval:
                           # both holds' structure functions (each ~25 numbers), when both known;
                           # the longest MAX_HOLDS kept (a board resting for hours refines one pose)
                           acc_sf=None if a.acc_sf is None or b.acc_sf is None else
-                          sorted(a.acc_sf + b.acc_sf, key=lambda e: -e[0])[:MAX_HOLDS])
+                          sorted(a.acc_sf + b.acc_sf, key=lambda e: -e[0])[:MAX_HOLDS],
+                          acc_radial_sf=None if a.acc_radial_sf is None or b.acc_radial_sf is None else
+                          sorted(a.acc_radial_sf + b.acc_radial_sf, key=lambda e: -e[0])[:MAX_HOLDS])
 
 
 def _mean_temp(ta: float, tb: float, wa: float, wb: float) -> float:

@@ -60,9 +60,10 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
 
     job keys: acc (N,3) or None (a board without an accelerometer), acc_cov (N,3,3) (each
     pose's sample covariance over n), acc_sample_cov (N,3,3) (within-pose sample covariances)
-    or None, acc_sf (the holds' structure functions, fitting/noise/posecov.py) or None,
-    acc_colour_k (N,) (the noise file's Allan inflation, applied by :func:`_pose_cov` where
-    the structure function decided nothing) or None, t0 (N,),
+    or None, acc_sf and acc_radial_sf (the holds' structure functions per axis and of the
+    radial series, fitting/noise/posecov.py) or None, acc_colour_k (N,) (the noise file's
+    Allan inflation, applied by :func:`_pose_cov` where the structure function decided
+    nothing) or None, t0 (N,),
     t1 (N,) (the poses' still intervals, s: matched against the incumbent's poses_used), n (N,),
     gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
     per-sample noise or None, current (the Calibration in force), method, holdout_fraction
@@ -92,18 +93,30 @@ def _pose_cov(job: Dict[str, Any], notes: Dict[str, Any]) -> Dict[str, Any]:
     1. each pose's own covariance of the mean (job["acc_cov"]: sample covariance over n)
        rescaled per axis by the holds' structure functions (job["acc_sf"],
        fitting/noise/posecov.py scale_pose_cov_stats);
-    2. the Allan colour inflation (job["acc_colour_k"], the noise file's) only where the
+    2. where the direction wanders within the poses (a hand's sway: the tilt-wander test
+       on each pose's mean and sample covariance, fitting/noise/posefloor.py), the variance
+       along each pose's direction from the radial series' structure functions
+       (job["acc_radial_sf"], radial_pose_cov_stats);
+    3. the Allan colour inflation (job["acc_colour_k"], the noise file's) only where the
        structure function decided nothing (allan_still_needed).
 
     The inflation is applied here and nowhere else: the pipeline used to multiply it in
     and this function divided it out again where the structure function decided."""
-    from ..fitting.noise.posecov import allan_still_needed, scale_pose_cov_stats
+    from ..fitting.noise.posecov import allan_still_needed, radial_pose_cov_stats, scale_pose_cov_stats
+    from ..fitting.noise.posefloor import tilt_wander_test_stats
     cov = np.asarray(job["acc_cov"], float)
     sc, n, info = job.get("acc_sample_cov"), job["n"], None
     if job.get("acc_sf") is not None and sc is not None:
         sc = np.asarray(sc, float)
         cov, info = scale_pose_cov_stats(n, np.einsum("nii->ni", sc), job["acc_sf"], cov)
         notes["pose_noise"] = info
+        rsf = job.get("acc_radial_sf")
+        tilt = tilt_wander_test_stats(n, job["acc"], sc)
+        if tilt["wander"] and rsf is not None:
+            u = np.asarray(job["acc"], float)
+            u = u / np.linalg.norm(u, axis=1, keepdims=True)
+            cov, rinfo = radial_pose_cov_stats(n, np.einsum("ni,nij,nj->n", u, sc, u), rsf, job["acc"], cov)
+            notes["pose_noise_radial"] = dict(rinfo, tilt_wander=tilt)
     k = job.get("acc_colour_k")
     if k is not None and allan_still_needed(info):
         cov = cov * np.asarray(k, float)[:, None, None]

@@ -426,11 +426,12 @@ class Pipeline:
             from ..fitting.noise.colour import inflation_of
             k = np.array([inflation_of(self.noise["accel"]["avar_coef"], n / self.rate_hz)[0]
                           for n in ps.n])
-        # tremor averages out of a pose mean: the worker forms
+        # tremor averages out of a pose mean, sway does not change its norm: the worker forms
         # the covariances from the holds' structure functions as calibrate does from its
         # samples (daemon/fitjob.py _pose_cov, fitting/noise/posecov.py)
         job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "acc_colour_k": k,
                "acc_sf": [p.acc_sf or [] for p in self.acc.poses],
+               "acc_radial_sf": [p.acc_radial_sf or [] for p in self.acc.poses],
                "acc_sample_cov": ps.acc_sample_cov,
                "t0": ps.t0, "t1": ps.t1, "n": ps.n,
                "temp": _temps(ps.temp),

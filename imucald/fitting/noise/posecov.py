@@ -43,7 +43,8 @@ from typing import Dict, List, Sequence, Tuple
 import numpy as np
 
 __all__ = ["pose_mean_variance", "pose_mean_variance_parts", "pose_mean_variance_stats", "pose_sf_rows",
-           "scale_pose_cov", "scale_pose_cov_stats", "radial_pose_cov", "allan_still_needed", "FRACTIONS", "MIN_SAMPLES",
+           "scale_pose_cov", "scale_pose_cov_stats", "radial_pose_cov",
+           "radial_pose_cov_stats", "allan_still_needed", "FRACTIONS", "MIN_SAMPLES",
            "MIN_POSES"]
 
 FRACTIONS = (0.125, 0.1875, 0.25, 0.375, 0.5)    #: lags as fractions of the pose length
@@ -276,8 +277,26 @@ def radial_pose_cov(parts: List[np.ndarray], means: np.ndarray, cov_mean: np.nda
     u = np.asarray(means, float)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
     radial = [(np.asarray(p, float) @ ui)[:, None] for p, ui in zip(parts, u)]
-    own = np.array([r[:, 0].var(ddof=1) / len(r) if len(r) > 1 else np.nan for r in radial])
-    target, info = scale_pose_cov(radial, own[:, None, None])
+    ns = np.array([len(r) for r in radial], float)
+    s2 = np.array([r[:, 0].var(ddof=1) if len(r) > 1 else np.nan for r in radial])
+    sf = [[(len(r),) + pose_sf_rows(r)] if len(r) >= MIN_SAMPLES else [] for r in radial]
+    return radial_pose_cov_stats(ns, s2, sf, means, cov_mean)
+
+
+def radial_pose_cov_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],
+                          means: np.ndarray, cov_mean: np.ndarray) -> Tuple[np.ndarray, Dict[str, object]]:
+    """:func:`radial_pose_cov` from per-pose statistics of the radial series, for poses whose
+    samples are gone (the daemon's): ``ns`` (N,) samples, ``s2`` (N,) the radial per-sample
+    variances, ``sf[i]`` the structure functions of the radial series of the holds averaged
+    into pose i (:func:`pose_mean_variance_stats`), ``means`` (N, 3) the pose means."""
+    cov_mean = np.asarray(cov_mean, float)
+    if len(ns) == 0:
+        return cov_mean, {"method": "white", "poses_used": 0}
+    u = np.asarray(means, float)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    ns = np.asarray(ns, float)
+    s2 = np.asarray(s2, float).reshape(len(ns), 1)
+    target, info = scale_pose_cov_stats(ns, s2, sf, (s2[:, 0] / ns)[:, None, None])
     cur = np.einsum("ni,nij,nj->n", u, cov_mean, u)
     f = np.sqrt(target[:, 0, 0] / cur)
     f = np.where(np.isfinite(f) & (f > 0), f, 1.0)

@@ -65,7 +65,8 @@ from typing import Dict, Sequence, Tuple
 import numpy as np
 
 __all__ = ["quantisation_floor", "noise_before_quantisation", "estimate_lsb", "run_effective_counts",
-           "radial_series", "sway_rotation_variance", "tilt_wander_test", "tilt_wander_test_parts"]
+           "radial_series", "sway_rotation_variance", "tilt_wander_test", "tilt_wander_test_parts",
+           "tilt_wander_test_stats"]
 
 _K = np.arange(1, 401, dtype=float)     #: the tail beyond is below 0.2 % of LSB^2 / 12
 
@@ -189,6 +190,28 @@ def tilt_wander_test_parts(parts: Sequence[np.ndarray], min_samples: int = 16) -
         vt = (float(np.trace(np.cov(x.T))) - vr) / 2.0
         if vr > 0 and vt > 0:
             lr.append(math.log(vt / vr))
+    return _wander_decision(lr)
+
+
+def tilt_wander_test_stats(ns: np.ndarray, means: np.ndarray, sample_covs: np.ndarray,
+                           min_samples: int = 16) -> Dict[str, object]:
+    """:func:`tilt_wander_test_parts` from each pose's count (N,), mean (N, 3) g and
+    within-pose sample covariance (N, 3, 3) g^2, for poses whose samples are gone (the
+    daemon's): the radial variance is u^T S u, the tangential (trace S - u^T S u) / 2."""
+    lr = []
+    for n, m, S in zip(np.asarray(ns), np.asarray(means, float), np.asarray(sample_covs, float)):
+        if n < min_samples:
+            continue
+        u = m / max(float(np.linalg.norm(m)), 1e-300)
+        vr = float(u @ S @ u)
+        vt = (float(np.trace(S)) - vr) / 2.0
+        if vr > 0 and vt > 0:
+            lr.append(math.log(vt / vr))
+    return _wander_decision(lr)
+
+
+def _wander_decision(lr) -> Dict[str, object]:
+    """The tilt-wander decision from each pose's log(tangential / radial) variance."""
     if len(lr) < 5:
         return {"wander": False, "note": "fewer than 5 poses of 16 samples"}
     lr = np.array(lr)

@@ -90,6 +90,8 @@ class StaticInterval:
     #: the structure function of each hold averaged into this pose, [(n, rows, obs)] of
     #: fitting/noise/posecov.py (a daemon's pose covariance under tremor); None: unknown
     acc_sf: Optional[list] = None
+    #: the same of the radial series (the samples projected on the hold's mean direction)
+    acc_radial_sf: Optional[list] = None
 
 
 class _Core:
@@ -436,6 +438,8 @@ class _Core:
         if self.keep_structure and n >= SF_MIN_SAMPLES:     # 25 numbers a pose: what the
                                     # daemon's pose covariance needs (calibrate has the rows)
             iv.acc_sf = [(n,) + pose_sf_rows(acc)]
+            # and the radial series' (5 more): the daemon's sway override (daemon/fitjob.py)
+            iv.acc_radial_sf = [(n,) + pose_sf_rows((acc @ (m / norm))[:, None])]
         if gyro is not None:
             g = gyro[sl]
             iv.gyro = g.mean(0)

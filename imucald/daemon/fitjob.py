@@ -25,7 +25,7 @@ from ..fitting.models.registry import gyro_bias_scatter_se
 from ..fitting.gate import Decision, fitted_poses, gate_accel, gate_gyro_bias, paired_gate
 from ..fitting.judging.levels import GATE_FALSE_ACCEPT_RATE
 from ..fitting.magcal import SphereReservoir as MagReservoir
-from ..fitting.magcal import coverage, flat_axis, missing_axes, undetermined_terms
+from ..fitting.magcal import fit_cloud
 from ..fitting.models.mag import MagModel
 from ..fitting.models.accel import Triangular9
 from ..calibration import Calibration, SensorCal, build_calibration
@@ -191,46 +191,45 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
 
 
 def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
-    """The rotation-cloud calibration (fitting.magcal), validated on every k-th point.
+    """The rotation-cloud calibration, determined as ``calibrate --sensor mag`` determines
+    it (fitting/magcal.py fit_cloud, on every point), then gated on every k-th point.
 
     A cloud from a one-plane swing is reported (notes["mag_flat"]: the undetermined
     axis) and never applied; so is one whose terms the determination rule of
     fitting/magcal.py does not accept (notes["mag_undetermined"])."""
     noise = job.get("mag_noise")
-    cov = None
-    if noise is not None and np.all(np.isfinite(noise)) and np.all(np.asarray(noise) > 0):
-        flat = flat_axis(mp, np.asarray(noise, float))
-        if flat is not None:
-            notes["mag_flat"] = flat
-            return
-        cov = np.diag(np.asarray(noise, float) ** 2)
+    if noise is None or not (np.all(np.isfinite(noise)) and np.all(np.asarray(noise) > 0)):
+        noise = None            # unknown: the fits use their residuals, no one-plane test
+    else:
+        noise = np.asarray(noise, float)
     mt = job.get("mag_temp")
     tm = cur.mag.thermal if cur.mag is not None and mt is not None else None
     raw = mp
     if tm:      # thermal terms in force: the constant part is refitted without them, and keeps them
         mp = cur.mag.thermal_offset(mp, mt)
+    fc = fit_cloud(_MAG, mp, noise, "lm", rng=job.get("seed"), heldout=False)
+    if "flat" in fc:
+        notes["mag_flat"] = fc["flat"]
+        return
+    if not fc["determined"]:    # a cap, a wobbly planar turn, no turning at all: never applied
+        notes["mag_undetermined"] = {k: fc[k] for k in ("undetermined", "coverage", "field_gauss",
+                                                         "missing_axes")}
+        return
+    mc, cv = fc["calibration"], fc["coverage"]
+    cov = None if noise is None else np.diag(noise ** 2)
     mho = _holdout(len(mp), job["holdout_fraction"])
-    pc = lambda n: None if cov is None else np.broadcast_to(cov, (n, 3, 3))
-    mc = fit_norm(mp[~mho], "mag_sym", "lm", rng=job.get("seed"), heldout=False,
-                  pose_cov=pc(int((~mho).sum())))
-    r_new = np.linalg.norm(_MAG.forward(mc.theta, mp[mho]), axis=1) - 1
+    mc_ho = fit_norm(mp[~mho], "mag_sym", "lm", rng=job.get("seed"), heldout=False,
+                     pose_cov=None if cov is None else np.broadcast_to(cov, (int((~mho).sum()), 3, 3)))
+    r_new = np.linalg.norm(_MAG.forward(mc_ho.theta, mp[mho]), axis=1) - 1
     if cur.mag is None:
         hc = np.linalg.norm(mp[mho], axis=1)
         r_cur = hc / median(np.linalg.norm(mp, axis=1)) - 1
     else:
         hc = np.linalg.norm(cur.apply_mag(raw[mho], None if mt is None else mt[mho]), axis=1)
         r_cur = hc / float(cur.mag.params["field_gauss"]) - 1
-    # the same paired test on the withheld points; the applied fit then uses every point
+    # the same paired test on the withheld points; the applied fit uses every point
     dec = paired_gate(r_cur ** 2, r_new ** 2, job.get("alpha", GATE_FALSE_ACCEPT_RATE),
                       "raw" if cur.mag is None else "current")
-    mc = fit_norm(mp, "mag_sym", "lm", rng=job.get("seed"), heldout=False, pose_cov=pc(len(mp)))
-    cv = coverage(_MAG, mc.theta, mp)
-    und = undetermined_terms(mc, cv["direction_eigenvalues"][-1])
-    if und:     # a cap, a wobbly planar turn, no turning at all: never applied (fitting/magcal.py)
-        notes["mag_undetermined"] = {"undetermined": und, "coverage": cv,
-                                     "field_gauss": float(mc.params["field_gauss"]),
-                                     "missing_axes": missing_axes(_MAG, mc.theta, mp)}
-        return
     parts["mag"] = SensorCal.from_fit(mc, {
         "points": int(len(mp)), "heldout_rel_rms": dec.rms_cv, "heldout_rel_rms_before": dec.rms_incumbent,
         "gate_p_value": dec.p_value,

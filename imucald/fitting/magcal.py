@@ -56,7 +56,7 @@ from .judging.uncertainty import residual_variance
 from ..numerics.npstats import median
 
 __all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage", "undetermined_terms",
-           "missing_axes", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
+           "missing_axes", "fit_cloud", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
            "SOFT_IRON_SE_MAX", "MIN_DIRECTION_EIG"]
 
 #: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
@@ -281,31 +281,28 @@ def undetermined_terms(cal: FitResult, min_direction_eig: float = np.inf) -> Lis
     (module doc: every term when the direction scatter's smallest eigenvalue
     ``min_direction_eig`` is below ``MIN_DIRECTION_EIG``, reason "coverage"; else each
     whose standard error is above ``HARD_IRON_SE_MAX`` of the field or above
-    ``SOFT_IRON_SE_MAX``, reason "stderr", or on a search bound): one dict each (name,
-    stderr, limit, reason).  The terms a model holds fixed (mag_diag's off-diagonal,
-    mag_sphere's shape) have standard error 0 and are listed only for coverage."""
+    ``SOFT_IRON_SE_MAX``, reason "stderr", or whose fitted parameter is on a search
+    bound, reason "at_bound": a soft-iron term is on one when any of the model's W
+    entries it is formed from is, W being normalised to det 1): one dict each (name,
+    stderr, limit, unit, reason).  The terms a model holds fixed (mag_diag's
+    off-diagonal, mag_sphere's shape) have standard error 0 and are listed only for
+    coverage."""
     F = float(cal.params["field_gauss"])
-    if not min_direction_eig >= MIN_DIRECTION_EIG:
-        hi = np.asarray(cal.stderr.get("hard_iron_gauss", [np.inf] * 3), float)
-        si = np.asarray(cal.stderr.get("soft_iron", [np.inf] * 6), float)
-        return ([{"name": n, "stderr": float(hi[k]), "limit": HARD_IRON_SE_MAX * abs(F), "unit": "gauss",
-                  "reason": "coverage"} for k, n in enumerate(HARD_NAMES)]
-                + [{"name": n, "stderr": float(si[k]), "limit": SOFT_IRON_SE_MAX, "unit": "",
-                    "reason": "coverage"} for k, n in enumerate(SOFT_NAMES)])
     hi = np.asarray(cal.stderr.get("hard_iron_gauss", [np.inf] * 3), float)
     si = np.asarray(cal.stderr.get("soft_iron", [np.inf] * 6), float)
+    terms = ([(n, float(hi[k]), HARD_IRON_SE_MAX * abs(F), "gauss") for k, n in enumerate(HARD_NAMES)]
+             + [(n, float(si[k]), SOFT_IRON_SE_MAX, "") for k, n in enumerate(SOFT_NAMES)])
+    if not min_direction_eig >= MIN_DIRECTION_EIG:
+        return [{"name": n, "stderr": se, "limit": lim, "unit": u, "reason": "coverage"}
+                for n, se, lim, u in terms]
     bound = {f["name"] for f in cal.uncertainty.flags if "at_bound" in f["reason"]}
-    out: List[Dict[str, Any]] = []
-    for k, name in enumerate(HARD_NAMES):
-        lim = HARD_IRON_SE_MAX * abs(F)
-        if not hi[k] <= lim or f"{name}_gauss" in bound:
-            out.append({"name": name, "stderr": float(hi[k]), "limit": lim, "unit": "gauss",
-                        "reason": "at_bound" if hi[k] <= lim else "stderr"})
-    for k, name in enumerate(SOFT_NAMES):
-        if not si[k] <= SOFT_IRON_SE_MAX:
-            out.append({"name": name, "stderr": float(si[k]), "limit": SOFT_IRON_SE_MAX, "unit": "",
-                        "reason": "stderr"})
-    return out
+    # every soft-iron term depends on all of W (the det-1 normalisation): any W entry on a
+    # bound pins them all
+    w_bound = any(b == "w" or b.startswith("w_") for b in bound)
+    on_bound = lambda n: f"{n}_gauss" in bound if n in HARD_NAMES else w_bound
+    return [{"name": n, "stderr": se, "limit": lim, "unit": u,
+             "reason": "stderr" if not se <= lim else "at_bound"}
+            for n, se, lim, u in terms if not se <= lim or on_bound(n)]
 
 
 def missing_axes(model: MagModel, theta: np.ndarray, points: np.ndarray,
@@ -326,8 +323,32 @@ def rel_std(norms: np.ndarray) -> float:
 
 
 def _fit(model, points, noise, method, rng, heldout=True) -> FitResult:
-    cov = np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (len(points), 3, 3))
+    cov = None if noise is None else np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (len(points), 3, 3))
     return fit_norm(points, model, method, pose_cov=cov, rng=rng, heldout=heldout)
+
+
+def fit_cloud(model: MagModel, points: np.ndarray, noise: Optional[np.ndarray], method: str = "lm",
+              rng=None, cells: int = 200, heldout: bool = True) -> Dict[str, Any]:
+    """What a thinned rotation cloud ``points`` (M, 3) determines (module doc), for
+    ``calibrate --sensor mag`` (:func:`calibrate_rotation`) and the daemon's worker alike:
+    the one-plane test (with ``noise`` (3,) per-sample, else skipped: the fit then uses
+    its residuals), the fit, the coverage, and the determination rule.  Returns a dict:
+    ``determined``; ``flat`` (a one-plane swing, nothing fitted); else ``coverage`` and
+    either ``calibration`` (the :class:`FitResult`) or ``undetermined`` (the terms), with
+    ``rejected_fit``, ``field_gauss`` and ``missing_axes``."""
+    if noise is not None:
+        flat = flat_axis(points, noise)
+        if flat is not None:
+            return {"determined": False, "flat": flat}
+    cal = _fit(model, points, noise, method, rng, heldout)
+    cv = coverage(model, cal.theta, points, cells)
+    und = undetermined_terms(cal, cv["direction_eigenvalues"][-1])
+    if und:
+        # the fit is kept for the report only ("rejected_fit"): a file from it would be wrong
+        return {"determined": False, "coverage": cv, "undetermined": und, "rejected_fit": cal,
+                "field_gauss": float(cal.params["field_gauss"]),
+                "missing_axes": missing_axes(model, cal.theta, points)}
+    return {"determined": True, "coverage": cv, "calibration": cal}
 
 
 def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "lm",
@@ -368,22 +389,11 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
         from ..errors import UserError
         raise UserError(f"{len(mag)} magnetometer samples reach only {len(pts)} direction cells: "
                         f"rotate the sensor through many orientations")
-    flat = flat_axis(pts, sigma)
-    if flat is not None:
-        out.update(determined=False, flat=flat)
+    out.update(fit_cloud(mdl, pts, sigma, method, rng, cells))
+    if not out["determined"]:
         return out
-    cal = _fit(mdl, pts, sigma, method, rng)
+    cal = out["calibration"]
     cal.noise_source = "second differences"
-    out["coverage"] = coverage(mdl, cal.theta, pts, cells)
-    und = undetermined_terms(cal, out["coverage"]["direction_eigenvalues"][-1])
-    if und:
-        # the fit is kept for the report only ("rejected_fit"): a file from it would be wrong
-        out.update(determined=False, undetermined=und, rejected_fit=cal,
-                   field_gauss=float(cal.params["field_gauss"]),
-                   missing_axes=missing_axes(mdl, cal.theta, pts))
-        return out
-    out["determined"] = True
-    out["calibration"] = cal
     hn = np.linalg.norm(mdl.forward(cal.theta, mag), axis=1)
     out["norm_rel_std"] = rel_std(hn)
     var = residual_variance(mdl, cal.theta, pts, np.broadcast_to(np.diag(sigma ** 2), (len(pts), 3, 3)))

@@ -111,25 +111,27 @@ def config_page() -> str:
            "read and checked: [Configuration](configuration.md).\n",
            "| key | default | type | allowed | on reload | meaning |", "|---|---|---|---|---|---|"]
     for key, (default, kind, allowed) in SCHEMA.items():
+        v = lambda x: _v(x, kind.startswith("addr"))     # I2C addresses as the datasheets write them
         if isinstance(allowed, tuple) and kind in ("choice",):
-            al = " \\| ".join(_v(a) for a in allowed)
+            al = " \\| ".join(v(a) for a in allowed)
         elif isinstance(allowed, tuple) and len(allowed) == 2:
-            al = f"{_v(allowed[0])} .. {_v(allowed[1])}"
+            al = f"{v(allowed[0])} .. {v(allowed[1])}"
         else:
             al = ""
         reload = "restart" if needs_restart(key) else "at once"
         note = comments.get(key, "").replace("|", "\\|")
-        out.append(f"| `{key}` | `{_v(default)}` | {kind} | {al} | {reload} | {note} |")
+        out.append(f"| `{key}` | `{v(default)}` | {kind} | {al} | {reload} | {note} |")
     return "\n".join(out) + "\n"
 
 
-def _v(x) -> str:
+def _v(x, hex_int: bool = False) -> str:
+    """A schema value as the config file writes it (``hex_int``: an integer as 0x..)."""
     if x is None:
         return "null"
     if isinstance(x, bool):
         return str(x).lower()
-    if isinstance(x, int) and x > 2 and x < 0x80 and False:
-        return hex(x)
+    if hex_int and isinstance(x, int):
+        return f"0x{x:02x}"
     return str(x).replace("|", "\\|")
 
 

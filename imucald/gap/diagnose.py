@@ -219,6 +219,15 @@ class PoseSetup:
     T_pose: float                  #: median pose length, s
     longest: Optional[slice]       #: the longest still stretch
     notes: List[str]
+    _acc_theta: Optional[np.ndarray] = None
+
+    def accel_theta(self) -> np.ndarray:
+        """triangular9 fitted (LM, no prior) to the kept poses' accelerometer means: what the
+        gyro step's g-sensitivity regressor and the magnetometer step's pairing calibrate the
+        accelerometer with; fitted once for both (each step fitted it again before)."""
+        if self._acc_theta is None:
+            self._acc_theta = lm(Problem(Triangular9(), self.ps.acc[self.keep])).theta
+        return self._acc_theta
 
     @property
     def ctx(self) -> Dict[str, np.ndarray]:
@@ -369,9 +378,7 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     ctx = u.ctx
     # specific force in g from the calibrated accelerometer (raw directions carry the
     # accelerometer's own scale and bias errors into the g-sensitivity regressor)
-    t9 = Triangular9()
-    th_a = lm(Problem(t9, ps.acc[keep])).theta
-    ctx["acc_dir"] = t9.forward(th_a, ps.acc[keep])
+    ctx["acc_dir"] = Triangular9().forward(u.accel_theta(), ps.acc[keep])
     r = gyro_diag(gm[keep], gvar, ctx, sims, rng, u.skip)
     r["turn_ends_trimmed_s"] = float(np.sum(trim["trimmed_s"]))
     if colour_g:
@@ -390,9 +397,7 @@ def _mag_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     if len(rec.t) > 3 and find_repeats(rec.t, rec.mag, rec.rate_hz).held:
         n_eff = run_effective_counts(rec.mag, u.kept(u.sl))
     mvar = np.median(mv[keep] * ps.n[keep]) / n_eff
-    t9 = Triangular9()
-    th_a = lm(Problem(t9, ps.acc[keep])).theta
-    return _mag(rec, u.sl, ps.mag[keep], mvar, np.flatnonzero(keep), th_a, u.skip, sims, rng,
+    return _mag(rec, u.sl, ps.mag[keep], mvar, np.flatnonzero(keep), u.accel_theta(), u.skip, sims, rng,
                 _chip_mag_noise(rec))
 
 

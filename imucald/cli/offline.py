@@ -303,10 +303,9 @@ def _fit_gyro_poses(args, rec, poses, det, model):
     if model == "eq6":
         if rec is None:
             raise UserError("--model eq6 needs the still samples: give a recording")
-        from ..fitting.stillness.poses import detect_static
-        sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+        # the poses' own stretches (the detector ran once, with the user's options)
         keep = det.repeats.keep if det is not None else np.ones(len(rec.t), bool)
-        samples = np.concatenate([rec.gyro[s][keep[s]] for s in sl])     # distinct samples
+        samples = np.concatenate([rec.gyro[s][keep[s]] for s in poses.slices])     # distinct samples
     return fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
 
 

@@ -54,6 +54,9 @@ class PoseSet:
     #: how the covariances of the means were formed ({"accel": summary, "gyro": ...} of
     #: fitting/noise/posecov.py), or None (sample covariance over n)
     noise: Optional[dict] = field(default=None, repr=False, compare=False)
+    #: each pose's sample slice of the recording (its distinct rows: ``detector.repeats.keep``),
+    #: or None
+    slices: Optional[list] = field(default=None, repr=False, compare=False)
 
     def __len__(self):
         return len(self.acc)
@@ -148,7 +151,9 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
     keep = None if det is None else det.repeats.keep
     cuts = [slice(iv.i0, iv.i1) for iv in ivs]
     pieces = poses_from_slices(rec, cuts, keep)
-    ps = _joined(rec, merge_cut(ivs, keep), cuts, pieces, keep)
+    joined = merge_cut(ivs, keep)
+    ps = _joined(rec, joined, cuts, pieces, keep)
+    ps.slices, pieces.slices = joined, cuts
     if dropped:
         ps.meta["dropped_samples"] = pieces.meta["dropped_samples"] = str(dropped)
     if det is not None:

@@ -157,7 +157,7 @@ def test_a_refusal_with_the_lower_figure_says_why_in_numbers():
                   fitted=fitted, nested=True, var_incumbent=np.r_[np.ones(10), np.full(8, 1e-6)])
     assert not d.accept and not d.consistent and d.rms_cv < d.rms_incumbent
     t = d.text(1e3, "mg")
-    assert "disagree with the current one (chi2 = " in t and "on the 8 poses it was not fitted on" in t
+    assert "disagree with the current one (chi2 = " in t and "on the 8 poses the current one was not fitted on" in t
     assert f"p = {d.p_value:.2g} > 0.05" in t
 
 

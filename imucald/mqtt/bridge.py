@@ -80,6 +80,9 @@ class Bridge:
                       "disconnects": 0, "buffered": 0, "stream_reconnects": 0, "samples_read": 0,
                       "samples_out": 0, "gaps": 0, "missing_samples": 0, "unsent_at_stop": 0}
         self._stream = None
+        #: one fetch-and-publish of the retained calibration at a time (the reader thread on a
+        #: CAL event, the main loop when status shows a new id): see :meth:`_publish_calibration`
+        self._cal_lock = threading.Lock()
         self.waker = Waker()
         self.version: Optional[Dict[str, Any]] = None
         self.last_connect_error: Optional[str] = None
@@ -313,16 +316,25 @@ class Bridge:
             self.put(topics.event("gap"), dumps({**{k: v for k, v in rec.items() if k != "class"},
                                                  "time": round(now, 3)}))
         elif cls == "CAL":
-            cal = None
-            if rec.get("applied"):
-                try:
-                    cal = self._request("calibration")
-                except (UserError, OSError, ValueError):
-                    pass
-                if cal is not None and cal.get("class") == "CALIBRATION":
-                    self.put(topics.calibration, dumps(calibration_summary(cal)), retain=True)
-                    self.cal_id = cal.get("id")
+            cal = self._publish_calibration(topics) if rec.get("applied") else None
             self.put(topics.event("cal"), dumps(cal_payload(rec, cal, now)))
+
+    def _publish_calibration(self, topics: Topics) -> Optional[Dict[str, Any]]:
+        """Fetch the calibration in force from the control socket and publish it (retained);
+        returns it, or None when the daemon did not give it.  Fetch and publish are one step
+        under a lock: the reader thread (a CAL event) and the main loop (status naming a new
+        id) both do this, and unlocked, a fetch of #5 published after another thread's #6
+        left the older calibration retained (and cal_id at 5) until the next status poll."""
+        with self._cal_lock:
+            try:
+                cal = self._request("calibration")
+            except (UserError, OSError, ValueError):
+                return None
+            if cal.get("class") != "CALIBRATION":
+                return None
+            self.put(topics.calibration, dumps(calibration_summary(cal)), retain=True)
+            self.cal_id = cal.get("id")
+            return cal
 
     # -- the whole -----------------------------------------------------------------------
     def run(self, stop: threading.Event) -> int:
@@ -402,13 +414,7 @@ class Bridge:
         if last is not None and now > last[0] and n >= last[1]:
             rate = (n - last[1]) / (now - last[0])
         if st.get("calibration_id") and st.get("calibration_id") != self.cal_id:
-            try:
-                cal = self._request("calibration")
-                if cal.get("class") == "CALIBRATION":
-                    self.put(topics.calibration, dumps(calibration_summary(cal)), retain=True)
-                    self.cal_id = cal.get("id")
-            except (UserError, OSError, ValueError):
-                pass
+            self._publish_calibration(topics)
         with self.cv:
             self.stats["buffered"] = len(self.buf)
             bridge = dict(self.stats, connected=self.connected)

@@ -20,12 +20,15 @@ __all__ = ["UNIX_PATH_MAX", "check_socket_path", "set_mode_group", "listen_unix"
 UNIX_PATH_MAX = 107
 
 
-def set_mode_group(path: str, mode: str, group: Optional[str], key: str = "socket") -> None:
+def set_mode_group(path: str, mode: str, group: Optional[str], key: str = "socket",
+                   shown: Optional[str] = None) -> None:
     """Mode and group of a socket or FIFO just made; one line naming the setting and the fix
-    (exit 73, "cannot create": a restart cannot fix it, the unit does not retry it)."""
+    (exit 73, "cannot create": a restart cannot fix it, the unit does not retry it).
+    ``shown``: the path the messages name (the final one, when ``path`` is a temporary name)."""
     from ..errors import CannotCreate
+    real, path = path, shown or path
     try:
-        os.chmod(path, int(mode, 8))
+        os.chmod(real, int(mode, 8))
     except OSError as e:
         raise CannotCreate(f"{key}: cannot set mode {mode} on {path}: {e.strerror}") from None
     if group:
@@ -36,7 +39,7 @@ def set_mode_group(path: str, mode: str, group: Optional[str], key: str = "socke
             raise ConfigError(f"socket_group: group {group!r} does not exist (getent group lists "
                               f"them; create it with groupadd or change the setting)") from None
         try:
-            os.chown(path, -1, gid)
+            os.chown(real, -1, gid)
         except OSError as e:
             # EPERM: a process may give a file only to a group it is in (chown(2))
             raise CannotCreate(
@@ -63,24 +66,36 @@ def check_socket_path(path: str, key: str) -> None:
 def listen_unix(path: str, mode: str, group: Optional[str], backlog: int,
                 key: str = "socket") -> socket.socket:
     """A non-blocking listening Unix stream socket at ``path`` (a stale one is replaced:
-    the daemon holds the runtime directory's lock, so no other instance is using it)."""
+    the daemon holds the runtime directory's lock, so no other instance is using it).
+
+    The socket is bound under a temporary name beside ``path``, given its mode and group,
+    put to listen, and only then renamed into place: a client that sees ``path`` can
+    connect at once (bound at ``path`` itself, a connect between bind and listen was
+    refused)."""
     check_socket_path(path, key)
-    if os.path.lexists(path):
-        os.unlink(path)
+    tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.{os.getpid()}~")
+    if len(os.fsencode(tmp)) > UNIX_PATH_MAX:    # then bound in place (the path itself fits)
+        tmp = path
+    for stale in (tmp, path):
+        if os.path.lexists(stale):
+            os.unlink(stale)
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
-        s.bind(path)
+        s.bind(tmp)
     except OSError as e:
         s.close()
         from ..errors import CannotCreate
         raise CannotCreate(f"{key}: cannot create the socket {path}: {e.strerror}") from None
     try:
-        set_mode_group(path, mode, group, key)
+        set_mode_group(tmp, mode, group, key, shown=path)
+        s.listen(backlog)
+        if tmp != path:
+            os.replace(tmp, path)
     except Exception:
         s.close()
-        os.unlink(path)
+        if os.path.lexists(tmp):
+            os.unlink(tmp)
         raise
-    s.listen(backlog)
     s.setblocking(False)
     return s
 

@@ -4,20 +4,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, List, Tuple
+from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 
 from .candidates import GYRO_CANDIDATES, TRACELESS, kron_cols
 from .earth import earth_rate_report, horizontal_variance, vertical_column
-from .signif import p_and_log10, proj_sig, score
+from .gyrosearch import gyro_stepwise
+from .signif import corr_p, p_and_log10, proj_sig, score
 from ..fitting.judging.heldout import heldout, twin_rms
-from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
-from .verdict import decide
-from .where import linear_where
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL, GAP_TEST_LEVEL
+from .verdict import confusable, verdict
+from .where import linear_where, region
 from ..fitting.judging.metrics import rms
 
-__all__ = ["gyro_diag", "gyro_baseline", "GyroBaseline"]
+__all__ = ["gyro_diag", "gyro_baseline", "gyro_where", "GyroBaseline"]
 
 
 def _wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -125,25 +126,99 @@ def _fit_gyro(b: GyroBaseline, tested: List[tuple], ctx, sims, rng
     return effects, e_after
 
 
+def _spawn(rng):
+    """A child generator for the search's draws that leaves ``rng``'s own stream as it was
+    (the magnetometer, diagnosed next, draws the same twins as before the search)."""
+    try:
+        return rng.spawn(1)[0]
+    except (AttributeError, TypeError, ValueError):
+        return np.random.default_rng(int(rng.integers(2 ** 62)))
+
+
+def _decide_gyro(out: Dict[str, object], b: GyroBaseline, tested: List[tuple], ctx, rng) -> Tuple[List[str], object]:
+    """The verdict from the combination search (gap/gyrosearch.py), written into ``out``:
+    with a gap, the members of the model the forward and backward steps end with (each
+    passed its Wald and held-out tests); returns (chosen, held-out residuals after)."""
+    if not b.significant:
+        out.update(verdict(False, [], b.ratio, b.ratio, None))
+        out["ratio_after"] = float(b.ratio)
+        if b.ratio > float(out["twin_ratio_q99"]) * 1.05:
+            out["note"] = "held-out ratio above the twin's 99th percentile but chi-square not significant"
+        return [], None
+    sr = gyro_stepwise(b, [d[0] for d in tested if d[3]], ctx, _spawn(rng))
+    m = sr["model"]
+    chosen = m.names
+    ratio_after = m.ratio if chosen else b.ratio
+    closed = m.closed if chosen else None
+    out["search"] = {"steps": sr["steps"], "members": sr["members"], "models_fitted": sr["models_fitted"],
+                     "coefficient_level": sr["coefficient_level"], "heldout_level": GAP_HELDOUT_LEVEL,
+                     "rule": "forward and backward steps; every member's coefficients (Wald, at the "
+                             "attribution level over the search's member tests) and held-out shrink "
+                             "(against noise draws without it) significant"}
+    if len(chosen) > 1:
+        # the members' coefficients flat in the verdict's order (g-sensitivity as its 9 elements)
+        out["joint"] = {"effects": list(chosen), "ratio_after": float(ratio_after), "closed": closed,
+                        "params": [v for e in sr["members"] for v in next(iter(e["params"].values()))],
+                        "stderr": [v for e in sr["members"] for v in next(iter(e["stderr"].values()))]}
+    out.update(verdict(True, chosen, b.ratio, float(ratio_after), closed))
+    out["ratio_after"] = float(ratio_after)
+    conf = confusable(chosen, {d[0].name: d[1] for d in tested if d[3]})
+    if conf:
+        out["confusable"] = conf
+    if "g_sensitivity" in chosen:
+        out["note"] = ("Earth's vertical rate (up to 15 deg/h) is in the baseline; it takes up an "
+                       "isotropic g-sensitivity of the same size")
+    return chosen, (m.e if chosen else None)
+
+
 def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Dict[str, object]:
     """Diagnose gyro pose means ``g`` (N, 3) in dps with noise variance ``gvar`` (N, 3):
-    baseline -> candidates (score tests, refits) -> verdict (gap/verdict.py decide)."""
+    baseline -> candidates (score tests, single refits: the report) -> the combination
+    search's verdict (gap/gyrosearch.py)."""
     b = gyro_baseline(g, gvar, ctx, sims, rng)
     out = b.report
     tested = _score_gyro(b, ctx, names_skip)
-    effects, e_after = _fit_gyro(b, tested, ctx, sims, rng)
+    effects, _ = _fit_gyro(b, tested, ctx, sims, rng)
     out["effects"] = effects
-    chosen = decide(out, b.ratio, b.significant, effects, {d[0].name: d[1] for d in tested if d[3]})
-    if chosen and chosen[0] == "g_sensitivity":
-        out["note"] = ("Earth's vertical rate (up to 15 deg/h) is in the baseline; it takes up an "
-                       "isotropic g-sensitivity of the same size")
+    chosen, e_after = _decide_gyro(out, b, tested, ctx, rng)
     N = b.n
     rz = (b.r0 * np.sqrt(b.w)).reshape(N, 3)
-    out["where"] = linear_where(rz, ctx)
+    out["where"] = gyro_where(rz, ctx)
     # for --report: one point per pose and axis (stacked x, y, z per pose)
     rep = lambda v: None if v is None else np.repeat(np.asarray(v), 3, axis=0)
     out["_plot"] = {"e": b.e0, "var": b.var, "t": rep(ctx["t"]), "temp": rep(ctx.get("temp")),
                     "u": rep(ctx["acc_dir"]), "axis": np.tile(np.arange(3), N),
-                    "e_after": e_after.get(chosen[0]) if chosen else None,
-                    "after_label": "+".join(chosen) if chosen else None}
+                    "e_after": e_after, "after_label": "+".join(chosen) if chosen else None}
+    return out
+
+
+def _shares(ex: np.ndarray, labels: np.ndarray, names: Sequence[str]) -> Dict[str, float]:
+    tot = max(float(np.sum(ex)), 1e-300)
+    return {nm: round(float(np.sum(ex[labels == k])) / tot, 3) for k, nm in enumerate(names)}
+
+
+def gyro_where(rz: np.ndarray, ctx) -> Dict[str, object]:
+    """Where the excess of the normalised baseline residuals ``rz`` (N, 3) lies: by axis
+    (gap/where.py linear_where, with its trends), by orientation (the axis up), by
+    temperature and time quartile, and the trend against each axis's squared up component
+    (what a g-sensitivity or an out-of-library orientation effect leaves)."""
+    out = linear_where(rz, ctx)
+    ex = np.sum(np.maximum(rz ** 2 - 1, 0), axis=1)
+    u = np.asarray(ctx["acc_dir"], float)
+    reg = np.array([region(v) for v in u])
+    names = sorted(set(reg.tolist()))
+    out["region_share"] = _shares(ex, np.array([names.index(x) for x in reg]), names)
+    for key, v, fmt in (("temperature_bin_share", ctx.get("temp"), "{:.1f}..{:.1f} C"),
+                        ("time_bin_share", ctx["t"], "{:.0f}..{:.0f} s")):
+        if v is None or not np.all(np.isfinite(v)):
+            continue
+        qs = np.quantile(v, [0, 0.25, 0.5, 0.75, 1])
+        k = np.clip(np.searchsorted(qs[1:-1], v, side="right"), 0, 3)
+        out[key] = _shares(ex, k, [fmt.format(qs[i], qs[i + 1]) for i in range(4)])
+    ud = u / np.linalg.norm(u, axis=1, keepdims=True)
+    size = np.linalg.norm(rz, axis=1)
+    for j, ax in enumerate("xyz"):
+        c = corr_p(ud[:, j] ** 2, size)
+        if c is not None:
+            out["trends"][f"{ax}_squared"] = c
     return out

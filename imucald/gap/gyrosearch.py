@@ -1,0 +1,260 @@
+"""The combination search of the gyro's linear gap diagnosis (issue 25 items 3-4): the
+discipline of the norm path's search (gap/search.py) on the gyro's weighted least squares
+of pose means (gap/linear.py), where every figure is exact and cheap.
+
+A model M is a set of gyro candidates (``thermal_bias``, ``g_sensitivity``, ``bias_drift``:
+one form per class) added as design columns to the baseline (a bias per axis and Earth's
+vertical rate).  Its fit is weighted least squares; its held-out residuals are the exact
+leave-one-out ones r_i / (1 - h_i) from the normal equations; its twin the held-out RMS of
+the same design on HELDOUT_SIMS noise draws (the pose-mean variances, Earth's horizontal
+rate included), the same draws for every model (common random numbers).
+
+Each member m of M is tested twice and is named only when it passes both:
+
+* **coefficients**: a Wald test, beta_m' Cov_m^+ beta_m against chi-square with the visible
+  rank, the covariance scaled by the excess scatter M leaves (chi2 / residual dof, at least
+  1), at GAP_ATTRIBUTION_LEVEL split over the search's member tests (:func:`coef_level`);
+* **held-out shrink**: the fall in the held-out ratio (held-out RMS over the model's own
+  twin median, floored at 1) from M without m to M, against the same fall on the noise
+  draws (on which m is absent: signals in the smaller model's span leave both models'
+  leave-one-out residuals unchanged, so the null is exact, not linearised); one-sided, at
+  GAP_HELDOUT_LEVEL, the Monte Carlo p-value (1 + #{draws >= observed}) / (1 + draws).
+
+Forward: from the baseline, the moves that pass (a class not in the model; the first effect
+must also lower the held-out RMS below the baseline's and leave MIN_DOF residual degrees of
+freedom, a second member down to SEARCH_MIN_DOF); of those the simplest (fewest coefficients)
+that closes the gap (ratio within its own twin's 99th percentile), else the one with the
+lowest floored ratio.  Backward, after every forward step: the member that fails a test by
+most is dropped, until every member passes.  Stop when no move passes (or a model repeats).
+At most MAX_MEMBERS effects together, as on the norm path.
+
+Pure functions over numpy arrays (the Search object only caches fits).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL
+from .candidates import TRACELESS
+from .search import MAX_MEMBERS, MIN_DOF, SEARCH_MIN_DOF
+from .signif import p_and_log10
+
+__all__ = ["gyro_stepwise", "coef_level", "GyroFit", "HELDOUT_SIMS"]
+
+#: noise draws for the twins and the held-out shrink tests (one set per diagnosis): a
+#: p-value at 1 % is then resolved to about +-0.2 % (binomial), at ~1 ms per model
+HELDOUT_SIMS = 2000
+MAX_STEPS = 8
+
+
+def coef_level(k: int) -> float:
+    """The Wald tests' level with ``k`` candidate classes: GAP_ATTRIBUTION_LEVEL over the
+    member tests the search can make, k + k (k - 1) (each single, and each member of each
+    pair against the other), so that a false member is named in the final model with
+    probability at most GAP_ATTRIBUTION_LEVEL whatever path the steps take (a union bound
+    over (model, member); the held-out test, required as well, can only lower it)."""
+    return GAP_ATTRIBUTION_LEVEL / max(k * k, 1)
+
+
+@dataclass
+class GyroFit:
+    """One model's weighted least-squares fit and its twin."""
+    cands: Tuple                   #: members (Candidate objects)
+    beta: np.ndarray               #: baseline coefficients, then each member's
+    cov: np.ndarray                #: their covariance, scaled by the excess scatter left
+    r: np.ndarray                  #: residuals, dps
+    e: np.ndarray                  #: exact leave-one-out residuals, dps
+    chi2: float
+    dof: float                     #: residual degrees of freedom (3N - rank)
+    rms: float                     #: held-out RMS, dps
+    sim_rms: np.ndarray            #: held-out RMS on each noise draw
+    member_p: Dict[str, float] = field(default_factory=dict)
+
+    @property
+    def twin(self) -> float:
+        return float(np.median(self.sim_rms))
+
+    @property
+    def ratio(self) -> float:
+        return self.rms / self.twin
+
+    @property
+    def q99(self) -> float:
+        return float(np.quantile(self.sim_rms / self.twin, 0.99))
+
+    @property
+    def excess(self) -> float:
+        return max(self.ratio, 1.0)
+
+    @property
+    def closed(self) -> bool:
+        return self.ratio <= self.q99
+
+    @property
+    def names(self) -> List[str]:
+        return [c.name for c in self.cands]
+
+    @property
+    def n_coef(self) -> int:
+        return sum(c.q for c in self.cands)
+
+
+def _loo(X: np.ndarray, w: np.ndarray, Y: np.ndarray):
+    """Weighted least squares of the columns of Y (3N, k) on X: (coefficients, inverse normal
+    matrix, residuals, leave-one-out residuals, rank)."""
+    Xw = X * w[:, None]
+    Ai = np.linalg.pinv(X.T @ Xw, rcond=1e-12, hermitian=True)
+    beta = Ai @ (Xw.T @ Y)
+    r = Y - X @ beta
+    h = np.einsum("nk,kl,nl->n", X, Ai, Xw)
+    rank = int(np.linalg.matrix_rank(X * np.sqrt(w)[:, None]))
+    return beta, Ai, r, r / np.maximum(1 - h, 1e-3)[:, None], rank
+
+
+class GyroSearch:
+    """The models of one gyro diagnosis, fitted on demand and cached."""
+
+    def __init__(self, b, cols: Dict[str, np.ndarray], rng, level: float):
+        self.b, self.cols, self.level = b, cols, level
+        self.noise = (rng.normal(size=(HELDOUT_SIMS, len(b.y))) * np.sqrt(b.var)).T   # (3N, sims)
+        self.cache: Dict[frozenset, Optional[GyroFit]] = {}
+
+    def fit(self, cands: Sequence) -> Optional[GyroFit]:
+        key = frozenset(c.name for c in cands)
+        if key not in self.cache:
+            self.cache[key] = self._fit(tuple(cands))
+        return self.cache[key]
+
+    def _fit(self, cands) -> Optional[GyroFit]:
+        b = self.b
+        X = np.hstack([b.X0] + [self.cols[c.name] for c in cands])
+        beta, Ai, r, e, rank = _loo(X, b.w, np.column_stack([b.y, self.noise]))
+        dof = len(b.y) - rank
+        if cands and dof < (MIN_DOF if len(cands) == 1 else SEARCH_MIN_DOF):
+            return None
+        r0, e0 = r[:, 0], e[:, 0]
+        chi2 = float(np.sum(b.w * r0 * r0))
+        cov = Ai * max(1.0, chi2 / max(dof, 1))
+        m = GyroFit(tuple(cands), beta[:, 0], cov, r0, e0, chi2, float(dof),
+                    float(np.sqrt(np.mean(e0 ** 2))), np.sqrt(np.mean(e[:, 1:] ** 2, axis=0)))
+        o = b.X0.shape[1]
+        for c in cands:
+            Ca, za = cov[o:o + c.q, o:o + c.q], m.beta[o:o + c.q]
+            wald = float(za @ np.linalg.pinv(Ca, rcond=1e-10, hermitian=True) @ za)
+            vis = int(np.linalg.matrix_rank(Ca, tol=1e-10 * max(np.abs(Ca).max(), 1e-300)))
+            m.member_p[c.name] = p_and_log10(wald, max(vis, 1))[0]
+            o += c.q
+        return m
+
+    def without(self, m: GyroFit, name: str) -> Optional[GyroFit]:
+        return self.fit([c for c in m.cands if c.name != name])
+
+    def heldout_p(self, small: GyroFit, big: GyroFit) -> float:
+        """One-sided Monte Carlo p-value of the floored held-out ratio falling from ``small``
+        to ``big`` by as much as it does when what ``big`` adds is absent."""
+        obs = small.excess - big.excess
+        g = np.maximum(small.sim_rms / small.twin, 1.0) - np.maximum(big.sim_rms / big.twin, 1.0)
+        return float((1 + np.sum(g >= obs)) / (1 + len(g)))
+
+    def tests(self, m: GyroFit) -> Dict[str, Tuple[float, float]]:
+        """(coefficient p, held-out p) of every member of ``m``."""
+        out = {}
+        for c in m.cands:
+            small = self.without(m, c.name)
+            out[c.name] = (m.member_p[c.name], 1.0 if small is None else self.heldout_p(small, m))
+        return out
+
+    def passes(self, pc: float, pho: float) -> bool:
+        return pc < self.level and pho < GAP_HELDOUT_LEVEL
+
+    def failure(self, pc: float, pho: float) -> float:
+        return max(pc / self.level, pho / GAP_HELDOUT_LEVEL)
+
+
+def _add_moves(s: GyroSearch, cur: GyroFit, base: GyroFit, cands: Sequence, visited) -> list:
+    """Forward: each class not in the model whose addition passes both tests."""
+    moves = []
+    if len(cur.cands) >= MAX_MEMBERS:
+        return moves
+    for c in cands:
+        if c.name in cur.names:
+            continue
+        m = s.fit(cur.cands + (c,))
+        if m is None or frozenset(m.names) in visited or not m.excess < cur.excess:
+            continue
+        if not cur.cands and not m.rms < base.rms:
+            continue            # the first effect must predict the held-out poses better
+        pc = m.member_p[c.name]
+        if pc >= s.level:
+            continue
+        pho = s.heldout_p(cur, m)
+        if s.passes(pc, pho):
+            moves.append((m, f"add {c.name} ({c.q} coefficients)", pc, pho))
+    return moves
+
+
+def _backward(s: GyroSearch, cur: GyroFit, steps: list, visited) -> GyroFit:
+    """Drop the member that fails a test by most, until every member passes."""
+    while len(cur.cands) > 1:
+        t = s.tests(cur)
+        bad = {k: s.failure(*v) for k, v in t.items() if not s.passes(*v)}
+        if not bad:
+            break
+        worst = max(bad, key=bad.get)
+        nxt = s.without(cur, worst)
+        if nxt is None:
+            break
+        steps.append({"step": f"drop {worst}", "heldout_ratio": nxt.ratio,
+                      "coefficient_p_value": t[worst][0], "heldout_p_value": t[worst][1]})
+        cur = nxt
+        visited.add(frozenset(cur.names))
+    return cur
+
+
+def _path(s: GyroSearch, base: GyroFit, cands: Sequence) -> Tuple[GyroFit, list]:
+    """Forward and backward steps from the baseline until no move passes."""
+    cur, steps, visited = base, [], {frozenset()}
+    for _ in range(MAX_STEPS):
+        moves = _add_moves(s, cur, base, cands, visited)
+        if not moves:
+            break
+        m, what, pc, pho = min(moves, key=lambda t: (not t[0].closed, t[0].n_coef if t[0].closed else 0,
+                                                     t[0].excess, t[0].n_coef))
+        steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
+                      "heldout_p_value": pho})
+        cur = m
+        visited.add(frozenset(cur.names))
+        cur = _backward(s, cur, steps, visited)
+    return cur, steps
+
+
+def _members(s: GyroSearch, m: GyroFit) -> List[dict]:
+    """Each named member's coefficients (g-sensitivity as its 9 matrix elements), standard
+    errors and both tests' p-values."""
+    out = []
+    t = s.tests(m) if m.cands else {}
+    o = s.b.X0.shape[1]
+    for c in m.cands:
+        B = TRACELESS if c.name == "g_sensitivity" else np.eye(c.q)
+        key = f"{c.name}_{c.units}"
+        out.append({"name": c.name, "coefficients": c.q, "coefficient_p_value": t[c.name][0],
+                    "heldout_p_value": t[c.name][1], "params": {key: (B @ m.beta[o:o + c.q]).tolist()},
+                    "stderr": {key: np.sqrt(np.diag(B @ m.cov[o:o + c.q, o:o + c.q] @ B.T)).tolist()}})
+        o += c.q
+    return out
+
+
+def gyro_stepwise(b, cands: Sequence, ctx, rng) -> Dict[str, object]:
+    """Forward and backward over the gyro candidates ``cands`` (visible ones, not skipped)
+    from the baseline ``b`` (linear.GyroBaseline): {"model", "base", "members", "steps",
+    "models_fitted", "coefficient_level"}."""
+    cols = {c.name: c.columns(ctx) for c in cands}
+    s = GyroSearch(b, cols, rng, coef_level(len(cands)))
+    base = s.fit(())
+    cur, steps = _path(s, base, list(cands))
+    return {"model": cur, "base": base, "members": _members(s, cur), "steps": steps,
+            "models_fitted": len(s.cache), "coefficient_level": s.level}

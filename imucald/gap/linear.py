@@ -158,8 +158,8 @@ def _decide_gyro(out: Dict[str, object], b: GyroBaseline, tested: List[tuple], c
     if len(chosen) > 1:
         # the members' coefficients flat in the verdict's order (g-sensitivity as its 9 elements)
         out["joint"] = {"effects": list(chosen), "ratio_after": float(ratio_after), "closed": closed,
-                        "params": [v for e in sr["members"] for v in next(iter(e["params"].values()))],
-                        "stderr": [v for e in sr["members"] for v in next(iter(e["stderr"].values()))]}
+                        "params": [v for e in sr["members"] for p in e["params"].values() for v in p],
+                        "stderr": [v for e in sr["members"] for p in e["stderr"].values() for v in p]}
     out.update(verdict(True, chosen, b.ratio, float(ratio_after), closed))
     out["ratio_after"] = float(ratio_after)
     conf = confusable(chosen, {d[0].name: d[1] for d in tested if d[3]})

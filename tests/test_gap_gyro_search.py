@@ -47,16 +47,19 @@ def pose_means(seed, n=30, thermal_dps_c=None, gsens_dps_g=None, drift_dps_s=Non
     return g, np.full((n, 3), SD_DPS ** 2), ctx
 
 
-#: traceless: an isotropic part reads as Earth's vertical rate, and beyond Earth's rate it
-#: leaves the twin's horizontal-rate scatter too small (gap/earth.py caps the vertical rate)
-G_TRUE = np.array([[0.02, -0.05, 0.01], [0.04, 0.0, -0.03], [-0.02, 0.05, -0.02]])   # dps/g
+#: with a trace: its isotropic part reads as Earth's vertical rate (beyond Earth's rate, which
+#: the twin caps), only the traceless part is the named g-sensitivity
+G_TRUE = np.array([[0.02, -0.05, 0.01], [0.04, 0.0, -0.03], [-0.02, 0.05, 0.03]])   # dps/g
 C_TRUE = np.array([0.004, -0.006, 0.003])                                          # dps/degC
 
 
 @pytest.mark.parametrize("seed", range(4))
 def test_a_thermal_and_g_sensitivity_pair_is_named_with_both_members(seed):
     """Seen to fail (verdict "g_sensitivity" alone) with the search held to one member
-    (gyrosearch.MAX_MEMBERS = 1; before the search the gyro named a single effect).
+    (gyrosearch.MAX_MEMBERS = 1; before the search the gyro named a single effect), and
+    (seed 2: "mostly", ratio 1.33) with Earth's horizontal share in the twin from the fitted
+    vertical rate's unscaled standard error (linear.gyro_baseline: the g-sensitivity the
+    baseline misses pulled the vertical rate past its cap).
     Each named coefficient lies within 4 standard errors of the truth (the traceless part of
     G: its trace reads as Earth's vertical rate; the thermal slope), the curvature of a curved
     thermal variant within 4 SE of zero (noise model exact: 4 SE over 22 coefficients is

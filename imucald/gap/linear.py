@@ -57,8 +57,13 @@ def gyro_baseline(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng) -> GyroBaseli
     b0, r0, A0 = _wls(X0, y, 1 / var)
     # Earth's horizontal rate (unknown heading) as pose-to-pose scatter in the twin; its
     # size from the fitted vertical rate taken 2 standard errors towards zero (a larger
-    # horizontal share): an overestimated vertical rate would call Earth's rate a gap
-    v_low = max(abs(float(b0[3])) - 2 * math.sqrt(max(float(A0[3, 3]), 0.0)), 0.0)
+    # horizontal share): an overestimated vertical rate would call Earth's rate a gap.  The
+    # standard error is scaled by the excess scatter of this fit: an effect the baseline
+    # misses pulls the vertical rate (a g-sensitivity of 0.05 dps/g moved it from -0.0030 to
+    # -0.0075 dps, past the cap), and the horizontal share left too small kept the true
+    # model from closing (tests/test_gap_gyro_search.py)
+    exc0 = max(1.0, float(np.sum(r0 * r0 / var)) / max(3 * N - 4, 1))
+    v_low = max(abs(float(b0[3])) - 2 * math.sqrt(max(float(A0[3, 3]), 0.0) * exc0), 0.0)
     var = var + horizontal_variance(ctx["acc_dir"], v_low).reshape(-1)
     w = 1 / var
     b0, r0, A1 = _wls(X0, y, w)

@@ -20,15 +20,16 @@ Each member m of M is tested twice and is named only when it passes both:
   leave-one-out residuals unchanged, so the null is exact, not linearised); one-sided, at
   GAP_HELDOUT_LEVEL, the Monte Carlo p-value (1 + #{draws >= observed}) / (1 + draws).
 
-Forward: from the baseline, the moves that pass (a class not in the model; the first effect
-must also lower the held-out RMS below the baseline's and leave MIN_DOF residual degrees of
-freedom, a second member down to SEARCH_MIN_DOF); of those the simplest (fewest coefficients)
-that closes the gap (ratio within its own twin's 99th percentile), else the one with the
-lowest floored ratio.  Backward, after every forward step: the member that fails a test by
-most is dropped, until every member passes.  Stop when no move passes (or a model repeats).
-At most MAX_MEMBERS effects together, as on the norm path.
+Forward: from the baseline, the moves that pass (a class not in the model, in any variant;
+or another variant of a member, every member still passing; the first effect must also lower
+the held-out RMS below the baseline's and leave MIN_DOF residual degrees of freedom, a second
+member down to SEARCH_MIN_DOF); of those the simplest (fewest coefficients, then fewest
+effects) that closes the gap (ratio within its own twin's 99th percentile), else the one with
+the lowest floored ratio.  Backward, after every forward step: the member that fails a test
+by most is dropped, until every member passes.  Stop when no move passes (or a model
+repeats).  At most MAX_MEMBERS effects together, as on the norm path.
 
-Pure functions over numpy arrays (the Search object only caches fits).
+Pure functions over numpy arrays (the GyroSearch object only caches fits).
 """
 from __future__ import annotations
 
@@ -265,8 +266,11 @@ def _path(s: GyroSearch, base: GyroFit, variants: Dict[str, list]) -> Tuple[Gyro
         moves = _add_moves(s, cur, base, variants, visited) + _variant_moves(s, cur, variants, visited)
         if not moves:
             break
-        # the simplest move that closes the gap, else the one leaving least to explain
+        # the simplest move that closes the gap (fewest coefficients, then fewest effects: on a
+        # warm-up a curved thermal bias and a linear one plus a drift both close with 6), else
+        # the one leaving least to explain
         m, what, pc, pho = min(moves, key=lambda t: (not t[0].closed, t[0].n_coef if t[0].closed else 0,
+                                                     len(t[0].cands) if t[0].closed else 0,
                                                      t[0].excess, t[0].n_coef))
         steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
                       "heldout_p_value": pho})

@@ -129,7 +129,7 @@ def test_heldout_shrink_test_keeps_its_level_on_a_member_that_is_absent():
     try:
         s = gyrosearch.GyroSearch(b, cols, np.random.default_rng(6), 1.0)
         for k in range(1640):
-            b.y = mean + rng.normal(size=g0.size) * np.sqrt(b.var)    # the twin's noise model
+            s.Y[:, 0] = mean + rng.normal(size=g0.size) * np.sqrt(b.var)   # the data, the twin's noise model
             s.cache.clear()
             hits += s.heldout_p(s.fit((gs,)), s.fit((gs, dr))) < GAP_HELDOUT_LEVEL
     finally:

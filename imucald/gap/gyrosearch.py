@@ -89,19 +89,17 @@ class GyroFit:
     dof: float                     #: residual degrees of freedom (3N - rank)
     rms: float                     #: held-out RMS, dps
     sim_rms: np.ndarray            #: held-out RMS on each noise draw
+    twin: float = 0.0              #: their median
+    q99: float = 0.0               #: the 99th percentile of their ratio to it
     member_p: Dict[str, float] = field(default_factory=dict)
 
-    @property
-    def twin(self) -> float:
-        return float(np.median(self.sim_rms))
+    def __post_init__(self):
+        self.twin = float(np.median(self.sim_rms))
+        self.q99 = float(np.quantile(self.sim_rms / self.twin, 0.99))
 
     @property
     def ratio(self) -> float:
         return self.rms / self.twin
-
-    @property
-    def q99(self) -> float:
-        return float(np.quantile(self.sim_rms / self.twin, 0.99))
 
     @property
     def excess(self) -> float:
@@ -131,7 +129,7 @@ def _loo(X: np.ndarray, w: np.ndarray, Y: np.ndarray):
     Ai = np.linalg.pinv(X.T @ Xw, rcond=1e-12, hermitian=True)
     # the products with the draws by einsum, not BLAS: on a busy 2-core machine a threaded
     # BLAS took 17 ms for one (90 x 15)' (90 x 2001) product, einsum 0.9 ms
-    beta = Ai @ np.einsum("nk,nm->km", Xw, Y)
+    beta = np.einsum("kl,lm->km", Ai, np.einsum("nk,nm->km", Xw, Y))
     r = Y - np.einsum("nk,km->nm", X, beta)
     h = np.einsum("nk,kl,nl->n", X, Ai, Xw)
     rank = int(np.linalg.matrix_rank(X * np.sqrt(w)[:, None]))
@@ -143,7 +141,8 @@ class GyroSearch:
 
     def __init__(self, b, cols: Dict[str, np.ndarray], rng, level: float):
         self.b, self.cols, self.level = b, cols, level
-        self.noise = (rng.normal(size=(HELDOUT_SIMS, len(b.y))) * np.sqrt(b.var)).T   # (3N, sims)
+        # the data, then the noise draws (3N, 1 + sims)
+        self.Y = np.column_stack([b.y, (rng.normal(size=(HELDOUT_SIMS, len(b.y))) * np.sqrt(b.var)).T])
         self.cache: Dict[frozenset, Optional[GyroFit]] = {}
 
     def fit(self, cands: Sequence) -> Optional[GyroFit]:
@@ -155,7 +154,7 @@ class GyroSearch:
     def _fit(self, cands) -> Optional[GyroFit]:
         b = self.b
         X = np.hstack([b.X0] + [self.cols[id(c)] for c in cands])
-        beta, Ai, r, e, rank = _loo(X, b.w, np.column_stack([b.y, self.noise]))
+        beta, Ai, r, e, rank = _loo(X, b.w, self.Y)
         dof = len(b.y) - rank
         if cands and dof < (MIN_DOF if len(cands) == 1 else SEARCH_MIN_DOF):
             return None

@@ -25,9 +25,10 @@ GAP_ATTRIBUTION_LEVEL = GAP_EFFECT_LEVEL
 #: - with the first effect modelled, a second is sought only while the chi-square test of
 #:   that model still rejects at this level
 GAP_REMAINING_LEVEL = GAP_EFFECT_LEVEL
-#: - the combination search (imucald/gap/search.py): a member's held-out shrink (the fall in
-#:   the held-out RMS it brings) must be significant at this level against its twin, one-sided,
-#:   beside its coefficient test at GAP_ATTRIBUTION_LEVEL / count
+#: - the combination search (imucald/gap/search.py; the gyro's, gap/gyrosearch.py): a member's
+#:   held-out shrink (the fall in the held-out RMS it brings) must be significant at this level
+#:   against its twin, one-sided, beside its coefficient test at GAP_ATTRIBUTION_LEVEL / count
+#:   (the gyro: count = the (model, member) tests its search can make)
 GAP_HELDOUT_LEVEL = GAP_EFFECT_LEVEL
 
 #: the thermal fit: how often a temperature trend (and each order beyond a constant) is

@@ -33,7 +33,6 @@ Pure functions over numpy arrays (the GyroSearch object only caches fits).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -46,8 +45,9 @@ from .signif import p_and_log10
 
 __all__ = ["gyro_stepwise", "coef_level", "GyroFit", "HELDOUT_SIMS", "THERMAL_CURVED"]
 
-#: noise draws for the twins and the held-out shrink tests (one set per diagnosis): a
-#: p-value at 1 % is then resolved to about +-0.2 % (binomial), at ~1 ms per model
+#: noise draws for the twins and the held-out shrink tests (one set per diagnosis, shared by
+#: every model): a p-value at 1 % is then resolved to about +-0.2 % (binomial); each model's
+#: fit on the data and the draws together costs ~2 products of (3N x p) with (3N x 2001)
 HELDOUT_SIMS = 2000
 MAX_STEPS = 8
 
@@ -139,7 +139,7 @@ def _loo(X: np.ndarray, w: np.ndarray, Y: np.ndarray):
 class GyroSearch:
     """The models of one gyro diagnosis, fitted on demand and cached."""
 
-    def __init__(self, b, cols: Dict[str, np.ndarray], rng, level: float):
+    def __init__(self, b, cols: Dict[int, np.ndarray], rng, level: float):
         self.b, self.cols, self.level = b, cols, level
         # the data, then the noise draws (3N, 1 + sims)
         self.Y = np.column_stack([b.y, (rng.normal(size=(HELDOUT_SIMS, len(b.y))) * np.sqrt(b.var)).T])

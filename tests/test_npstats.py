@@ -45,3 +45,35 @@ def test_row_reductions_equal_numpy_bit_for_bit(k):
     b = rng.random((5000, k)) < 0.8
     assert np.array_equal(row_all(b), b.all(1))
     assert row_sum(x[:0]).shape == (0,) and row_all(b[:0]).shape == (0,)
+
+
+def test_nanmedian_equals_numpy_bit_for_bit():
+    """nanmedian gives numpy.nanmedian's values, dtype and all-NaN warning (calibrate pools
+    the pose variances with it).  Breakage it catches: keeping the NaNs in the slice (the
+    median of a slice with a NaN is NaN), averaging the two middle values as a/2 + b/2
+    (differs in the last bit), returning float64 for float32 input."""
+    import warnings
+    from imucald.numerics.npstats import nanmedian
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        n = int(rng.integers(1, 700 if trial % 20 == 0 else 40))
+        a = rng.normal(size=(n, 3)) * rng.lognormal(0, 3, size=3)
+        a[rng.random(a.shape) < rng.random() * 0.8] = np.nan
+        if trial % 7 == 0:
+            a[:, 1] = np.nan
+        if trial % 5 == 0:
+            a = a.astype(np.float32)
+        for axis in (0, 1):
+            with warnings.catch_warnings(record=True) as w_want:
+                warnings.simplefilter("always")
+                want = np.nanmedian(a, axis=axis)
+            with warnings.catch_warnings(record=True) as w_got:
+                warnings.simplefilter("always")
+                got = nanmedian(a, axis=axis)
+            assert got.dtype == want.dtype and np.array_equal(got, want, equal_nan=True)
+            assert len(w_got) == len(w_want)
+    code = ("import sys, numpy as np; from imucald.numerics.npstats import nanmedian; "
+            "nanmedian(np.array([[1.0, np.nan], [2.0, 3.0]])); print('numpy.ma' in sys.modules)")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == "False"

@@ -42,6 +42,8 @@ from typing import Dict, List, Sequence, Tuple
 
 import numpy as np
 
+from ...numerics.npstats import median, nanmedian
+
 __all__ = ["pose_mean_variance", "pose_mean_variance_parts", "pose_mean_variance_stats", "pose_sf_rows",
            "scale_pose_cov", "scale_pose_cov_stats", "radial_pose_cov",
            "radial_pose_cov_stats", "allan_still_needed", "FRACTIONS", "MIN_SAMPLES",
@@ -167,7 +169,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     C = s2.shape[1]
     if len(ns) == 0 or not np.isfinite(s2).any():
         return np.full((len(ns), C), np.nan), {"method": "white", "poses_used": 0}
-    s2_pool = np.nanmedian(s2, axis=0)
+    s2_pool = nanmedian(s2, axis=0)
     white = s2_pool[None, :] / ns[:, None]
     ent = [e for holds in sf for e in holds if e[0] >= MIN_SAMPLES]
     info: Dict[str, object] = {"method": "white", "poses_used": len(ent)}
@@ -180,7 +182,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     hn = np.array([e[0] for e in ent], float)
     stats = _jack_stats(rows, obs, hn)
     ab, jk_ab = _fit_jack(stats)
-    ref = np.median(hn)
+    ref = median(hn)
     m = len(ent)
     jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
     # the white part only where it is clear of its jackknife error: a b >= 0 clipped from
@@ -255,7 +257,7 @@ def scale_pose_cov_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[t
     if info["method"] == "white":
         return cov_mean, info
     ns = np.asarray(ns, float)
-    s2_pool = np.nanmedian(np.asarray(s2, float).reshape(len(ns), -1), axis=0)
+    s2_pool = nanmedian(np.asarray(s2, float).reshape(len(ns), -1), axis=0)
     ratio = var / (s2_pool[None, :] / ns[:, None])
     s = np.sqrt(np.where(np.isfinite(ratio) & (ratio > 0), ratio, 1.0))
     return cov_mean * s[:, :, None] * s[:, None, :], info

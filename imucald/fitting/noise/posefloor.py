@@ -64,6 +64,8 @@ from typing import Dict, Sequence, Tuple
 
 import numpy as np
 
+from ...numerics.npstats import median
+
 __all__ = ["quantisation_floor", "noise_before_quantisation", "estimate_lsb", "run_effective_counts",
            "radial_series", "sway_rotation_variance", "tilt_wander_test", "tilt_wander_test_parts",
            "tilt_wander_test_stats"]
@@ -251,7 +253,7 @@ def sway_rotation_variance(acc_g: np.ndarray, gyro_dps: np.ndarray, slices: Sequ
         d = th_a - th_g
         # the line left is theta(0) + t dtheta / T: its slope is the hold's net rotation rate
         r[i] = np.degrees(tc @ (d - d.mean(0)) / float(tc @ tc))
-    b = np.median(gm[use], axis=0)
+    b = median(gm[use], axis=0)
     c = np.sum((gm - b) * r, axis=1) * T ** 2                      # deg^2 per pose
     cu = c[use]
     S = float(np.mean(cu))

@@ -40,7 +40,7 @@ from typing import Optional
 
 import numpy as np
 
-from ...numerics.npstats import row_all, row_prod
+from ...numerics.npstats import median, row_all, row_prod
 
 __all__ = ["Repeats", "find_repeats", "chance_repeats", "effective_rate", "repeat_flags",
            "HOLD_RATIO", "RATE_MISMATCH"]
@@ -191,7 +191,7 @@ def find_repeats(t: np.ndarray, x: np.ndarray, rate_hz: Optional[float] = None) 
     drop = full if held else dup_rows
     keep = ~drop
     d = np.diff(t)
-    nominal = float(rate_hz) if rate_hz else (1.0 / float(np.median(d[d > 0])) if (d > 0).any() else 0.0)
+    nominal = float(rate_hz) if rate_hz else (1.0 / float(median(d[d > 0])) if (d > 0).any() else 0.0)
     eff = effective_rate(t, keep)
     dropped = int(drop.sum())
     rate = nominal

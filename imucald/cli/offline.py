@@ -1,11 +1,10 @@
 """``imucald simulate``, ``calibrate`` and ``demo``: the offline commands.
 
 Heavy modules (the simulator, the fitters) are imported inside each command so
-that ``imucald --help`` stays light.
+that ``imucald --help`` stays light; json too, which only ``--json`` and ``--truth`` need.
 """
 from __future__ import annotations
 
-import json
 import os
 
 from ..errors import UserError, write_failure
@@ -83,6 +82,7 @@ def cmd_simulate(args) -> int:
                      mag_soft_iron=tr.mag_soft_iron.tolist(), field_gauss=tr.field_gauss,
                      dip_deg=tr.dip_deg)
         try:
+            import json
             atomic_write_text(args.truth, json.dumps(d, indent=1) + "\n", flag="--truth")
         except OSError as e:
             raise write_failure(e, "--truth", args.truth) from None
@@ -229,6 +229,7 @@ def _calibrate(args) -> int:
         from .plotcmd import calibrate_plots
         calibrate_plots(args.plot, poses, part, os.path.basename(args.input))
     if args.json:
+        import json
         print(json.dumps(_calibrate_json(sensor, cal, det, rec, rot, why, part, tf)))
     else:
         _print_report(sensor, cal, rec, rot, why, part, tf)
@@ -405,6 +406,7 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     if args.output and res["determined"]:
         _write_calibration(args.output, rec.meta, res["calibration"], tf)
     if args.json:
+        import json
         d = rotation_json(res)
         if tf is not None:
             from .thermal import thermal_json

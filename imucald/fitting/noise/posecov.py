@@ -59,10 +59,34 @@ def pose_sf_rows(x: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """Design rows (len(FRACTIONS), 2) and observed mean squared increments (len, C) of one
     pose's samples x (n, C): the structure function of its bridge (module doc)."""
     x = np.asarray(x, float)
-    n = len(x)
     # means as sum / count: numpy's mean(axis=0) bit for bit, without its wrapper (called
     # for every pose twice, and 5 lags each)
-    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x - x.sum(0) / n, axis=0)])
+    return _sf_rows(x - x.sum(0) / len(x))
+
+
+def _pose_stats(parts: List[np.ndarray]):
+    """(ns, s2, sf) of each pose's samples: counts, per-sample variances (ddof 1; NaN for
+    one sample) and :func:`pose_sf_rows` (for poses of MIN_SAMPLES or more), from one
+    centring of each pose (numpy's ``var(0, ddof=1)``: sum / n, the deviations squared,
+    summed, / (n - 1); the same numbers as ``p.var(0, ddof=1)``, without its wrapper)."""
+    C = np.asarray(parts[0]).shape[1]
+    ns = np.array([len(p) for p in parts], float)
+    s2 = np.full((len(parts), C), np.nan)
+    sf = []
+    for i, p in enumerate(parts):
+        x = np.asarray(p, float)
+        n = len(x)
+        d = x - x.sum(0) / n if n else x
+        if n > 1:
+            s2[i] = np.square(d).sum(0) / (n - 1)
+        sf.append([(n,) + _sf_rows(d)] if n >= MIN_SAMPLES else [])
+    return ns, s2, sf
+
+
+def _sf_rows(d: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """:func:`pose_sf_rows` from the pose's deviations from its mean."""
+    n = len(d)
+    c = np.vstack([np.zeros((1, d.shape[1])), np.cumsum(d, axis=0)])
     rows, obs = [], []
     for f in FRACTIONS:
         tau = max(1, int(round(f * n)))
@@ -134,12 +158,9 @@ def pose_mean_variance(x: np.ndarray, slices: Sequence[slice], two_sided: bool =
 def pose_mean_variance_parts(parts: List[np.ndarray], two_sided: bool = False
                              ) -> Tuple[np.ndarray, Dict[str, object]]:
     """:func:`pose_mean_variance` from each pose's samples (a list of (n_i, C) arrays)."""
-    ns = np.array([len(p) for p in parts], float)
-    C = np.asarray(parts[0]).shape[1] if parts else 1
-    s2 = np.array([np.asarray(p, float).var(0, ddof=1) if len(p) > 1 else np.full(C, np.nan)
-                   for p in parts]).reshape(len(parts), C)
-    sf = [[(len(p),) + pose_sf_rows(p)] if len(p) >= MIN_SAMPLES else [] for p in parts]
-    return pose_mean_variance_stats(ns, s2, sf, two_sided)
+    if not parts:
+        return pose_mean_variance_stats(np.zeros(0), np.zeros((0, 1)), [], two_sided)
+    return pose_mean_variance_stats(*_pose_stats(parts), two_sided)
 
 
 def _pose_vars(white, ab, lower, higher, sf, ns) -> np.ndarray:
@@ -239,12 +260,7 @@ def scale_pose_cov(parts: List[np.ndarray], cov_mean: np.ndarray
     noisier); the averaging is what changes.  Returns (covariances, summary)."""
     if len(parts) == 0:
         return np.asarray(cov_mean, float), {"method": "white", "poses_used": 0}
-    C = np.asarray(parts[0]).shape[1]
-    ns = np.array([len(p) for p in parts], float)
-    s2 = np.array([np.asarray(p, float).var(0, ddof=1) if len(p) > 1 else np.full(C, np.nan)
-                   for p in parts]).reshape(len(parts), C)
-    sf = [[(len(p),) + pose_sf_rows(p)] if len(p) >= MIN_SAMPLES else [] for p in parts]
-    return scale_pose_cov_stats(ns, s2, sf, cov_mean)
+    return scale_pose_cov_stats(*_pose_stats(parts), cov_mean)
 
 
 def scale_pose_cov_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],

@@ -184,12 +184,21 @@ def tilt_wander_test_parts(parts: Sequence[np.ndarray], min_samples: int = 16) -
     lr = []
     for x in parts:
         x = np.asarray(x, float)
-        if len(x) < min_samples:
+        n = len(x)
+        if n < min_samples:
             continue
-        m = x.mean(0)
-        u = m / max(float(np.linalg.norm(m)), 1e-300)
-        vr = float(np.var(x @ u, ddof=1))
-        vt = (float(np.trace(np.cov(x.T))) - vr) / 2.0
+        # numpy's mean, var and cov steps without their wrappers (called for every pose of
+        # every calibrate): the same operations on the same arrays, so the same numbers
+        m = x.sum(0) / n                                     # x.mean(0)
+        u = m / max(math.sqrt(float(m.dot(m))), 1e-300)      # np.linalg.norm(m)
+        y = x @ u
+        dy = y - y.sum() / n
+        vr = float(np.square(dy).sum() / (n - 1))            # np.var(y, ddof=1)
+        X = np.array(x.T, ndmin=2, dtype=np.float64)         # np.cov(x.T), as numpy forms it
+        X -= (X.sum(1) / n)[:, None]
+        c = np.dot(X, X.T.conj())
+        c *= np.true_divide(1, n - 1)
+        vt = (float(np.trace(c)) - vr) / 2.0
         if vr > 0 and vt > 0:
             lr.append(math.log(vt / vr))
     return _wander_decision(lr)

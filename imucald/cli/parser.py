@@ -43,6 +43,22 @@ class OneLineParser(argparse.ArgumentParser):
     command line asks for ``--json``, also one JSON object on stdout."""
 
     json_errors = False             # set by cli.main when --json is among the words
+    _checking = False
+
+    def add_argument(self, *args, **kwargs):
+        # argparse makes a help formatter for each argument only to check its metavar, which
+        # does not depend on the width: given one, the formatter does not ask the terminal
+        # (shutil, and bz2/lzma under it: ~1.8 ms of every command's start)
+        self._checking = True
+        try:
+            return super().add_argument(*args, **kwargs)
+        finally:
+            self._checking = False
+
+    def _get_formatter(self):
+        if self._checking:
+            return self.formatter_class(prog=self.prog, width=80)
+        return super()._get_formatter()
 
     def error(self, message):
         line = f"{message} (see '{self.prog} --help')"
@@ -312,7 +328,9 @@ def build_parser(command: Optional[str] = None) -> argparse.ArgumentParser:
     by its help line, none filled in (``imucald --help``, a mistyped command)."""
     p = OneLineParser(prog="imucald", description="Field calibration of MEMS IMUs.")
     p.add_argument("--version", action="version", version=f"imucald {__version__}")
-    sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
+    # prog given: argparse would format it from a usage line, which with no positional
+    # argument before the command is the program's name (and would import shutil for it)
+    sub = p.add_subparsers(dest="cmd", metavar="COMMAND", prog=p.prog)
     for name, hlp, add in COMMANDS:
         if command and command != name:
             continue

@@ -11,6 +11,7 @@ ordinary file).  ``-`` is standard output.
 """
 from __future__ import annotations
 
+import errno
 import os
 import stat
 import sys
@@ -27,11 +28,18 @@ __all__ = ["NotAFile", "check_output", "read_own_file", "atomic_write_bytes", "a
 STDOUT = None
 
 
-def _mkstemp(**kw):
-    """``tempfile.mkstemp``, imported when a file is written: tempfile (and shutil, bz2,
-    lzma under it) cost 1.5-3 ms at every command's exit (cli.main imports this module)."""
-    import tempfile
-    return tempfile.mkstemp(**kw)
+def _mkstemp(prefix: str, suffix: str, dir: str):
+    """(fd, path) of a new file ``dir/prefix + random + suffix``, created exclusively
+    (O_EXCL, not following a symlink), mode 0600, as ``tempfile.mkstemp`` does, without
+    importing tempfile (and shutil, bz2, lzma under it: ~2 ms of a ``calibrate -o``)."""
+    flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_BINARY", 0)
+    for _ in range(10000):
+        name = os.path.join(dir, prefix + os.urandom(6).hex() + suffix)
+        try:
+            return os.open(name, flags, 0o600), os.path.abspath(name)
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no unused temporary file name found", dir)
 
 
 class NotAFile(CannotCreate, OSError):

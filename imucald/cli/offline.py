@@ -222,10 +222,14 @@ def _calibrate(args) -> int:
         # the thermal terms: the order the held-out test supports (docs: thermal terms)
         from .thermal import fit_thermal
         tf = fit_thermal(sensor, pieces, cal, chip, infl_pieces, args.thermal_min_span, args.seed)
-    part = file_part(cal, tf, rot)             # what -o writes (and the file's bias for the gyro)
+    # what -o writes (and the file's bias for the gyro, the accelerometer's plots); nothing
+    # else reads it, so an accelerometer or magnetometer answer without -o skips it (and the
+    # calibration module's import: ~2 ms)
+    plot = getattr(args, "plot", None) and sensor == "accel"
+    part = file_part(cal, tf, rot) if args.output or sensor == "gyro" or plot else None
     if args.output:
         _write_calibration(args.output, poses.meta, part, tf)
-    if getattr(args, "plot", None) and sensor == "accel":     # coverage sphere, residuals (plots extra)
+    if plot:                                   # coverage sphere, residuals (plots extra)
         from .plotcmd import calibrate_plots
         calibrate_plots(args.plot, poses, part, os.path.basename(args.input))
     if args.json:

@@ -6,7 +6,8 @@ of wall time over the rounds, and of the child's CPU time):
 
 * ``numpy``: ``python -c "import numpy"``, the baseline;
 * ``accel (Xsens file)``: ``calibrate xsens_acc.mat --columns t,ax,ay,az --nominal-offset 32768
-  --nominal-scale 4069.76`` (the README's command on the raw IMU-TK file);
+  --nominal-scale 4069.76 --json`` (the README's command on the raw IMU-TK file); ``accel
+  (Xsens file, -o)``: the same with its text report and ``-o`` (the calibration file written);
 * ``accel``, ``gyro``, ``all``: ``calibrate REC --sensor ...`` on the merged recording
   (accelerometer and gyro on their common timestamps, built as bench/real_gap.py builds it,
   written to a temporary imucald recording);
@@ -22,7 +23,9 @@ of wall time over the rounds, and of the child's CPU time):
   -DCMAKE_BUILD_TYPE=Release .. && make``; the app is ``bin/test_imu_calib ACC GYRO`` (it
   writes test_imu_acc.calib and test_imu_gyro.calib in its working directory: a temporary one here).
 
-Then the agreement of ``--sensor all`` with the separate commands: the largest difference of
+With ``--before``, the Xsens commands' answers are compared with that tree's byte for byte
+(the JSON without the fit's own ``wall_s``, the text report, the calibration file without
+its creation time).  Then the agreement of ``--sensor all`` with the separate commands: the largest difference of
 each parameter over its reported standard error.  The byte code of each tree is compiled
 first (``compileall``), as an installed package has it.
 
@@ -72,6 +75,8 @@ def commands(merged, before):
     out = [("numpy", [[py, "-c", "import numpy"]], None)]
     for label, tree in (("", ROOT),) + ((("before ", before),) if before else ()):
         out.append((f"{label}accel (Xsens file)", [cal + [ACC, *RAW, "--json"]], tree))
+        out.append((f"{label}accel (Xsens file, -o)",
+                    [cal + [ACC, *RAW, "-o", f"xsens_{'before' if label else 'after'}.yaml"]], tree))
         for s in ("accel", "gyro"):
             out.append((f"{label}{s}", [cal + [merged, "--sensor", s, "--json"]], tree))
         if label:
@@ -153,7 +158,7 @@ def main():
         for _, argvs, tree in cmds:               # warm the file cache
             run(argvs[0], tree, d)
         times = {name: [] for name, _, _ in cmds}
-        docs = {}
+        docs, outs = {}, {}
         for _ in range(a.rounds):
             for name, argvs, tree in cmds:
                 w = c = 0.0
@@ -162,7 +167,11 @@ def main():
                     w, c = w + dw, c + dc
                     if name in ("accel", "gyro", "all") and out.strip():
                         docs[name] = json.loads(out)
+                    if "Xsens" in name:
+                        outs[name] = out
                 times[name].append((w, c))
+        for w in ("after", "before") if a.before else ():
+            outs[f"{w} file"] = open(os.path.join(d, f"xsens_{w}.yaml"), "rb").read()
     base = statistics.median(t[0] for t in times["numpy"])
     base_cpu = statistics.median(t[1] for t in times["numpy"])
     print(f"IMU-TK Xsens MTi (51175 samples at 100 Hz): {a.rounds} interleaved rounds, medians; "
@@ -172,10 +181,29 @@ def main():
         w = statistics.median(t[0] for t in times[name])
         c = statistics.median(t[1] for t in times[name])
         print(f"{name:<28} {w * 1e3:>8.0f} {w / base:>8.2f} {c * 1e3:>7.0f} {c / base_cpu:>8.2f}")
+    if a.before:
+        same_as_before(outs)
     print("--sensor all against the separate commands (|difference| / reported standard error):")
     for k, v in agreement(docs):
         print(f"  {k:<44} {v:.2e}")
     return 0
+
+
+def same_as_before(outs):
+    """The Xsens commands' answers against the before tree's: stdout (the --json object
+    without the fit's own wall_s; the text report) and the -o file without its creation
+    time, compared byte for byte, with their sha256."""
+    import hashlib
+    import re
+    strip_wall = lambda b: re.sub(rb'"wall_s": [0-9.e-]+', b'"wall_s": _', b)
+    strip_created = lambda b: re.sub(rb"created: '[^']*'", b"created: _", b)
+    pairs = [("--json stdout", strip_wall(outs["accel (Xsens file)"]), strip_wall(outs["before accel (Xsens file)"])),
+             ("-o text stdout", outs["accel (Xsens file, -o)"], outs["before accel (Xsens file, -o)"])]
+    pairs.append(("-o calibration file", strip_created(outs["after file"]), strip_created(outs["before file"])))
+    print("the Xsens commands' answers against the before tree's (sha256, first 16 hex digits):")
+    for what, x, y in pairs:
+        h = lambda b: hashlib.sha256(b).hexdigest()[:16]
+        print(f"  {what:<22} {'identical' if x == y else 'DIFFERENT'}  {h(x)} / {h(y)}")
 
 
 if __name__ == "__main__":

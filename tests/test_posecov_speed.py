@@ -5,7 +5,7 @@ import numpy as np
 from imucald.fitting.noise.posecov import col_sumsq
 
 
-def testcol_sumsq_is_the_sum_of_squares_bit_for_bit():
+def test_col_sumsq_is_the_sum_of_squares_bit_for_bit():
     """Increments of running sums (the structure function's), 1-9 columns, 2-20000 rows.
     Breakage it catches: einsum for one column (numpy's sum adds a contiguous vector
     pairwise, einsum does not: differs in the last bits in most cases), a transposed

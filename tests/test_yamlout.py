@@ -90,3 +90,18 @@ def test_each_string_alone():
         assert got is None or got == yaml.safe_dump(doc, sort_keys=False, default_flow_style=None,
                                                     width=WIDTH), s
         assert got is not None or s not in _WORDS, s
+
+
+def test_long_plain_strings_break_as_pyyaml_breaks_them():
+    """Plain multi-word strings (no ': ') past the width, in a block value, a flow list, a
+    flow mapping and a block list: broken at the same spaces, indented the same.
+    Breakage it catches: breaking at a space whose column is at the width (>= instead of >),
+    the continuation indent of a block value's string off by two."""
+    rng = np.random.default_rng(7)
+    words = ["order", "held-out", "ratio", "19.38", "at", "the", "->", "(twin", "99", "1.53)",
+             "closed", "x", "a/b", "deg/s", "=", "<"]
+    for _ in range(500):
+        s = "w " + " ".join(rng.choice(words, int(rng.integers(1, 50))))
+        doc = {"a": {"k" * int(rng.integers(1, 40)): s, "l": [s, 1.5], "m": {"nn": s}},
+               "b": [[s, 2.0]], "c": [s, [1.0]]}
+        assert dump(doc) == yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=WIDTH), s

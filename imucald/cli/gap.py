@@ -8,6 +8,39 @@ import numpy as np
 from ..errors import CannotCreate, UserError
 
 
+def _values(pv, se=None) -> str:
+    """A coefficient vector as text: a+-se each, or one figure when every axis shares it."""
+    pv = list(pv)
+    if se is None:
+        return f"{pv[0]:.3g}" if len(set(pv)) == 1 else f"[{', '.join(f'{a:.3g}' for a in pv)}]"
+    return f"[{', '.join(f'{a:.3g}+-{b:.2g}' for a, b in zip(pv, se))}]"
+
+
+def _param_text(params, stderr) -> str:
+    return "; ".join(f"{k} = {_values(v, (stderr or {}).get(k))}" for k, v in params.items())
+
+
+def _effect_lines(r) -> list:
+    """The named members of the verdict (the combination search's joint fit, both tests' p-values),
+    then any other effect significant when fitted alone; without members, the single fits."""
+    members = (r.get("search") or {}).get("members") or []
+    lines, named = [], {m["name"] for m in members}
+    for m in members:
+        tests = (f"coefficient p = {m['coefficient_p_value']:.2g}, held-out p = "
+                 f"{m['heldout_p_value']:.2g}")
+        txt = _param_text(m.get("params", {}), m.get("stderr"))
+        ci = (m.get("random_walk") or {}).get("q_ci95")
+        if ci:
+            txt += f" (95 % interval {ci[0]:.3g} .. {ci[1]:.3g})"
+        lines.append(f"  {m['name']} ({'joint fit; ' if len(members) > 1 else ''}{tests}): {txt}")
+    alone = [ef for ef in r["effects"] if ef.get("significant") and ef["name"] not in named]
+    for ef in alone:
+        what = "also significant alone" if members else "significant alone"
+        lines.append(f"  {ef['name']} ({what}): ratio after {ef['ratio_after']:.2f}, "
+                     f"{_param_text(ef['params'], ef.get('stderr'))}")
+    return lines
+
+
 def gap_summary(res) -> str:
     mode = res.get("mode")
     lines = [f"{res['poses_found']} still poses"
@@ -35,15 +68,7 @@ def gap_summary(res) -> str:
         lines.append(f"{s}: verdict {v}{rms}: ratio {r['ratio_before']:.2f} -> "
                      f"{r['ratio_after']:.2f}; chi-square p = {r['p_value']:.3g}"
                      + (f" (log10 p = {r['log10_p_value']})" if r['p_value'] == 0 else ""))
-        for ef in r["effects"]:
-            if ef.get("significant") and ef.get("stderr"):
-                txt = []
-                for pk, pv in ef["params"].items():
-                    se = ef["stderr"][pk]
-                    txt.append(f"{pk} = [{', '.join(f'{a:.3g}+-{b:.2g}' for a, b in zip(pv, se))}]")
-                lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {'; '.join(txt)}")
-            elif ef.get("significant"):
-                lines.append(f"  {ef['name']}: ratio after {ef['ratio_after']:.2f}, {ef['params']}")
+        lines += _effect_lines(r)
         qn = r.get("points", {}).get("quiet_noise")
         if qn:
             lines.append(f"  magnetometer noise {np.round(np.asarray(qn['sigma']) * 1e3, 2).tolist()} mG per sample, "

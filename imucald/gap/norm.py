@@ -18,7 +18,7 @@ from ..fitting.judging.uncertainty import residual_variance
 from .candidates import Candidate
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
 from .signif import p_and_log10, proj_sig, score
-from .search import MIN_DOF, stepwise
+from .search import MIN_DOF, stepwise, walk_sensitivity
 from .verdict import confusable, verdict
 from .wander import random_walk_fit
 from .where import norm_where
@@ -199,6 +199,10 @@ class CandidateFits:
     effects: List[Dict[str, object]] = field(default_factory=list)
     fits: Dict[str, tuple] = field(default_factory=dict)        #: kept variant: (chi2, e, ratio)
     cand_of: Dict[str, Candidate] = field(default_factory=dict)  #: the kept variant of each name
+    #: every refit made (each variant alone, by id of its Candidate; the random walk alone under
+    #: "walk", its bias sensitivities under "walk_B"): the combination search takes them as
+    #: they are instead of fitting them again
+    prefit: Dict[object, object] = field(default_factory=dict)
 
 
 def _single_entry(b: NormBaseline, c: Candidate, d: Dict[str, object], f: CandidateFit,
@@ -243,6 +247,7 @@ def fit_candidates(b: NormBaseline, tested: List[Dict[str, object]], ctx: Dict[s
         if b.p0 + d["q"] > b.n - MIN_DOF:
             continue                              # too many visible parameters for this pose set
         f = refit_with(b, [c], ctx, sims, rng)
+        out.prefit[id(c)] = f
         entry.update(_single_entry(b, c, d, f, bonf))
         ra_after = entry["ratio_after"]
         if c.name in out.fits:                     # a second variant of the same class
@@ -259,9 +264,9 @@ def random_walk_variant(b: NormBaseline, cf: CandidateFits, ctx: Dict[str, np.nd
                         rng, bonf: float, unit: str, scale: float) -> None:
     """The wandering bias as a random walk (gap/wander.py): a variant of its class, kept in
     ``cf`` (in place) when its held-out ratio is the lower."""
-    th, model, x = b.th, b.model, b.x
-    _, B = numjac(lambda eta: 1.0 - model.norms(th, x - eta[None, :]), np.zeros(3), eps=np.full(3, 1e-5))
+    B = walk_sensitivity(b)
     gp = random_walk_fit(b.r, b.J, b.var, B, ctx["t"], sims, rng, b.lam)
+    cf.prefit["walk"], cf.prefit["walk_B"] = gp, B
     if gp is None or not gp["q"] > 0:
         return
     ra_gp = gp["nrms"] / gp["twin"]
@@ -289,7 +294,8 @@ def random_walk_variant(b: NormBaseline, cf: CandidateFits, ctx: Dict[str, np.nd
 
 def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str, object]],
                   ctx: Dict[str, np.ndarray], sims: int, rng, bonf: float, walk_ok: bool,
-                  signatures: Dict[str, np.ndarray], scale: float, unit: str):
+                  signatures: Dict[str, np.ndarray], scale: float, unit: str,
+                  prefit: Optional[dict] = None):
     """The verdict from the combination search (gap/search.py): with a gap, the model the
     forward and backward steps end with names its members (each passed its coefficient and
     held-out tests); written into ``out``; returns (chosen classes, held-out residuals after)."""
@@ -299,7 +305,7 @@ def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str
         if b.ratio > float(out["twin_ratio_q99"]) * 1.05:
             out["note"] = "held-out ratio above the twin's 99th percentile but chi-square not significant"
         return [], None
-    sr = stepwise(b, tested, ctx, sims, rng, bonf, walk_ok, refit_with)
+    sr = stepwise(b, tested, ctx, sims, rng, bonf, walk_ok, refit_with, prefit)
     m = sr["model"]
     chosen = m.classes
     for ent in sr["members"]:
@@ -353,7 +359,8 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     signatures = {d["cand"].name: d["Ct"] for d in tested
                   if d["q"] and cf.cand_of.get(d["cand"].name) is d["cand"]}
     walk_ok = "wandering_bias" not in names_skip and any(c.name == "wandering_bias" for c in cands)
-    chosen, e_after = decide_search(out, b, tested, ctx, sims, rng, bonf, walk_ok, signatures, scale, unit)
+    chosen, e_after = decide_search(out, b, tested, ctx, sims, rng, bonf, walk_ok, signatures, scale, unit,
+                                    cf.prefit)
     out["where"], ud = norm_where(x, b.r * np.sqrt(b.w), model, b.th, ctx)
     out["_plot"] = {"r": b.r, "e": b.e, "t": ctx["t"], "temp": ctx.get("temp"), "u": ud, "var": b.var,
                     "e_after": e_after, "after_label": "+".join(chosen) if chosen else None}

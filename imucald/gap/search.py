@@ -52,7 +52,7 @@ from ..fitting.judging.levels import GAP_HELDOUT_LEVEL
 from .signif import p_and_log10
 from .wander import random_walk_fit
 
-__all__ = ["stepwise", "SEARCH_MIN_DOF", "MIN_DOF", "WALK"]
+__all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "WALK"]
 
 #: residual degrees of freedom a model must leave (N - trace of its hat matrix): the Wald
 #: covariance is scaled by the remaining chi2 / dof, which needs a few, and a fit with fewer
@@ -138,21 +138,37 @@ def _loo(n: np.ndarray, J: np.ndarray, var: np.ndarray, lam, q: float, K: np.nda
 class Search:
     """The models of one diagnosis (norm path), fitted on demand and cached."""
 
-    def __init__(self, b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with):
+    def __init__(self, b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with, prefit=None):
         self.b, self.ctx, self.sims, self.rng, self.bonf = b, ctx, sims, rng, bonf
         self.vis_q, self.walk_ok, self.refit_with = vis_q, walk_ok, refit_with
         self.cache: Dict[tuple, Optional[ModelFit]] = {}
+        #: the held-out tests' p-values by (smaller model, larger model): a test asked again
+        #: (the forward step's, the backward check's, the report's) gives the same answer
+        self.ho_cache: Dict[tuple, float] = {}
+        #: fits made before the search (gap/norm.py's single candidates by id, and the walk
+        #: alone under "walk"): taken as they are, not fitted again
+        self.prefit = dict(prefit or {})
+        # the held-out tests' re-simulations share one set of standard normal draws (common
+        # random numbers): a test's p-value is a function of the two models alone, whatever
+        # was asked before it
+        self.Z = rng.normal(size=(max(sims, 50), b.n))
         th, model, x = b.th, b.model, b.x
         if walk_ok:
-            _, self.B = numjac(lambda eta: 1.0 - model.norms(th, x - eta[None, :]), np.zeros(3),
-                               eps=np.full(3, 1e-5))
+            self.B = self.prefit.get("walk_B")
+            if self.B is None:
+                self.B = walk_sensitivity(b)
             t = np.asarray(ctx["t"], float) - float(np.min(ctx["t"]))
             self.K = (self.B @ self.B.T) * np.minimum(t[:, None], t[None, :])
         else:
             self.B = self.K = None
 
-    def dof_ok(self, cands, walk) -> bool:
+    def dof_ok(self, cands, walk, entry=False) -> bool:
+        """Room for the model: its coefficients (visible counts) leave MIN_DOF residual degrees
+        of freedom when it holds one effect or is a first step (``entry``: a pair entering
+        together), SEARCH_MIN_DOF for a second member added to a first."""
         used = self.b.p0 + sum(self.vis_q[id(c)] for c in cands) + (1 if walk else 0)
+        if entry:
+            return used <= self.b.n - MIN_DOF
         # one effect alone leaves what a single candidate must (gap/norm.py MIN_DOF): a
         # curved form fitted on few spare poses soaked up an orientation hysteresis of the
         # old blind generator (tests/test_gap_blindgen.py); a second member may go to
@@ -193,7 +209,9 @@ class Search:
         b = self.b
         N, p0 = b.n, b.p0
         if cands:
-            f = self.refit_with(b, list(cands), self.ctx, self.sims, self.rng, self._start(cands))
+            f = self.prefit.get(id(cands[0])) if len(cands) == 1 else None
+            if f is None:
+                f = self.refit_with(b, list(cands), self.ctx, self.sims, self.rng, self._start(cands))
             r, J, lam, z, cov, chi2 = f.r, f.J, f.lam, f.z, f.cov, f.chi2
             e, twin, q99 = f.e, f.twin, f.q99
         else:
@@ -213,7 +231,8 @@ class Search:
         m = ModelFit(tuple(cands), walk, r, J, lam, z, cov, np.sqrt(np.clip(np.diag(cov), 0, None)), chi2, e,
                      b.nrms(e), twin, q99)
         if walk:
-            gp = random_walk_fit(r, J, b.var, self.B, self.ctx["t"], self.sims, self.rng, lam)
+            gp = self.prefit.get("walk") if not cands and "walk" in self.prefit else \
+                random_walk_fit(r, J, b.var, self.B, self.ctx["t"], self.sims, self.rng, lam)
             if gp is None or not gp["q"] > 0:
                 return None
             S = np.diag(b.var) + gp["q"] * self.K
@@ -242,15 +261,18 @@ class Search:
         """One-sided p-value of the held-out ratio (held-out RMS over the model's own twin)
         falling from ``small`` to ``big`` by as much as it does, when what ``big`` adds is
         absent (linearised twin of both models on the same draws)."""
-        b = self.b
-        var = b.var
+        key = (small.key, big.key)
+        if key not in self.ho_cache:
+            self.ho_cache[key] = self._heldout_p(small, big)
+        return self.ho_cache[key]
+
+    def _heldout_p(self, small: ModelFit, big: ModelFit) -> float:
+        var = self.b.var
         obs = small.excess - big.excess
-        sims = max(self.sims, 50)
         if small.q_walk > 0:
-            L = np.linalg.cholesky(np.diag(var) + small.q_walk * self.K)
-            n = self.rng.normal(size=(sims, len(var))) @ L.T
+            n = self.Z @ np.linalg.cholesky(np.diag(var) + small.q_walk * self.K).T
         else:
-            n = self.rng.normal(size=(sims, len(var))) * np.sqrt(var)
+            n = self.Z * np.sqrt(var)
         es = _loo(n, small.J, var, small.lam, small.q_walk, self.K)
         eb = _loo(n, big.J, var, big.lam, big.q_walk, self.K)
         g = (np.maximum(np.sqrt(np.mean(es * es / var, 1)) / small.twin, 1.0)
@@ -442,11 +464,85 @@ def _members(s, b, cur) -> List[dict]:
     return members
 
 
-def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_with) -> Dict[str, object]:
+def walk_sensitivity(b) -> np.ndarray:
+    """B (N, 3): the baseline residuals' sensitivity to a bias in the raw frame (the random
+    walk's direction at each point, gap/wander.py)."""
+    th, model, x = b.th, b.model, b.x
+    return numjac(lambda eta: 1.0 - model.norms(th, x - eta[None, :]), np.zeros(3), eps=np.full(3, 1e-5))[1]
+
+
+def _pair_entries(s, base, variants, bonf) -> list:
+    """Two fixed-form classes entering together from the baseline (each variant pair that
+    leaves what a first step must, MIN_DOF: with fewer, pairs fitted the per-pose random
+    biases of the blind generator's vibration rectification): two strong effects can each fail alone, every single's coefficient
+    test weakened by the excess the other leaves (its covariance is scaled by it) or its
+    held-out RMS not below the baseline's; the pair must pass what a forward step's must
+    (each member's coefficient and held-out tests against the pair without it, the held-out
+    RMS below the baseline's)."""
+    moves, names = [], sorted(variants)
+    for i, c1 in enumerate(names):
+        for c2 in names[i + 1:]:
+            if frozenset({c1, c2}) in _NESTED:
+                continue
+            for v1 in variants[c1]:
+                for v2 in variants[c2]:
+                    if not s.dof_ok((v1, v2), False, entry=True):
+                        continue
+                    m = s.fit((v1, v2), False)
+                    if m is None or not (m.nrms < base.nrms and m.excess < base.excess) \
+                            or max(m.member_p[c1], m.member_p[c2]) >= bonf:
+                        continue
+                    if all(s.passes(*t) for t in s.tests(m).values()):
+                        moves.append(m)
+    return moves
+
+
+def _end_key(m):
+    """The order of the search's moves (gap/search.py _path): the simplest that closes the gap,
+    else the lowest floored ratio."""
+    return (m.ratio > m.q99, m.n_coef if m.ratio <= m.q99 else 0, m.excess, m.n_coef)
+
+
+def predicts_better_p(s, fixed: ModelFit, wander: ModelFit) -> float:
+    """One-sided p-value of ``fixed`` predicting the held-out poses better than ``wander``: a
+    paired comparison of each pose's held-out residual over its noise sd, |e_wander| - |e_fixed|
+    (mean over its standard error, normal; absolute values: the squares' tails are heavy)."""
+    sd = np.sqrt(s.b.var)
+    d = np.abs(wander.e) / sd - np.abs(fixed.e) / sd
+    se = float(np.std(d, ddof=1)) / math.sqrt(len(d))
+    if se <= 0:
+        return 0.0 if np.mean(d) > 0 else 1.0
+    return 0.5 * math.erfc(float(np.mean(d)) / se / math.sqrt(2))
+
+
+#: the level at which a model with the random walk gives way to fixed forms that predict the
+#: held-out poses better (predicts_better_p): one-sided; on the blind generator's true walks
+#: (seeds 500-529) the walk's end predicted worse than a fixed end at this level in ... of ...
+END_LEVEL = 0.05
+
+
+def _fixed_end(s, base, variants, bonf, cur):
+    """The best end without the walk: the path from the baseline with the walk left out, and
+    (when it leaves a gap with fewer than MAX_MEMBERS members) the paths from the pairs that
+    enter together (_pair_entries); (model, steps, how) or None."""
+    f, sf = (cur, None) if not cur.walk else _path(s, base, variants, False, bonf)
+    ends = [(f, sf, "path from the baseline without the walk")] if f.classes else []
+    if f.ratio > f.q99 and len(f.classes) < MAX_MEMBERS:
+        for m in sorted(_pair_entries(s, base, variants, bonf), key=_end_key)[:1]:
+            e, se = _path(s, m, variants, False, bonf)
+            ends.append((e, [{"step": f"add {' and '.join(m.classes)} together", "heldout_ratio": m.ratio}] + se,
+                         "two effects entering together (each fails alone)"))
+    return min(ends, key=lambda t: _end_key(t[0])) if ends else None
+
+
+def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_with,
+             prefit: Optional[dict] = None) -> Dict[str, object]:
     """Forward and backward over the visible candidates of ``tested`` (score-test entries of
-    norm.score_candidates) and the random walk; returns the final model and the steps."""
+    norm.score_candidates) and the random walk; returns the final model and the steps.
+    ``prefit``: fits already made (a single candidate's refit by id(candidate), the walk alone
+    under "walk" and its sensitivities under "walk_B"), used as they are."""
     variants, vis_q = _entry_variants(tested, walk_ok, bonf)
-    s = Search(b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with)
+    s = Search(b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with, prefit)
     base = s.fit((), False)
     # the walk is a candidate at all only when it predicts: alone, its held-out RMS falls below
     # the baseline's (its ratio against its own twin, which a strong walk inflates, is not
@@ -469,4 +565,20 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                               "coefficient beats the path from the baseline's)",
                       "other_path_end": cur.names}] + sw
             cur = cw
+    fe = _fixed_end(s, base, variants, bonf, cur) if b.significant else None
+    if fe is not None and fe[0].key != cur.key:
+        f, sf, how = fe
+        if cur.walk:
+            # a wander does not replace fixed forms that predict the held-out poses better (a
+            # temperature curve on a warm-up is smooth in time too: the walk follows it, and
+            # at a strength that also absorbs what the fixed forms explain)
+            p = predicts_better_p(s, f, cur)
+            if p < END_LEVEL:
+                steps = steps + [{"step": f"{how}: {'+'.join(f.classes)} predicts the held-out poses "
+                                          f"better than {'+'.join(cur.classes)}", "p_value": p}] + (sf or [])
+                cur = f
+        elif _end_key(f) < _end_key(cur):
+            steps = steps + [{"step": f"{how}: {'+'.join(f.classes)} leaves less to explain",
+                              "heldout_ratio": f.ratio}] + (sf or [])
+            cur = f
     return {"model": cur, "members": _members(s, b, cur), "steps": steps, "models_fitted": len(s.cache)}

@@ -68,11 +68,13 @@ def random_walk_fit(r: np.ndarray, J: np.ndarray, var: np.ndarray, B: np.ndarray
         return -0.5 * (ld + float(r @ P @ r)), P
     l0, P0 = reml(0.0)
     best = (l0, 0.0, P0)
+    ls = []                                   # (q, restricted log-likelihood) over the grid
     for q in grid:
         try:
             l, P = reml(q)
         except np.linalg.LinAlgError:
             continue
+        ls.append((q, l))
         if l > best[0]:
             best = (l, q, P)
     lq, q, P = best
@@ -81,12 +83,6 @@ def random_walk_fit(r: np.ndarray, J: np.ndarray, var: np.ndarray, B: np.ndarray
     # profile-likelihood 95 % interval of q (LR drop of 3.84) over the grid
     ci = [None, None]
     if q > 0:
-        ls = []
-        for g in grid:
-            try:
-                ls.append((g, reml(g)[0]))
-            except np.linalg.LinAlgError:
-                pass
         inside = [g for g, l in ls if 2 * (lq - l) <= 3.84]
         ci = [min(inside), max(inside)] if inside else [q, q]
         if 2 * (lq - l0) <= 3.84:

@@ -503,12 +503,12 @@ def _end_key(m):
     return (m.ratio > m.q99, m.n_coef if m.ratio <= m.q99 else 0, m.excess, m.n_coef)
 
 
-def predicts_better_p(s, fixed: ModelFit, wander: ModelFit) -> float:
-    """One-sided p-value of ``fixed`` predicting the held-out poses better than ``wander``: a
-    paired comparison of each pose's held-out residual over its noise sd, |e_wander| - |e_fixed|
-    (mean over its standard error, normal; absolute values: the squares' tails are heavy)."""
+def predicts_better_p(s, m1: ModelFit, m2: ModelFit) -> float:
+    """One-sided p-value of ``m1`` predicting the held-out poses better than ``m2``: a paired
+    comparison of each pose's held-out residual over its noise sd, |e_2| - |e_1| (mean over
+    its standard error, normal; absolute values: the squares' tails are heavy)."""
     sd = np.sqrt(s.b.var)
-    d = np.abs(wander.e) / sd - np.abs(fixed.e) / sd
+    d = np.abs(m2.e) / sd - np.abs(m1.e) / sd
     se = float(np.std(d, ddof=1)) / math.sqrt(len(d))
     if se <= 0:
         return 0.0 if np.mean(d) > 0 else 1.0
@@ -535,6 +535,37 @@ def _fixed_end(s, base, variants, bonf, cur):
     return min(ends, key=lambda t: _end_key(t[0])) if ends else None
 
 
+def _choose_end(s, base, variants, bonf, cur, steps, cw):
+    """The held-out trade-off between a wander and fixed forms (both ends passed every test):
+    a model holding the walk gives way to the fixed forms' best end (_fixed_end) when that
+    predicts the held-out poses better at END_LEVEL and explains with a form the walk's model
+    lacks other than the drift (a drift's line is one path of the walk: that choice is the
+    walk-in-a-drift's-place move's); a fixed end gives way to the walk's path end ``cw`` on the
+    same test the other way (a nonlinearity's terms can soak up what a walk leaves beside a
+    thermal bias); else a fixed end with less to explain.  Returns (model, steps)."""
+    fe = _fixed_end(s, base, variants, bonf, cur)
+    if fe is not None and fe[0].key != cur.key:
+        f, sf, how = fe
+        if cur.walk:
+            # a wander does not replace fixed forms that predict the held-out poses better (a
+            # temperature curve on a warm-up is smooth in time too: the walk follows it, and
+            # at a strength that also absorbs what the fixed forms explain)
+            p = predicts_better_p(s, f, cur)
+            if p < END_LEVEL and set(f.classes) - set(cur.classes) - {"bias_drift"}:
+                return f, steps + [{"step": f"{how}: {'+'.join(f.classes)} predicts the held-out poses "
+                                            f"better than {'+'.join(cur.classes)}", "p_value": p}] + (sf or [])
+        elif _end_key(f) < _end_key(cur):
+            steps = steps + [{"step": f"{how}: {'+'.join(f.classes)} leaves less to explain",
+                              "heldout_ratio": f.ratio}] + (sf or [])
+            cur = f
+    if cw is not None and cw.walk and not cur.walk and cur.classes:
+        p = predicts_better_p(s, cw, cur)
+        if p < END_LEVEL:
+            return cw, steps + [{"step": f"the walk's path end {'+'.join(cw.classes)} predicts the held-out "
+                                         f"poses better than {'+'.join(cur.classes)}", "p_value": p}]
+    return cur, steps
+
+
 def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_with,
              prefit: Optional[dict] = None) -> Dict[str, object]:
     """Forward and backward over the visible candidates of ``tested`` (score-test entries of
@@ -550,6 +581,7 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
     w0 = s.fit((), True) if walk_ok else None
     walk_ok = bool(w0 is not None and w0.nrms < base.nrms and w0.member_p[WALK] < bonf)
     cur, steps = _path(s, base, variants, walk_ok, bonf)
+    cw = None
     if walk_ok:
         # a second path from the walk alone (the fixed forms first can soak up a walk: a
         # thermal bias on a warm-up, a nonlinearity's terms); the two ends are compared by
@@ -565,20 +597,6 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
                               "coefficient beats the path from the baseline's)",
                       "other_path_end": cur.names}] + sw
             cur = cw
-    fe = _fixed_end(s, base, variants, bonf, cur) if b.significant else None
-    if fe is not None and fe[0].key != cur.key:
-        f, sf, how = fe
-        if cur.walk:
-            # a wander does not replace fixed forms that predict the held-out poses better (a
-            # temperature curve on a warm-up is smooth in time too: the walk follows it, and
-            # at a strength that also absorbs what the fixed forms explain)
-            p = predicts_better_p(s, f, cur)
-            if p < END_LEVEL:
-                steps = steps + [{"step": f"{how}: {'+'.join(f.classes)} predicts the held-out poses "
-                                          f"better than {'+'.join(cur.classes)}", "p_value": p}] + (sf or [])
-                cur = f
-        elif _end_key(f) < _end_key(cur):
-            steps = steps + [{"step": f"{how}: {'+'.join(f.classes)} leaves less to explain",
-                              "heldout_ratio": f.ratio}] + (sf or [])
-            cur = f
+    if b.significant:
+        cur, steps = _choose_end(s, base, variants, bonf, cur, steps, cw if walk_ok else None)
     return {"model": cur, "members": _members(s, b, cur), "steps": steps, "models_fitted": len(s.cache)}

@@ -263,7 +263,8 @@ def pose_setup(rec: Recording, sl: List[slice], ps: PoseSet) -> PoseSetup:
         skip = {"thermal_bias": "flat temperature", "thermal_scale": "flat temperature"}
         notes.append(f"temperature varied by only {np.ptp(temp):.2f} C: temperature effects were skipped")
     tmid = 0.5 * (ps.t0 + ps.t1)
-    ctx_all = {"t": tmid - tmid.min(), "dt": tmid - tmid.mean(), **hat_columns(tmid)}
+    # hold_s: each pose's hold, over which its mean averages a wandering bias (gap/wander.py)
+    ctx_all = {"t": tmid - tmid.min(), "dt": tmid - tmid.mean(), **hat_columns(tmid), "hold_s": ps.t1 - ps.t0}
     if not skip:
         ctx_all["temp"] = temp
         ctx_all["dT"] = temp - temp.mean()

@@ -265,7 +265,7 @@ def random_walk_variant(b: NormBaseline, cf: CandidateFits, ctx: Dict[str, np.nd
     """The wandering bias as a random walk (gap/wander.py): a variant of its class, kept in
     ``cf`` (in place) when its held-out ratio is the lower."""
     B = walk_sensitivity(b)
-    gp = random_walk_fit(b.r, b.J, b.var, B, ctx["t"], sims, rng, b.lam)
+    gp = random_walk_fit(b.r, b.J, b.var, B, ctx["t"], sims, rng, b.lam, ctx.get("hold_s"))
     cf.prefit["walk"], cf.prefit["walk_B"] = gp, B
     if gp is None or not gp["q"] > 0:
         return

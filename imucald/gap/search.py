@@ -50,7 +50,7 @@ import numpy as np
 from ..fitting.judging.heldout import hat_diag, numjac
 from ..fitting.judging.levels import GAP_HELDOUT_LEVEL
 from .signif import p_and_log10
-from .wander import random_walk_fit
+from .wander import random_walk_fit, walk_kernel
 
 __all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "WALK"]
 
@@ -157,8 +157,7 @@ class Search:
             self.B = self.prefit.get("walk_B")
             if self.B is None:
                 self.B = walk_sensitivity(b)
-            t = np.asarray(ctx["t"], float) - float(np.min(ctx["t"]))
-            self.K = (self.B @ self.B.T) * np.minimum(t[:, None], t[None, :])
+            self.K = walk_kernel(self.B, ctx["t"], ctx.get("hold_s"))
         else:
             self.B = self.K = None
 
@@ -232,7 +231,8 @@ class Search:
                      b.nrms(e), twin, q99)
         if walk:
             gp = self.prefit.get("walk") if not cands and "walk" in self.prefit else \
-                random_walk_fit(r, J, b.var, self.B, self.ctx["t"], self.sims, self.rng, lam)
+                random_walk_fit(r, J, b.var, self.B, self.ctx["t"], self.sims, self.rng, lam,
+                                self.ctx.get("hold_s"))
             if gp is None or not gp["q"] > 0:
                 return None
             S = np.diag(b.var) + gp["q"] * self.K

@@ -36,10 +36,12 @@ import numpy as np
 from ..numerics.rng import RngLike, as_rng
 
 __all__ = ["PoseTour", "Tumble", "HandTremor", "log_so3", "temperature_profile",
-           "earth_rate_body_dps", "TREMOR_BAND_HZ", "EARTH_RATE_RAD_S"]
+           "earth_rate_body_dps", "TREMOR_BAND_HZ", "SWAY_BAND_HZ", "EARTH_RATE_RAD_S"]
 
 #: the band of physiological hand tremor the generator draws from, Hz
 TREMOR_BAND_HZ = (6.0, 12.0)
+#: the band of a hand's slow sway (the board's direction wandering within a hold), Hz
+SWAY_BAND_HZ = (0.2, 2.0)
 #: the grid the tremor is computed on (then interpolated), Hz: well above twice its band
 TREMOR_GRID_HZ = 200.0
 #: Earth's rotation rate, rad/s (IERS)
@@ -222,6 +224,11 @@ class PoseTour:
     amplitude goes over to pose i+1's along the move's smoothstep, and the rate and
     acceleration carry the envelope's derivatives.
 
+    ``sway_deg`` > 0 adds a hand's slow sway on top, throughout: the same Gaussian process
+    (:class:`HandTremor`) over :data:`SWAY_BAND_HZ` (0.2-2 Hz), scaled to that RMS *angle*
+    per axis (real hands: 0.05-0.4 deg), physical like the tremor.  Its draws come after
+    all others, so a tour without sway is the one it always was.
+
     Temperature: ``temp_kind`` (see :func:`temperature_profile`) over the tour's first pass,
     or 'exponential' with ``temp_tau_s`` (the default: the emulated board warming up).
     Random draws, in order: per pose its hold, then (with a move) the bump's direction and
@@ -233,7 +240,8 @@ class PoseTour:
                  move_accel_g: float = 0.2, field_gauss: float = 0.5, dip_deg: float = 60.0,
                  temp0_c: float = 22.0, temp_rise_c: float = 6.0, temp_tau_s: float = 600.0,
                  loop: bool = False, tremor_dps: Union[float, Sequence[float]] = 0.0,
-                 tremor_lever_m: float = 0.025, temp_kind: str = "exponential"):
+                 tremor_lever_m: float = 0.025, temp_kind: str = "exponential",
+                 sway_deg: float = 0.0):
         rng = as_rng(rng)
         draw = lambda v: float(rng.uniform(*v)) if isinstance(v, tuple) else float(v)
         self.R = np.asarray(rotations, float)
@@ -281,6 +289,12 @@ class PoseTour:
         # not repeat itself at each pass)
         self._tremor = HandTremor(rng, self.period * (1.618 if loop else 1.0) + 1.0) \
             if self.tremor_dps > 0 else None
+        self.sway_deg = float(sway_deg)
+        self._sway = None
+        if self.sway_deg > 0:
+            self._sway = HandTremor(rng, self.period * (1.618 if loop else 1.0) + 1.0, band_hz=SWAY_BAND_HZ)
+            p = self._sway._grid(None)[0]                    # angle, rad, at RMS rate 1 deg/s
+            self._sway_k = self.sway_deg / np.degrees(np.sqrt((p ** 2).mean(0)))   # per axis
 
     @property
     def duration_s(self) -> float:
@@ -335,8 +349,11 @@ class PoseTour:
         R = self.R[i] @ _rodrigues_batch(self.axis[i], self.angle[i] * s)
         w = np.degrees(self.axis[i] * (self.angle[i] * sdot)[:, None])
         a_world = (self.bump_amp[i] * np.sin(2 * np.pi * tau) * moving)[:, None] * self.bump_dir[i]
-        if self._tremor is not None:
+        if self._tremor is not None or self._sway is not None:
             ang, rate, alpha = self.tremor(t, max_hz)
+            if self._sway is not None:
+                ang, rate, alpha = (x + self._sway_k * y for x, y in zip((ang, rate, alpha),
+                                                                         self._sway.unit(t, max_hz)))
             R, w, a_world = _compose(R, w, a_world, ang, rate, alpha, self.tremor_lever_m)
         temp = temperature_profile(t, self.temp_kind, self.temp0_c, self.temp_rise_c,
                                    span_s=self.period, tau_s=self.temp_tau_s)

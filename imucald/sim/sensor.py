@@ -143,7 +143,8 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
                      temp0_c: float = 22.0, temp_rise_c: float = 6.0,
                      effects: Sequence[Effect] = (), move_accel_g: float = 0.2,
                      quantise: bool = True, tremor_dps: Union[float, Sequence[float]] = 0.0,
-                     tremor_lever_m: float = 0.025, latitude_deg: float = 48.0) -> Session:
+                     tremor_lever_m: float = 0.025, latitude_deg: float = 48.0,
+                     sway_deg: float = 0.0) -> Session:
     """Raw sample stream for a board moved through ``rotations``: the trajectory generator
     the emulated chips also sample (:class:`imucald.sim.motion.PoseTour`), evaluated at the
     logger's times k / ``rate_hz``, then sensed (:func:`sense`).
@@ -160,7 +161,8 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
     :class:`~imucald.sim.motion.PoseTour`).  A sequence gives each pose its own: e.g. 10
     bench poses (0) then 10 hand-held ones (1.5).  The die temperature follows ``temp_kind``
     over the session (:func:`~imucald.sim.motion.temperature_profile`); the gyro also senses
-    Earth's rotation at ``latitude_deg``.
+    Earth's rotation at ``latitude_deg``.  ``sway_deg`` > 0 adds a hand's slow sway (0.2-2 Hz,
+    that RMS angle per axis; real hands 0.05-0.4 deg; drawn last, so the rest is unchanged).
 
     Random draws, in order: the truth (unless given), the tour (holds, bumps, moves, tremor),
     then the sensor noise.
@@ -170,7 +172,7 @@ def simulate_session(board: str, rotations: np.ndarray, rng: RngLike = None,
     tour = PoseTour(rotations, rng, hold_s=hold_s, move_s=move_s, lead_s=lead_s,
                     move_accel_g=move_accel_g, field_gauss=truth.field_gauss, dip_deg=truth.dip_deg,
                     temp0_c=temp0_c, temp_rise_c=temp_rise_c, temp_kind=temp_kind,
-                    tremor_dps=tremor_dps, tremor_lever_m=tremor_lever_m)
+                    tremor_dps=tremor_dps, tremor_lever_m=tremor_lever_m, sway_deg=sway_deg)
     t = tour.sample_times(rate_hz)
     m = tour.sample(t, max_hz=rate_hz / 2)
     return sense(board, truth, t, m, rate_hz, rng, effects, quantise, latitude_deg,

@@ -7,21 +7,36 @@ Defaults (``DEFAULTS``) and what they mean, documented once here and in the READ
   axes is at most ``k`` x the learnt floor.  Hand-held poses sit at 1.3-3.2x the floor
   (tremor), and the floor itself is a low percentile of window variances (for 100
   samples per window it is ~0.85x the mean still variance), so 6 leaves margin.
-* ``max_turn_deg`` = 0.5 deg: the gyro does not vote on tremor; it only rules out real
-  rotation (e.g. about gravity, which the accelerometer cannot see): the angle turned
-  over the window, |mean rate - bias| x window_s, must stay below it.  Derivation:
-  tremor of 2 deg/s RMS at 6-12 Hz averages over a 1 s window to <= 2*sqrt(2)/(pi*6)
-  ~ 0.15 deg/s, and an MPU-6050's mean-rate noise over 1 s is ~0.01 deg/s; a hand
-  moving a board turns tens of deg/s.  0.5 deg sits 3x above the worst tremor residue.
-  The bias is the median window-mean rate of the accelerometer-quiet windows seen.
+* ``max_turn_deg`` = 3 deg: the most the board may turn within a pose.  A hand sways the
+  board by 0.05-0.4 deg RMS per axis at 0.2-2 Hz as well as trembling (6-12 Hz, 1-3 deg/s
+  RMS); such a hold turns by up to ~2.6 deg net within a 1-s window and its 1/4-window
+  moving-mean orientation strays up to ~1.5 deg from its mean (bench/stillness_holds.py,
+  800 holds).  So the gyro votes only on real rotation: a window's net turn,
+  |mean rate - bias| x window_s, must stay within ``max_turn_deg`` (within 0.5 deg,
+  STRICT_TURN_DEG, while the bias is not trusted, below); a whole still run is refused
+  (kind "turn", :func:`_turned`) when its orientation (the moving means over a quarter
+  window of the accelerometer's direction and of the bias-free gyro's integrated angle)
+  leaves its mean by more than half ``max_turn_deg``: a slow turn grows without bound, a
+  sway does not.  The gyro bias is tracked (BIAS_WINDOWS, BIAS_GATE_DPS): the median mean
+  rate of the last 8 accelerometer-quiet windows that read within 0.5 deg/s of the bias
+  then in force (the gate widening 0.02 deg/s a second since one last did: a warming gyro),
+  so a drifting bias is followed and a turn faster than the gate never becomes the bias;
+  until 8 windows passed, the median of the quiet windows of the last minute, trusted only
+  when they scatter (MAD) by at most 1 deg/s per axis (a sway scatters them ~0.6; a slow
+  tumble, no still moment to learn a bias from, by several).  A turn slower than ~2.5
+  deg/s lasting 1.5-2 s is what a sway makes too: it passes as a pose holding at most
+  ``max_turn_deg`` of rotation (bench/stillness_holds.py: slow turns of 0.5-3 deg/s).
 * ``min_still_s`` = 1.0 s, ``trim_s`` = 0.25 s: a sample is still when some quiet
   window contains it, and two neighbouring still samples belong to one run only when some
   quiet window contains both and the quiet windows just before and just from the second
   agree in mean (within 5 sigma of two still means: 25 x 2 x k x floor / w summed over the
   axes), so an instant change of orientation between two quiet stretches (samples lost
   while the board turned, sessions appended, a board set down again a little differently)
-  splits them; a run of still samples, cut ``trim_s`` at its start and (after
-  the motion-onset cut) at its end, is a pose when it lasts ``min_still_s``.  A 1.5 s
+  splits them (the step must exceed the noise plus half ``max_turn_deg``, what a hand's sway
+  moves two 1-s means apart: :meth:`_Core._steps`); a run of still samples, cut ``trim_s`` at
+  its start and (after the motion-onset cut: a 10-sample mean leaving the first half's mean
+  by 5 sigma in magnitude, or on an axis by 5 sigma plus half ``max_turn_deg`` of tilt) at its
+  end, is a pose when it lasts ``min_still_s``.  A 1.5 s
   hold therefore counts.  Runs longer than ``max_pose_s`` (20 s) are cut in several.
 
 Noise floor: the ``FLOOR_PCT`` (5th) percentile of the accelerometer variances of the
@@ -46,9 +61,10 @@ bandwidth), so a recording without a still moment cannot learn its floor from mo
 a run makes a pose only when it lasts ``min_still_s`` by its timestamps, holds
 ``MIN_EFFECTIVE`` (5) distinct samples, scatters no more than k x the cap and reads
 |mean| within the chip's band around 1 g.  Runs that fail are kept in ``rejected`` with
-the reason (``rejected_counts`` by kind: short, few, noise, norm, and turn: with a
-magnetometer, a field direction that turns within the stretch, :func:`_mag_turn`).  Rates:
-bench/stillness_rates.py (docs/changes/issue-20a.md).
+the reason (``rejected_counts`` by kind: short, few, noise, norm, and turn: a slow turn,
+:func:`_turned`, or with a magnetometer a field direction that turns within the stretch,
+:func:`_mag_turn`).  Rates: bench/stillness_rates.py (docs/changes/issue-20a.md),
+bench/stillness_holds.py (hand sway, warming gyros, low rates: docs/methods/stillness.md).
 """
 from __future__ import annotations
 
@@ -70,7 +86,24 @@ MIN_EFFECTIVE = 5
 #: rejected stretches kept for the report (their count by reason is kept whole)
 MAX_REJECTED = 1000
 ABSURD = 1e6
-_CH = ("t", "acc", "gyro", "temp", "mag", "fresh", "oi")
+_CH = ("t", "acc", "gyro", "temp", "mag", "fresh", "oi", "bz")
+#: the gyro bias is the median mean rate of the last BIAS_WINDOWS windows that were quiet
+#: to the accelerometer and read within the gate of the bias then in force: BIAS_GATE_DPS,
+#: widened by BIAS_DRIFT_DPS_S for every second since a window last passed (a zero-rate
+#: output the die's warming moves: the MPU-6050's +-20 deg/s over -40..85 C is ~0.16
+#: deg/s/C, a board warming 0.1 C/s after power-on: 0.016 deg/s/s).  A turn slower than the
+#: gate could join the bias, but at under 0.5 deg/s it turns a 3-s pose by under 1.5 deg;
+#: a faster one stays out of it however long it lasts
+BIAS_WINDOWS, BIAS_GATE_DPS, BIAS_DRIFT_DPS_S = 8, 0.5, 0.02
+#: a bias is trusted (the turn test allows a hand's sway, ``max_turn_deg`` a window) when the
+#: windows it is the median of scatter by at most this per axis: a hand's sway (0.4 deg RMS
+#: at 0.2-2 Hz) scatters the 1-s mean rates by ~0.6 deg/s; a session that never stops
+#: (a slow tumble: no still window to learn the bias from) by several.  Until then a
+#: window may turn STRICT_TURN_DEG (the limit before sway was allowed for)
+BIAS_TRUST_DPS, STRICT_TURN_DEG = 1.0, 0.5
+#: ... and until then the bias is the median of the accelerometer-quiet windows among the
+#: last BIAS_SPAN_WINDOWS (a warming gyro's bias a few minutes old is not its bias)
+BIAS_SPAN_WINDOWS = 60
 
 
 @dataclass
@@ -115,12 +148,16 @@ class _Core:
         self.w = max(3, int(round(window_s * rate_hz)))
         self.window_s = self.w / self.rate
         self.k, self.max_turn_deg = float(k), float(max_turn_deg)
+        self._turn2 = np.radians(self.max_turn_deg / 2) ** 2     # the step a hand's sway may make, rad^2
         self.min_n = max(3, int(round(min_still_s * rate_hz)))
         self.max_n = max(self.min_n, int(round(max_pose_s * rate_hz)))
         self.trim_n = int(round(trim_s * rate_hz))
         self.dropped = 0
         self.floor_a: Optional[float] = None
         self.bias_g: Optional[np.ndarray] = None
+        self._recent: List[np.ndarray] = []   # mean rates of the last windows that passed the bias gate
+        self._since_s = 0.0                  # time since a window last passed it
+        self._tracked: Optional[np.ndarray] = None   # their median
         self._seen = 0                       # samples received
         self._last = None                    # last good row, fills bad ones for the statistics
         self._tail = None                    # last w-1 rows of [acc | gyro] (filled)
@@ -128,7 +165,7 @@ class _Core:
         self._blk_n = 0
         self._hist_a = np.zeros(0)              # variances of the last FLOOR_WINDOWS windows
         self._hist_g = np.zeros((0, 3))         # and their mean rates (with a gyro)
-        self._F: Dict[int, tuple] = {}       # windows completed -> (floor, bias)
+        self._F: Dict[int, tuple] = {}       # windows completed -> (floor, bias, turn limit deg)
         self._nblk = 0
         self._buf: Optional[dict] = None     # samples whose still flag is not decided yet
         self._pend: List[dict] = []          # batches not yet joined (warm-up, or < w/4)
@@ -162,14 +199,12 @@ class _Core:
         hist_g = np.concatenate([self._hist_g, b[:, :, 3:].mean(1)]) if gy else None
         n0 = len(hist_a) - m
         for j in range(m):
-            fa, bias = float(fas[j]), None
+            fa, bias, lim = float(fas[j]), None, self.max_turn_deg
             if gy:
-                lo = max(0, n0 + j + 1 - FLOOR_WINDOWS)
-                ha, ga = hist_a[lo:n0 + j + 1], hist_g[lo:n0 + j + 1]
-                qa = ha <= self.k * fa
-                bias = median(ga[qa] if qa.any() else ga, axis=0)
+                bias, trusted = self._track_bias(hist_a, hist_g, n0 + j, fa)
+                lim = self.max_turn_deg if trusted else min(self.max_turn_deg, STRICT_TURN_DEG)
             self._nblk += 1
-            self._F[self._nblk] = (fa, bias)
+            self._F[self._nblk] = (fa, bias, lim)
             self.floor_a, self.bias_g = fa, bias
         self._hist_a = hist_a[-FLOOR_WINDOWS:]
         if gy:
@@ -177,6 +212,33 @@ class _Core:
         rest = buf[m * self.w:]
         self._blk = [rest] if len(rest) else []
         self._blk_n = len(rest)
+
+    def _track_bias(self, hist_a, hist_g, i, fa):
+        """(gyro bias after window i, whether it is trusted) (BIAS_WINDOWS): until that many
+        windows have passed the gate, the median mean rate of the accelerometer-quiet
+        windows of the last FLOOR_WINDOWS (as the bias always was), trusted when their
+        rates scatter about it (1.4826 x median absolute deviation, per axis) by at most
+        BIAS_TRUST_DPS; then the median of the last ones that passed, trusted."""
+        g, prev = hist_g[i], self.bias_g
+        new = False
+        if prev is not None and hist_a[i] <= self.k * fa:
+            gate = BIAS_GATE_DPS + BIAS_DRIFT_DPS_S * self._since_s
+            d = g - prev
+            if float(np.sqrt(d @ d)) <= gate:
+                self._recent.append(g)
+                del self._recent[:-BIAS_WINDOWS]
+                self._since_s, new = 0.0, True
+        self._since_s += self.window_s
+        if len(self._recent) >= BIAS_WINDOWS:
+            if new:
+                self._tracked = median(np.array(self._recent), axis=0)
+            return self._tracked, True
+        lo = max(0, i + 1 - BIAS_SPAN_WINDOWS)
+        ha, ga = hist_a[lo:i + 1], hist_g[lo:i + 1]
+        qa = ha <= self.k * fa
+        x = ga[qa] if qa.any() else ga
+        b = median(x, axis=0)
+        return b, len(x) >= 3 and float((1.4826 * median(np.abs(x - b), axis=0)).max()) <= BIAS_TRUST_DPS
 
     def _window_stats(self, x: np.ndarray):
         """Trailing-window (w samples) accelerometer variance sum and mean of the other
@@ -256,17 +318,18 @@ class _Core:
             k: (None if pend[0][k] is None else np.concatenate([p[k] for p in pend]))
             for k in pend[0]}
         new.update(i=np.arange(self._pend_i0, self._pend_i0 + m), q=np.zeros(m, bool),
-                   known=np.zeros(m, bool), fa=np.zeros(m))
+                   known=np.zeros(m, bool), fa=np.zeros(m),
+                   bz=None if new["gyro"] is None else np.zeros((m, 3)))
         b = self._buf
         self._buf = new if b is None else {
             k: (None if b[k] is None else np.concatenate([b[k], new[k]])) for k in b}
 
-    def _quiet(self, b, fa, bias) -> np.ndarray:
-        """Quiet trailing windows: accelerometer variance <= k floor, turn <= max_turn_deg."""
+    def _quiet(self, b, fa, bias, lim) -> np.ndarray:
+        """Quiet trailing windows: accelerometer variance <= k floor, turn <= lim (deg)."""
         q = b["good"] & (b["va"] <= self.k * fa)
         if bias is not None:
             d = b["gm"] - bias
-            q &= np.sqrt(row_sum(d * d)) * self.window_s <= self.max_turn_deg
+            q &= np.sqrt(row_sum(d * d)) * self.window_s <= lim
         return q
 
     def flush(self) -> List[StaticInterval]:
@@ -299,8 +362,11 @@ class _Core:
             pos = np.searchsorted(u, jv)
             fa = np.array([self._F[jj][0] for jj in u])[pos]
             bias = None if self._F[u[0]][1] is None else np.array([self._F[jj][1] for jj in u])[pos]
-            b["q"][idx] = self._quiet({k: b[k][idx] for k in ("good", "va", "gm")}, fa, bias)
+            lim = np.array([self._F[jj][2] for jj in u])[pos]
+            b["q"][idx] = self._quiet({k: b[k][idx] for k in ("good", "va", "gm")}, fa, bias, lim)
             b["fa"][idx] = fa
+            if bias is not None:
+                b["bz"][idx] = bias
             b["known"][idx] = True
         lo = max(int(b["i"][0]) // self.w, WARMUP_WINDOWS) if len(b["i"]) else self._nblk
         for kk in [kk for kk in self._F if kk < min(lo, self._nblk)]:
@@ -326,25 +392,32 @@ class _Core:
         # two poses, not one pose with the mean of both.  A time gap alone does not break a
         # run (loggers pause with the board unmoved); a turn during it shows as a step.
         brk = c[np.minimum(ar + self.w - 1, nk)] - c[ar] == 0
-        # ... and where the mean of the window before i and of the window from i differ by
-        # more than a still board's means can (a step too small for the variance test to see
-        # when a window holds only a few samples of the other side): per axis the
-        # difference of two w-sample means has variance 2 s^2 / w, s^2 <= k x floor on a
-        # quiet window; 25 x that (5 sigma) summed over the axes
-        # Only two quiet windows are compared (a window reaching into a move differs anyway).
         if nd:
-            am = b["am"][:nk]
-            before = np.concatenate([[self._prev_am if self._prev_am is not None else am[0]],
-                                     am[:nd - 1]])
-            q_before = np.concatenate([[self._prev_q], q[:nd - 1]])
-            ia = np.minimum(ar + self.w - 1, nk - 1)
-            after, q_after = am[ia], q[ia]
-            brk |= q_before & q_after & (
-                row_sum((after - before) ** 2) > 25.0 * 2.0 * self.k * b["fa"][:nd] / self.w)
-            self._prev_am, self._prev_q = am[nd - 1].copy(), bool(q[nd - 1])
+            brk |= self._steps(b, q, nk, nd, ar)
         out = self._runs(still, {k: (None if b[k] is None else b[k][:nd]) for k in _CH + ("i",)}, brk)
         self._buf = {k: (None if v is None else v[nd:]) for k, v in b.items()}
         return out
+
+    def _steps(self, b, q, nk, nd, ar) -> np.ndarray:
+        """Where a run breaks because the mean of the window before i and of the window from i
+        differ by more than a still board's can (a step too small for the variance test to
+        see when a window holds only a few samples of the other side: two quiet stretches
+        either side of samples lost while the board turned, files appended, a board set down
+        again a little differently).  Per axis the difference of two w-sample means has
+        variance 2 s^2 / w, s^2 <= k x floor on a quiet window: 25 x that (5 sigma) summed
+        over the axes; plus the change a hand's sway makes, up to half ``max_turn_deg`` (a
+        hand-held hold's adjacent 1-s means differ by up to ~1.5 deg: bench/stillness_holds.py).
+        Only two quiet windows are compared."""
+        am = b["am"][:nk]
+        before = np.concatenate([[self._prev_am if self._prev_am is not None else am[0]], am[:nd - 1]])
+        q_before = np.concatenate([[self._prev_q], q[:nd - 1]])
+        ia = np.minimum(ar + self.w - 1, nk - 1)
+        after, q_after = am[ia], q[ia]
+        self._prev_am, self._prev_q = am[nd - 1].copy(), bool(q[nd - 1])
+        d = after - before
+        lim2 = 25.0 * 2.0 * self.k * b["fa"][:nd] / self.w
+        allow2 = self._turn2 * row_sum(before * before)
+        return q_before & q_after & (row_sum(d * d) > lim2 + allow2)
 
     # -- intervals --------------------------------------------------------------------
     def _runs(self, still, ch, brk) -> List[StaticInterval]:
@@ -392,8 +465,9 @@ class _Core:
         end = len(t)
         if trim:
             # a slow motion onset shows in the means before the variance: cut where a
-            # short moving average first leaves the first half's mean by 5 sigma
-            end = max(0, _onset(acc) - self.trim_n)
+            # short moving average first leaves the first half's mean by 5 sigma (on an
+            # axis, by the sway a pose may hold too)
+            end = max(0, _onset(acc, allow=np.sin(np.radians(self.max_turn_deg / 2))) - self.trim_n)
         if end - start < self.min_n:
             if end > start:
                 self._reject(t[start], t[end - 1], end - start, "short",
@@ -424,6 +498,11 @@ class _Core:
             self._reject(t[0], t[-1], n, "norm",
                          f"|mean| {norm:.3g} g, not {self.rest_norm_g[0]:.3g}..{self.rest_norm_g[1]:.3g} g "
                          f"(a sensor at rest reads ~1 g)")
+            return None
+        why = _turned(acc, None if gyro is None else gyro[sl] - cat("bz")[sl], self.rate, self.w,
+                      self.max_turn_deg / 2)
+        if why:
+            self._reject(t[0], t[-1], n, "turn", why)
             return None
         if mag is not None:
             why = _mag_turn(np.asarray(mag, float)[sl], None if fresh is None else np.asarray(fresh, bool)[sl])
@@ -458,6 +537,37 @@ class _Core:
         self.rejected.append({"t0_s": float(t0), "t1_s": float(t1), "n": int(n), "kind": kind,
                               "reason": reason})
         del self.rejected[:-MAX_REJECTED]
+
+
+def _turned(acc: np.ndarray, gyro_dps: Optional[np.ndarray], rate_hz: float, w: int,
+            lim_deg: float) -> Optional[str]:
+    """Why a still run is a slow turn (None when it is not): its orientation, as the moving
+    means over a quarter window (a hand's 6-12 Hz tremor averages out, its 0.2-2 Hz sway does
+    not) of the accelerometer's direction and of the bias-free gyro's integrated angle, leaves
+    the run's mean by more than ``lim_deg`` (half the turn a pose may hold)."""
+    n = len(acc)
+    L = min(max(2, w // 4), n)
+    if n - L < 1:
+        return None
+    # one pass of running sums over [acc | integrated gyro angle, deg]: L-sample moving sums
+    x = acc if gyro_dps is None else np.concatenate([acc, np.cumsum(gyro_dps, 0) / rate_hz], 1)
+    c = np.cumsum(x, 0)
+    ms = c[L - 1:].copy()
+    ms[1:] -= c[:n - L]
+    ma, mu = ms[:, :3], c[-1, :3]
+    cosang = (ma @ mu) / (np.sqrt(row_sum(ma * ma)) * float(np.sqrt(mu @ mu)))
+    ang = float(np.degrees(np.arccos(np.clip(cosang.min(), -1.0, 1.0))))
+    what = "accelerometer's direction"
+    if gyro_dps is not None:
+        mt = ms[:, 3:] / L
+        mt -= mt.mean(0)
+        ga = float(np.sqrt(row_sum(mt * mt).max()))
+        if ga > ang:
+            ang, what = ga, "gyro's integrated angle"
+    if ang > lim_deg:
+        return (f"turned: the {what} left its mean by {ang:.2g} deg within it (limit {lim_deg:.2g} deg, "
+                f"half the {2 * lim_deg:g} deg a pose may turn): a slow turn, not a hold")
+    return None
 
 
 #: a stretch whose magnetometer field direction turns more than this (or 5 of its noise

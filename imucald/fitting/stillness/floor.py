@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...numerics.npstats import row_max
+from ...numerics.npstats import row_max, row_sum
 
 __all__ = ["FLOOR_PCT", "FLOOR_WINDOWS", "floors", "floor", "onset"]
 
@@ -12,18 +12,24 @@ FLOOR_PCT = 5.0         #: percentile of the window variances taken as the noise
 FLOOR_WINDOWS = 300     #: over the last this many non-overlapping windows
 
 
-def onset(acc: np.ndarray, short: int = 10) -> int:
-    """Index where motion starts at the end of a still run (len(acc) if none)."""
+def onset(acc: np.ndarray, short: int = 10, allow: float = 0.0) -> int:
+    """Index where motion starts at the end of a still run (len(acc) if none): where a
+    ``short``-sample moving mean first leaves the first half's mean by 5 of its standard
+    errors, on some axis (plus ``allow`` x |mean|: the sine of the angle a hand's sway may
+    turn the board from its mean) or in magnitude (a turn leaves the magnitude alone, a
+    hand's push does not: no allowance there)."""
     n = len(acc)
     if n < 4 * short:
         return n
     half = n // 2
-    m0 = acc[:half].mean(0)
-    sd = acc[:half].std(0, ddof=1) + 1e-12
-    c = np.cumsum(np.vstack([np.zeros((1, 3)), acc]), 0)
-    ma = (c[short:] - c[:-short]) / short            # ma[i] = mean of acc[i:i+short]
-    dev = np.abs(ma - m0) / (sd / np.sqrt(short))
-    bad = np.flatnonzero(row_max(dev[half:]) > 5.0)
+    x = np.concatenate([acc, np.sqrt(row_sum(acc * acc))[:, None]], 1)
+    m0 = x[:half].mean(0)
+    sd = x[:half].std(0, ddof=1) + 1e-12
+    c = np.cumsum(np.vstack([np.zeros((1, 4)), x]), 0)
+    ma = (c[short:] - c[:-short]) / short            # ma[i] = mean of x[i:i+short]
+    lim = 5.0 * sd / np.sqrt(short)
+    lim[:3] += allow * float(np.sqrt(m0[:3] @ m0[:3]))
+    bad = np.flatnonzero(row_max(np.abs(ma[half:] - m0) - lim) > 0.0)
     return n if not len(bad) else half + int(bad[0])
 
 

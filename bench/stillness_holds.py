@@ -10,7 +10,8 @@ true orientation's largest angle from its mean over the pose's rows).  Tumbles a
 turns (no hold at all): poses per session must be 0.
 
 Classes: bench holds (10 s, no tremor); hand-held (1.5-3 s holds, tremor 1-3 deg/s RMS,
-sway 0.05-0.4 deg RMS at 0.2-2 Hz: sim.motion.PoseTour); both at 25 Hz; a warming gyro
+sway 0.05-0.4 deg RMS at 0.2-2 Hz: sim.motion.PoseTour; and at a fixed sway of 0.25 and 0.4
+deg with 2 deg/s of tremor); both at 25 Hz; a warming gyro
 (temperature +15 C, 0.1 deg/s/C: 1.5 deg/s of bias drift); sample-and-hold loggers (2-4x);
 duplicated rows (30 % of the rows logged twice); slow tumbles (15-60 deg/s) and slow turns
 (2-10 deg/s, no linear acceleration) with the gyro at 100 Hz.
@@ -27,10 +28,12 @@ from imucald.sim.sensor import hold_samples, simulate_session, simulate_tumble
 from imucald.files.recording import Recording
 
 
-def _session(seed, hand, rate=100.0, drift=False, board="mpu6050"):
+def _session(seed, hand, rate=100.0, drift=False, board="mpu6050", sway=None):
     rng = np.random.default_rng(seed)
     kw = dict(hold_s=(1.5, 3.0), move_s=(1.5, 3.0), tremor_dps=float(rng.uniform(1.0, 3.0)),
               sway_deg=float(rng.uniform(0.05, 0.4))) if hand else dict(hold_s=10.0, move_s=2.0)
+    if sway is not None:
+        kw.update(sway_deg=sway, tremor_dps=2.0)
     eff = []
     if drift:
         e = make_effect("gyro.thermal_bias", 0.1, rng)
@@ -96,6 +99,8 @@ def holds_classes(seeds):
         "bench 10 s, 100 Hz": dict(hand=False),
         "bench 10 s, 9dof (adxl345)": dict(hand=False, board="9dof"),
         "hand-held 1.5-3 s, 100 Hz": dict(hand=True),
+        "hand-held, sway 0.25 deg, tremor 2": dict(hand=True, sway=0.25),
+        "hand-held, sway 0.4 deg, tremor 2": dict(hand=True, sway=0.4),
         "bench 10 s, 25 Hz": dict(hand=False, rate=25.0),
         "hand-held 1.5-3 s, 25 Hz": dict(hand=True, rate=25.0),
         "bench, warming gyro": dict(hand=False, drift=True),

@@ -475,3 +475,31 @@ def test_simulate_writes_what_real_loggers_do(tmp_path):
     rh, rd = find_repeats(h.t, h.acc, h.rate_hz), find_repeats(d.t, d.acc, d.rate_hz)
     assert h.rate_hz == 300 and rh.held and abs(rh.hold_factor - 3) < 0.01 and abs(rh.rate_hz - 100) < 0.5
     assert rd.duplicated_rows == len(d.t) // 2 and abs(rd.rate_hz - 100) < 0.5
+
+
+def test_swaying_hand_held_holds_stay_whole_and_a_slow_turn_is_no_pose():
+    """Hand-held sessions of 20 holds of 1.5-3 s that sway as real hands do (0.25 deg RMS per
+    axis at 0.2-2 Hz, mid-range, with 2 deg/s of tremor): no hold split, and of two sessions at
+    least one loses no hold.  Rates over 80 such sessions (seeds 100-179): 0 of 1600 holds
+    split; 74 sessions lost none, the others 1-4, all among their first holds (until the gyro
+    bias is trusted a window may turn only 0.5 deg; one more session seen lost 7): this test
+    fails by chance with (6/80)^2 ~ 0.6 %.  Over 600 holds bench/stillness_holds.py finds
+    98.3 % whole (36.8 % before sway was allowed for); at 0.4 deg, the top of the range,
+    75 % (9.3 % before).  A slow turn (2-10 deg/s, never stopping, the gyro on) gives no pose
+    (30 of 30 sessions at 100 Hz).  Seen to fail with the former turn limit (max_turn_deg
+    0.5 deg in stillness_defaults: 0 of 40 holds found)."""
+    from imucald.sim.sensor import simulate_tumble
+    lost = []
+    for seed in (23, 24):
+        rng = np.random.default_rng(seed)
+        s = simulate_session("mpu6050", random_pose_set(20, rng), rng, hold_s=(1.5, 3.0),
+                             move_s=(1.5, 3.0), lead_s=0.0, tremor_dps=2.0, sway_deg=0.25)
+        rec = s.recording
+        sl = detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rec.rate_hz)
+        ks = [sum(rec.t[x.start] < h1 and rec.t[x.stop - 1] > h0 for x in sl) for h0, h1 in s.hold]
+        assert max(ks) <= 1, (seed, ks)                 # never split
+        lost.append(ks.count(0))
+    assert min(lost) == 0, lost
+    rec = simulate_tumble("mpu6050", np.random.default_rng(7003), rate_hz=100.0, duration_s=60,
+                          speed_dps=(2.0, 10.0), move_accel_g=0.0).recording
+    assert detect_static(rec.t, rec.acc, rec.gyro, rate_hz=100.0) == []

@@ -17,8 +17,8 @@ Defaults (``DEFAULTS``) and what they mean, documented once here and in the READ
   (kind "turn", :func:`_turned`) when its orientation (the moving means over a quarter
   window of the accelerometer's direction and of the bias-free gyro's integrated angle)
   leaves its mean by more than half ``max_turn_deg``: a slow turn grows without bound, a
-  sway does not.  The gyro bias is tracked (BIAS_WINDOWS, BIAS_GATE_DPS): the median mean
-  rate of the last 8 accelerometer-quiet windows that read within 0.5 deg/s of the bias
+  sway does not.  The gyro bias is tracked (BIAS_WINDOWS, BIAS_GATE_DPS): the mean of the mean
+  rates of the last 8 accelerometer-quiet windows that read within 0.5 deg/s of the bias
   then in force (the gate widening 0.02 deg/s a second since one last did: a warming gyro),
   so a drifting bias is followed and a turn faster than the gate never becomes the bias;
   until 8 windows passed, the median of the quiet windows of the last minute, trusted only
@@ -87,7 +87,7 @@ MIN_EFFECTIVE = 5
 MAX_REJECTED = 1000
 ABSURD = 1e6
 _CH = ("t", "acc", "gyro", "temp", "mag", "fresh", "oi", "bz")
-#: the gyro bias is the median mean rate of the last BIAS_WINDOWS windows that were quiet
+#: the gyro bias is the mean of the mean rates of the last BIAS_WINDOWS windows that were quiet
 #: to the accelerometer and read within the gate of the bias then in force: BIAS_GATE_DPS,
 #: widened by BIAS_DRIFT_DPS_S for every second since a window last passed (a zero-rate
 #: output the die's warming moves: the MPU-6050's +-20 deg/s over -40..85 C is ~0.16
@@ -155,9 +155,10 @@ class _Core:
         self.dropped = 0
         self.floor_a: Optional[float] = None
         self.bias_g: Optional[np.ndarray] = None
-        self._recent: List[np.ndarray] = []   # mean rates of the last windows that passed the bias gate
+        self._ring = np.zeros((BIAS_WINDOWS, 3))   # mean rates of the last windows that passed the bias gate
+        self._ring_sum = np.zeros(3)         # and their sum
+        self._n_passed = 0                   # windows that passed it
         self._since_s = 0.0                  # time since a window last passed it
-        self._tracked: Optional[np.ndarray] = None   # their median
         self._seen = 0                       # samples received
         self._last = None                    # last good row, fills bad ones for the statistics
         self._tail = None                    # last w-1 rows of [acc | gyro] (filled)
@@ -216,23 +217,22 @@ class _Core:
     def _track_bias(self, hist_a, hist_g, i, fa):
         """(gyro bias after window i, whether it is trusted) (BIAS_WINDOWS): until that many
         windows have passed the gate, the median mean rate of the accelerometer-quiet
-        windows of the last FLOOR_WINDOWS (as the bias always was), trusted when their
-        rates scatter about it (1.4826 x median absolute deviation, per axis) by at most
-        BIAS_TRUST_DPS; then the median of the last ones that passed, trusted."""
+        windows of the last BIAS_SPAN_WINDOWS, trusted when their rates scatter about it
+        (1.4826 x median absolute deviation, per axis) by at most BIAS_TRUST_DPS; then the
+        mean of the last ones that passed (the gate has taken the outliers out), trusted."""
         g, prev = hist_g[i], self.bias_g
-        new = False
         if prev is not None and hist_a[i] <= self.k * fa:
             gate = BIAS_GATE_DPS + BIAS_DRIFT_DPS_S * self._since_s
             d = g - prev
             if float(np.sqrt(d @ d)) <= gate:
-                self._recent.append(g)
-                del self._recent[:-BIAS_WINDOWS]
-                self._since_s, new = 0.0, True
+                j = self._n_passed % BIAS_WINDOWS          # a ring of the last ones, and their sum
+                self._ring_sum += g - self._ring[j]
+                self._ring[j] = g
+                self._n_passed += 1
+                self._since_s = 0.0
         self._since_s += self.window_s
-        if len(self._recent) >= BIAS_WINDOWS:
-            if new:
-                self._tracked = median(np.array(self._recent), axis=0)
-            return self._tracked, True
+        if self._n_passed >= BIAS_WINDOWS:
+            return self._ring_sum / BIAS_WINDOWS, True
         lo = max(0, i + 1 - BIAS_SPAN_WINDOWS)
         ha, ga = hist_a[lo:i + 1], hist_g[lo:i + 1]
         qa = ha <= self.k * fa

@@ -12,8 +12,10 @@ Defaults (``DEFAULTS``) and what they mean, documented once here and in the READ
   RMS); such a hold turns by up to ~2.6 deg net within a 1-s window and its 1/4-window
   moving-mean orientation strays up to ~1.5 deg from its mean (bench/stillness_holds.py,
   800 holds).  So the gyro votes only on real rotation: a window's net turn,
-  |mean rate - bias| x window_s, must stay within ``max_turn_deg`` (within 0.5 deg,
-  STRICT_TURN_DEG, while the bias is not trusted, below); a whole still run is refused
+  |mean rate - bias| x window_s, must stay within what the session's own quiet windows
+  turn (TURN_SIGMAS x their rates' scatter, at least 0.5 deg, STRICT_TURN_DEG, at most
+  ``max_turn_deg``; 0.5 deg while the bias is not trusted, below): a bench keeps the strict
+  limit, a swaying hand gets its sway's; a whole still run is refused
   (kind "turn", :func:`_turned`) when its orientation (the moving means over a quarter
   window of the accelerometer's direction and of the bias-free gyro's integrated angle)
   leaves its mean by more than half ``max_turn_deg``: a slow turn grows without bound, a
@@ -101,6 +103,10 @@ BIAS_WINDOWS, BIAS_GATE_DPS, BIAS_DRIFT_DPS_S = 8, 0.5, 0.02
 #: (a slow tumble: no still window to learn the bias from) by several.  Until then a
 #: window may turn STRICT_TURN_DEG (the limit before sway was allowed for)
 BIAS_TRUST_DPS, STRICT_TURN_DEG = 1.0, 0.5
+#: a trusted window may turn this many times the scatter of the quiet windows' mean rates
+#: (x window_s), within STRICT_TURN_DEG..max_turn_deg: a bench's windows keep the strict
+#: limit, a swaying hand's get what its sway turns (up to ~2.6 deg at 0.4 deg of sway)
+TURN_SIGMAS = 5.0
 #: ... and until then the bias is the median of the accelerometer-quiet windows among the
 #: last BIAS_SPAN_WINDOWS (a warming gyro's bias a few minutes old is not its bias)
 BIAS_SPAN_WINDOWS = 60
@@ -202,8 +208,7 @@ class _Core:
         for j in range(m):
             fa, bias, lim = float(fas[j]), None, self.max_turn_deg
             if gy:
-                bias, trusted = self._track_bias(hist_a, hist_g, n0 + j, fa)
-                lim = self.max_turn_deg if trusted else min(self.max_turn_deg, STRICT_TURN_DEG)
+                bias, lim = self._track_bias(hist_a, hist_g, n0 + j, fa)
             self._nblk += 1
             self._F[self._nblk] = (fa, bias, lim)
             self.floor_a, self.bias_g = fa, bias
@@ -215,11 +220,14 @@ class _Core:
         self._blk_n = len(rest)
 
     def _track_bias(self, hist_a, hist_g, i, fa):
-        """(gyro bias after window i, whether it is trusted) (BIAS_WINDOWS): until that many
-        windows have passed the gate, the median mean rate of the accelerometer-quiet
-        windows of the last BIAS_SPAN_WINDOWS, trusted when their rates scatter about it
-        (1.4826 x median absolute deviation, per axis) by at most BIAS_TRUST_DPS; then the
-        mean of the last ones that passed (the gate has taken the outliers out), trusted."""
+        """(gyro bias after window i, the turn a window may make, deg) (BIAS_WINDOWS): until
+        that many windows have passed the gate, the median mean rate of the accelerometer-
+        quiet windows of the last BIAS_SPAN_WINDOWS, trusted when their rates scatter about
+        it (s: 1.4826 x median absolute deviation, the largest axis) by at most
+        BIAS_TRUST_DPS; then the mean of the last ones that passed (the gate has taken the
+        outliers out), trusted.  The turn limit: TURN_SIGMAS x s x window_s (what the
+        session's own quiet windows turn: a bench's ~0.02 deg/s, a swaying hand's ~0.5),
+        between STRICT_TURN_DEG and ``max_turn_deg``; STRICT_TURN_DEG while untrusted."""
         g, prev = hist_g[i], self.bias_g
         if prev is not None and hist_a[i] <= self.k * fa:
             gate = BIAS_GATE_DPS + BIAS_DRIFT_DPS_S * self._since_s
@@ -231,14 +239,17 @@ class _Core:
                 self._n_passed += 1
                 self._since_s = 0.0
         self._since_s += self.window_s
-        if self._n_passed >= BIAS_WINDOWS:
-            return self._ring_sum / BIAS_WINDOWS, True
         lo = max(0, i + 1 - BIAS_SPAN_WINDOWS)
         ha, ga = hist_a[lo:i + 1], hist_g[lo:i + 1]
         qa = ha <= self.k * fa
         x = ga[qa] if qa.any() else ga
-        b = median(x, axis=0)
-        return b, len(x) >= 3 and float((1.4826 * median(np.abs(x - b), axis=0)).max()) <= BIAS_TRUST_DPS
+        tracked = self._n_passed >= BIAS_WINDOWS
+        b = self._ring_sum / BIAS_WINDOWS if tracked else median(x, axis=0)
+        sc = float((1.4826 * median(np.abs(x - b), axis=0)).max()) if len(x) >= 3 else np.inf
+        strict = min(self.max_turn_deg, STRICT_TURN_DEG)
+        if not (tracked or sc <= BIAS_TRUST_DPS):
+            return b, strict
+        return b, min(self.max_turn_deg, max(strict, TURN_SIGMAS * sc * self.window_s))
 
     def _window_stats(self, x: np.ndarray):
         """Trailing-window (w samples) accelerometer variance sum and mean of the other

@@ -97,7 +97,7 @@ _CH = ("t", "acc", "gyro", "temp", "mag", "fresh", "oi", "bz")
 #: gate could join the bias, but at under 0.5 deg/s it turns a 3-s pose by under 1.5 deg;
 #: a faster one stays out of it however long it lasts
 BIAS_WINDOWS, BIAS_GATE_DPS, BIAS_DRIFT_DPS_S = 8, 0.5, 0.02
-#: a bias is trusted (the turn test allows a hand's sway, ``max_turn_deg`` a window) when the
+#: a bias is trusted (the turn test allows a hand's sway: TURN_SIGMAS) when the
 #: windows it is the median of scatter by at most this per axis: a hand's sway (0.4 deg RMS
 #: at 0.2-2 Hz) scatters the 1-s mean rates by ~0.6 deg/s; a session that never stops
 #: (a slow tumble: no still window to learn the bias from) by several.  Until then a

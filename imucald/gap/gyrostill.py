@@ -1,8 +1,9 @@
 """The gyro's own still stretch inside each accelerometer-led pose.
 
 The calibration's stillness detector is led by the accelerometer (hand tremor must not
-break a pose) and lets the gyro veto only turns above ``max_turn_deg`` (0.5 deg) per
-window.  The slow start and end of a smooth turn therefore stay inside a pose: the
+break a pose) and lets the gyro veto only a window's turn above a limit that adapts to the
+session (0.5 deg on a bench, up to ``max_turn_deg`` = 3 deg under a hand's sway; see
+fitting/stillness/detector.py).  The slow start and end of a smooth turn therefore stay inside a pose: the
 accelerometer's variance has not risen yet, but the gyro already reads the turn.
 For the accelerometer's norm this is harmless (a tilt does not change |a|); a gyro
 pose mean, whose noise is a few mdeg/s, carries the turn's rate (0.4 deg over 0.5 s in

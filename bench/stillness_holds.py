@@ -12,7 +12,8 @@ turns (no hold at all): poses per session must be 0.
 Classes: bench holds (10 s, no tremor); hand-held (1.5-3 s holds, tremor 1-3 deg/s RMS,
 sway 0.05-0.4 deg RMS at 0.2-2 Hz: sim.motion.PoseTour; and at a fixed sway of 0.25 and 0.4
 deg with 2 deg/s of tremor); both at 25 Hz; a warming gyro
-(temperature +15 C, 0.1 deg/s/C: 1.5 deg/s of bias drift); sample-and-hold loggers (2-4x);
+(temperature +15 C, 0.1 deg/s/C: 1.5 deg/s of bias drift; and hand-held with 4-8 s holds,
+0.3 deg of sway, +17 C); sample-and-hold loggers (2-4x);
 duplicated rows (30 % of the rows logged twice); slow tumbles (15-60 deg/s) and slow turns
 (2-10 deg/s, no linear acceleration) with the gyro at 100 Hz.
 Usage: python bench/stillness_holds.py [SEEDS]   (default 20)
@@ -28,17 +29,19 @@ from imucald.sim.sensor import hold_samples, simulate_session, simulate_tumble
 from imucald.files.recording import Recording
 
 
-def _session(seed, hand, rate=100.0, drift=False, board="mpu6050", sway=None):
+def _session(seed, hand, rate=100.0, drift=False, board="mpu6050", sway=None, long_holds=False):
     rng = np.random.default_rng(seed)
     kw = dict(hold_s=(1.5, 3.0), move_s=(1.5, 3.0), tremor_dps=float(rng.uniform(1.0, 3.0)),
               sway_deg=float(rng.uniform(0.05, 0.4))) if hand else dict(hold_s=10.0, move_s=2.0)
     if sway is not None:
         kw.update(sway_deg=sway, tremor_dps=2.0)
+    if long_holds:
+        kw.update(hold_s=(4.0, 8.0))
     eff = []
     if drift:
         e = make_effect("gyro.thermal_bias", 0.1, rng)
         eff = [e["apply"]]
-        kw.update(temp_kind="warmup", temp_rise_c=15.0)
+        kw.update(temp_kind="warmup", temp_rise_c=17.0 if long_holds else 15.0)
     n = 20 if hand else 10
     return simulate_session(board, random_pose_set(n, rng), rng, rate_hz=rate, lead_s=0.0,
                             effects=eff, **kw)
@@ -105,6 +108,7 @@ def holds_classes(seeds):
         "hand-held 1.5-3 s, 25 Hz": dict(hand=True, rate=25.0),
         "bench, warming gyro": dict(hand=False, drift=True),
         "hand-held, warming gyro": dict(hand=True, drift=True),
+        "hand 4-8 s, sway 0.3, warming 17 C": dict(hand=True, drift=True, sway=0.3, long_holds=True),
     }
     chip = {"mpu6050": "mpu6050", "9dof": "adxl345"}
     for name, kw in classes.items():

@@ -503,3 +503,31 @@ def test_swaying_hand_held_holds_stay_whole_and_a_slow_turn_is_no_pose():
     rec = simulate_tumble("mpu6050", np.random.default_rng(7003), rate_hz=100.0, duration_s=60,
                           speed_dps=(2.0, 10.0), move_accel_g=0.0).recording
     assert detect_static(rec.t, rec.acc, rec.gyro, rate_hz=100.0) == []
+
+
+def test_warming_gyro_under_sway_keeps_long_holds():
+    """A hand-held session (4-8 s holds, 0.3 deg of sway, 2 deg/s of tremor) whose gyro warms
+    17 C at 0.1 deg/s/C: the tracked bias follows the drift, so the run-level gyro check does
+    not take the lag for a turn.  Measured over seeds 0-7: 116 of 128 holds whole (90.6 %);
+    rule: at least 22 of the 32 holds of seeds 0-1 (26 now; binomial at 0.906: fails with
+    probability < 0.1 %, holds treated as independent).  Seen to fail with either half of the
+    mend undone: the bias gate centred on the bias in force (16 of 32), no constant-rate
+    allowance in the run-level gyro check (17 of 32); both undone, as merged before (24 of 128
+    over seeds 0-7, 8 of 32 here)."""
+    from imucald.fitting.stillness.poses import detect
+    from imucald.sim.effects import make_effect
+    from imucald.sim.orientations import random_pose_set
+    from imucald.sim.sensor import simulate_session
+    whole = total = 0
+    for seed in (0, 1):
+        rng = np.random.default_rng(seed)
+        e = make_effect("gyro.thermal_bias", 0.1, rng)
+        ss = simulate_session("mpu6050", random_pose_set(16, rng), rng, rate_hz=100.0, lead_s=0.0,
+                              effects=[e["apply"]], hold_s=(4.0, 8.0), move_s=(1.5, 3.0),
+                              tremor_dps=2.0, sway_deg=0.3, temp_kind="warmup", temp_rise_c=17.0)
+        rec = ss.recording
+        ivs, _, _ = detect(rec.t, rec.acc, rec.gyro, rec.rate_hz, chip="mpu6050")
+        spans = [(rec.t[iv.i0], rec.t[iv.i1 - 1]) for iv in ivs]
+        whole += sum(sum(a < h1 and b > h0 for a, b in spans) == 1 for h0, h1 in ss.hold)
+        total += len(ss.hold)
+    assert total == 32 and whole >= 22, f"{whole} of {total} holds whole"

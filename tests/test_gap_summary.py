@@ -36,3 +36,17 @@ def test_summary_prints_the_named_members_joint_fit():
              "random_walk": {"q_ci95": [1e-10, 4e-10]}}]
     txt = gap_summary({"poses_found": 30, "sensors": {"accel": _sensor(walk, [])}})
     assert "random_walk_intensity_g^2/s = 2e-10 (95 % interval 1e-10 .. 4e-10)" in txt
+
+
+def test_summary_takes_scalar_and_odd_parameters():
+    """A single fit's parameters may hold scalars (a spline's knot count) and lists of lists:
+    the summary prints them instead of failing.  Seen to fail (TypeError: 'int' object is not
+    iterable, a traceback from `imucald gap` on the real temperature sweep) with every value
+    taken as a vector."""
+    effects = [{"name": "wandering_bias", "significant": True, "ratio_after": 1.47,
+                "params": {"interior_knots": 2, "curve_rms_dps": [0.014, 0.091, 0.007],
+                           "grid": [[1, 2], [3, 4]]}}]
+    r = _sensor([], effects)
+    r["verdict"] = "wandering_bias"
+    txt = gap_summary({"poses_found": 30, "sensors": {"gyro": r}})
+    assert "interior_knots = 2; curve_rms_dps = [0.014, 0.091, 0.007]; grid = [[1, 2], [3, 4]]" in txt

@@ -9,8 +9,15 @@ from ..errors import CannotCreate, UserError
 
 
 def _values(pv, se=None) -> str:
-    """A coefficient vector as text: a+-se each, or one figure when every axis shares it."""
+    """A coefficient vector as text: a+-se each, or one figure when every axis shares it;
+    a scalar (e.g. a spline's knot count) or anything else as it is."""
+    if isinstance(pv, (int, float)):
+        return f"{pv:.3g}" if isinstance(pv, float) else str(pv)
+    if not isinstance(pv, (list, tuple)) or not all(isinstance(a, (int, float)) for a in pv):
+        return str(pv)
     pv = list(pv)
+    if se is not None and not (isinstance(se, (list, tuple)) and len(se) == len(pv)):
+        se = None
     if se is None:
         return f"{pv[0]:.3g}" if len(set(pv)) == 1 else f"[{', '.join(f'{a:.3g}' for a in pv)}]"
     return f"[{', '.join(f'{a:.3g}+-{b:.2g}' for a, b in zip(pv, se))}]"
@@ -22,7 +29,7 @@ def _param_text(params, stderr) -> str:
 
 def _effect_lines(r) -> list:
     """The named members of the verdict (the combination search's joint fit, both tests' p-values),
-    then any other effect significant when fitted alone; without members, the single fits."""
+    then any other effect significant when fitted alone; without members, the fits as made."""
     members = (r.get("search") or {}).get("members") or []
     lines, named = [], {m["name"] for m in members}
     for m in members:
@@ -34,9 +41,9 @@ def _effect_lines(r) -> list:
             txt += f" (95 % interval {ci[0]:.3g} .. {ci[1]:.3g})"
         lines.append(f"  {m['name']} ({'joint fit; ' if len(members) > 1 else ''}{tests}): {txt}")
     alone = [ef for ef in r["effects"] if ef.get("significant") and ef["name"] not in named]
-    for ef in alone:
-        what = "also significant alone" if members else "significant alone"
-        lines.append(f"  {ef['name']} ({what}): ratio after {ef['ratio_after']:.2f}, "
+    for ef in alone:        # without members (the time-series path), the fits as they were made
+        what = " (also significant alone)" if members else ""
+        lines.append(f"  {ef['name']}{what}: ratio after {ef['ratio_after']:.2f}, "
                      f"{_param_text(ef['params'], ef.get('stderr'))}")
     return lines
 

@@ -92,18 +92,10 @@ def _sf_rows(d: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         tau = max(1, int(round(f * n)))
         d = c[tau:] - c[:-tau]
         rows.append([1 + (tau / n) ** 2, tau * (1 - tau / n)])
-        obs.append(col_sumsq(d) / len(d))
+        # (d * d).sum(0), not einsum: einsum adds with a fused multiply-add where the CPU has
+        # one (aarch64: a Raspberry Pi), and the last bits would differ between a Pi and a PC
+        obs.append((d * d).sum(0) / len(d))
     return np.array(rows), np.array(obs)
-
-
-def col_sumsq(d: np.ndarray) -> np.ndarray:
-    """``(d * d).sum(0)`` of a C-ordered (n, C) array.  With two columns or more numpy
-    adds the rows in order either way and einsum does it without the squared temporary
-    (the same sums bit for bit: tests/test_posecov_speed.py); one column is a contiguous
-    vector, which ``sum`` adds pairwise and einsum does not, so it keeps ``sum``."""
-    if d.ndim == 2 and d.shape[1] > 1 and d.flags.c_contiguous:
-        return np.einsum("ij,ij->j", d, d)
-    return (d * d).sum(0)
 
 
 def _jack_stats(rows, obs, ns):

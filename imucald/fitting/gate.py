@@ -172,9 +172,11 @@ class Decision:
         one = what[:-1] if what.endswith("s") else what
         some = f"{self.n} {what if self.n != 1 else one}"
         if self.n_fitted:
+            loo = self.n + self.n_fitted <= LOO_MAX_POSES      # the fold scheme (numerics/folds)
+            how = f"each {one} left out of it in turn" if loo else f"in {KFOLDS} folds, each left out in turn"
             head = (f"on the {some} the current one was not fitted on (out of sample for both): "
-                    f"{self.rms_cv * scale:.3f} {unit} for the new fit (each {one} left out of it in "
-                    f"turn) vs {self.rms_incumbent * scale:.3f} {unit} for the current one")
+                    f"{self.rms_cv * scale:.3f} {unit} for the new fit ({how}) vs "
+                    f"{self.rms_incumbent * scale:.3f} {unit} for the current one")
         else:
             head = (f"{self.rms_cv * scale:.3f} {unit} cross-validated vs {self.rms_incumbent * scale:.3f} "
                     f"{unit} {who} on {some}")

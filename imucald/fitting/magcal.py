@@ -297,12 +297,12 @@ def undetermined_terms(cal: FitResult, min_direction_eig: float = np.inf) -> Lis
                 for n, se, lim, u in terms]
     bound = {f["name"] for f in cal.uncertainty.flags if "at_bound" in f["reason"]}
     # every soft-iron term depends on all of W (the det-1 normalisation): any W entry on a
-    # bound pins them all
+    # bound pins them all (the terms the model holds fixed, standard error 0, excepted)
     w_bound = any(b == "w" or b.startswith("w_") for b in bound)
     on_bound = lambda n: f"{n}_gauss" in bound if n in HARD_NAMES else w_bound
     return [{"name": n, "stderr": se, "limit": lim, "unit": u,
              "reason": "stderr" if not se <= lim else "at_bound"}
-            for n, se, lim, u in terms if not se <= lim or on_bound(n)]
+            for n, se, lim, u in terms if not se <= lim or (se > 0 and on_bound(n))]
 
 
 def missing_axes(model: MagModel, theta: np.ndarray, points: np.ndarray,

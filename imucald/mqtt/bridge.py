@@ -330,7 +330,7 @@ class Bridge:
                 cal = self._request("calibration")
             except (UserError, OSError, ValueError):
                 return None
-            if cal.get("class") != "CALIBRATION":
+            if not isinstance(cal, dict) or cal.get("class") != "CALIBRATION":
                 return None
             self.put(topics.calibration, dumps(calibration_summary(cal)), retain=True)
             self.cal_id = cal.get("id")

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL
 from .candidates import TRACELESS, Candidate, kron_cols
-from .search import MAX_MEMBERS, MIN_DOF, SEARCH_MIN_DOF
+from .search import MAX_MEMBERS, MIN_DOF, SEARCH_MIN_DOF, take_move
 from .signif import p_and_log10
 
 __all__ = ["gyro_stepwise", "coef_level", "GyroFit", "HELDOUT_SIMS", "THERMAL_CURVED"]
@@ -92,6 +92,11 @@ class GyroFit:
     twin: float = 0.0              #: their median
     q99: float = 0.0               #: the 99th percentile of their ratio to it
     member_p: Dict[str, float] = field(default_factory=dict)
+
+    @property
+    def classes(self) -> Tuple[str, ...]:
+        """The members' names (what gap/search.py's backward step counts)."""
+        return tuple(c.name for c in self.cands)
 
     def __post_init__(self):
         self.twin = float(np.median(self.sim_rms))
@@ -240,24 +245,6 @@ def _variant_moves(s: GyroSearch, cur: GyroFit, variants: Dict[str, list], visit
     return moves
 
 
-def _backward(s: GyroSearch, cur: GyroFit, steps: list, visited) -> GyroFit:
-    """Drop the member that fails a test by most, until every member passes."""
-    while len(cur.cands) > 1:
-        t = s.tests(cur)
-        bad = {k: s.failure(*v) for k, v in t.items() if not s.passes(*v)}
-        if not bad:
-            break
-        worst = max(bad, key=bad.get)
-        nxt = s.without(cur, worst)
-        if nxt is None:
-            break
-        steps.append({"step": f"drop {worst}", "heldout_ratio": nxt.ratio,
-                      "coefficient_p_value": t[worst][0], "heldout_p_value": t[worst][1]})
-        cur = nxt
-        visited.add(cur.key)
-    return cur
-
-
 def _path(s: GyroSearch, base: GyroFit, variants: Dict[str, list]) -> Tuple[GyroFit, list]:
     """Forward and backward steps from the baseline until no move passes."""
     cur, steps, visited = base, [], {base.key}
@@ -268,14 +255,9 @@ def _path(s: GyroSearch, base: GyroFit, variants: Dict[str, list]) -> Tuple[Gyro
         # the simplest move that closes the gap (fewest coefficients, then fewest effects: on a
         # warm-up a curved thermal bias and a linear one plus a drift both close with 6), else
         # the one leaving least to explain
-        m, what, pc, pho = min(moves, key=lambda t: (not t[0].closed, t[0].n_coef if t[0].closed else 0,
+        cur = take_move(s, min(moves, key=lambda t: (not t[0].closed, t[0].n_coef if t[0].closed else 0,
                                                      len(t[0].cands) if t[0].closed else 0,
-                                                     t[0].excess, t[0].n_coef))
-        steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
-                      "heldout_p_value": pho})
-        cur = m
-        visited.add(cur.key)
-        cur = _backward(s, cur, steps, visited)
+                                                     t[0].excess, t[0].n_coef)), steps, visited)
     return cur, steps
 
 

@@ -14,7 +14,7 @@ from .gyrosearch import gyro_stepwise
 from .signif import corr_p, p_and_log10, proj_sig, score
 from ..fitting.judging.heldout import heldout, twin_rms
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL, GAP_TEST_LEVEL
-from .verdict import confusable, verdict
+from .verdict import confusable, no_gap, verdict
 from .where import linear_where, region
 from ..fitting.judging.metrics import rms
 
@@ -145,10 +145,7 @@ def _decide_gyro(out: Dict[str, object], b: GyroBaseline, tested: List[tuple], c
     with a gap, the members of the model the forward and backward steps end with (each
     passed its Wald and held-out tests); returns (chosen, held-out residuals after)."""
     if not b.significant:
-        out.update(verdict(False, [], b.ratio, b.ratio, None))
-        out["ratio_after"] = float(b.ratio)
-        if b.ratio > float(out["twin_ratio_q99"]) * 1.05:
-            out["note"] = "held-out ratio above the twin's 99th percentile but chi-square not significant"
+        no_gap(out, b.ratio)
         return [], None
     sr = gyro_stepwise(b, [d[0] for d in tested if d[3]], ctx, _spawn(rng))
     m = sr["model"]

@@ -19,7 +19,7 @@ from .candidates import Candidate
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
 from .signif import p_and_log10, proj_sig, score
 from .search import MIN_DOF, stepwise, walk_sensitivity
-from .verdict import confusable, verdict
+from .verdict import confusable, no_gap, verdict
 from .wander import random_walk_fit
 from .where import norm_where
 
@@ -300,10 +300,7 @@ def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str
     forward and backward steps end with names its members (each passed its coefficient and
     held-out tests); written into ``out``; returns (chosen classes, held-out residuals after)."""
     if not b.significant:
-        out.update(verdict(False, [], b.ratio, b.ratio, None))
-        out["ratio_after"] = float(b.ratio)
-        if b.ratio > float(out["twin_ratio_q99"]) * 1.05:
-            out["note"] = "held-out ratio above the twin's 99th percentile but chi-square not significant"
+        no_gap(out, b.ratio)
         return [], None
     sr = stepwise(b, tested, ctx, sims, rng, bonf, walk_ok, refit_with, prefit)
     m = sr["model"]

@@ -152,7 +152,6 @@ class Search:
         # random numbers): a test's p-value is a function of the two models alone, whatever
         # was asked before it
         self.Z = rng.normal(size=(max(sims, 50), b.n))
-        th, model, x = b.th, b.model, b.x
         if walk_ok:
             self.B = self.prefit.get("walk_B")
             if self.B is None:
@@ -392,8 +391,19 @@ def _walk_moves(s, cur, visited, bonf, moves) -> list:
     return moves
 
 
-def _backward(s, cur, steps, visited):
-    """Drop the member that fails a test by most, until every member passes."""
+def take_move(s, move, steps, visited):
+    """Take a forward move (model, what, coefficient p, held-out p): record it, then the
+    backward steps from there; returns the model reached."""
+    m, what, pc, pho = move
+    steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
+                  "heldout_p_value": pho})
+    visited.add(m.key)
+    return backward(s, m, steps, visited)
+
+
+def backward(s, cur, steps, visited):
+    """Drop the member that fails a test by most, until every member passes (the norm path's
+    and the gyro's searches: ``s`` has tests/failure/passes/without, ``cur`` its ``classes``)."""
     while len(cur.classes) > 1:
         t = s.tests(cur)
         bad = {k: s.failure(*v) for k, v in t.items() if not s.passes(*v)}
@@ -422,14 +432,9 @@ def _path(s, cur, variants, walk_ok, bonf):
             break
         # the simplest move that closes the gap (within its own twin's 99th percentile); else
         # the one leaving least to explain
-        m, what, pc, pho = min(moves, key=lambda t: (t[0].ratio > t[0].q99,
+        cur = take_move(s, min(moves, key=lambda t: (t[0].ratio > t[0].q99,
                                                      t[0].n_coef if t[0].ratio <= t[0].q99 else 0,
-                                                     t[0].excess, t[0].n_coef))
-        steps.append({"step": what, "heldout_ratio": m.ratio, "coefficient_p_value": pc,
-                      "heldout_p_value": pho})
-        cur = m
-        visited.add(cur.key)
-        cur = _backward(s, cur, steps, visited)
+                                                     t[0].excess, t[0].n_coef)), steps, visited)
     return cur, steps
 
 

@@ -64,6 +64,15 @@ def verdict(gap: bool, chosen: Sequence[str], ratio_before: float, ratio_after: 
             "partially_explained_by": name}
 
 
+def no_gap(out: Dict[str, object], ratio: float) -> None:
+    """The verdict when the baseline's chi-square finds no gap, written into ``out`` (with a
+    note when the held-out ratio alone is above the twin's 99th percentile)."""
+    out.update(verdict(False, [], ratio, ratio, None))
+    out["ratio_after"] = float(ratio)
+    if ratio > float(out["twin_ratio_q99"]) * 1.05:
+        out["note"] = "held-out ratio above the twin's 99th percentile but chi-square not significant"
+
+
 def confusable(chosen: Sequence[str], signatures: Dict[str, np.ndarray]) -> List[dict]:
     """Candidates whose projected signatures coincide with a chosen one (canonical
     correlation above CONFUSABLE_CC), with the recording that would separate them."""

@@ -107,14 +107,14 @@ def _profile_ci(reml, ls, q, lq, l0):
         return [None, None]
     drop = lambda l: 2 * (lq - l) - 3.84
 
-    def cross(lo, hi, l_lo, l_hi):            # drop(l_lo) > 0 >= drop(l_hi), log-bisection
-        a, b = math.log(lo), math.log(hi)
+    def cross(inside, outside):       # drop(inside) <= 0 < drop(outside): log-bisection
+        a, b = math.log(inside), math.log(outside)
         for _ in range(12):
             m = 0.5 * (a + b)
             if drop(_loglik(reml, math.exp(m))) > 0:
-                a = m
-            else:
                 b = m
+            else:
+                a = m
         return math.exp(0.5 * (a + b))
     below = [(g, l) for g, l in ls if g < q]
     above = [(g, l) for g, l in ls if g > q]
@@ -122,23 +122,13 @@ def _profile_ci(reml, ls, q, lq, l0):
     if drop(l0) <= 0:
         lo_end = 0.0
     else:
-        out = [(g, l) for g, l in below if drop(l) > 0]
+        out = [g for g, l in below if drop(l) > 0]
         if out:
-            g, l = out[-1]
-            lo_end = cross(g, q, l, lq)
+            lo_end = cross(q, out[-1])
     hi_end = ls[-1][0]
-    out = [(g, l) for g, l in above if drop(l) > 0]
+    out = [g for g, l in above if drop(l) > 0]
     if out:
-        g, l = out[0]
-        # bisection with the inside point below: flip the roles
-        a, b = math.log(q), math.log(g)
-        for _ in range(12):
-            m = 0.5 * (a + b)
-            if drop(_loglik(reml, math.exp(m))) > 0:
-                b = m
-            else:
-                a = m
-        hi_end = math.exp(0.5 * (a + b))
+        hi_end = cross(q, out[0])
     return [lo_end, hi_end]
 
 

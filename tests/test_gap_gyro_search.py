@@ -16,6 +16,7 @@ from imucald.gap import gyrosearch
 from imucald.gap.candidates import GYRO_CANDIDATES
 from imucald.gap.earth import EARTH_RATE_DPS
 from imucald.gap.linear import gyro_baseline, gyro_diag
+from imucald.gap.search import backward
 from imucald.fitting.judging.levels import GAP_HELDOUT_LEVEL
 
 SD_DPS = 0.002          #: pose-mean noise, dps (an MPU-6050 at 0.005 dps/rtHz over ~6 s)
@@ -79,7 +80,7 @@ def test_a_thermal_and_g_sensitivity_pair_is_named_with_both_members(seed):
 
 
 def test_backward_drops_a_member_no_longer_significant_given_the_others():
-    """Seen to fail with the backward step removed (_backward returning the model unchanged):
+    """Seen to fail with the backward step removed (search.backward returning the model unchanged):
     a drift fitted beside a g-sensitivity on data without drift stays named."""
     g, gv, ctx = pose_means(7, gsens_dps_g=G_TRUE)
     b = gyro_baseline(g, gv, ctx, 200, np.random.default_rng(0))
@@ -87,7 +88,7 @@ def test_backward_drops_a_member_no_longer_significant_given_the_others():
                               gyrosearch.coef_level({c.name: 1 for c in GYRO_CANDIDATES}))
     gs, dr = (next(c for c in GYRO_CANDIDATES if c.name == k) for k in ("g_sensitivity", "bias_drift"))
     steps = []
-    end = gyrosearch._backward(s, s.fit((gs, dr)), steps, set())
+    end = backward(s, s.fit((gs, dr)), steps, set())
     assert end.names == ["g_sensitivity"]
     assert [st["step"] for st in steps] == ["drop bias_drift"]
 

@@ -155,6 +155,14 @@ def chance_repeats(full: np.ndarray, eq: np.ndarray, window: int = CHANCE_WINDOW
     pc = np.empty((len(first), C))
     for j in range(C):
         pc[:, j] = np.where(cnt_u > 0, num[j][first].astype(float) / np.maximum(cnt_u, 1.0), glob[j])
+    return float(np.sum(row_prod(unconditional_rates(pc))[inv]))
+
+
+def unconditional_rates(pc: np.ndarray) -> np.ndarray:
+    """Per-row, per-axis chance that a sample repeats its predecessor, from the rates ``pc``
+    seen among rows that are not full repeats: the fixed point of p = pc (1 - P) + P, P the
+    row's product of p (a full repeat repeats every axis), iterated on each row until the
+    largest step is under 1e-12 (at most 50 times)."""
     p = pc.copy()
     for _ in range(50):
         P = row_prod(p)[:, None]
@@ -163,7 +171,7 @@ def chance_repeats(full: np.ndarray, eq: np.ndarray, window: int = CHANCE_WINDOW
         p = p_new
         if done:
             break
-    return float(np.sum(row_prod(p)[inv]))
+    return p
 
 
 def _distinct_rows(cnt: np.ndarray, num, w: int):

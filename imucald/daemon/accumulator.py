@@ -133,10 +133,14 @@ def _merge(a: StaticInterval, b: StaticInterval) -> StaticInterval:
                           mix(a.mag, b.mag) if a.mag is not None and b.mag is not None else (b.mag if b.mag is not None else a.mag),
                           # both holds' structure functions (each ~25 numbers), when both known;
                           # the longest MAX_HOLDS kept (a board resting for hours refines one pose)
-                          acc_sf=None if a.acc_sf is None or b.acc_sf is None else
-                          sorted(a.acc_sf + b.acc_sf, key=lambda e: -e[0])[:MAX_HOLDS],
-                          acc_radial_sf=None if a.acc_radial_sf is None or b.acc_radial_sf is None else
-                          sorted(a.acc_radial_sf + b.acc_radial_sf, key=lambda e: -e[0])[:MAX_HOLDS])
+                          acc_sf=_holds(a.acc_sf, b.acc_sf),
+                          acc_radial_sf=_holds(a.acc_radial_sf, b.acc_radial_sf))
+
+
+def _holds(x, y):
+    """Two poses' per-hold structure functions joined (None unless both are known), the
+    MAX_HOLDS longest kept."""
+    return None if x is None or y is None else sorted(x + y, key=lambda e: -e[0])[:MAX_HOLDS]
 
 
 def _mean_temp(ta: float, tb: float, wa: float, wb: float) -> float:

@@ -44,7 +44,7 @@ import numpy as np
 
 # leave-one-pose-out up to LOO_MAX_POSES poses, KFOLDS folds beyond; poses_needed: the
 # fewest poses a fit plus its cross-validation need (numpy-free, in imucald/numerics/folds.py)
-from ..numerics.folds import KFOLDS, LOO_MAX_POSES, poses_needed
+from ..numerics.folds import KFOLDS, LOO_MAX_POSES, default_folds, poses_needed
 from .judging.levels import GATE_FALSE_ACCEPT_RATE
 from .models.registry import gyro_bias_mean
 from ..numerics.tails import chi2_sf
@@ -63,7 +63,7 @@ def fold_groups(n: int, folds: Optional[int] = None) -> List[np.ndarray]:
     folds None: leave-one-pose-out for n <= LOO_MAX_POSES, else KFOLDS contiguous
     folds (the scheme fitting.fit.heldout_residuals uses)."""
     if folds is None:
-        folds = n if n <= LOO_MAX_POSES else KFOLDS
+        folds = default_folds(n)
     return [g for g in np.array_split(np.arange(n), min(folds, n)) if len(g)]
 
 
@@ -172,8 +172,9 @@ class Decision:
         one = what[:-1] if what.endswith("s") else what
         some = f"{self.n} {what if self.n != 1 else one}"
         if self.n_fitted:
-            loo = self.n + self.n_fitted <= LOO_MAX_POSES      # the fold scheme (numerics/folds)
-            how = f"each {one} left out of it in turn" if loo else f"in {KFOLDS} folds, each left out in turn"
+            k = default_folds(self.n + self.n_fitted)
+            how = (f"each {one} left out of it in turn" if k == self.n + self.n_fitted
+                   else f"in {k} folds, each left out in turn")
             head = (f"on the {some} the current one was not fitted on (out of sample for both): "
                     f"{self.rms_cv * scale:.3f} {unit} for the new fit ({how}) vs "
                     f"{self.rms_incumbent * scale:.3f} {unit} for the current one")

@@ -41,7 +41,7 @@ import numpy as np
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL
 from .candidates import TRACELESS, Candidate, kron_cols
 from .search import MAX_MEMBERS, MIN_DOF, SEARCH_MIN_DOF, take_move
-from .signif import p_and_log10
+from .signif import wald_p
 
 __all__ = ["gyro_stepwise", "coef_level", "GyroFit", "HELDOUT_SIMS", "THERMAL_CURVED"]
 
@@ -171,9 +171,7 @@ class GyroSearch:
         o = b.X0.shape[1]
         for c in cands:
             Ca, za = cov[o:o + c.q, o:o + c.q], m.beta[o:o + c.q]
-            wald = float(za @ np.linalg.pinv(Ca, rcond=1e-10, hermitian=True) @ za)
-            vis = int(np.linalg.matrix_rank(Ca, tol=1e-10 * max(np.abs(Ca).max(), 1e-300)))
-            m.member_p[c.name] = p_and_log10(wald, max(vis, 1))[0]
+            m.member_p[c.name] = wald_p(za, Ca)
             o += c.q
         return m
 

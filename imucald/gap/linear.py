@@ -100,12 +100,11 @@ def _score_gyro(b: GyroBaseline, ctx, names_skip) -> List[tuple]:
     return tested
 
 
-def _fit_gyro(b: GyroBaseline, tested: List[tuple], ctx, sims, rng
-              ) -> Tuple[List[Dict[str, object]], Dict[str, np.ndarray]]:
-    """Refit every visible candidate: (report entries, held-out residuals by name)."""
+def _fit_gyro(b: GyroBaseline, tested: List[tuple], ctx, sims, rng) -> List[Dict[str, object]]:
+    """Refit every visible candidate: the report's entries."""
     bonf = GAP_ATTRIBUTION_LEVEL / max(len(GYRO_CANDIDATES), 1)
     w, var = b.w, b.var
-    effects, e_after = [], {}
+    effects = []
     for c, Ct, stat, qv, p, lpc, vis in tested:
         ent = {"name": c.name, "score_chi2": round(stat, 3), "score_p_value": p,
                "visibility": round(vis, 3), "significant": False, "ratio_after": b.ratio, "params": {}}
@@ -115,7 +114,6 @@ def _fit_gyro(b: GyroBaseline, tested: List[tuple], ctx, sims, rng
             beta, r1, Ai = _wls(X, b.y, w)
             chi2a = float(np.sum(w * r1 * r1))
             e1 = heldout(r1, -X, w)
-            e_after[c.name] = e1
             pn, _ = p_and_log10(max(b.chi2 - chi2a, 0.0), c.q)
             twl = twin_rms(-X, var, w, sims, rng)
             twa = float(np.median(twl))
@@ -128,7 +126,7 @@ def _fit_gyro(b: GyroBaseline, tested: List[tuple], ctx, sims, rng
                         "params": {f"{c.name}_{c.units}": (B @ beta[4:]).tolist()},
                         "stderr": {f"{c.name}_{c.units}": np.sqrt(np.diag(B @ Ai[4:, 4:] @ B.T)).tolist()}})
         effects.append(ent)
-    return effects, e_after
+    return effects
 
 
 def _spawn(rng):
@@ -180,7 +178,7 @@ def gyro_diag(g: np.ndarray, gvar: np.ndarray, ctx, sims, rng, names_skip) -> Di
     b = gyro_baseline(g, gvar, ctx, sims, rng)
     out = b.report
     tested = _score_gyro(b, ctx, names_skip)
-    effects, _ = _fit_gyro(b, tested, ctx, sims, rng)
+    effects = _fit_gyro(b, tested, ctx, sims, rng)
     out["effects"] = effects
     chosen, e_after = _decide_gyro(out, b, tested, ctx, rng)
     N = b.n

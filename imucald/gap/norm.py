@@ -17,7 +17,7 @@ from ..fitting.solvers.lsq import Problem, lm, sphere_fit
 from ..fitting.judging.uncertainty import residual_variance
 from .candidates import Candidate
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
-from .signif import p_and_log10, proj_sig, score
+from .signif import p_and_log10, proj_sig, score, wald_p
 from .search import MIN_DOF, stepwise, walk_sensitivity
 from .verdict import confusable, no_gap, verdict
 from .wander import random_walk_fit
@@ -188,9 +188,7 @@ def refit_with(b: NormBaseline, cs: Sequence[Candidate], ctx: Dict[str, np.ndarr
     o = len(z) - qs[-1]
     Ca = Ai[o:, o:] * red
     za = z[o:]
-    wald = float(za @ np.linalg.pinv(Ca, rcond=1e-10, hermitian=True) @ za)
-    rank = int(np.linalg.matrix_rank(Ca, tol=1e-10 * max(np.abs(Ca).max(), 1e-300)))
-    return CandidateFit(z, chi2a, ea, twa, sd, q99, p_and_log10(wald, max(rank, 1))[0], ra, Ja, lam_a, Ai * red)
+    return CandidateFit(z, chi2a, ea, twa, sd, q99, wald_p(za, Ca), ra, Ja, lam_a, Ai * red)
 
 
 @dataclass
@@ -344,7 +342,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     precision, so what the gap sees is what the deployed fit leaves.
 
     Steps: baseline -> candidates (score tests, single refits, the random-walk variant)
-    -> verdict (gap/verdict.py decide, with a second effect sought on demand)."""
+    -> verdict (the combination search, gap/search.py)."""
     b = norm_baseline(x, pose_var, model, sims, rng, unit, scale, prior)
     out = b.report
     tested = score_candidates(b, cands, ctx, names_skip)

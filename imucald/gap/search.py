@@ -49,7 +49,7 @@ import numpy as np
 
 from ..fitting.judging.heldout import hat_diag, numjac
 from ..fitting.judging.levels import GAP_HELDOUT_LEVEL
-from .signif import p_and_log10
+from .signif import wald_p
 from .wander import random_walk_fit, walk_kernel
 
 __all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "WALK"]
@@ -245,9 +245,7 @@ class Search:
         for c in cands:
             q = c.q
             Ca, za = m.cov[o:o + q, o:o + q], m.z[o:o + q]
-            wald = float(za @ np.linalg.pinv(Ca, rcond=1e-10, hermitian=True) @ za)
-            rank = int(np.linalg.matrix_rank(Ca, tol=1e-10 * max(np.abs(Ca).max(), 1e-300)))
-            m.member_p[c.name] = p_and_log10(wald, max(rank, 1))[0]
+            m.member_p[c.name] = wald_p(za, Ca)
             o += q
         return m
 

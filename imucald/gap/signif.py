@@ -53,6 +53,14 @@ def p_and_log10(stat, dof):
     return math.exp(lp), lp / math.log(10)
 
 
+def wald_p(z: np.ndarray, C: np.ndarray) -> float:
+    """p-value of the Wald test that coefficients ``z`` with covariance ``C`` are zero:
+    z' C^+ z against chi-square on C's numerical rank (at least 1)."""
+    wald = float(z @ np.linalg.pinv(C, rcond=1e-10, hermitian=True) @ z)
+    rank = int(np.linalg.matrix_rank(C, tol=1e-10 * max(np.abs(C).max(), 1e-300)))
+    return p_and_log10(wald, max(rank, 1))[0]
+
+
 def corr_p(x, y):
     x, y = np.asarray(x, float), np.asarray(y, float)
     ok = np.isfinite(x) & np.isfinite(y)

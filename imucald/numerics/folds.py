@@ -7,16 +7,21 @@ from __future__ import annotations
 
 from typing import List, Optional
 
-__all__ = ["LOO_MAX_POSES", "KFOLDS", "fold_sizes", "poses_needed"]
+__all__ = ["LOO_MAX_POSES", "KFOLDS", "default_folds", "fold_sizes", "poses_needed"]
 
 LOO_MAX_POSES = 60
 KFOLDS = 10
 
 
+def default_folds(n: int) -> int:
+    """The number of folds for n poses: n (leave-one-pose-out) up to LOO_MAX_POSES, else KFOLDS."""
+    return n if n <= LOO_MAX_POSES else KFOLDS
+
+
 def fold_sizes(n: int, folds: Optional[int] = None) -> List[int]:
     """Sizes of the held-out groups for n poses (as numpy.array_split splits them)."""
     if folds is None:
-        folds = n if n <= LOO_MAX_POSES else KFOLDS
+        folds = default_folds(n)
     f = max(1, min(folds, n))
     q, r = divmod(n, f)
     return [q + 1] * r + [q] * (f - r)

@@ -389,9 +389,10 @@ class _Core:
             jv = j[idx]
             u = jv[np.concatenate([[True], jv[1:] != jv[:-1]])].tolist()
             pos = np.searchsorted(u, jv)
-            fa = np.array([self._F[jj][0] for jj in u])[pos]
-            bias = None if self._F[u[0]][1] is None else np.array([self._F[jj][1] for jj in u])[pos]
-            lim = np.array([self._F[jj][2] for jj in u])[pos]
+            F = [self._F[jj] for jj in u]         # (floor, bias, turn limit) of each window
+            fa = np.array([f[0] for f in F])[pos]
+            bias = None if F[0][1] is None else np.array([f[1] for f in F])[pos]
+            lim = np.array([f[2] for f in F])[pos]
             b["q"][idx] = self._quiet({k: b[k][idx] for k in ("good", "va", "gm")}, fa, bias, lim)
             b["fa"][idx] = fa
             if bias is not None:

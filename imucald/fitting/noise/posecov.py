@@ -296,11 +296,8 @@ def radial_pose_cov(parts: List[np.ndarray], means: np.ndarray, cov_mean: np.nda
         return cov_mean, {"method": "white", "poses_used": 0}
     u = np.asarray(means, float)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    radial = [(np.asarray(p, float) @ ui)[:, None] for p, ui in zip(parts, u)]
-    ns = np.array([len(r) for r in radial], float)
-    s2 = np.array([r[:, 0].var(ddof=1) if len(r) > 1 else np.nan for r in radial])
-    sf = [[(len(r),) + pose_sf_rows(r)] if len(r) >= MIN_SAMPLES else [] for r in radial]
-    return radial_pose_cov_stats(ns, s2, sf, means, cov_mean)
+    ns, s2, sf = _pose_stats([(np.asarray(p, float) @ ui)[:, None] for p, ui in zip(parts, u)])
+    return radial_pose_cov_stats(ns, s2[:, 0], sf, means, cov_mean)
 
 
 def radial_pose_cov_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],

@@ -24,6 +24,7 @@ LIMITS = {
     "speed": (0.0, 1000.0, "x"),          # the emulator at 1 kHz x 1000 is 1 M samples/s of CPU
     "duration": (0.0, 1e9, "s"),
     "tremor": (0.0, 100.0, "deg/s"),      # a hand's is 0.5-2
+    "sway": (0.0, 10.0, "deg"),           # a hand's is 0.05-0.4 (RMS per axis)
     "window": (0.0, 3600.0, "s"),
     "temp_rise": (-150.0, 150.0, "degC"),
 }

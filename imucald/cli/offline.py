@@ -48,13 +48,14 @@ def cmd_simulate(args) -> int:
                 raise UserError(f"--effect {e!r}: the magnitude after '=' is not a number") from None
         try:
             s, effects = effect_session(args.board, R, rng, spec, args.rate, hold, move,
-                                        args.temp_profile, args.temp_rise, args.tremor_dps)
+                                        args.temp_profile, args.temp_rise, args.tremor_dps,
+                                        args.sway_deg)
         except ValueError as ex:
             raise UserError(f"--effect: {ex}") from None
     else:
         s = simulate_session(args.board, R, rng, rate_hz=args.rate, hold_s=hold, move_s=move,
                              temp_kind=args.temp_profile, temp_rise_c=args.temp_rise,
-                             tremor_dps=args.tremor_dps)
+                             tremor_dps=args.tremor_dps, sway_deg=args.sway_deg)
     s.recording.meta["seed"] = str(args.seed)
     out = s.recording
     if getattr(args, "logger_rate", None):

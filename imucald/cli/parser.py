@@ -84,6 +84,8 @@ def _add_simulate(s) -> None:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--tremor-dps", type=number_in(0, LIMITS["tremor"][1], "deg/s", low_open=False), default=0.0,
                    help="hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
+    s.add_argument("--sway-deg", type=number_in(0, LIMITS["sway"][1], "deg", low_open=False), default=0.0,
+                   help="a hand's slow sway (0.2-2 Hz), RMS angle per axis, deg; real hands 0.05-0.4")
     s.add_argument("--truth", help="also write the true parameters as JSON here")
     s.add_argument("--effect", action="append", help="inject an unmodelled effect: NAME or NAME=MAGNITUDE, "
                    "e.g. thermal_bias, accel.nonlinearity=0.002, gyro.g_sensitivity, mag.thermal_bias; "

@@ -93,7 +93,7 @@ def make_effect(name: str, magnitude: Optional[float], rng) -> Dict[str, object]
 
 def effect_session(board: str, rotations, rng, effects, rate_hz: float = 100.0,
                    hold_s=(8.0, 12.0), move_s=(2.1, 3.9), temp_kind: str = "warmup",
-                   temp_rise_c: float = 6.0, tremor_dps: float = 0.0):
+                   temp_rise_c: float = 6.0, tremor_dps: float = 0.0, sway_deg: float = 0.0):
     """A simulated session with the deployed model's truth (the magnetometer with ordinary
     hard and soft iron, as drawn for every board) plus the given effects
     [(name, magnitude or None), ...].
@@ -104,7 +104,7 @@ def effect_session(board: str, rotations, rng, effects, rate_hz: float = 100.0,
     made = [make_effect(n, m, rng) for n, m in effects]
     s = simulate_session(board, rotations, rng, rate_hz=rate_hz, hold_s=hold_s, move_s=move_s,
                          truth=truth, temp_kind=temp_kind, temp_rise_c=temp_rise_c,
-                         effects=[e["apply"] for e in made], tremor_dps=tremor_dps)
+                         effects=[e["apply"] for e in made], tremor_dps=tremor_dps, sway_deg=sway_deg)
     if made:
         s.recording.meta["effects"] = ",".join(e["name"] for e in made)
     return s, [{k: v for k, v in e.items() if k != "apply"} for e in made]

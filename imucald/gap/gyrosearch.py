@@ -38,9 +38,9 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL
 from .candidates import TRACELESS, Candidate, kron_cols
-from .search import MAX_MEMBERS, MIN_DOF, SEARCH_MIN_DOF, take_move
+from .search import MAX_MEMBERS, MIN_DOF, SEARCH_MIN_DOF, MemberTests, take_move
 from .signif import wald_p
 
 __all__ = ["gyro_stepwise", "coef_level", "GyroFit", "HELDOUT_SIMS", "THERMAL_CURVED"]
@@ -141,7 +141,7 @@ def _loo(X: np.ndarray, w: np.ndarray, Y: np.ndarray):
     return beta, Ai, r, r / np.maximum(1 - h, 1e-3)[:, None], rank
 
 
-class GyroSearch:
+class GyroSearch(MemberTests):
     """The models of one gyro diagnosis, fitted on demand and cached."""
 
     def __init__(self, b, cols: Dict[int, np.ndarray], rng, level: float):
@@ -184,20 +184,6 @@ class GyroSearch:
         obs = small.excess - big.excess
         g = np.maximum(small.sim_rms / small.twin, 1.0) - np.maximum(big.sim_rms / big.twin, 1.0)
         return float((1 + np.sum(g >= obs)) / (1 + len(g)))
-
-    def tests(self, m: GyroFit) -> Dict[str, Tuple[float, float]]:
-        """(coefficient p, held-out p) of every member of ``m``."""
-        out = {}
-        for c in m.cands:
-            small = self.without(m, c.name)
-            out[c.name] = (m.member_p[c.name], 1.0 if small is None else self.heldout_p(small, m))
-        return out
-
-    def passes(self, pc: float, pho: float) -> bool:
-        return pc < self.level and pho < GAP_HELDOUT_LEVEL
-
-    def failure(self, pc: float, pho: float) -> float:
-        return max(pc / self.level, pho / GAP_HELDOUT_LEVEL)
 
 
 def _add_moves(s: GyroSearch, cur: GyroFit, base: GyroFit, variants: Dict[str, list], visited) -> list:

@@ -135,11 +135,34 @@ def _loo(n: np.ndarray, J: np.ndarray, var: np.ndarray, lam, q: float, K: np.nda
     return (n @ P) / np.diag(P)[None, :]
 
 
-class Search:
+class MemberTests:
+    """A member's two tests, for the norm path's search and the gyro's: its coefficients'
+    Wald p-value (``member_p``, against ``self.level``) and the held-out test of the model
+    without it (``self.without``, ``self.heldout_p``, at GAP_HELDOUT_LEVEL)."""
+    level: float
+
+    def tests(self, m) -> Dict[str, Tuple[float, float]]:
+        """(coefficient p, held-out p) of every member of ``m``."""
+        out = {}
+        for cls in m.classes:
+            small = self.without(m, cls)
+            pho = 1.0 if small is None else self.heldout_p(small, m)
+            out[cls] = (m.member_p.get(cls, 1.0), pho)
+        return out
+
+    def passes(self, pc: float, pho: float) -> bool:
+        return pc < self.level and pho < GAP_HELDOUT_LEVEL
+
+    def failure(self, pc: float, pho: float) -> float:
+        return max(pc / self.level, pho / GAP_HELDOUT_LEVEL)
+
+
+class Search(MemberTests):
     """The models of one diagnosis (norm path), fitted on demand and cached."""
 
     def __init__(self, b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with, prefit=None):
         self.b, self.ctx, self.sims, self.rng, self.bonf = b, ctx, sims, rng, bonf
+        self.level = bonf
         self.vis_q, self.walk_ok, self.refit_with = vis_q, walk_ok, refit_with
         self.cache: Dict[tuple, Optional[ModelFit]] = {}
         #: the held-out tests' p-values by (smaller model, larger model): a test asked again
@@ -279,20 +302,6 @@ class Search:
             return 0.0 if obs > float(np.mean(g)) else 1.0
         return 0.5 * math.erfc((obs - float(np.mean(g))) / (sd * math.sqrt(2)))
 
-    def tests(self, m: ModelFit) -> Dict[str, Tuple[float, float]]:
-        """(coefficient p, held-out p) of every member of ``m``."""
-        out = {}
-        for cls in m.classes:
-            small = self.without(m, cls)
-            pho = 1.0 if small is None else self.heldout_p(small, m)
-            out[cls] = (m.member_p.get(cls, 1.0), pho)
-        return out
-
-    def passes(self, pc: float, pho: float) -> bool:
-        return pc < self.bonf and pho < GAP_HELDOUT_LEVEL
-
-    def failure(self, pc: float, pho: float) -> float:
-        return max(pc / self.bonf, pho / GAP_HELDOUT_LEVEL)
 
 
 def _entry_variants(tested: List[dict], walk_ok: bool, bonf: float):
@@ -430,9 +439,7 @@ def _path(s, cur, variants, walk_ok, bonf):
             break
         # the simplest move that closes the gap (within its own twin's 99th percentile); else
         # the one leaving least to explain
-        cur = take_move(s, min(moves, key=lambda t: (t[0].ratio > t[0].q99,
-                                                     t[0].n_coef if t[0].ratio <= t[0].q99 else 0,
-                                                     t[0].excess, t[0].n_coef)), steps, visited)
+        cur = take_move(s, min(moves, key=lambda t: _end_key(t[0])), steps, visited)
     return cur, steps
 
 

@@ -169,3 +169,19 @@ def test_diagnose_names_a_simulated_gyro_pair(seed):
     r = diagnose(s.recording, sensors=["gyro"], sims=100, seed=seed)["sensors"]["gyro"]
     assert set(r["verdict"].split("+")) == {"thermal_bias", "g_sensitivity"}, r["search"]["steps"]
     assert r["joint"]["effects"] == r["verdict"].split("+")
+
+
+def test_the_search_generator_is_the_one_generator_spawn_makes():
+    """The search draws from a child of the diagnosis's generator made as numpy >= 1.25's
+    ``Generator.spawn`` makes it, from the seed sequence, so numpy 1.21-1.24 (Raspberry Pi OS
+    bookworm's 1.24 has no ``Generator.spawn``) give the same verdicts, and the parent's own
+    stream (the magnetometer's twins) is left as it was.  Fails if the child is seeded from
+    the parent's draws (the fallback it had), which advances the parent's stream."""
+    from imucald.gap.linear import _spawn
+    if not hasattr(np.random.Generator, "spawn"):
+        pytest.skip(f"numpy {np.__version__} has no Generator.spawn to compare with")
+    for seed in range(5):
+        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        for _ in range(2):
+            assert np.array_equal(_spawn(a).random(4), b.spawn(1)[0].random(4))
+        assert np.array_equal(a.random(4), b.random(4))

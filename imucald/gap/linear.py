@@ -131,11 +131,14 @@ def _fit_gyro(b: GyroBaseline, tested: List[tuple], ctx, sims, rng) -> List[Dict
 
 def _spawn(rng):
     """A child generator for the search's draws that leaves ``rng``'s own stream as it was
-    (the magnetometer, diagnosed next, draws the same twins as before the search)."""
-    try:
-        return rng.spawn(1)[0]
-    except (AttributeError, TypeError, ValueError):
+    (the magnetometer, diagnosed next, draws the same twins as before the search).  The
+    child comes from the bit generator's seed sequence, as ``Generator.spawn`` (numpy >=
+    1.25) makes it, so numpy 1.21-1.24 (Raspberry Pi OS bookworm ships 1.24) draw the same."""
+    bg = rng.bit_generator
+    ss = getattr(bg, "seed_seq", None) or getattr(bg, "_seed_seq", None)
+    if ss is None or not hasattr(ss, "spawn"):     # a generator made without a seed sequence
         return np.random.default_rng(int(rng.integers(2 ** 62)))
+    return np.random.Generator(type(bg)(ss.spawn(1)[0]))
 
 
 def _decide_gyro(out: Dict[str, object], b: GyroBaseline, tested: List[tuple], ctx, rng) -> Tuple[List[str], object]:

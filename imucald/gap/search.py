@@ -183,13 +183,17 @@ class Search(MemberTests):
         else:
             self.B = self.K = None
 
-    def dof_ok(self, cands, walk, entry=False) -> bool:
+    def dof_ok(self, cands, walk, entry=False, refine=False) -> bool:
         """Room for the model: its coefficients (visible counts) leave MIN_DOF residual degrees
         of freedom when it holds one effect or is a first step (``entry``: a pair entering
-        together), SEARCH_MIN_DOF for a second member added to a first."""
+        together), SEARCH_MIN_DOF for a second member added to a first or for another variant
+        of a member already named (``refine``: its class passed both tests with room to spare;
+        the richer variant must also beat it on held-out poses, _variant_moves)."""
         used = self.b.p0 + sum(self.vis_q[id(c)] for c in cands) + (1 if walk else 0)
         if entry:
             return used <= self.b.n - MIN_DOF
+        if refine:
+            return used <= self.b.n - SEARCH_MIN_DOF
         # one effect alone leaves what a single candidate must (gap/norm.py MIN_DOF): a
         # curved form fitted on few spare poses soaked up an orientation hysteresis of the
         # old blind generator (tests/test_gap_blindgen.py); a second member may go to
@@ -348,7 +352,11 @@ def _add_moves(s, cur, variants, visited, bonf) -> list:
             if pc >= bonf:
                 continue
             pho = s.heldout_p(s.without(m, cls), m)
-            if s.passes(pc, pho):
+            if s.passes(pc, pho) and (all(a is c_ for a, c_ in zip(cands, cur.cands))
+                                      or s.heldout_p(cur, m) < GAP_HELDOUT_LEVEL):
+                # a step that also changes a member's variant is judged against the model it
+                # leaves as well: a richer form of the second class soaked up a curved thermal
+                # form's leftovers once the first member was cut back to its simpler variant
                 what = f"add {cls}" + (" (random walk)" if walk and not cur.walk else
                                        f" ({cands[-1].q} coefficients)")
                 moves.append((m, what + "".join(f"; {c.name} {c.q}" for c in cands[:len(cur.cands)]
@@ -364,13 +372,17 @@ def _variant_moves(s, cur, variants, visited) -> list:
             if v is c:
                 continue
             cands = tuple(v if x is c else x for x in cur.cands)
-            if not s.dof_ok(cands, cur.walk):
+            if not s.dof_ok(cands, cur.walk, refine=True):
                 continue
             m = s.fit(cands, cur.walk)
             if m is None or m.key in visited or not m.excess < cur.excess:
                 continue
-            if all(s.passes(*t) for t in s.tests(m).values()):
-                moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], None))
+            # every member passes its tests, and the new variant predicts the held-out poses
+            # better than the model it replaces (the same held-out test, against ``cur``)
+            if all(s.passes(*t) for t in s.tests(m).values()) \
+                    and s.heldout_p(cur, m) < GAP_HELDOUT_LEVEL:
+                moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name],
+                              s.heldout_p(cur, m)))
     return moves
 
 

@@ -174,3 +174,29 @@ def test_a_pose_is_cut_where_the_recording_jumps_in_time_and_orientation():
     # a logger's pause with the board unmoved stays one pose
     acc[1000:] = acc[1000:] - [0, 0.05, 0]
     assert split_at_time_gaps(t, acc, [slice(0, 2000)], 100.0) == [slice(0, 2000)]
+
+
+def test_gyro_held_inside_every_pose_gets_its_quantisation_floor():
+    """An un-dithered gyro whose noise (about 0.02 dps per sample at 25 Hz) is far below its
+    LSB (1/14.375 dps) reads one value inside every pose: the spacing of values inside the
+    poses shows no grid, and the pose means' variance was 0, so the fit's weights divided by
+    zero (LinAlgError "Eigenvalues did not converge", a traceback; blindgen2 null_flicker seed
+    4012). The grid is read from the whole column and each pose mean gets the quantisation
+    floor LSB^2 / 12 (noise 0: Widrow and Kollar, Quantization Noise, ch. 4); seen to fail
+    with gap/diagnose.py _quant_floor's whole-column fallback removed."""
+    from imucald.gap.diagnose import diagnose
+    from .blindgen2 import make_case
+    rec, lab = make_case("null_flicker", 4012)
+    r = diagnose(rec, sims=50, seed=4012)["sensors"]["gyro"]
+    q = r["noise_colour"]["pose_mean_variance"]["quantisation"]
+    lsb = 1 / 14.375
+    assert np.allclose(q["lsb"], lsb, rtol=1e-6), q
+    # the floor's Fourier series is summed over a finite number of terms K
+    # (fitting/noise/posefloor.py _K): at zero noise it falls short of LSB^2 / 12 by about
+    # 6 / (pi^2 K) of it
+    from imucald.fitting.noise.posefloor import _K
+    short = 6 / (np.pi ** 2 * np.max(_K))
+    assert np.allclose(q["floor_variance"], lsb ** 2 / 12 * (1 - short), rtol=short / 4), q
+    # the held value is the same in every pose (Earth's rate and the bias do not move it
+    # across a step), so the twin's floor is pessimistic here: no gap is declared
+    assert r["verdict"] == "none", r["verdict"]

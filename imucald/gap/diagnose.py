@@ -277,9 +277,18 @@ def _quant_floor(x: np.ndarray, slices) -> tuple:
     """Per axis (C,): the variance of a pose mean's quantisation offset, from the LSB seen in
     the data and the noise before the quantiser (fitting/noise/posefloor.py); and a summary."""
     lsb = estimate_lsb(x, slices)
+    v = np.median([x[s].var(0, ddof=1) for s in slices if s.stop - s.start > 1], axis=0)
+    # "held": a variance at the float rounding of the values (a grid of 1/14.375 is not exact)
+    flat = (lsb == 0) & ~(v > (1e-9 * np.max(np.abs(x), axis=0)) ** 2)
+    if np.any(flat):
+        # a column held at one value inside (nearly) every pose (noise far below the LSB: an
+        # un-dithered gyro at 14.375 LSB/dps read at 25 Hz) shows no spacing inside the poses;
+        # its grid is read from the whole column (the turns sweep it), and its pose means are
+        # then off by up to half an LSB (variance LSB^2 / 12 at zero noise): with no floor a
+        # zero pose-mean variance divided the fit's weights by zero (LinAlgError)
+        lsb = np.where(flat, estimate_lsb(x, [slice(0, len(x))]), lsb)
     if not np.any(lsb > 0):
         return np.zeros(x.shape[1]), {"lsb": lsb.tolist()}
-    v = np.median([x[s].var(0, ddof=1) for s in slices if s.stop - s.start > 1], axis=0)
     sig = noise_before_quantisation(v, lsb)
     qf = quantisation_floor(lsb, sig)
     return qf, {"lsb": lsb.tolist(), "noise_before_quantisation": sig.tolist(), "floor_variance": qf.tolist()}

@@ -49,7 +49,7 @@ import numpy as np
 
 from ..fitting.judging.heldout import hat_diag, numjac
 from ..fitting.judging.levels import GAP_HELDOUT_LEVEL
-from .signif import wald_p
+from .signif import wald_f_p, wald_p
 from .wander import random_walk_fit, walk_kernel
 
 __all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "WALK"]
@@ -60,6 +60,10 @@ __all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "WALK"]
 #: meaning); a nonlinearity (7 visible coefficients) with a thermal bias (3) on 22 poses leaves 3
 SEARCH_MIN_DOF = 3
 MIN_DOF = 10           #: residual degrees of freedom a candidate fit alone must leave
+#: residual degrees of freedom a pair entering together may leave below MIN_DOF, its members'
+#: Wald tests then referred to F(rank, dof) (_pair_entries): a full-quadratic nonlinearity (7
+#: visible coefficients) or a 6-term one beside a thermal bias on 22-25 poses leaves 6-9
+PAIR_ENTRY_MIN_DOF = 6
 MAX_STEPS = 8
 #: effects named together at most (the walk counts): with 22-35 poses a third effect's tests
 #: are dominated by what the first two leave unmodelled (on the blind generators a third member
@@ -495,8 +499,10 @@ def walk_sensitivity(b) -> np.ndarray:
 
 def _pair_entries(s, base, variants, bonf) -> list:
     """Two fixed-form classes entering together from the baseline (each variant pair that
-    leaves what a first step must, MIN_DOF: with fewer, pairs fitted the per-pose random
-    biases of the blind generator's vibration rectification): two strong effects can each fail alone, every single's coefficient
+    leaves what a first step must, MIN_DOF, or down to PAIR_ENTRY_MIN_DOF with its members'
+    Wald tests referred to F: with 3 or 4 and the chi-square reference, pairs fitted the
+    per-pose random biases of the blind generator's vibration rectification, and with 6 a
+    cubic's or a lone nonlinearity's misfit): two strong effects can each fail alone, every single's coefficient
     test weakened by the excess the other leaves (its covariance is scaled by it) or its
     held-out RMS not below the baseline's; the pair must pass what a forward step's must
     (each member's coefficient and held-out tests against the pair without it, the held-out
@@ -508,15 +514,35 @@ def _pair_entries(s, base, variants, bonf) -> list:
                 continue
             for v1 in variants[c1]:
                 for v2 in variants[c2]:
-                    if not s.dof_ok((v1, v2), False, entry=True):
+                    short = not s.dof_ok((v1, v2), False, entry=True)
+                    if short and s.b.p0 + s.vis_q[id(v1)] + s.vis_q[id(v2)] > s.b.n - PAIR_ENTRY_MIN_DOF:
                         continue
                     m = s.fit((v1, v2), False)
                     if m is None or not (m.nrms < base.nrms and m.excess < base.excess) \
                             or max(m.member_p[c1], m.member_p[c2]) >= bonf:
                         continue
+                    if short and max(_f_member_p(s, m)) >= bonf:
+                        # with few residual degrees of freedom the excess scale that widens the
+                        # Wald covariance is itself an estimate on those few: the exact
+                        # reference of the statistic is F, not chi-square
+                        continue
                     if all(s.passes(*t) for t in s.tests(m).values()):
                         moves.append(m)
     return moves
+
+
+def _f_member_p(s, m) -> List[float]:
+    """Each fixed member's Wald p-value against F(rank, dof) (gap/signif.wald_f_p), dof the
+    residual degrees of freedom N - (coefficients) that the covariance's excess scale was
+    estimated on; the chi-square figure where the scale is 1 (no excess: the covariance is
+    the noise's, known)."""
+    dof = s.b.n - len(m.z)
+    out, o = [], s.b.p0
+    for c in m.cands:
+        za, Ca = m.z[o:o + c.q], m.cov[o:o + c.q, o:o + c.q]
+        out.append(wald_f_p(za, Ca, dof) if m.chi2 > dof > 0 else m.member_p[c.name])
+        o += c.q
+    return out
 
 
 def _end_key(m):

@@ -38,7 +38,7 @@ calibrate's parameters against the simulator's truth, docs/guide/hand-held.md).
 """
 from __future__ import annotations
 
-from typing import Dict, List, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -64,11 +64,12 @@ def pose_sf_rows(x: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     return _sf_rows(x - x.sum(0) / len(x))
 
 
-def _pose_stats(parts: List[np.ndarray]):
+def _pose_stats(parts: List[np.ndarray], centred: Optional[Sequence[np.ndarray]] = None):
     """(ns, s2, sf) of each pose's samples: counts, per-sample variances (ddof 1; NaN for
     one sample) and :func:`pose_sf_rows` (for poses of MIN_SAMPLES or more), from one
     centring of each pose (numpy's ``var(0, ddof=1)``: sum / n, the deviations squared,
-    summed, / (n - 1); the same numbers as ``p.var(0, ddof=1)``, without its wrapper)."""
+    summed, / (n - 1); the same numbers as ``p.var(0, ddof=1)``, without its wrapper).
+    ``centred``: each part's ``x - x.sum(0) / n`` when the caller has it already."""
     C = np.asarray(parts[0]).shape[1]
     ns = np.array([len(p) for p in parts], float)
     s2 = np.full((len(parts), C), np.nan)
@@ -76,7 +77,10 @@ def _pose_stats(parts: List[np.ndarray]):
     for i, p in enumerate(parts):
         x = np.asarray(p, float)
         n = len(x)
-        d = x - x.sum(0) / n if n else x
+        if centred is not None:
+            d = centred[i]
+        else:
+            d = x - x.sum(0) / n if n else x
         if n > 1:
             s2[i] = np.square(d).sum(0) / (n - 1)
         sf.append([(n,) + _sf_rows(d)] if n >= MIN_SAMPLES else [])
@@ -86,15 +90,22 @@ def _pose_stats(parts: List[np.ndarray]):
 def _sf_rows(d: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """:func:`pose_sf_rows` from the pose's deviations from its mean."""
     n = len(d)
-    c = np.vstack([np.zeros((1, d.shape[1])), np.cumsum(d, axis=0)])
+    if d.flags.c_contiguous:                   # [0; cumsum(d)] without a vstack copy (a C-
+        c = np.empty((n + 1, d.shape[1]))      # order array, as vstack makes it from C-order d)
+        c[0] = 0.0
+        np.cumsum(d, axis=0, out=c[1:])
+    else:                                      # vstack's own layout: the sums below follow it
+        c = np.vstack([np.zeros((1, d.shape[1])), np.cumsum(d, axis=0)])
     rows, obs = [], []
     for f in FRACTIONS:
         tau = max(1, int(round(f * n)))
         d = c[tau:] - c[:-tau]
         rows.append([1 + (tau / n) ** 2, tau * (1 - tau / n)])
-        # (d * d).sum(0), not einsum: einsum adds with a fused multiply-add where the CPU has
-        # one (aarch64: a Raspberry Pi), and the last bits would differ between a Pi and a PC
-        obs.append((d * d).sum(0) / len(d))
+        # (d * d).sum(0) (squared in place: the same products), not einsum: einsum adds with
+        # a fused multiply-add where the CPU has one (aarch64: a Raspberry Pi), and the last
+        # bits would differ between a Pi and a PC
+        np.multiply(d, d, out=d)
+        obs.append(d.sum(0) / len(d))
     return np.array(rows), np.array(obs)
 
 
@@ -253,7 +264,8 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     return var, info
 
 
-def scale_pose_cov(parts: List[np.ndarray], cov_mean: np.ndarray
+def scale_pose_cov(parts: List[np.ndarray], cov_mean: np.ndarray,
+                   centred: Optional[Sequence[np.ndarray]] = None
                    ) -> Tuple[np.ndarray, Dict[str, object]]:
     """Each pose's covariance of the mean (N, C, C), formed as its own sample covariance
     over n, rescaled per axis by the structure-function estimate's ratio to the white
@@ -262,7 +274,7 @@ def scale_pose_cov(parts: List[np.ndarray], cov_mean: np.ndarray
     noisier); the averaging is what changes.  Returns (covariances, summary)."""
     if len(parts) == 0:
         return np.asarray(cov_mean, float), {"method": "white", "poses_used": 0}
-    return scale_pose_cov_stats(*_pose_stats(parts), cov_mean)
+    return scale_pose_cov_stats(*_pose_stats(parts, centred), cov_mean)
 
 
 def scale_pose_cov_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],

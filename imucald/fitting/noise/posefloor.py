@@ -60,7 +60,7 @@ Held columns (a magnetometer read at its own 75 or 100 Hz inside a 400 Hz log).
 from __future__ import annotations
 
 import math
-from typing import Dict, Sequence, Tuple
+from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -176,20 +176,22 @@ def tilt_wander_test(acc_g: np.ndarray, slices: Sequence[slice], min_samples: in
     return tilt_wander_test_parts([a[s] for s in slices], min_samples)
 
 
-def tilt_wander_test_parts(parts: Sequence[np.ndarray], min_samples: int = 16) -> Dict[str, object]:
+def tilt_wander_test_parts(parts: Sequence[np.ndarray], min_samples: int = 16,
+                           means: Optional[Sequence[np.ndarray]] = None) -> Dict[str, object]:
     """Whether the accelerometer's direction wanders within the still stretches (each pose's
     samples, (n_i, 3) g): the mean over poses of log(tangential / radial per-sample variance)
     (tangential: the mean of the two components across the pose's mean direction) above 2 of
-    its standard errors over poses (one-sided ~2 %; isotropic sensor noise gives 0)."""
+    its standard errors over poses (one-sided ~2 %; isotropic sensor noise gives 0).
+    ``means``: each part's ``x.sum(0) / n`` when the caller has it already (the same numbers)."""
     lr = []
-    for x in parts:
+    for i, x in enumerate(parts):
         x = np.asarray(x, float)
         n = len(x)
         if n < min_samples:
             continue
         # numpy's mean, var and cov steps without their wrappers (called for every pose of
         # every calibrate): the same operations on the same arrays, so the same numbers
-        m = x.sum(0) / n                                     # x.mean(0)
+        m = x.sum(0) / n if means is None else means[i]      # x.mean(0)
         u = m / max(math.sqrt(float(m.dot(m))), 1e-300)      # np.linalg.norm(m)
         y = x @ u
         dy = y - y.sum() / n

@@ -276,11 +276,14 @@ class _Core:
         n, L, k = len(x), len(full), x.shape[1]
         self._tail = full[-(self.w - 1):]
         ref = full[0]
-        d = full - ref
-        c = np.empty((L + 1, 2 * k))       # cumulative sums of d and d**2, column by column
+        # cumulative sums of d = full - ref (k columns) and of the accelerometer's d**2 (3; the
+        # gyro's squares are never used), written in place: each column's running sum is the
+        # same whichever columns stand beside it
+        c = np.empty((L + 1, k + 3))
         c[0] = 0.0
-        c[1:, :k] = d
-        np.multiply(d, d, out=c[1:, k:])
+        d = c[1:, :k]
+        np.subtract(full, ref, out=d)
+        np.multiply(d[:, :3], d[:, :3], out=c[1:, k:])
         np.cumsum(c, 0, out=c)
         if L - n + 1 >= self.w:            # every window full (after the first w-1 rows)
             cnt = self.w
@@ -293,7 +296,12 @@ class _Core:
             s = c[hi] - c[lo]
             full_w = cnt[:, 0] >= self.w
         s1, s2 = s[:, :k], s[:, k:]
-        var = np.maximum(s2[:, :3] - s1[:, :3] * s1[:, :3] / cnt, 0) / np.maximum(cnt - 1, 1)
+        # max(s2 - s1^2 / cnt, 0) / max(cnt - 1, 1), operation by operation in one buffer
+        var = s1[:, :3] * s1[:, :3]
+        np.divide(var, cnt, out=var)
+        np.subtract(s2, var, out=var)
+        np.maximum(var, 0, out=var)
+        np.divide(var, np.maximum(cnt - 1, 1), out=var)
         return row_sum(var), s1[:, 3:] / cnt + ref[3:], s1[:, :3] / cnt + ref[:3], full_w
 
     # -- streaming --------------------------------------------------------------------

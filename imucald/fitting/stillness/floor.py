@@ -23,13 +23,21 @@ def onset(acc: np.ndarray, short: int = 10, allow: float = 0.0) -> int:
         return n
     half = n // 2
     x = np.concatenate([acc, np.sqrt(row_sum(acc * acc))[:, None]], 1)
-    m0 = x[:half].mean(0)
-    sd = x[:half].std(0, ddof=1) + 1e-12
-    c = np.cumsum(np.vstack([np.zeros((1, 4)), x]), 0)
-    ma = (c[short:] - c[:-short]) / short            # ma[i] = mean of x[i:i+short]
+    # the first half's mean and standard deviation: numpy's mean(0) and std(0, ddof=1) of
+    # x[:half] written out (the same sum / half; the deviations squared, summed, / (half - 1),
+    # square-rooted; x in the layout concatenate gives it, as there), without their wrappers
+    m0 = x[:half].sum(0) / half
+    dev = x[:half] - m0
+    np.multiply(dev, dev, out=dev)
+    sd = np.sqrt(dev.sum(0) / (half - 1)) + 1e-12
+    c = np.empty((n + 1, 4))                         # running sums of x from 0 (no vstack copy)
+    c[0] = 0.0
+    c[1:] = x
+    np.cumsum(c, 0, out=c)
+    ma = (c[half + short:] - c[half:-short]) / short  # ma[i] = mean of x[half + i:half + i + short]
     lim = 5.0 * sd / np.sqrt(short)
     lim[:3] += allow * float(np.sqrt(m0[:3] @ m0[:3]))
-    bad = np.flatnonzero(row_max(np.abs(ma[half:] - m0) - lim) > 0.0)
+    bad = np.flatnonzero(row_max(np.abs(ma - m0) - lim) > 0.0)
     return n if not len(bad) else half + int(bad[0])
 
 

@@ -124,10 +124,11 @@ def detect(t, acc, gyro=None, rate_hz=None, temp=None, mag=None, **params):
 
 
 def _mean_cov(x: np.ndarray):
+    """(mean, sample covariance, deviations from the mean) of x (n, C)."""
     m = x.sum(0) / len(x)        # x.mean(0) bit for bit (the same sum, / the count) without its wrapper
     d = x - m
     c = d.T @ d / max(len(x) - 1, 1)
-    return m, c
+    return m, c, d
 
 
 def poses_from_recording(rec: Recording, **kw) -> PoseSet:
@@ -150,9 +151,9 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
     ivs, dropped, det = detect(rec.t, rec.acc, rec.gyro, rec.rate_hz, mag=rec.mag, **kw)
     keep = None if det is None else det.repeats.keep
     cuts = [slice(iv.i0, iv.i1) for iv in ivs]
-    pieces = poses_from_slices(rec, cuts, keep)
+    pieces, _, centred = _averaged(rec, cuts, keep)
     joined = merge_cut(ivs, keep)
-    ps = _joined(rec, joined, cuts, pieces, keep)
+    ps = _joined(rec, joined, cuts, pieces, keep, centred)
     ps.slices, pieces.slices = joined, cuts
     if dropped:
         ps.meta["dropped_samples"] = pieces.meta["dropped_samples"] = str(dropped)
@@ -162,16 +163,17 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
 
 
 def _joined(rec: Recording, slices: List[slice], cuts: List[slice], pieces: PoseSet,
-            keep: Optional[np.ndarray]) -> PoseSet:
+            keep: Optional[np.ndarray], centred: Dict[str, list]) -> PoseSet:
     """``poses_from_slices(rec, slices, keep, structure=True)``, the rows of a slice that is
     also one of the pieces (``cuts``: most poses are one piece) copied from ``pieces``
     instead of averaged again (the same rows of the same samples, so the same numbers),
-    then the structure-function scaling as there."""
+    then the structure-function scaling as there (from the pieces' own centring,
+    ``centred``: :func:`_averaged`'s)."""
     at = {(s.start, s.stop): i for i, s in enumerate(cuts)}
     new = [s for s in slices if (s.start, s.stop) not in at]
     if len(new) == len(slices):
         return poses_from_slices(rec, slices, keep, structure=True)
-    more = poses_from_slices(rec, new, keep)
+    more, _, more_centred = _averaged(rec, new, keep)
     src, j = [], len(cuts)
     for s in slices:
         i = at.get((s.start, s.stop))
@@ -185,7 +187,9 @@ def _joined(rec: Recording, slices: List[slice], cuts: List[slice], pieces: Pose
                  rows(pieces.acc_sample_cov, more.acc_sample_cov), rows(pieces.gyro, more.gyro),
                  rows(pieces.gyro_cov, more.gyro_cov), rows(pieces.mag, more.mag),
                  rows(pieces.mag_cov, more.mag_cov), rows(pieces.temp, more.temp), dict(rec.meta))
-    return _structure(ps, rec, [_distinct(s, keep) for s in slices])
+    both = {k: centred[k] + more_centred[k] for k in centred}
+    return _structure(ps, rec, [_distinct(s, keep) for s in slices],
+                      {k: [v[i] for i in src] if v else [] for k, v in both.items()})
 
 
 def still_report(det) -> List[str]:
@@ -243,6 +247,15 @@ def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.nda
     ``structure`` the accelerometer's and gyro's covariances of the means are rescaled
     per axis by the within-pose structure function (fitting/noise/posecov.py; ``ps.noise`` says
     what it found); else each is the pose's sample covariance over n."""
+    ps, rows, centred = _averaged(rec, slices, keep)
+    return _structure(ps, rec, rows, centred) if structure else ps
+
+
+def _averaged(rec: Recording, slices: List[slice], keep: Optional[np.ndarray]):
+    """(PoseSet, each slice's rows, {"acc": [(mean, deviations)], "gyro": [...]}): the
+    averages of :func:`poses_from_slices` and the centred samples they were formed from, which
+    the structure-function scaling (:func:`_structure`) takes as they are instead of centring
+    the same rows again (the same numbers)."""
     N = len(slices)
     acc = np.zeros((N, 3))
     acov = np.zeros((N, 3, 3))
@@ -256,24 +269,29 @@ def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.nda
     mcov = np.zeros((N, 3, 3)) if rec.mag is not None else None
     tp = np.zeros(N) if rec.temp is not None else None
     rows = []
+    centred: Dict[str, list] = {"acc": [], "gyro": []}
     for i, s in enumerate(slices):
         s = _distinct(s, keep)
         rows.append(s)
         a = rec.acc[s]
         n[i] = len(a)
-        acc[i], scov[i] = _mean_cov(a)
+        m, scov[i], d = _mean_cov(a)
+        acc[i] = m
+        centred["acc"].append((m, d))
         acov[i] = scov[i] / n[i]
         t0[i], t1[i] = rec.t[s][0], rec.t[s][-1]
         if gy is not None:
-            gy[i], c = _mean_cov(rec.gyro[s])
+            m, c, d = _mean_cov(rec.gyro[s])
+            gy[i] = m
+            centred["gyro"].append((m, d))
             gcov[i] = c / n[i]
         if mg is not None:
-            mg[i], c = _mean_cov(rec.mag[s])
+            mg[i], c, _ = _mean_cov(rec.mag[s])
             mcov[i] = c / n[i]
         if tp is not None:
             tp[i] = rec.temp[s].mean()
     ps = PoseSet(acc, acov, n, t0, t1, scov, gy, gcov, mg, mcov, tp, dict(rec.meta))
-    return _structure(ps, rec, rows) if structure else ps
+    return ps, rows, centred
 
 
 def _distinct(s: slice, keep: Optional[np.ndarray]):
@@ -283,25 +301,27 @@ def _distinct(s: slice, keep: Optional[np.ndarray]):
     return s
 
 
-def _structure(ps: PoseSet, rec: Recording, rows) -> PoseSet:
+def _structure(ps: PoseSet, rec: Recording, rows, centred: Dict[str, list]) -> PoseSet:
     """The accelerometer's and gyro's covariances of the means rescaled per axis by the
     within-pose structure function (fitting/noise/posecov.py), the accelerometer's along
-    its mean direction by the radial series' own; ``rows``: each pose's rows."""
+    its mean direction by the radial series' own; ``rows``: each pose's rows, ``centred``
+    their means and deviations (:func:`_averaged`)."""
     if len(rows):
         from ..noise.posecov import radial_pose_cov, scale_pose_cov
         from ..noise.posefloor import tilt_wander_test_parts
         ps.noise = {}
         parts = [rec.acc[s] for s in rows]
-        ps.acc_cov, ps.noise["accel"] = scale_pose_cov(parts, ps.acc_cov)
+        ps.acc_cov, ps.noise["accel"] = scale_pose_cov(parts, ps.acc_cov, [d for _, d in centred["acc"]])
         # along each pose's direction from the radial series where the direction wanders
         # within the poses (a hand's sway, which the norm model does not see: radial_pose_cov;
         # the test is gap's, fitting/noise/posefloor.py, one-sided ~2 %)
-        tilt = tilt_wander_test_parts(parts)
+        tilt = tilt_wander_test_parts(parts, means=[m for m, _ in centred["acc"]])
         if tilt["wander"]:
             ps.acc_cov, ps.noise["accel_radial"] = radial_pose_cov(parts, ps.acc, ps.acc_cov)
             ps.noise["accel_radial"]["tilt_wander"] = tilt
         if ps.gyro_cov is not None:
-            ps.gyro_cov, ps.noise["gyro"] = scale_pose_cov([rec.gyro[s] for s in rows], ps.gyro_cov)
+            ps.gyro_cov, ps.noise["gyro"] = scale_pose_cov([rec.gyro[s] for s in rows], ps.gyro_cov,
+                                                           [d for _, d in centred["gyro"]])
     return ps
 
 

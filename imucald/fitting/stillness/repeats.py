@@ -175,9 +175,11 @@ def unconditional_rates(pc: np.ndarray) -> np.ndarray:
 
 
 def _distinct_rows(cnt: np.ndarray, num, w: int):
-    """(index of each distinct row's first occurrence, each row's distinct-row number) of
-    the integer rows (cnt, num[0], num[1], ...), entries in 0..w: equal neighbours first
-    (runs: cheap, and most repeats are neighbours), then the distinct run values."""
+    """(index of one occurrence of each distinct row, each row's distinct-row number) of the
+    integer rows (cnt, num[0], num[1], ...), entries in 0..w: equal neighbours first (runs:
+    cheap, and most repeats are neighbours), then the distinct run values, grouped by an
+    unstable sort (which occurrence stands for a row does not matter: equal rows have equal
+    counts, so equal rates; ~5x faster than the stable sort np.unique(return_index) needs)."""
     base = w + 1
     if base ** (len(num) + 1) >= 2 ** 62:
         _, first, inv = np.unique(np.column_stack([cnt, *num]), axis=0, return_index=True,
@@ -187,8 +189,15 @@ def _distinct_rows(cnt: np.ndarray, num, w: int):
     for v in num:
         key = key * base + v
     starts = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
-    _, first_run, inv_run = np.unique(key[starts], return_index=True, return_inverse=True)
-    return starts[first_run], np.repeat(inv_run.ravel(), np.diff(np.append(starts, len(key))))
+    ks = key[starts]
+    perm = ks.argsort()
+    srt = ks[perm]
+    new = np.empty(len(srt), bool)
+    new[:1] = True
+    np.not_equal(srt[1:], srt[:-1], out=new[1:])
+    inv_run = np.empty(len(ks), np.intp)
+    inv_run[perm] = np.cumsum(new) - 1
+    return starts[perm[new]], np.repeat(inv_run, np.diff(np.append(starts, len(key))))
 
 
 def effective_rate(t: np.ndarray, keep: Optional[np.ndarray] = None) -> float:

@@ -91,10 +91,16 @@ def _migrate(sh: _GaShape, X: np.ndarray, F: np.ndarray) -> None:
     wi = o2[:, sh.Ps - sh.n_mig:].reshape(sh.runs, sh.nsub, sh.n_mig)
     X4 = X.reshape(sh.runs, sh.nsub, sh.Ps, sh.kf)
     F3 = F.reshape(sh.runs, sh.nsub, sh.Ps)
-    mX = np.roll(np.take_along_axis(X4, bi[..., None], axis=2), 1, axis=1)
-    mF = np.roll(np.take_along_axis(F3, bi, axis=2), 1, axis=1)
-    np.put_along_axis(X4, wi[..., None], mX, axis=2)
-    np.put_along_axis(F3, wi, mF, axis=2)
+    # subpopulation s takes the best of s - 1 (cyclically): gathered, then written over its
+    # worst (plain fancy indexing: what take_along_axis, roll and put_along_axis did, in ~1/3
+    # of their time)
+    r = sh.ar[:, None, None]
+    s = np.arange(sh.nsub)[None, :, None]
+    src = (s - 1) % sh.nsub
+    rows = bi[r, src, np.arange(sh.n_mig)]          # (runs, nsub, n_mig): the migrants' places in s - 1
+    mX, mF = X4[r, src, rows], F3[r, src, rows]
+    X4[r, s, wi] = mX
+    F3[r, s, wi] = mF
 
 
 def ga_core(prob: Problem, lo: np.ndarray, hi: np.ndarray, runs: int, rng: np.random.Generator,

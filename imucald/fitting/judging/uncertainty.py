@@ -164,17 +164,19 @@ def determination(model: NormModel, theta: np.ndarray, raw: np.ndarray, cov: np.
     idx = np.flatnonzero(free)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     C = cov[np.ix_(idx, idx)]
-    U = sphere_lattice(400)
-    G = model.jacobian(theta, model.inverse(theta, U * target), target)[1][:, free]   # (400, kf)
-    CG = G @ C
-    denom = pose_var + np.einsum("nk,nk->n", G, CG)
     flags: List[Dict[str, object]] = []
+    U = None
     for jj, j in enumerate(idx):
         ps = float(prior_std[j])
         rho = sd[j] / ps if np.isfinite(ps) else (np.inf if not np.isfinite(sd[j]) else 0.0)
         und = rho > ratio
         if not (und or at_bound[j]):
             continue
+        if U is None:          # the lattice's gains, formed once and only when a parameter is flagged
+            U = sphere_lattice(400)
+            G = model.jacobian(theta, model.inverse(theta, U * target), target)[1][:, free]   # (400, kf)
+            CG = G @ C
+            denom = pose_var + np.einsum("nk,nk->n", G, CG)
         gain = CG[:, jj] ** 2 / denom
         b = int(np.argmax(gain))
         after = float(np.sqrt(max(C[jj, jj] - gain[b], 0.0)))

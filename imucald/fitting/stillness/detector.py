@@ -278,8 +278,9 @@ class _Core:
         ref = full[0]
         # cumulative sums of d = full - ref (k columns) and of the accelerometer's d**2 (3; the
         # gyro's squares are never used), written in place: each column's running sum is the
-        # same whichever columns stand beside it
-        c = np.empty((L + 1, k + 3))
+        # same whichever columns stand beside it.  Column-major, so that every operation below
+        # runs down whole columns (row-major, numpy steps through the rows 3 values at a time)
+        c = np.empty((k + 3, L + 1)).T
         c[0] = 0.0
         d = c[1:, :k]
         np.subtract(full, ref, out=d)
@@ -293,7 +294,7 @@ class _Core:
             hi = np.arange(L - n, L) + 1
             lo = np.maximum(hi - self.w, 0)
             cnt = (hi - lo)[:, None]
-            s = c[hi] - c[lo]
+            s = c[L - n + 1:] - c[lo]          # c[hi]: hi is the range L - n + 1 .. L
             full_w = cnt[:, 0] >= self.w
         s1, s2 = s[:, :k], s[:, k:]
         # max(s2 - s1^2 / cnt, 0) / max(cnt - 1, 1), operation by operation in one buffer

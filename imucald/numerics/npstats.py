@@ -37,7 +37,11 @@ def median(a, axis=None):
     part = np.partition(a, kth + [-1] if nan_possible else kth, axis=axis)
     idx = [slice(None)] * a.ndim
     idx[axis] = slice(h - 1, h + 1) if n % 2 == 0 else slice(h, h + 1)
-    out = np.mean(part[tuple(idx)], axis=axis)
+    mid = part[tuple(idx)]
+    if mid.dtype == np.float64:     # np.mean's own steps (the sum over the axis, / the count) without its wrapper
+        out = np.add.reduce(mid, axis=axis) / mid.shape[axis]
+    else:                           # integers and other floats: np.mean's accumulator types
+        out = np.mean(mid, axis=axis)
     if nan_possible:
         last = part.take(-1, axis=axis)
         bad = np.isnan(last)

@@ -16,11 +16,10 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from .coverage import sphere_lattice
 from ..models.base import NormModel
 
 __all__ = ["Uncertainty", "residual_variance", "fisher", "crlb", "map_covariance",
-           "determination", "sphere_lattice", "UNDETERMINED_RATIO"]
+           "determination", "UNDETERMINED_RATIO"]
 
 #: a parameter whose posterior std is above this fraction of its prior std is
 #: ``undetermined``: the poses cut the prior's variance by less than 75 %
@@ -173,6 +172,7 @@ def determination(model: NormModel, theta: np.ndarray, raw: np.ndarray, cov: np.
         if not (und or at_bound[j]):
             continue
         if U is None:          # the lattice's gains, formed once and only when a parameter is flagged
+            from .coverage import sphere_lattice      # (not imported by a fit that flags none)
             U = sphere_lattice(400)
             G = model.jacobian(theta, model.inverse(theta, U * target), target)[1][:, free]   # (400, kf)
             CG = G @ C

@@ -32,6 +32,8 @@ __all__ = ["FitResult", "fit_norm", "mag_bounds", "heldout_residuals", "fit_gyro
 
 @dataclass
 class FitResult:
+    """One norm fit (accelerometer or magnetometer) or gyro-bias fit: what the daemon and the
+    command line report (:func:`fit_norm`, :func:`fit_gyro_bias`)."""
     sensor: str
     model: str
     method: str
@@ -268,6 +270,7 @@ class Determination:
 
 @dataclass
 class Heldout:
+    """The held-out step's result: each pose's residual from the fit without it."""
     residuals: np.ndarray               #: per pose, held out of the fit
     predicted_std: np.ndarray           #: per pose, what the uncertainty predicts
     normalised_rms: float               #: RMS of residuals / predicted_std (1: it holds)

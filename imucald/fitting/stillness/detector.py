@@ -121,6 +121,7 @@ BIAS_SPAN_WINDOWS = 60
 
 @dataclass
 class StaticInterval:
+    """One still interval the detector found: its rows' averages and scatter, time and place."""
     acc: np.ndarray               #: mean specific force, g (3,)
     acc_cov: np.ndarray           #: covariance of the mean, g^2 (3, 3)
     acc_sample_cov: np.ndarray    #: within-interval sample covariance, g^2

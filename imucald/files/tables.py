@@ -3,7 +3,9 @@
 Both readers use it: the recording body (comma-separated) and the raw numeric
 tables of ``calibrate``/``gap`` (whitespace- or comma-separated).  The file is
 read in blocks of whole lines (``CHUNK_BYTES``); each block is parsed by numpy's
-C tokenizer in one call.  A block that does not parse cleanly (a bad line, a
+C tokenizer in one call, or, when its lines are all of one fixed-width layout (MATLAB's
+``save -ascii``, ``printf("%16.7e")``), by numpy arithmetic on its columns of bytes
+(``_parse_fixed``: the same bits, ~3x faster).  A block that does not parse cleanly (a bad line, a
 blank or comment line, a non-finite or implausible value, time going
 backwards) is parsed again line by line by the reference parser below, which
 defines what is accepted and raises the one-line error with file:line and the
@@ -17,6 +19,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 import warnings
 from typing import BinaryIO, Iterator, List, Optional, Sequence, Tuple
 
@@ -217,6 +220,10 @@ def _parse_fast(text, spec: TableSpec, prev_t: float, count: Optional[int] = Non
         if cr in text:
             return None
     delim = "," if spec.comma_only or comma in text else None
+    if isinstance(text, bytes):
+        rows = _parse_fixed(text, spec, nlines, delim is not None)
+        if rows is not None:
+            return rows if _ok(rows, spec, prev_t) else None
     src = io.StringIO(text) if isinstance(text, str) else io.BytesIO(text)
     try:
         with warnings.catch_warnings():
@@ -226,6 +233,150 @@ def _parse_fast(text, spec: TableSpec, prev_t: float, count: Optional[int] = Non
         return None
     if rows.shape != (nlines, spec.ncol) or not _ok(rows, spec, prev_t):
         return None         # blank or comment lines, wrong counts, bad values: look line by line
+    return rows
+
+
+# --- fixed-width tables: every line the same length, each number in the same columns ---------
+# (MATLAB's ``save -ascii``, C's ``printf("%15.7e ...")``, the IMU-TK Xsens files).  Their
+# numbers are read with numpy arithmetic on the columns of bytes instead of numpy's tokenizer,
+# ~3x faster, and to the same bits: a number of at most 15 significant digits m and a decimal
+# exponent k with |k| <= 22 is m * 10**k or m / 10**-k with both operands exact doubles
+# (m < 2**53; 10**22 = 2**22 * 5**22, 5**22 < 2**53), and one IEEE multiplication or division
+# of exact operands is the correctly rounded value, which is what numpy's parser (CPython's
+# correctly rounded strtod) gives (Clinger 1990, "How to read floating point numbers
+# accurately", the fast path).  Anything else (more digits, a larger exponent, nan, a line
+# of another layout) goes to numpy's tokenizer as before.
+
+_FIXED_NUM = re.compile(rb"([+-]?)(\d*)(?:(\.)(\d*))?(?:([eE])([+-]?)(\d{1,3}))?")
+#: 10**(i - 22) for i >= 22 and 1 below; 10**(22 - i) for i <= 22 and 1 above: a value is
+#: m * _P_MUL[k + 22] / _P_DIV[k + 22] (one of the two operations is exact: by 1)
+_P_MUL = np.array([1.0] * 22 + [float(10 ** i) for i in range(23)])
+_P_DIV = np.array([float(10 ** (22 - i)) for i in range(23)] + [1.0] * 22)
+#: bytes of float64 per slice of rows in ``_parse_fixed``: 1 MB was the fastest of 0.25-2 MB
+#: and the whole block (whose temporaries, ~8 MB, were mapped and page-faulted afresh)
+_FIXED_SLICE_BYTES = 1 << 20
+
+
+def _fixed_layout(row: bytes, ncol: int, comma: bool):
+    """How to read a fixed-width table whose first line (without its newline) is ``row``:
+    None when that line is not ``ncol`` plain decimal numbers (sign, at most 15 digits, a
+    point, an exponent of at most 3 digits) between separators; else a tuple: the lowest
+    byte each position may hold and the range above it (a digit 0-9, a sign slot space..'-',
+    an exponent sign '+'..'-', any other byte itself); the first and last digit position;
+    the weights turning the digit bytes between them into each field's digits as an integer
+    and each exponent's magnitude; the sign slots and their fields; the exponent signs and,
+    per exponent, its field and whether it has a sign; the fraction digits per field."""
+    sep = b" \t"
+    if comma:
+        spans, start = [], 0
+        for part in row.split(b","):
+            s, e = start, start + len(part)
+            while s < e and row[s] in sep:
+                s += 1
+            while e > s and row[e - 1] in sep:
+                e -= 1
+            spans.append((s, e))
+            start += len(part) + 1
+    else:
+        spans = [m.span() for m in re.finditer(rb"[^ \t]+", row)]
+    if len(spans) != ncol:
+        return None
+    L = len(row) + 1
+    lo = np.frombuffer(row + b"\n", np.uint8).copy()
+    width = np.zeros(L, np.uint8)
+    inside = bytearray(L)                   # 1 on the numbers' own bytes
+    wcol = []                               # (position, column of the weights, weight)
+    slots, sfield, esigns, efields, frac = [], [], [], [], []
+    for j, (s, e) in enumerate(spans):
+        m = _FIXED_NUM.fullmatch(row, s, e) if s < e else None
+        if m is None:
+            return None
+        sg, ip, _, fp, ech, es, ed = m.groups()
+        fp = fp or b""
+        nd = len(ip) + len(fp)
+        if not nd or nd > 15:
+            return None
+        inside[s:e] = b"\1" * (e - s)
+        p = s + len(sg)
+        mpos = [p + i for i in range(len(ip))] + [p + len(ip) + 1 + i for i in range(len(fp))]
+        wcol += [(q, j, float(10 ** (nd - 1 - i))) for i, q in enumerate(mpos)]
+        if sg:
+            slots.append(s)
+        elif s >= 1 and row[s - 1] == 32 and (comma or s == 1 or row[s - 2] in sep):
+            slots.append(s - 1)             # a space before the number: room for a '-'
+        if len(slots) > len(sfield):
+            sfield.append(j)
+        if ech:
+            c = ncol + len(efields)
+            wcol += [(q, c, float(10 ** (e - 1 - q))) for q in range(e - len(ed), e)]
+            if es:
+                esigns.append(e - len(ed) - 1)
+            efields.append((j, bool(es)))
+        frac.append(len(fp))
+    between = b" \t," if comma else sep
+    if any(not inside[q] and row[q] not in between for q in range(L - 1)):
+        return None
+    pos = [q for q, _, _ in wcol]
+    lo[pos], width[pos] = 48, 9
+    lo[slots], width[slots] = 32, 13
+    lo[esigns], width[esigns] = 43, 2
+    a, b = min(pos), max(pos) + 1
+    W = np.zeros((b - a, ncol + len(efields)))
+    for q, c, w in wcol:
+        W[q - a, c] = w
+    return lo, width, a, b, W, slots, sfield, esigns, efields, np.array(frac, float)
+
+
+def _parse_fixed(block: bytes, spec: TableSpec, nlines: int, comma: bool) -> Optional[np.ndarray]:
+    """The rows of a block of whole lines of one fixed-width layout (see above), to the bits
+    numpy's tokenizer gives; None when the block is not such a layout (the caller then uses
+    the tokenizer)."""
+    L = block.find(b"\n") + 1
+    if L < 2 or len(block) != nlines * L:
+        return None
+    A = np.frombuffer(block, np.uint8).reshape(nlines, L)
+    if not (A[:, -1] == 10).all():
+        return None
+    lay = _fixed_layout(block[:L - 1], spec.ncol, comma)
+    if lay is None:
+        return None
+    lo, width, a, b, W, slots, sfield, esigns, efields, frac = lay
+    ncol = spec.ncol
+    offset = 48.0 * W.sum(0)
+    signs = [c for c, (_, signed) in enumerate(efields) if signed]
+    ecols = [j for j, _ in efields]
+    rows = np.empty((nlines, ncol))
+    # in slices of rows: every temporary (the float copy of a slice's bytes, ~1 MB, the
+    # largest) stays in the heap and in cache (numerics/allocator.py)
+    step = max(1, _FIXED_SLICE_BYTES // (8 * (b - a)))
+    for r in range(0, nlines, step):
+        B = A[r:r + step]
+        if not ((B - lo) <= width).all():      # uint8: a byte below lo wraps above any width
+            return None
+        S, E = B[:, slots], B[:, esigns]
+        if not (((S == 32) | (S == 43) | (S == 45)).all() and ((E == 43) | (E == 45)).all()):
+            return None
+        # the digits' bytes (48 + digit) times powers of ten, summed: every product and
+        # partial sum an integer below 2**53 (at most 15 digits), so exact in any order
+        # (BLAS, FMA)
+        MX = B[:, a:b].astype(np.float64) @ W
+        MX -= offset
+        out = rows[r:r + step]
+        if efields:
+            ex = MX[:, ncol:]
+            if signs:
+                ex[:, signs] *= 44.0 - E         # '+' 43 -> +1, '-' 45 -> -1
+            k = np.broadcast_to(-frac, out.shape).copy()
+            k[:, ecols] += ex
+            if not (k.min() >= -22 and k.max() <= 22):
+                return None
+            i = (k + 22).astype(np.intp)
+            np.multiply(MX[:, :ncol], _P_MUL[i], out=out)
+            out /= _P_DIV[i]
+        else:
+            np.divide(MX, _P_DIV[22 - frac.astype(np.intp)], out=out)
+        if slots:
+            out[:, sfield] *= np.where(S == 45, -1.0, 1.0)
     return rows
 
 

@@ -5,9 +5,9 @@ shortcuts, and of the reference parser, on every table it takes; and it refuses 
 tokenizer reads the block) every block that is not one layout.
 
 Breakage each test was checked against (restored after): the exponent's sign ignored
-(``44.0 - E`` replaced by 1) fails ``test_the_xsens_layout_is_read_by_the_fixed_path_to_the_same_bits``
+(``MX[:, ncol:] * es`` with ``es`` replaced by 1) fails ``test_the_xsens_layout_is_read_by_the_fixed_path_to_the_same_bits``
 (its times and scaled values have negative exponents); a '-' in a sign slot not applied
-(the last ``rows[:, sfield] *=`` line removed) fails it and
+(``np.multiply(M, sg, out=out)`` with ``sg`` replaced by 1) fails it and
 ``test_fixed_width_tables_read_to_the_same_bits`` (any negative value); the sign slot allowed after a single separating
 space in whitespace tables (``or row[s - 2] in sep`` dropped) fails
 ``test_layouts_it_must_refuse`` ("1.5 2.5" then "1.5-2.5", one token to the tokenizer).

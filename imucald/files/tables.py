@@ -255,6 +255,9 @@ _P_DIV = np.array([float(10 ** (22 - i)) for i in range(23)] + [1.0] * 22)
 #: bytes of float64 per slice of rows in ``_parse_fixed``: 1 MB was the fastest of 0.25-2 MB
 #: and the whole block (whose temporaries, ~8 MB, were mapped and page-faulted afresh)
 _FIXED_SLICE_BYTES = 1 << 20
+#: a sign byte's factor: ' ' and '+' +1, '-' -1, any other NaN (not a sign)
+_SIGN = np.full(256, np.nan)
+_SIGN[[32, 43, 45]] = 1.0, 1.0, -1.0
 
 
 def _fixed_layout(row: bytes, ncol: int, comma: bool):
@@ -343,8 +346,10 @@ def _parse_fixed(block: bytes, spec: TableSpec, nlines: int, comma: bool) -> Opt
     lo, width, a, b, W, slots, sfield, esigns, efields, frac = lay
     ncol = spec.ncol
     offset = 48.0 * W.sum(0)
-    signs = [c for c, (_, signed) in enumerate(efields) if signed]
-    ecols = [j for j, _ in efields]
+    # dense where the layout allows (every field signed, every one with a signed exponent:
+    # the usual %e table), else by the fields' indices
+    all_slots = sfield == list(range(ncol))
+    all_exps = [j for j, _ in efields] == list(range(ncol)) and len(esigns) == ncol
     rows = np.empty((nlines, ncol))
     # in slices of rows: every temporary (the float copy of a slice's bytes, ~1 MB, the
     # largest) stays in the heap and in cache (numerics/allocator.py)
@@ -353,8 +358,10 @@ def _parse_fixed(block: bytes, spec: TableSpec, nlines: int, comma: bool) -> Opt
         B = A[r:r + step]
         if not ((B - lo) <= width).all():      # uint8: a byte below lo wraps above any width
             return None
-        S, E = B[:, slots], B[:, esigns]
-        if not (((S == 32) | (S == 43) | (S == 45)).all() and ((E == 43) | (E == 45)).all()):
+        # signs: +1 or -1 for ' ', '+' or '-', NaN for any other byte (refused)
+        sg = _SIGN[B[:, slots]]
+        es = _SIGN[B[:, esigns]]
+        if np.isnan(sg).any():
             return None
         # the digits' bytes (48 + digit) times powers of ten, summed: every product and
         # partial sum an integer below 2**53 (at most 15 digits), so exact in any order
@@ -362,21 +369,33 @@ def _parse_fixed(block: bytes, spec: TableSpec, nlines: int, comma: bool) -> Opt
         MX = B[:, a:b].astype(np.float64) @ W
         MX -= offset
         out = rows[r:r + step]
-        if efields:
-            ex = MX[:, ncol:]
-            if signs:
-                ex[:, signs] *= 44.0 - E         # '+' 43 -> +1, '-' 45 -> -1
-            k = np.broadcast_to(-frac, out.shape).copy()
-            k[:, ecols] += ex
-            if not (k.min() >= -22 and k.max() <= 22):
-                return None
-            i = (k + 22).astype(np.intp)
-            np.multiply(MX[:, :ncol], _P_MUL[i], out=out)
-            out /= _P_DIV[i]
+        if all_exps:
+            k = MX[:, ncol:] * es
+            k -= frac
         else:
-            np.divide(MX, _P_DIV[22 - frac.astype(np.intp)], out=out)
-        if slots:
-            out[:, sfield] *= np.where(S == 45, -1.0, 1.0)
+            k = np.broadcast_to(-frac, out.shape).copy()
+            ei = 0
+            for c, (j, signed) in enumerate(efields):
+                ex = MX[:, ncol + c]
+                if signed:
+                    ex = ex * es[:, ei]
+                    ei += 1
+                k[:, j] += ex
+        lo_k, hi_k = k.min(), k.max()
+        if not (lo_k >= -22 and hi_k <= 22):    # also NaN: an exponent sign not + or -
+            return None
+        i = (k + 22).astype(np.intp)
+        # m * 10**k, or m / 10**-k: one rounding of exact operands (a sign, +-1, is exact)
+        M = MX[:, :ncol]
+        if all_slots:
+            np.multiply(M, sg, out=out)
+        else:
+            out[:] = M
+            if slots:
+                out[:, sfield] *= sg
+        if hi_k > 0:
+            out *= _P_MUL[i]
+        out /= _P_DIV[i]
     return rows
 
 

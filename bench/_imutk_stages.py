@@ -48,8 +48,8 @@ def main(path: str) -> dict:
     cal, chip, infl = offline._fit_accel(args, rec, poses, pieces, poses.detector, "triangular9", None)
     _mark()
     tf = fit_thermal("accel", pieces, cal, chip, infl, args.thermal_min_span, args.seed)
-    json.dumps(offline._calibrate_json("accel", cal, poses.detector, rec, None, None,
-                                       offline.file_part(cal, tf, None), tf))
+    # the file's part is made only for -o (or the gyro, or plots): not here, as in the command
+    json.dumps(offline._calibrate_json("accel", cal, poses.detector, rec, None, None, None, tf))
     _mark()
     names = ["numpy import", "parser + first imports", "reading", "pose detection",
              "fit imports", "fit", "thermal + JSON"]

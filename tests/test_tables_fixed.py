@@ -114,3 +114,23 @@ def test_layouts_it_must_refuse(body):
     """Blocks the fixed path must leave to the tokenizer (None), whatever they hold."""
     n = body.count(b"\n") + (0 if body.endswith(b"\n") else 1)
     assert _parse_fixed(body, _spec(2, False), n, False) is None
+
+
+@pytest.mark.parametrize("chunk", [64, 700, 1 << 20])
+def test_blocks_read_in_place_keep_the_line_numbers(chunk, tmp_path):
+    """A fixed-width file read block by block (iter_blocks: whole blocks of one layout are
+    read in place, without the copy and the line count of the general path): the rows are
+    the reference parser's, and an error after them names its true line (breakage checked:
+    ``lineno += len(rows) - 1`` in iter_blocks names a line before 301 here, failing this
+    test at the chunk sizes that split the file, 64 and 700 bytes; at 1 MB the bad line is in
+    the one block, which the general path reads)."""
+    import io
+    from imucald.files.tables import iter_blocks
+    rng = np.random.default_rng(2)
+    v = np.column_stack([np.arange(300) * 0.01, rng.uniform(-2, 2, (300, 3))])
+    good = "".join("".join("%16.7e" % a for a in r) + "\n" for r in v).encode()
+    spec = _spec(4, False)
+    rows = np.concatenate(list(iter_blocks(io.BytesIO(good), spec, 1, 0, chunk_bytes=chunk)))
+    assert _same_bits(rows, _reference(good, spec))
+    with pytest.raises(UserError, match=r"^x.csv:301: "):
+        list(iter_blocks(io.BytesIO(good + b"   1.0 oops\n"), spec, 1, 0, chunk_bytes=chunk))

@@ -113,6 +113,19 @@ def iter_blocks(fh: BinaryIO, spec: TableSpec, lineno: int, offset: int, prev_t:
                                       f"(cut the damaged part)")
                 rest = buf
                 continue
+            rows = _fixed_lines(buf, cut, spec, prev_t)
+            if rows is not None:        # one fixed-width layout, read in place (no copy, no count)
+                if spec.tcol is not None:
+                    prev_t = rows[-1, spec.tcol]
+                yield rows
+                lineno += len(rows)
+                offset += cut
+                rest = buf[cut:]
+                if len(rest) > MAX_LINE_BYTES:
+                    spec.fail(lineno, f"line longer than {MAX_LINE_BYTES} bytes (from byte offset "
+                                      f"{offset}): not a text table; the file is binary or "
+                                      f"damaged (cut the damaged part)")
+                continue
             block, rest = buf[:cut], buf[cut:]
             if len(rest) > MAX_LINE_BYTES:
                 rest_ln = lineno + block.count(b"\n")
@@ -141,6 +154,20 @@ def iter_blocks(fh: BinaryIO, spec: TableSpec, lineno: int, offset: int, prev_t:
         offset += len(block)
         if not data:
             return
+
+
+def _fixed_lines(buf: bytes, cut: int, spec: TableSpec, prev_t: float) -> Optional[np.ndarray]:
+    """The rows of ``buf[:cut]`` (whole lines) when they are all of one fixed-width layout and
+    pass the checks, read in place; None otherwise (the caller then reads the block as any
+    other).  The layout's validation covers what the general path checks first: every byte
+    is one the layout allows (so ASCII, no CR, no comma but the layout's), and the line count
+    is the size over the line length."""
+    L = buf.find(b"\n", 0, cut) + 1
+    if L < 2 or cut % L:
+        return None
+    comma = spec.comma_only or b"," in buf[:L]
+    rows = _parse_fixed(buf, spec, cut // L, comma, cut)
+    return rows if rows is not None and _ok(rows, spec, prev_t) else None
 
 
 def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float,
@@ -330,14 +357,16 @@ def _fixed_layout(row: bytes, ncol: int, comma: bool):
     return lo, width, a, b, W, slots, sfield, esigns, efields, np.array(frac, float)
 
 
-def _parse_fixed(block: bytes, spec: TableSpec, nlines: int, comma: bool) -> Optional[np.ndarray]:
+def _parse_fixed(block: bytes, spec: TableSpec, nlines: int, comma: bool,
+                 size: Optional[int] = None) -> Optional[np.ndarray]:
     """The rows of a block of whole lines of one fixed-width layout (see above), to the bits
     numpy's tokenizer gives; None when the block is not such a layout (the caller then uses
-    the tokenizer)."""
-    L = block.find(b"\n") + 1
-    if L < 2 or len(block) != nlines * L:
+    the tokenizer).  ``size``: the block is ``block[:size]`` (read in place, not copied)."""
+    size = len(block) if size is None else size
+    L = block.find(b"\n", 0, size) + 1
+    if L < 2 or size != nlines * L:
         return None
-    A = np.frombuffer(block, np.uint8).reshape(nlines, L)
+    A = np.frombuffer(block, np.uint8, count=size).reshape(nlines, L)
     if not (A[:, -1] == 10).all():
         return None
     lay = _fixed_layout(block[:L - 1], spec.ncol, comma)

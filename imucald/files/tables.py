@@ -125,6 +125,9 @@ def iter_blocks(fh: BinaryIO, spec: TableSpec, lineno: int, offset: int, prev_t:
                     spec.fail(lineno, f"line longer than {MAX_LINE_BYTES} bytes (from byte offset "
                                       f"{offset}): not a text table; the file is binary or "
                                       f"damaged (cut the damaged part)")
+                if rest and fh.seekable():      # read again with the next block: no joining copy
+                    fh.seek(-len(rest), 1)
+                    rest = b""
                 continue
             block, rest = buf[:cut], buf[cut:]
             if len(rest) > MAX_LINE_BYTES:

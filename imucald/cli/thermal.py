@@ -4,7 +4,6 @@ enough temperature (fitting/thermal/terms.py chooses the order and says why), an
 can be run on the corrected data: the loop of README "Closing the loop")."""
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import List, Optional
 
 import numpy as np
@@ -83,6 +82,7 @@ def thermal_json(sensor: str, tf):
 def thermal_part(sensor: str, fit, tf):
     """The calibration part of ``fit`` with the thermal terms (its parameters then the
     ones at t_ref_c)."""
+    from dataclasses import replace             # with calibration's: only where a part is made
     from ..calibration import SensorCal
     sc = SensorCal.from_fit(fit)
     if tf is None:

@@ -6,11 +6,19 @@ imports, reading, pose detection, the fit's imports (numpy.random among them), t
 the thermal terms with the JSON.  The tree timed is the one on PYTHONPATH.  The stages run
 with the garbage collector on (``imucald.cli.offline.cmd_calibrate`` now pauses it for the
 command), so their sum is a little above the command's own time.
-Usage: python bench/_imutk_stages.py PATH/xsens_acc.mat
+Run it with ``OPENBLAS_NUM_THREADS=1``, as the CLI runs (it sets that before numpy's import;
+``bench/imutk.py --stages`` does): with a BLAS thread pool the spinning threads' CPU lands in
+whichever stage first calls BLAS.
+Usage: OPENBLAS_NUM_THREADS=1 python bench/_imutk_stages.py PATH/xsens_acc.mat
 """
 import json
+import os
 import sys
 import time
+
+#: the BLAS limited to one thread before numpy's import (run with OPENBLAS_NUM_THREADS=1)
+_ONE_BLAS_THREAD = (os.environ.get("OPENBLAS_NUM_THREADS") == "1"
+                    and os.environ.get("MKL_NUM_THREADS", "1") == "1")
 
 _C = time.process_time
 _T = [_C()]
@@ -29,6 +37,12 @@ def main(path: str) -> dict:
         ["calibrate", path, "--columns", "t,ax,ay,az", "--nominal-offset", "32768",
          "--nominal-scale", "4069.76", "--json"])
     check_args(args)
+    if _ONE_BLAS_THREAD:            # as cli/__init__.py says when it set it before numpy
+        try:
+            from imucald.numerics import blas
+            blas.ONE_THREAD = True
+        except ImportError:         # an older tree (--before): no such switch
+            pass
     from imucald.numerics import allocator as _malloc
     _malloc.tune()
     from imucald.fitting.inputs import load_input

@@ -53,10 +53,10 @@ GYRO = os.path.join(REAL, "xsens_gyro.mat")
 RAW = ["--columns", "t,ax,ay,az", "--nominal-offset", "32768", "--nominal-scale", "4069.76"]
 
 
-def run(argv, tree=None, cwd=None):
+def run(argv, tree=None, cwd=None, env_extra=None):
     """(wall s, CPU s of the child, stdout) of one command; ``tree``: the checkout whose
-    imucald it runs (PYTHONPATH and working directory)."""
-    env = dict(os.environ)
+    imucald it runs (PYTHONPATH and working directory); ``env_extra``: more variables."""
+    env = dict(os.environ, **(env_extra or {}))
     if tree is not None:
         env["PYTHONPATH"] = tree
     c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -119,7 +119,9 @@ def stages(rounds, before):
     got = {label: [] for label, _ in trees}
     for _ in range(rounds):
         for label, tree in trees:
-            got[label].append(json.loads(run(child, tree)[2]))
+            # one BLAS thread, as the CLI sets before numpy's import (cli/__init__.py): with
+            # a pool, its spinning threads' CPU lands in whichever stage first calls BLAS
+            got[label].append(json.loads(run(child, tree, env_extra={"OPENBLAS_NUM_THREADS": "1"})[2]))
     print(f"where the accelerometer command's CPU goes (ms, medians of {rounds} fresh processes):")
     names = list(got[trees[0][0]][0])
     print(f"{'stage':<24}" + "".join(f"{label:>11}" for label, _ in trees))

@@ -10,7 +10,9 @@ Breakage each test was checked against (restored after): the exponent's sign ign
 (``np.multiply(M, sg, out=out)`` with ``sg`` replaced by 1) fails it and
 ``test_fixed_width_tables_read_to_the_same_bits`` (any negative value); the sign slot allowed after a single separating
 space in whitespace tables (``or row[s - 2] in sep`` dropped) fails
-``test_layouts_it_must_refuse`` ("1.5 2.5" then "1.5-2.5", one token to the tokenizer).
+``test_layouts_it_must_refuse`` ("1.5 2.5" then "1.5-2.5", one token to the tokenizer);
+the einsum path's weights reversed (``w[::-1]``) fails the property test and the Xsens
+layout's ``[False]`` case (the matrix product's path, ``[True]``, still passes).
 """
 import numpy as np
 import pytest
@@ -20,6 +22,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E
 
 from imucald.errors import UserError  # noqa: E402
 from imucald.files.tables import TableSpec, _parse_fast, _parse_fixed, _parse_slow  # noqa: E402
+from imucald.numerics import blas  # noqa: E402
 
 FMTS = ["%15.7e", "%16.7e", "%+.3e", "%12.6f", "%10.3f", "%.4f", "%8.0f", "%14.6E", "%7.2f",
         "%.15e", "%.14e", "%22.15f", "%5.1f"]
@@ -73,22 +76,30 @@ def test_fixed_width_tables_read_to_the_same_bits(fmt, rows, sep, lead, crlf, da
         assert got is not None and _same_bits(got, ref)
         assert tok is not None and _same_bits(tok, ref)
     lines = body.replace(b"\r\n", b"\n")
-    fixed = _parse_fixed(lines, _spec(ncol, comma), rows, comma)
-    if fixed is not None:               # when it reads the block itself: the same bits
-        TAKEN.append(1)
-        assert _same_bits(fixed, _reference(lines, _spec(ncol, comma)))
+    one = blas.ONE_THREAD
+    try:
+        for blas.ONE_THREAD in (True, False):   # digits summed by a matrix product, by einsum
+            fixed = _parse_fixed(lines, _spec(ncol, comma), rows, comma)
+            if fixed is not None:       # when it reads the block itself: the same bits
+                TAKEN.append(blas.ONE_THREAD)
+                assert _same_bits(fixed, _reference(lines, _spec(ncol, comma)))
+    finally:
+        blas.ONE_THREAD = one
 
 
 def test_the_property_test_exercised_the_fixed_path():
     """Runs after the property test (file order): the fixed path read a good share of its
     tables itself (else that test compared the tokenizer with itself)."""
-    assert len(TAKEN) >= 100, len(TAKEN)
+    assert TAKEN.count(True) >= 100 and TAKEN.count(False) >= 100, len(TAKEN)
 
 
-def test_the_xsens_layout_is_read_by_the_fixed_path_to_the_same_bits():
+@pytest.mark.parametrize("one_thread", [True, False])
+def test_the_xsens_layout_is_read_by_the_fixed_path_to_the_same_bits(one_thread, monkeypatch):
     """The IMU-TK layout (MATLAB ``save -ascii``: ``%16.7e``), exponents of both signs,
     and its signed form (a '-' in the sign slot): read by the fixed-width path, not handed
-    to the tokenizer, and equal to it bit for bit."""
+    to the tokenizer, and equal to it bit for bit, the digits summed by a matrix product
+    (the BLAS at one thread: the CLI) or by einsum (numerics/blas.py)."""
+    monkeypatch.setattr(blas, "ONE_THREAD", one_thread)
     rng = np.random.default_rng(5)
     x = np.column_stack([np.arange(1, 400) * 0.0099873, rng.integers(0, 65536, (399, 3)).astype(float)])
     for v in (x, x - 32768.0, x * 1e-9):

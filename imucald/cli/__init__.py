@@ -24,6 +24,10 @@ from typing import List, Optional
 # Set before numpy is imported by any command (the daemon's calibration worker inherits it).
 for _v in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
+if "numpy" not in sys.modules and all(os.environ[_v] == "1" for _v in ("OPENBLAS_NUM_THREADS",
+                                                                      "MKL_NUM_THREADS")):
+    from ..numerics import blas as _blas
+    _blas.ONE_THREAD = True         # the fixed-width reader's matrix products (numerics/blas.py)
 
 from ..errors import EX_IOERR, EX_UNAVAILABLE, UserError, os_error_line
 from ._common import eprint

@@ -26,6 +26,7 @@ from typing import BinaryIO, Iterator, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..errors import UserError, snippet
+from ..numerics import blas
 
 __all__ = ["CHUNK_BYTES", "MAX_LINE_BYTES", "TableSpec", "iter_blocks", "decode_line", "collect",
            "warn"]
@@ -360,6 +361,20 @@ def _fixed_layout(row: bytes, ncol: int, comma: bool):
     return lo, width, a, b, W, slots, sfield, esigns, efields, np.array(frac, float)
 
 
+def _digit_sums(F: np.ndarray, W: np.ndarray, runs) -> np.ndarray:
+    """The digits' bytes ``F`` (48 + digit, as floats) times their powers of ten ``W``, summed
+    per output: every product and partial sum an integer below 2**53 (at most 15 digits), so
+    exact in any order (FMA or not).  By one matrix product when the BLAS runs one thread (the
+    CLI), else by numpy's einsum, one run of bytes at a time (numerics/blas.py: a BLAS thread
+    pool would spin)."""
+    if blas.ONE_THREAD:
+        return F @ W
+    MX = np.empty((len(F), len(runs)))
+    for c, (r0, r1, w) in enumerate(runs):
+        np.einsum("ij,j->i", F[:, r0:r1], w, out=MX[:, c])
+    return MX
+
+
 def _parse_fixed(block: bytes, spec: TableSpec, nlines: int, comma: bool,
                  size: Optional[int] = None) -> Optional[np.ndarray]:
     """The rows of a block of whole lines of one fixed-width layout (see above), to the bits
@@ -378,6 +393,9 @@ def _parse_fixed(block: bytes, spec: TableSpec, nlines: int, comma: bool,
     lo, width, a, b, W, slots, sfield, esigns, efields, frac = lay
     ncol = spec.ncol
     offset = 48.0 * W.sum(0)
+    # each output (a field's digits, an exponent's) is the weighted sum of one run of bytes
+    runs = [(nz[0], nz[-1] + 1, W[nz[0]:nz[-1] + 1, c].copy())
+            for c, nz in enumerate(np.flatnonzero(W[:, c]) for c in range(W.shape[1]))]
     # dense where the layout allows (every field signed, every one with a signed exponent:
     # the usual %e table), else by the fields' indices
     all_slots = sfield == list(range(ncol))
@@ -395,10 +413,7 @@ def _parse_fixed(block: bytes, spec: TableSpec, nlines: int, comma: bool,
         es = _SIGN[B[:, esigns]]
         if np.isnan(sg).any():
             return None
-        # the digits' bytes (48 + digit) times powers of ten, summed: every product and
-        # partial sum an integer below 2**53 (at most 15 digits), so exact in any order
-        # (BLAS, FMA)
-        MX = B[:, a:b].astype(np.float64) @ W
+        MX = _digit_sums(B[:, a:b].astype(np.float64), W, runs)
         MX -= offset
         out = rows[r:r + step]
         if all_exps:

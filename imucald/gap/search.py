@@ -272,11 +272,18 @@ class Search(MemberTests):
             m.e, m.nrms, m.twin, m.q99 = gp["heldout"], gp["nrms"], gp["twin"], gp["twin_q99"]
             m.q_walk, m.gp = gp["q"], gp
             m.member_p[WALK] = gp["p_value"]
+        # the residual degrees of freedom the fit's excess scale was estimated on (its
+        # covariance is scaled by chi2 / (N - coefficients), gap/norm.py refit_with): below
+        # MIN_DOF that scale is itself a rough estimate and each member's Wald statistic is
+        # referred to F(rank, dof), for every model the search meets (a pair's entry, a step
+        # that adds or changes a variant, the backward check, the report), not at entry only
+        dof = N - len(m.z)
+        short = bool(cands) and not walk and dof < MIN_DOF and m.chi2 > dof
         o = p0
         for c in cands:
             q = c.q
             Ca, za = m.cov[o:o + q, o:o + q], m.z[o:o + q]
-            m.member_p[c.name] = wald_p(za, Ca)
+            m.member_p[c.name] = _member_p(za, Ca, dof if short else None)
             o += q
         return m
 
@@ -514,35 +521,29 @@ def _pair_entries(s, base, variants, bonf) -> list:
                 continue
             for v1 in variants[c1]:
                 for v2 in variants[c2]:
-                    short = not s.dof_ok((v1, v2), False, entry=True)
-                    if short and s.b.p0 + s.vis_q[id(v1)] + s.vis_q[id(v2)] > s.b.n - PAIR_ENTRY_MIN_DOF:
+                    # one count of the room left: the residual degrees of freedom that scale
+                    # the Wald covariance (N minus every coefficient, as in Search._fit), which
+                    # are also the F reference's denominator below MIN_DOF
+                    if s.b.n - s.b.p0 - v1.q - v2.q < PAIR_ENTRY_MIN_DOF:
                         continue
                     m = s.fit((v1, v2), False)
                     if m is None or not (m.nrms < base.nrms and m.excess < base.excess) \
                             or max(m.member_p[c1], m.member_p[c2]) >= bonf:
-                        continue
-                    if short and max(_f_member_p(s, m)) >= bonf:
-                        # with few residual degrees of freedom the excess scale that widens the
-                        # Wald covariance is itself an estimate on those few: the exact
-                        # reference of the statistic is F, not chi-square
                         continue
                     if all(s.passes(*t) for t in s.tests(m).values()):
                         moves.append(m)
     return moves
 
 
-def _f_member_p(s, m) -> List[float]:
-    """Each fixed member's Wald p-value against F(rank, dof) (gap/signif.wald_f_p), dof the
-    residual degrees of freedom N - (coefficients) that the covariance's excess scale was
-    estimated on; the chi-square figure where the scale is 1 (no excess: the covariance is
-    the noise's, known)."""
-    dof = s.b.n - len(m.z)
-    out, o = [], s.b.p0
-    for c in m.cands:
-        za, Ca = m.z[o:o + c.q], m.cov[o:o + c.q, o:o + c.q]
-        out.append(wald_f_p(za, Ca, dof) if m.chi2 > dof > 0 else m.member_p[c.name])
-        o += c.q
-    return out
+def _member_p(za: np.ndarray, Ca: np.ndarray, dof: Optional[int]) -> float:
+    """A fixed member's Wald p-value: against chi-square when its covariance is the noise's
+    (``dof`` None: no excess scale, or one estimated on MIN_DOF or more residual degrees of
+    freedom), against F(rank, dof) when the covariance was scaled by a residual chi-square over
+    ``dof`` < MIN_DOF (gap/signif.wald_f_p); 1 when the fit leaves no residual degree of
+    freedom to estimate that scale on (nothing about its members can be tested)."""
+    if dof is None:
+        return wald_p(za, Ca)
+    return wald_f_p(za, Ca, dof) if dof > 0 else 1.0
 
 
 def _end_key(m):

@@ -196,6 +196,37 @@ def distinct_samples(rec: Recording) -> Recording:
                      temp=pick(rec.temp), meta=dict(rec.meta, rate_hz=f"{rep.rate_hz:.6g}"))
 
 
+_AXES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
+
+
+def _dead_columns(rec: Recording, sensors: Sequence[str], name: str, notes: List[str]) -> List[str]:
+    """The sensors left to diagnose once those with a column that holds one value in every
+    sample (a dead or stuck axis, a column mapped to nothing) are set aside, each with a note
+    naming its column; a GapError when none is left.  Such a column has no noise to build a
+    twin from (its pose means' variance is 0: the fit's weights divided by zero raised a bare
+    LinAlgError) and no calibration to diagnose."""
+    have = {"accel": rec.acc, "gyro": rec.gyro, "mag": rec.mag}
+    left, why = [], []
+    for s in sensors:
+        x = np.asarray(have[s], float)
+        dead = []
+        for k in range(x.shape[1]):
+            col = x[:, k][np.isfinite(x[:, k])]
+            if col.size == 0 or np.all(col == col[0]):
+                dead.append(f"{_AXES[s][k]} ({'no finite value' if col.size == 0 else f'always {col[0]:g}'})")
+        if dead:
+            msg = (f"{s}: column {', '.join(dead)} holds one value in every sample: a dead or stuck axis "
+                   f"or a column mapped to nothing (check the sensor's wiring and the file's columns, "
+                   f"--columns)")
+            why.append(msg)
+            notes.append(msg + f"; {s} not diagnosed")
+        else:
+            left.append(s)
+    if not left:
+        raise GapError(f"{name}: {'; '.join(why)}: nothing left to diagnose")
+    return left
+
+
 def _sensors_asked(rec: Recording, sensors: Optional[Sequence[str]], name: str) -> List[str]:
     """The sensors to diagnose: the ones asked for (each must be in the recording) or all present."""
     avail = [s for s, a in (("accel", rec.acc), ("gyro", rec.gyro), ("mag", rec.mag)) if a is not None]
@@ -276,10 +307,17 @@ def pose_setup(rec: Recording, sl: List[slice], ps: PoseSet) -> PoseSetup:
 def _quant_floor(x: np.ndarray, slices) -> tuple:
     """Per axis (C,): the variance of a pose mean's quantisation offset, from the LSB seen in
     the data and the noise before the quantiser (fitting/noise/posefloor.py); and a summary."""
+    # float64 first: a float32 column's held values show a variance at float32's rounding,
+    # far above the "held" threshold below (a float32 held column crashed as a float64 one did)
+    x = np.asarray(x, float)
     lsb = estimate_lsb(x, slices)
-    v = np.median([x[s].var(0, ddof=1) for s in slices if s.stop - s.start > 1], axis=0)
+    many = [x[s] for s in slices if s.stop - s.start > 1]
+    if not many:
+        return np.zeros(x.shape[1]), {"lsb": lsb.tolist()}
+    # the median over the poses whose variance is defined (a NaN in a pose is not a variance)
+    v = np.nanmedian([p.var(0, ddof=1) for p in many], axis=0)
     # "held": a variance at the float rounding of the values (a grid of 1/14.375 is not exact)
-    flat = (lsb == 0) & ~(v > (1e-9 * np.max(np.abs(x), axis=0)) ** 2)
+    flat = (lsb == 0) & ~(v > (1e-9 * np.nanmax(np.abs(x), axis=0)) ** 2)
     if np.any(flat):
         # a column held at one value inside (nearly) every pose (noise far below the LSB: an
         # un-dithered gyro at 14.375 LSB/dps read at 25 Hz) shows no spacing inside the poses;
@@ -425,16 +463,23 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         for s in sensors or ["mag"]:
             if s != "mag":
                 raise GapError(f"{name}: --sensor {s}: the recording has no {s} columns")
+        _dead_columns(rec, ["mag"], name, [])
         return _mag_only(rec, sims, rng, name)
     sensors = _sensors_asked(rec, sensors, name)
+    dead_notes: List[str] = []
+    sensors = _dead_columns(rec, sensors, name, dead_notes)
     rate = rec.rate_hz
     sl = split_at_time_gaps(rec.t, rec.acc, detect_static(rec.t, rec.acc, rec.gyro, rate_hz=rate), rate)
     ps = poses_from_slices(rec, sl)
     N = len(ps)
     n_orient = int(orientation_groups(ps.acc).max()) + 1 if N else 0
     if N < MIN_POSES or n_orient < MIN_ORIENTATIONS:
-        return _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient)
+        res = _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient)
+        if dead_notes:
+            res["notes"] = dead_notes + list(res.get("notes", []))
+        return res
     u = pose_setup(rec, sl, ps)
+    u.notes[:0] = dead_notes
     result: Dict[str, object] = {"sensors": {}, "poses_found": N,
                                  "poses_left_out": np.flatnonzero(u.bad).tolist() if u.keep.sum() < N else []}
     if "accel" in sensors:

@@ -200,3 +200,58 @@ def test_gyro_held_inside_every_pose_gets_its_quantisation_floor():
     # the held value is the same in every pose (Earth's rate and the bias do not move it
     # across a step), so the twin's floor is pessimistic here: no gap is declared
     assert r["verdict"] == "none", r["verdict"]
+
+
+def test_float32_held_gyro_gets_the_same_quantisation_floor():
+    """The held gyro above read as float32 (a logger's native type): its held values' variance
+    sits at float32's rounding, far above the float64 "held" threshold, so the column was not
+    seen as held and the fit's weights divided by zero again (LinAlgError). Its floor must be
+    the float64 column's to float32's resolution; seen to fail with the float64 conversion in
+    gap/diagnose.py _quant_floor removed."""
+    from imucald.gap.diagnose import diagnose
+    from .blindgen2 import make_case
+    rec, lab = make_case("null_flicker", 4012)
+    rec.gyro = rec.gyro.astype(np.float32)
+    r = diagnose(rec, sensors=["gyro"], sims=50, seed=4012)["sensors"]["gyro"]
+    q = r["noise_colour"]["pose_mean_variance"]["quantisation"]
+    # float32 carries 24 bits: a grid of 1/14.375 dps read from values up to ~20 dps is off
+    # by at most a few 1e-7 relative
+    assert np.allclose(q["lsb"], 1 / 14.375, rtol=1e-5), q
+    assert r["verdict"] == "none", r["verdict"]
+
+
+@pytest.fixture(scope="module")
+def dead_gz(tmp_path_factory):
+    d = tmp_path_factory.mktemp("dead")
+    src = d / "s.csv"
+    assert main(["simulate", "-o", str(src), "--seed", "3", "--poses", "20"]) == 0
+    lines = src.read_text().splitlines()
+    hi = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    k = lines[hi].split(",").index("gz")
+    out = lines[:hi + 1]
+    for ln in lines[hi + 1:]:
+        f = ln.split(",")
+        f[k] = "0.0"
+        out.append(",".join(f))
+    dead = d / "dead_gz.csv"
+    dead.write_text("\n".join(out) + "\n")
+    return dead
+
+
+def test_a_dead_gyro_axis_is_named_not_a_traceback(dead_gz):
+    """A gyro z column that reads 0.0 in every sample (a dead axis or a column mapped to
+    nothing): `imucald gap FILE` set the whole pose path's gyro weights to 1/0 and ended in a
+    bare LinAlgError traceback (exit 1). Now the gyro is set aside with a note naming gz and
+    the accelerometer is still diagnosed; asked for the gyro alone, one JSON error line, exit
+    2 (docs/reference/exit-codes.md). Seen to fail with gap/diagnose.py _dead_columns' call
+    removed (a traceback, exit 1)."""
+    p = subprocess.run([sys.executable, "-m", "imucald.cli", "gap", str(dead_gz), "--sims", "30"],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert "accel: verdict" in p.stdout and "gz (always 0)" in p.stdout and "gyro not diagnosed" in p.stdout
+    assert "Traceback" not in p.stderr
+    p = subprocess.run([sys.executable, "-m", "imucald.cli", "gap", str(dead_gz), "--sensor", "gyro", "--json"],
+                       capture_output=True, text=True)
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    err = json.loads(p.stdout)
+    assert err["exit_code"] == 2 and "gz (always 0)" in err["error"] and str(dead_gz) in err["error"]

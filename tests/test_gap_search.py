@@ -174,7 +174,7 @@ def test_short_pair_entry_names_no_spurious_pair(kind, seed):
     tests referred to F(rank, dof): development seeds (not the bench's) where, with the
     chi-square reference, a thermal pair soaked up a lone nonlinearity's misfit (nonlinearity
     2004, 24 poses: "thermal_bias+thermal_scale") and a cubic's (cubic 2018, 27 poses:
-    "thermal_bias+thermal_scale"); seen to fail with gap/search.py _f_member_p returning the
+    "thermal_bias+thermal_scale"); seen to fail with gap/search.py _member_p returning the
     chi-square figures. No thermal form is named on either (both are "unexplained")."""
     from imucald.gap.diagnose import diagnose
     from .blindgen2 import make_case
@@ -195,3 +195,45 @@ def test_f_tail_matches_scipy():
             for f in (0.05, 0.7, 1.0, 2.5, 8.0, 40.0, 400.0):
                 ref = st.f.sf(f, d1, d2)
                 assert f_sf(f, d1, d2) == pytest.approx(ref, rel=1e-9, abs=1e-300), (f, d1, d2)
+
+
+def test_every_short_model_is_judged_by_f_not_the_entry_only(monkeypatch):
+    """pair_nl_thermal 2001 (22 poses): the 6-term nonlinearity with the thermal bias leaves 4
+    residual degrees of freedom and its F p-values (8.9e-3, 3.3e-2) fail the Bonferroni level,
+    so that pair cannot enter; the 3-term pair enters at 7. One step later the search took
+    "nonlinearity: 3 -> 6 coefficients" on the chi-square p-values (1e-18, 1.2e-5) and named
+    the 4-dof model the entry had rejected, reporting those p-values. Every fitted model
+    without the walk that leaves fewer than MIN_DOF (N minus all its coefficients) must carry
+    its members' F p-values, and the verdict is the 3-term pair. Seen to fail with
+    gap/search.py Search._fit's F reference switched off (short = False: chi-square p-values
+    for every model, as main 346145d had them after the entry)."""
+    from imucald.gap import search as S
+    from imucald.gap.diagnose import diagnose
+    from imucald.gap.signif import wald_f_p
+    from .blindgen2 import make_case
+    fits = []
+    orig = S.Search._fit
+
+    def spy(self, cands, walk):
+        m = orig(self, cands, walk)
+        if m is not None:
+            fits.append((self.b.n, m))
+        return m
+    monkeypatch.setattr(S.Search, "_fit", spy)
+    rec, lab = make_case("pair_nl_thermal", 2001)
+    r = diagnose(rec, sims=100, seed=2001)["sensors"]["accel"]
+    short = 0
+    for n, m in fits:
+        dof = n - len(m.z)
+        if m.walk or not m.cands or dof >= S.MIN_DOF or m.chi2 <= dof:
+            continue
+        short += 1
+        o = len(m.z) - sum(c.q for c in m.cands)
+        for c in m.cands:
+            f = wald_f_p(m.z[o:o + c.q], m.cov[o:o + c.q, o:o + c.q], dof)
+            assert m.member_p[c.name] == pytest.approx(f, rel=1e-12), (c.name, c.q, dof)
+            o += c.q
+    assert short >= 2, "no model below MIN_DOF met: the case no longer tests the rule"
+    assert set(r["verdict"].split("+")) == {"nonlinearity", "thermal_bias"}, r["verdict"]
+    assert {m["name"]: m["coefficients"] for m in r["search"]["members"]} == {"nonlinearity": 3, "thermal_bias": 3}
+    _disciplined(r)

@@ -4,12 +4,13 @@ signatures, chi-square p-values with their log10, and trend correlations."""
 from __future__ import annotations
 
 import math
+from typing import Tuple
 
 import numpy as np
 
-from ..numerics.tails import chi2_logsf, norm_sf2
+from ..numerics.tails import chi2_logsf, f_sf, norm_sf2
 
-__all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p", "f_sf", "wald_p"]
+__all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p", "f_sf", "wald_p", "wald_f_p"]
 
 
 def proj_sig(J, C, w, lam=None):
@@ -53,53 +54,17 @@ def p_and_log10(stat, dof):
     return math.exp(lp), lp / math.log(10)
 
 
+def _wald_stat(z: np.ndarray, C: np.ndarray) -> Tuple[float, int]:
+    """z' C^+ z and C's numerical rank (at least 1)."""
+    wald = float(z @ np.linalg.pinv(C, rcond=1e-10, hermitian=True) @ z)
+    rank = int(np.linalg.matrix_rank(C, tol=1e-10 * max(np.abs(C).max(), 1e-300)))
+    return wald, max(rank, 1)
+
+
 def wald_p(z: np.ndarray, C: np.ndarray) -> float:
     """p-value of the Wald test that coefficients ``z`` with covariance ``C`` are zero:
     z' C^+ z against chi-square on C's numerical rank (at least 1)."""
-    wald = float(z @ np.linalg.pinv(C, rcond=1e-10, hermitian=True) @ z)
-    rank = int(np.linalg.matrix_rank(C, tol=1e-10 * max(np.abs(C).max(), 1e-300)))
-    return p_and_log10(wald, max(rank, 1))[0]
-
-
-def _betacf(a: float, b: float, x: float) -> float:
-    """The continued fraction of the regularised incomplete beta function (Abramowitz and
-    Stegun 26.5.8), evaluated by the modified Lentz method."""
-    tiny, qab, qap, qam = 1e-300, a + b, a + 1.0, a - 1.0
-    c, d = 1.0, 1.0 - qab * x / qap
-    d = 1.0 / (d if abs(d) > tiny else tiny)
-    h = d
-    for m in range(1, 400):
-        m2 = 2 * m
-        for aa in (m * (b - m) * x / ((qam + m2) * (a + m2)),
-                   -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))):
-            d = 1.0 + aa * d
-            d = 1.0 / (d if abs(d) > tiny else tiny)
-            c = 1.0 + aa / c
-            c = c if abs(c) > tiny else tiny
-            h *= d * c
-        if abs(d * c - 1.0) < 1e-15:
-            break
-    return h
-
-
-def _betainc(a: float, b: float, x: float) -> float:
-    """Regularised incomplete beta function I_x(a, b)."""
-    if x <= 0.0:
-        return 0.0
-    if x >= 1.0:
-        return 1.0
-    lbt = math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
-    if x < (a + 1.0) / (a + b + 2.0):
-        return math.exp(lbt) * _betacf(a, b, x) / a
-    return 1.0 - math.exp(lbt) * _betacf(b, a, 1.0 - x) / b
-
-
-def f_sf(f: float, d1: float, d2: float) -> float:
-    """Upper tail P(F > f) of Fisher's F distribution with (d1, d2) degrees of freedom:
-    I_{d2 / (d2 + d1 f)}(d2 / 2, d1 / 2) (Abramowitz and Stegun 26.6.2)."""
-    if f <= 0.0:
-        return 1.0
-    return _betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f))
+    return p_and_log10(*_wald_stat(z, C))[0]
 
 
 def wald_f_p(z: np.ndarray, C: np.ndarray, dof: int) -> float:
@@ -108,8 +73,7 @@ def wald_f_p(z: np.ndarray, C: np.ndarray, dof: int) -> float:
     same residuals): the statistic over C's rank follows F(rank, dof), not chi-square over
     rank (the scale is itself an estimate on ``dof`` degrees of freedom; with the few that a
     pair on 22 poses leaves, the chi-square reference understates p by orders of magnitude)."""
-    wald = float(z @ np.linalg.pinv(C, rcond=1e-10, hermitian=True) @ z)
-    rank = max(int(np.linalg.matrix_rank(C, tol=1e-10 * max(np.abs(C).max(), 1e-300))), 1)
+    wald, rank = _wald_stat(z, C)
     return f_sf(wald / rank, rank, max(dof, 1))
 
 

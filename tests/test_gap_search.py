@@ -160,8 +160,9 @@ def test_blind_thermal_bias_named_alone(seed, step):
     back to 3 terms was judged only against the 3-term thermal bias, not against the 6-term one
     it left; seen to fail without the held-out test against the current model in
     gap/search.py _add_moves ("thermal_bias+nonlinearity").
-    Seed 2027 (23 poses): the 6-term thermal bias cannot enter alone (10 residual degrees of
-    freedom), the 3-term one leaves curvature and a walk joined it; seen to fail with
+    Seed 2027 (23 poses): the 6-term thermal bias cannot enter alone (beside the 9 baseline
+    parameters it leaves 8 residual degrees of freedom, below the 10 a single effect needs),
+    the 3-term one leaves curvature and a walk joined it; seen to fail with
     _variant_moves held to that room (dof_ok without ``refine``: "thermal_bias+wandering_bias")."""
     from imucald.gap.diagnose import diagnose
     from .blindgen2 import make_case

@@ -60,9 +60,10 @@ __all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "WALK"]
 #: meaning); a nonlinearity (7 visible coefficients) with a thermal bias (3) on 22 poses leaves 3
 SEARCH_MIN_DOF = 3
 MIN_DOF = 10           #: residual degrees of freedom a candidate fit alone must leave
-#: residual degrees of freedom a pair entering together may leave below MIN_DOF, its members'
-#: Wald tests then referred to F(rank, dof) (_pair_entries): a full-quadratic nonlinearity (7
-#: visible coefficients) or a 6-term one beside a thermal bias on 22-25 poses leaves 6-9
+#: residual degrees of freedom (N minus all its coefficients) a pair entering together may leave
+#: below MIN_DOF, its members' Wald tests then referred to F(rank, dof) as every model's below
+#: MIN_DOF are (Search._fit, _pair_entries): a 3-term nonlinearity and a 3-term thermal bias
+#: beside the 9 baseline parameters leave 7-9 on 22-24 poses (a 6-term nonlinearity with them 4-6)
 PAIR_ENTRY_MIN_DOF = 6
 MAX_STEPS = 8
 #: effects named together at most (the walk counts): with 22-35 poses a third effect's tests
@@ -188,11 +189,14 @@ class Search(MemberTests):
             self.B = self.K = None
 
     def dof_ok(self, cands, walk, entry=False, refine=False) -> bool:
-        """Room for the model: its coefficients (visible counts) leave MIN_DOF residual degrees
-        of freedom when it holds one effect or is a first step (``entry``: a pair entering
-        together), SEARCH_MIN_DOF for a second member added to a first or for another variant
-        of a member already named (``refine``: its class passed both tests with room to spare;
-        the richer variant must also beat it on held-out poses, _variant_moves)."""
+        """Room for the model, in visible coefficients (what the score tests see): N minus them
+        at least MIN_DOF when it holds one effect or is a first step (``entry``), at least
+        SEARCH_MIN_DOF for a second member added to a first or for another variant of a member
+        already in the model (``refine``, even when that member is alone: its class has passed
+        both tests, and the new variant must also beat the model it replaces on held-out
+        poses, _variant_moves). Below MIN_DOF counted in all coefficients, every member's Wald
+        test is referred to F (Search._fit), so a refined single effect with 3-9 residual
+        degrees of freedom is judged at the level its few dof allow."""
         used = self.b.p0 + sum(self.vis_q[id(c)] for c in cands) + (1 if walk else 0)
         if entry:
             return used <= self.b.n - MIN_DOF
@@ -376,7 +380,12 @@ def _add_moves(s, cur, variants, visited, bonf) -> list:
 
 
 def _variant_moves(s, cur, variants, visited) -> list:
-    """Another variant of a member, every member still passing."""
+    """Another variant of a member: taken when the new model leaves less to explain, every
+    member passes its coefficient test (F below MIN_DOF, Search._fit) and held-out test, and
+    the held-out ratio falls from ``cur`` to it by more than on re-simulations of ``cur``
+    (heldout_p(cur, m) < GAP_HELDOUT_LEVEL). For a simpler variant (6 -> 3 terms) that test
+    runs with ``cur`` the richer model: the simpler one must predict significantly better to
+    replace it, so a richer variant, once in, is rarely cut back."""
     moves = []
     for c in cur.cands:
         for v in variants.get(c.name, []):
@@ -506,8 +515,9 @@ def walk_sensitivity(b) -> np.ndarray:
 
 def _pair_entries(s, base, variants, bonf) -> list:
     """Two fixed-form classes entering together from the baseline (each variant pair that
-    leaves what a first step must, MIN_DOF, or down to PAIR_ENTRY_MIN_DOF with its members'
-    Wald tests referred to F: with 3 or 4 and the chi-square reference, pairs fitted the
+    leaves at least PAIR_ENTRY_MIN_DOF residual degrees of freedom, N minus all its
+    coefficients, its members' Wald tests referred to F below MIN_DOF as for every model,
+    Search._fit: with 3 or 4 and the chi-square reference, pairs fitted the
     per-pose random biases of the blind generator's vibration rectification, and with 6 a
     cubic's or a lone nonlinearity's misfit): two strong effects can each fail alone, every single's coefficient
     test weakened by the excess the other leaves (its covariance is scaled by it) or its

@@ -180,7 +180,7 @@ def test_short_pair_entry_names_no_spurious_pair(kind, seed):
     tests referred to F(rank, dof): development seeds (not the bench's) where, with the
     chi-square reference, a thermal pair soaked up a lone nonlinearity's misfit (nonlinearity
     2004, 24 poses: "thermal_bias+thermal_scale") and a cubic's (cubic 2018, 27 poses:
-    "thermal_bias+thermal_scale"); seen to fail with gap/search.py _member_p returning the
+    "thermal_bias+thermal_scale"); seen to fail with gap/signif.py scaled_wald_p returning the
     chi-square figures. No thermal form is named on either (both are "unexplained")."""
     from imucald.gap.diagnose import diagnose
     from .blindgen2 import make_case

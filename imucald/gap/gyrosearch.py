@@ -12,8 +12,9 @@ rate included), the same draws for every model (common random numbers).
 Each member m of M is tested twice and is named only when it passes both:
 
 * **coefficients**: a Wald test, beta_m' Cov_m^+ beta_m against chi-square with the visible
-  rank, the covariance scaled by the excess scatter M leaves (chi2 / residual dof, at least
-  1), at GAP_ATTRIBUTION_LEVEL split over the search's member tests (:func:`coef_level`);
+  rank (F(rank, dof) below MIN_DOF residual dof, where the scale is a rough estimate), the
+  covariance scaled by the excess scatter M leaves (chi2 / residual dof, at least 1), at
+  GAP_ATTRIBUTION_LEVEL split over the search's member tests (:func:`coef_level`);
 * **held-out shrink**: the fall in the held-out ratio (held-out RMS over the model's own
   twin median, floored at 1) from M without m to M, against the same fall on the noise
   draws (on which m is absent: signals in the smaller model's span leave both models'
@@ -41,7 +42,7 @@ import numpy as np
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL
 from .candidates import TRACELESS, Candidate, kron_cols
 from .search import MAX_MEMBERS, MIN_DOF, SEARCH_MIN_DOF, MemberTests, take_move
-from .signif import wald_p
+from .signif import scaled_wald_p
 
 __all__ = ["gyro_stepwise", "coef_level", "GyroFit", "HELDOUT_SIMS", "THERMAL_CURVED"]
 
@@ -169,9 +170,12 @@ class GyroSearch(MemberTests):
         m = GyroFit(tuple(cands), beta[:, 0], cov, r0, e0, chi2, float(dof),
                     float(np.sqrt(np.mean(e0 ** 2))), np.sqrt(np.mean(e[:, 1:] ** 2, axis=0)))
         o = b.X0.shape[1]
+        # below MIN_DOF the excess scale (chi2 / dof) is a rough estimate: each member's Wald
+        # statistic against F(rank, dof), as on the norm path (gap/search.py Search._fit)
+        short = dof < MIN_DOF and chi2 > dof
         for c in cands:
             Ca, za = cov[o:o + c.q, o:o + c.q], m.beta[o:o + c.q]
-            m.member_p[c.name] = wald_p(za, Ca)
+            m.member_p[c.name] = scaled_wald_p(za, Ca, int(dof) if short else None)
             o += c.q
         return m
 

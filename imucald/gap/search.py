@@ -49,7 +49,7 @@ import numpy as np
 
 from ..fitting.judging.heldout import hat_diag, numjac
 from ..fitting.judging.levels import GAP_HELDOUT_LEVEL
-from .signif import wald_f_p, wald_p
+from .signif import scaled_wald_p
 from .wander import random_walk_fit, walk_kernel
 
 __all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "WALK"]
@@ -287,7 +287,7 @@ class Search(MemberTests):
         for c in cands:
             q = c.q
             Ca, za = m.cov[o:o + q, o:o + q], m.z[o:o + q]
-            m.member_p[c.name] = _member_p(za, Ca, dof if short else None)
+            m.member_p[c.name] = scaled_wald_p(za, Ca, dof if short else None)
             o += q
         return m
 
@@ -543,17 +543,6 @@ def _pair_entries(s, base, variants, bonf) -> list:
                     if all(s.passes(*t) for t in s.tests(m).values()):
                         moves.append(m)
     return moves
-
-
-def _member_p(za: np.ndarray, Ca: np.ndarray, dof: Optional[int]) -> float:
-    """A fixed member's Wald p-value: against chi-square when its covariance is the noise's
-    (``dof`` None: no excess scale, or one estimated on MIN_DOF or more residual degrees of
-    freedom), against F(rank, dof) when the covariance was scaled by a residual chi-square over
-    ``dof`` < MIN_DOF (gap/signif.wald_f_p); 1 when the fit leaves no residual degree of
-    freedom to estimate that scale on (nothing about its members can be tested)."""
-    if dof is None:
-        return wald_p(za, Ca)
-    return wald_f_p(za, Ca, dof) if dof > 0 else 1.0
 
 
 def _end_key(m):

@@ -4,13 +4,13 @@ signatures, chi-square p-values with their log10, and trend correlations."""
 from __future__ import annotations
 
 import math
-from typing import Tuple
+from typing import Optional, Tuple
 
 import numpy as np
 
 from ..numerics.tails import chi2_logsf, f_sf, norm_sf2
 
-__all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p", "f_sf", "wald_p", "wald_f_p"]
+__all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p", "f_sf", "wald_p", "wald_f_p", "scaled_wald_p"]
 
 
 def proj_sig(J, C, w, lam=None):
@@ -75,6 +75,18 @@ def wald_f_p(z: np.ndarray, C: np.ndarray, dof: int) -> float:
     pair on 22 poses leaves, the chi-square reference understates p by orders of magnitude)."""
     wald, rank = _wald_stat(z, C)
     return f_sf(wald / rank, rank, max(dof, 1))
+
+
+def scaled_wald_p(z: np.ndarray, C: np.ndarray, dof: Optional[int]) -> float:
+    """A member's Wald p-value in the gap searches (gap/search.py, gap/gyrosearch.py): against
+    chi-square when its covariance is the noise's or its excess scale was estimated on MIN_DOF
+    or more residual degrees of freedom (``dof`` None); against F(rank, dof) when the
+    covariance was scaled by a residual chi-square over ``dof`` < MIN_DOF (wald_f_p); 1 when
+    the fit leaves no residual degree of freedom to estimate that scale on (nothing about its
+    members can be tested)."""
+    if dof is None:
+        return wald_p(z, C)
+    return wald_f_p(z, C, dof) if dof > 0 else 1.0
 
 
 def corr_p(x, y):

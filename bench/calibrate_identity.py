@@ -27,7 +27,6 @@ import subprocess
 import sys
 import tempfile
 
-import numpy as np
 
 from _common import ROOT
 

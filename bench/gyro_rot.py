@@ -67,7 +67,7 @@ def monte_carlo(runs, tremor_dps=0.0):
           f"{ratio_s:.3f}")
     print(f"  misalignment 1-sigma {np.degrees(sd_m):.4f} deg (target <= 0.05 deg); mean reported SE / MC "
           f"spread {ratio_m:.3f}")
-    print(f"  per-parameter spread / mean SE: " + " ".join(
+    print("  per-parameter spread / mean SE: " + " ".join(
         f"{np.sqrt(np.mean(err[:, i, j] ** 2)) / np.mean(se[:, i, j]):.2f}" for i in range(3) for j in range(3)))
     print(f"  |z| > 3: {int(np.sum(np.abs(z) > 3))} of {z.size}; chi2/dof median {np.median(chi):.2f}")
 

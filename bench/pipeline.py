@@ -7,7 +7,6 @@ Usage: python bench/pipeline.py [--seconds S]
 """
 import argparse
 import os
-import socket
 import subprocess
 import sys
 import tempfile

@@ -23,7 +23,7 @@ Every case returns (Recording, label) with label = {"class", "sensor", "expect"}
 from __future__ import annotations
 
 import math
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 from scipy.signal import lfilter

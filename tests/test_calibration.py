@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 import yaml
 
-from imucald.fitting.models.mag import MagModel
 from imucald.fitting.models.accel import Triangular9
 from imucald.calibration import Calibration, CalibrationError, SensorCal, load, save
 

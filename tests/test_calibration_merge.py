@@ -87,7 +87,6 @@ def test_conflicts_and_duplicates_are_refused_in_one_line(parts, tmp_path, capsy
 
 
 def test_a_chip_or_sensor_conflict_is_refused(parts, tmp_path, capsys):
-    from imucald.calibration import save
     from imucald.cli.calfiles import merge_calibrations
     from imucald.errors import UserError
     d, _ = parts

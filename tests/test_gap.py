@@ -11,8 +11,6 @@ from imucald.cli import main
 from imucald.fitting.noise.colour import allan_deviation
 from imucald.numerics.tails import chi2_logsf, chi2_sf, norm_sf2
 
-from .conftest import real_path
-
 
 @pytest.mark.parametrize("k", [1, 3, 9, 21, 117])
 @pytest.mark.parametrize("q", [0.001, 0.2, 0.5, 0.9, 0.999])

@@ -1,9 +1,7 @@
 """The daemon's pipeline on boards whose magnetometer is calibrated from rotation:
 the GY-273 (a QMC5883L alone) and the 9DOF board carrying a QMC5883L."""
 import numpy as np
-import pytest
 
-from imucald.fitting.models.mag import MagModel
 from imucald.daemon.config import load_config
 from imucald.daemon.pipeline import Pipeline
 from imucald.drivers.board import make_board

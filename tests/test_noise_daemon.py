@@ -1,7 +1,6 @@
 """The daemon's use of the noise figures: per-sample covariance in the stream, and the
 coloured-noise inflation of the pose covariances handed to the calibration job."""
 import json
-import math
 from concurrent.futures import Executor, Future
 
 import numpy as np

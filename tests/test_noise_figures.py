@@ -1,5 +1,4 @@
 """imucald noise: overlapping Allan deviation, fitted figures with intervals, kalibr/ROS exports."""
-import json
 import math
 
 import numpy as np
@@ -7,7 +6,7 @@ import pytest
 import yaml
 
 from imucald.fitting.noise.allan import (
-    FLICKER_FACTOR, characterise, chi2_ppf, edf_overlapping, kalibr_imu, read_figures
+    characterise, chi2_ppf, edf_overlapping, read_figures
 )
 from imucald.fitting.noise.colour import allan_deviation
 from imucald.cli import main

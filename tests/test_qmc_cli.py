@@ -2,7 +2,6 @@
 (run, status, stream, calibration file), a GY-273 recording replays to a magnetometer
 calibration, and probe reports both boards as supported."""
 import json
-import os
 import signal
 import subprocess
 import sys

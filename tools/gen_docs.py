@@ -17,14 +17,12 @@ Deterministic: fixed seeds, no dates in the files.  About 10 s.
 from __future__ import annotations
 
 import argparse
-import io
 import os
 import re
 import shutil
 import subprocess
 import sys
 import tempfile
-from contextlib import redirect_stdout
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)

@@ -8,7 +8,7 @@ each cube orientation as a filled square when a pose lies within ``cover_angle_d
 and an open red square when it is missing, labelled ("+X+Y up")."""
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Optional
 
 import numpy as np
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Optional, Sequence
+from typing import List, Optional, Sequence
 
 import numpy as np
 
@@ -28,9 +28,41 @@ from ..numerics.npstats import median
 from ..files.tables import TableSpec, collect, decode_line, iter_blocks
 from .stillness.poses import POSES_MAGIC, read_poses
 
-__all__ = ["load_input", "read_table"]
+__all__ = ["load_input", "read_table", "stuck_columns", "stuck_message"]
 
 _SENSOR = {"ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"}
+
+
+_AXES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
+#: fewer samples than this: no claim that an axis is stuck (see :func:`stuck_columns`)
+STUCK_MIN_SAMPLES = 50
+
+
+def stuck_columns(rec: Recording, sensor: str) -> List[str]:
+    """The columns of ``sensor`` ('accel', 'gyro' or 'mag') in ``rec`` that hold one value in
+    every sample, each as e.g. ``'gz (always 0)'``: a dead or stuck axis, or a column mapped to
+    nothing.  Such a column carries no measurement: no noise, no pose-to-pose change, so no
+    fit or diagnosis can use it (gap's twin divided by its zero variance; calibrate fitted
+    the other axes and wrote a file).  Empty when the sensor is absent, every column moves, or
+    the recording has fewer than :data:`STUCK_MIN_SAMPLES` samples (too few to tell a dead axis
+    from a live one: a live axis's noise of a few LSB moves it every few samples)."""
+    x = {"accel": rec.acc, "gyro": rec.gyro, "mag": rec.mag}[sensor]
+    if x is None or len(x) < STUCK_MIN_SAMPLES:
+        return []
+    x = np.asarray(x, float)
+    out = []
+    for k in range(x.shape[1]):
+        col = x[:, k][np.isfinite(x[:, k])]
+        if col.size == 0 or np.all(col == col[0]):
+            out.append(f"{_AXES[sensor][k]} ({'no finite value' if col.size == 0 else f'always {col[0]:g}'})")
+    return out
+
+
+def stuck_message(stuck: Sequence[str]) -> str:
+    """One line for :func:`stuck_columns`' answer: what is wrong and what to check."""
+    return (f"column {', '.join(stuck)} holds one value in every sample: a dead or stuck "
+            f"axis or a column mapped to nothing (check the sensor's wiring and the file's columns, "
+            f"--columns)")
 
 
 def _first_line(path: str) -> str:

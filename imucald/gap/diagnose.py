@@ -50,6 +50,7 @@ from ..fitting.models.accel import Triangular9
 from ..fitting.noise.colour import MIN_STRETCH_S, allan_model, colour_inflation
 from ..fitting.solvers.lsq import Problem, lm
 from ..fitting.stillness.poses import PoseSet, detect_static, poses_from_slices
+from ..fitting.inputs import stuck_columns, stuck_message
 from ..errors import UserError
 from ..files.recording import Recording
 from ..specs import BOARDS, MAG, recording_chips
@@ -196,28 +197,17 @@ def distinct_samples(rec: Recording) -> Recording:
                      temp=pick(rec.temp), meta=dict(rec.meta, rate_hz=f"{rep.rate_hz:.6g}"))
 
 
-_AXES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
-
-
 def _dead_columns(rec: Recording, sensors: Sequence[str], name: str, notes: List[str]) -> List[str]:
     """The sensors left to diagnose once those with a column that holds one value in every
-    sample (a dead or stuck axis, a column mapped to nothing) are set aside, each with a note
-    naming its column; a GapError when none is left.  Such a column has no noise to build a
-    twin from (its pose means' variance is 0: the fit's weights divided by zero raised a bare
-    LinAlgError) and no calibration to diagnose."""
-    have = {"accel": rec.acc, "gyro": rec.gyro, "mag": rec.mag}
+    sample (fitting/inputs.stuck_columns: a dead or stuck axis, a column mapped to nothing) are
+    set aside, each with a note naming its column; a GapError when none is left.  Such a
+    column has no noise to build a twin from (its pose means' variance is 0: the fit's weights
+    divided by zero raised a bare LinAlgError) and no calibration to diagnose."""
     left, why = [], []
     for s in sensors:
-        x = np.asarray(have[s], float)
-        dead = []
-        for k in range(x.shape[1]):
-            col = x[:, k][np.isfinite(x[:, k])]
-            if col.size == 0 or np.all(col == col[0]):
-                dead.append(f"{_AXES[s][k]} ({'no finite value' if col.size == 0 else f'always {col[0]:g}'})")
+        dead = stuck_columns(rec, s)
         if dead:
-            msg = (f"{s}: column {', '.join(dead)} holds one value in every sample: a dead or stuck axis "
-                   f"or a column mapped to nothing (check the sensor's wiring and the file's columns, "
-                   f"--columns)")
+            msg = f"{s}: {stuck_message(dead)}"
             why.append(msg)
             notes.append(msg + f"; {s} not diagnosed")
         else:

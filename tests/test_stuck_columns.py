@@ -1,0 +1,73 @@
+"""calibrate on a recording with a dead or stuck axis (a column that reads one value in every
+sample, or a column mapped to nothing).  Before, `imucald calibrate` fitted it and wrote a
+calibration: with ay at 0.0 the accelerometer fit ended with an excess scatter of x1.1e6 and
+exit 0; with gz at 0.0 the gyro got bias 0 on z and a matrix "not determined" (mean held-out
+gravity-direction error 39 deg), exit 0.  Now the sensor asked for is refused in one line
+naming the file, the column and what to check (exit 2, docs/reference/exit-codes.md), and
+--sensor all leaves that part out with the same reason and calibrates the others.
+The check itself (fitting/inputs.stuck_columns) is gap's too (tests/test_gap.py)."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from imucald.cli import main
+
+
+def _with_column_at(src, dst, name, value="0.0"):
+    lines = src.read_text().splitlines()
+    hi = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    k = lines[hi].split(",").index(name)
+    out = lines[:hi + 1]
+    for ln in lines[hi + 1:]:
+        f = ln.split(",")
+        f[k] = value
+        out.append(",".join(f))
+    dst.write_text("\n".join(out) + "\n")
+    return dst
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory):
+    d = tmp_path_factory.mktemp("stuck")
+    src = d / "s.csv"
+    assert main(["simulate", "-o", str(src), "--seed", "3", "--poses", "20"]) == 0
+    return d, src
+
+
+def _run(*argv):
+    return subprocess.run([sys.executable, "-m", "imucald.cli", *argv], capture_output=True, text=True)
+
+
+@pytest.mark.parametrize("column,sensor", [("ay", "accel"), ("gz", "gyro")])
+def test_a_dead_axis_is_refused_in_one_line(rec, column, sensor):
+    """Seen to fail with the check in cli/offline.py removed: exit 0 and a calibration."""
+    d, src = rec
+    bad = _with_column_at(src, d / f"dead_{column}.csv", column)
+    p = _run("calibrate", str(bad), "--sensor", sensor, "-o", str(d / f"{column}.yaml"))
+    assert p.returncode == 2, (p.returncode, p.stderr[-500:])
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr[-800:]
+    assert str(bad) in lines[0] and f"{column} (always 0)" in lines[0] and "--columns" in lines[0]
+    assert not (d / f"{column}.yaml").exists()
+
+
+def test_sensor_all_leaves_the_dead_part_out_and_calibrates_the_rest(rec):
+    """Seen to fail with the check in cli/calall.py _gyro removed (the gyro part fitted)."""
+    d, src = rec
+    bad = _with_column_at(src, d / "dead_gz_all.csv", "gz")
+    p = _run("calibrate", str(bad), "--sensor", "all", "--json")
+    assert p.returncode == 0, p.stderr[-500:]
+    out = json.loads(p.stdout)
+    assert out["parts"] == ["accel"], out["parts"]
+    assert "gz (always 0)" in out["skipped"]["gyro"]
+
+
+def test_a_moving_column_is_not_stuck(rec):
+    """The same recording untouched: every part calibrated (the check does not fire on a
+    live axis, whose noise moves it every few samples)."""
+    d, src = rec
+    p = _run("calibrate", str(src), "--sensor", "all", "--json")
+    assert p.returncode == 0, p.stderr[-500:]
+    assert json.loads(p.stdout)["parts"] == ["accel", "gyro"]

@@ -71,3 +71,25 @@ def test_a_moving_column_is_not_stuck(rec):
     p = _run("calibrate", str(src), "--sensor", "all", "--json")
     assert p.returncode == 0, p.stderr[-500:]
     assert json.loads(p.stdout)["parts"] == ["accel", "gyro"]
+
+
+def test_a_pose_file_with_a_dead_axis_is_refused(rec):
+    """A pose file (what the daemon saves) whose gz mean is the same 0.0 in every pose: it was
+    calibrated and written (bias_dps z 0.0 +- 0.0, exit 0).  Seen to fail with the pose-file
+    branch of the check in cli/offline.py removed.  The same poses untouched calibrate."""
+    import numpy as np
+    from imucald.fitting.inputs import load_input
+    from imucald.fitting.stillness.poses import poses_and_pieces, write_poses
+    d, src = rec
+    ps, _ = poses_and_pieces(load_input(str(src))[1])
+    write_poses(ps, str(d / "p_ok.txt"))
+    bad = ps.subset(np.arange(len(ps)))
+    bad.gyro = bad.gyro.copy()
+    bad.gyro[:, 2] = 0.0
+    bad.gyro_cov = bad.gyro_cov.copy()
+    bad.gyro_cov[:, 2, :] = bad.gyro_cov[:, :, 2] = 0.0
+    write_poses(bad, str(d / "p_gz.txt"))
+    p = _run("calibrate", str(d / "p_gz.txt"), "--sensor", "gyro", "-o", str(d / "pg.yaml"))
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr[-800:]
+    assert "gz (always 0)" in p.stderr and "every pose" in p.stderr and not (d / "pg.yaml").exists()
+    assert _run("calibrate", str(d / "p_ok.txt"), "--sensor", "gyro").returncode == 0

@@ -194,11 +194,11 @@ def _calibrate(args) -> int:
         return cmd_calibrate_all(args, kind, obj)
     sensor, model = _sensor_and_model(args, kind, obj)
     rec = obj if kind == "recording" else None
-    if rec is not None:
-        from ..fitting.inputs import stuck_columns, stuck_message
-        stuck = stuck_columns(rec, sensor)
-        if stuck:
-            raise UserError(f"{args.input}: {sensor}: {stuck_message(stuck)}; not calibrated")
+    from ..fitting.inputs import stuck_columns, stuck_message
+    stuck = stuck_columns(obj, sensor) if rec is not None else stuck_columns(obj, sensor, min_rows=3)
+    if stuck:
+        row = "sample" if rec is not None else "pose"
+        raise UserError(f"{args.input}: {sensor}: {stuck_message(stuck, row)}; not calibrated")
     progress = None if args.json else _eprint
     if sensor == "mag" and rec is not None:
         if rec.mag is None:

@@ -38,16 +38,17 @@ _AXES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", 
 STUCK_MIN_SAMPLES = 50
 
 
-def stuck_columns(rec: Recording, sensor: str) -> List[str]:
-    """The columns of ``sensor`` ('accel', 'gyro' or 'mag') in ``rec`` that hold one value in
-    every sample, each as e.g. ``'gz (always 0)'``: a dead or stuck axis, or a column mapped to
-    nothing.  Such a column carries no measurement: no noise, no pose-to-pose change, so no
-    fit or diagnosis can use it (gap's twin divided by its zero variance; calibrate fitted
-    the other axes and wrote a file).  Empty when the sensor is absent, every column moves, or
-    the recording has fewer than :data:`STUCK_MIN_SAMPLES` samples (too few to tell a dead axis
-    from a live one: a live axis's noise of a few LSB moves it every few samples)."""
-    x = {"accel": rec.acc, "gyro": rec.gyro, "mag": rec.mag}[sensor]
-    if x is None or len(x) < STUCK_MIN_SAMPLES:
+def stuck_columns(data, sensor: str, min_rows: int = STUCK_MIN_SAMPLES) -> List[str]:
+    """The columns of ``sensor`` ('accel', 'gyro' or 'mag') in ``data`` (a Recording, or a
+    PoseSet with ``min_rows`` 3: its pose means) that hold one value in every row, each as
+    e.g. ``'gz (always 0)'``: a dead or stuck axis, or a column mapped to nothing.  Such a
+    column carries no measurement: no noise, no pose-to-pose change, so no fit or diagnosis
+    can use it (gap's twin divided by its zero variance; calibrate fitted the other axes and
+    wrote a file).  Empty when the sensor is absent, every column moves, or there are fewer
+    than ``min_rows`` rows (:data:`STUCK_MIN_SAMPLES` samples: too few to tell a dead axis
+    from a live one, whose noise of a few LSB moves it every few samples)."""
+    x = {"accel": data.acc, "gyro": data.gyro, "mag": data.mag}[sensor]
+    if x is None or len(x) < min_rows:
         return []
     x = np.asarray(x, float)
     out = []
@@ -58,11 +59,13 @@ def stuck_columns(rec: Recording, sensor: str) -> List[str]:
     return out
 
 
-def stuck_message(stuck: Sequence[str]) -> str:
-    """One line for :func:`stuck_columns`' answer: what is wrong and what to check."""
-    return (f"column {', '.join(stuck)} holds one value in every sample: a dead or stuck "
-            f"axis or a column mapped to nothing (check the sensor's wiring and the file's columns, "
-            f"--columns)")
+def stuck_message(stuck: Sequence[str], row: str = "sample") -> str:
+    """One line for :func:`stuck_columns`' answer: what is wrong and what to check (``row``:
+    'sample', or 'pose' for a pose file's means)."""
+    many = len(stuck) > 1
+    return (f"column{'s' if many else ''} {', '.join(stuck)} hold{'' if many else 's'} one value in "
+            f"every {row}: a dead or stuck axis or a column mapped to nothing (check the sensor's "
+            f"wiring, and for a raw table the columns given to --columns)")
 
 
 def _first_line(path: str) -> str:

@@ -188,9 +188,9 @@ class Search(MemberTests):
         else:
             self.B = self.K = None
 
-    def dof_ok(self, cands, walk, entry=False, refine=False) -> bool:
+    def dof_ok(self, cands, walk, refine=False) -> bool:
         """Room for the model, in visible coefficients (what the score tests see): N minus them
-        at least MIN_DOF when it holds one effect or is a first step (``entry``), at least
+        at least MIN_DOF when it holds one effect, at least
         SEARCH_MIN_DOF for a second member added to a first or for another variant of a member
         already in the model (``refine``, even when that member is alone: its class has passed
         both tests, and the new variant must also beat the model it replaces on held-out
@@ -198,8 +198,6 @@ class Search(MemberTests):
         test is referred to F (Search._fit), so a refined single effect with 3-9 residual
         degrees of freedom is judged at the level its few dof allow."""
         used = self.b.p0 + sum(self.vis_q[id(c)] for c in cands) + (1 if walk else 0)
-        if entry:
-            return used <= self.b.n - MIN_DOF
         if refine:
             return used <= self.b.n - SEARCH_MIN_DOF
         # one effect alone leaves what a single candidate must (gap/norm.py MIN_DOF): a

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..numerics.tails import chi2_logsf, f_sf, norm_sf2
 
-__all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p", "f_sf", "wald_p", "wald_f_p", "scaled_wald_p"]
+__all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p", "wald_p", "wald_f_p", "scaled_wald_p"]
 
 
 def proj_sig(J, C, w, lam=None):

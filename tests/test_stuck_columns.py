@@ -93,3 +93,18 @@ def test_a_pose_file_with_a_dead_axis_is_refused(rec):
     assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr[-800:]
     assert "gz (always 0)" in p.stderr and "every pose" in p.stderr and not (d / "pg.yaml").exists()
     assert _run("calibrate", str(d / "p_ok.txt"), "--sensor", "gyro").returncode == 0
+
+
+def test_the_daemon_does_not_fit_a_dead_axis(rec, tmp_path):
+    """The daemon's calibration job (daemon/fitjob.py) on poses whose gz mean is the same 0.0
+    in every pose: it fitted and applied a gyro bias of 0.0 +- 0.0 on z.  Now the gyro is not
+    fitted, the outcome line names gz, and the accelerometer is still calibrated.  Seen to
+    fail with the stuck check in calibration_job removed (a gyro part saved)."""
+    d, src = rec
+    bad = _with_column_at(src, d / "dead_gz_daemon.csv", "gz")
+    p = _run("replay", str(bad), "--state-dir", str(tmp_path))
+    assert p.returncode == 0, p.stderr[-800:]
+    assert "gyro not fitted: column gz (always 0) holds one value in every pose" in p.stderr
+    import yaml
+    saved = yaml.safe_load((tmp_path / "calibration.yaml").read_text())
+    assert "accel" in saved and "gyro" not in saved, sorted(saved)

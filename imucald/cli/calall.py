@@ -89,7 +89,7 @@ def _accel(args, rec, poses, pieces, progress):
     from .thermal import fit_thermal, pieces_colour_inflation, thermal_json, thermal_lines
     if rec.acc is None:
         return {"skipped": "no accelerometer columns (ax, ay, az)"}, None
-    stuck = stuck_columns(rec, "accel")
+    stuck = stuck_columns(rec.acc, "accel")
     if stuck:
         return {"skipped": stuck_message(stuck)}, None
     if len(poses) < 10:
@@ -126,7 +126,7 @@ def _mag(args, rec, progress):
     from .thermal import thermal_json, thermal_lines
     if rec.mag is None:
         return {"skipped": "no magnetometer columns (mx, my, mz)"}, None
-    stuck = stuck_columns(rec, "mag")
+    stuck = stuck_columns(rec.mag, "mag")
     if stuck:
         return {"skipped": stuck_message(stuck)}, None
     model = DEFAULT_MODEL["mag"]
@@ -155,7 +155,7 @@ def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any
     from .thermal import fit_thermal, thermal_json, thermal_lines
     if rec.gyro is None:
         return {"skipped": "no gyro columns (gx, gy, gz)"}
-    stuck = stuck_columns(rec, "gyro")
+    stuck = stuck_columns(rec.gyro, "gyro")
     if stuck:
         return {"skipped": stuck_message(stuck)}
     if poses is None or len(poses) == 0:

@@ -195,7 +195,8 @@ def _calibrate(args) -> int:
     sensor, model = _sensor_and_model(args, kind, obj)
     rec = obj if kind == "recording" else None
     from ..fitting.inputs import stuck_columns, stuck_message
-    stuck = stuck_columns(obj, sensor) if rec is not None else stuck_columns(obj, sensor, min_rows=3)
+    x = {"accel": obj.acc, "gyro": obj.gyro, "mag": obj.mag}[sensor]
+    stuck = stuck_columns(x, sensor) if rec is not None else stuck_columns(x, sensor, min_rows=3)
     if stuck:
         row = "sample" if rec is not None else "pose"
         raise UserError(f"{args.input}: {sensor}: {stuck_message(stuck, row)}; not calibrated")

@@ -23,6 +23,7 @@ import numpy as np
 from ..fitting.fit import fit_norm
 from ..fitting.models.registry import gyro_bias_scatter_se
 from ..fitting.gate import Decision, fitted_poses, gate_accel, gate_gyro_bias, paired_gate
+from ..fitting.inputs import stuck_columns
 from ..fitting.judging.levels import GATE_FALSE_ACCEPT_RATE
 from ..fitting.magcal import SphereReservoir as MagReservoir
 from ..fitting.magcal import fit_cloud
@@ -75,9 +76,15 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     parts: Dict[str, SensorCal] = {}
     accept: Dict[str, bool] = {}
     notes: Dict[str, Any] = {"gate": {}}
+    # a dead or stuck axis (its pose means all one value: fitting/inputs.stuck_columns) carries
+    # no measurement: that sensor is not fitted, and the outcome says which column and why
+    stuck = {s: c for s, c in (("accel", stuck_columns(job.get("acc"), "accel", min_rows=3)),
+                               ("gyro", stuck_columns(job.get("gyro"), "gyro", min_rows=3))) if c}
+    if stuck:
+        notes["stuck"] = stuck
     if job.get("acc") is not None:
         job = _pose_cov(job, notes)
-        _accel_gyro(job, cur, parts, accept, notes["gate"], notes)
+        _accel_gyro(job, cur, parts, accept, notes["gate"], notes, skip=set(stuck))
     mp = job.get("mag_points")
     if mp is not None and len(mp) >= 30:
         _mag(np.asarray(mp, float), job, cur, parts, accept, notes)
@@ -125,7 +132,9 @@ def _pose_cov(job: Dict[str, Any], notes: Dict[str, Any]) -> Dict[str, Any]:
 
 
 def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict[str, bool],
-                gates: Dict[str, Decision], notes: Dict[str, Any]) -> None:
+                gates: Dict[str, Decision], notes: Dict[str, Any], skip=frozenset()) -> None:
+    """The accelerometer (gated on its poses' cross-validated residuals), the gyro bias and
+    the thermal terms; a sensor in ``skip`` (a stuck axis) is not fitted."""
     acc = np.asarray(job["acc"], float)
     alpha = job.get("alpha", GATE_FALSE_ACCEPT_RATE)
     temp = job.get("temp")
@@ -135,28 +144,29 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
     acc_fit = cur.accel.thermal_offset(acc, temp) if ta else acc
     # the poses the calibration in force was fitted on: in-sample for it, never scored
     fitted, nested = fitted_poses(acc, job.get("t0"), job.get("t1"), cur.poses_used)
-    # --- accelerometer: fitted on all poses, gated on their cross-validated residuals ---
-    cal, _, dec = gate_accel(acc_fit, job["acc_cov"], cur.apply_accel(acc, temp), job["method"], alpha,
-                             against="raw" if cur.accel is None else "current", rng=job.get("seed"),
-                             chip=cur.chips.get("accel"),      # the datasheet prior of this chip
-                             fitted=fitted if cur.accel is not None else None, nested=nested,
-                             incumbent=None if cur.accel is None else (cur.accel.model, cur.accel.theta))
-    # predicted cross-validated residual: each pose's noise plus the uncertainty of the
-    # refit without it (fitting.fit.heldout_residuals)
-    pred = rms(cal.info["heldout_predicted_std"])
-    # heldout_rms_g and heldout_rms_before_g: both out of sample on the same gate_poses poses
-    # (those the calibration in force was not fitted on); loo_rms_g: the candidate's over all
-    q = {"fitness": float(cal.fitness), "heldout_rms_g": dec.rms_cv,
-         "heldout_rms_before_g": dec.rms_incumbent, "predicted_heldout_rms_g": pred,
-         "poses": int(len(acc)), "gate_poses": int(dec.n), "gate_p_value": dec.p_value,
-         "false_accept_rate": dec.alpha}
-    parts["accel"] = SensorCal.from_fit(cal, {k: v for k, v in q.items() if np.isfinite(v)})
-    if ta:
-        parts["accel"] = replace(parts["accel"], thermal=ta)
-    accept["accel"], gates["accel"] = dec.accept, dec
+    if "accel" not in skip:
+        # --- accelerometer: fitted on all poses, gated on their cross-validated residuals ---
+        cal, _, dec = gate_accel(acc_fit, job["acc_cov"], cur.apply_accel(acc, temp), job["method"], alpha,
+                                 against="raw" if cur.accel is None else "current", rng=job.get("seed"),
+                                 chip=cur.chips.get("accel"),      # the datasheet prior of this chip
+                                 fitted=fitted if cur.accel is not None else None, nested=nested,
+                                 incumbent=None if cur.accel is None else (cur.accel.model, cur.accel.theta))
+        # predicted cross-validated residual: each pose's noise plus the uncertainty of the
+        # refit without it (fitting.fit.heldout_residuals)
+        pred = rms(cal.info["heldout_predicted_std"])
+        # heldout_rms_g and heldout_rms_before_g: both out of sample on the same gate_poses poses
+        # (those the calibration in force was not fitted on); loo_rms_g: the candidate's over all
+        q = {"fitness": float(cal.fitness), "heldout_rms_g": dec.rms_cv,
+             "heldout_rms_before_g": dec.rms_incumbent, "predicted_heldout_rms_g": pred,
+             "poses": int(len(acc)), "gate_poses": int(dec.n), "gate_p_value": dec.p_value,
+             "false_accept_rate": dec.alpha}
+        parts["accel"] = SensorCal.from_fit(cal, {k: v for k, v in q.items() if np.isfinite(v)})
+        if ta:
+            parts["accel"] = replace(parts["accel"], thermal=ta)
+        accept["accel"], gates["accel"] = dec.accept, dec
     # --- gyro bias: count-weighted mean of the still poses, gated the same way ---
     g = job.get("gyro")
-    if g is not None:
+    if g is not None and "gyro" not in skip:
         g = np.asarray(g, float)
         w = np.asarray(job["n"], float)
         tg = cur.gyro.thermal if cur.gyro is not None and temp is not None else None

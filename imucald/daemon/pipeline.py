@@ -486,6 +486,9 @@ class Pipeline:
         the thermal fits for status."""
         a, m = res.candidate.accel, res.candidate.mag
         parts = []
+        if res.notes.get("stuck"):
+            from ..fitting.inputs import stuck_message
+            parts += [f"{s} not fitted: {stuck_message(c, 'pose')}" for s, c in res.notes["stuck"].items()]
         if a:
             parts.append(f"accel {gates['accel'].text(1e3, 'mg')} "
                          f"{'(applied)' if 'accel' in take else '(kept the current one)'}")

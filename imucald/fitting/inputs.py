@@ -38,16 +38,16 @@ _AXES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", 
 STUCK_MIN_SAMPLES = 50
 
 
-def stuck_columns(data, sensor: str, min_rows: int = STUCK_MIN_SAMPLES) -> List[str]:
-    """The columns of ``sensor`` ('accel', 'gyro' or 'mag') in ``data`` (a Recording, or a
-    PoseSet with ``min_rows`` 3: its pose means) that hold one value in every row, each as
+def stuck_columns(x: Optional[np.ndarray], sensor: str, min_rows: int = STUCK_MIN_SAMPLES) -> List[str]:
+    """The columns of ``x``, the (N, 3) samples of ``sensor`` ('accel', 'gyro' or 'mag': it
+    names the columns) or its pose means (with ``min_rows`` 3: a pose file, the daemon's
+    poses), that hold one value in every row, each as
     e.g. ``'gz (always 0)'``: a dead or stuck axis, or a column mapped to nothing.  Such a
     column carries no measurement: no noise, no pose-to-pose change, so no fit or diagnosis
     can use it (gap's twin divided by its zero variance; calibrate fitted the other axes and
     wrote a file).  Empty when the sensor is absent, every column moves, or there are fewer
     than ``min_rows`` rows (:data:`STUCK_MIN_SAMPLES` samples: too few to tell a dead axis
     from a live one, whose noise of a few LSB moves it every few samples)."""
-    x = {"accel": data.acc, "gyro": data.gyro, "mag": data.mag}[sensor]
     if x is None or len(x) < min_rows:
         return []
     x = np.asarray(x, float)

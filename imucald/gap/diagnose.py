@@ -205,7 +205,7 @@ def _dead_columns(rec: Recording, sensors: Sequence[str], name: str, notes: List
     divided by zero raised a bare LinAlgError) and no calibration to diagnose."""
     left, why = [], []
     for s in sensors:
-        dead = stuck_columns(rec, s)
+        dead = stuck_columns({"accel": rec.acc, "gyro": rec.gyro, "mag": rec.mag}[s], s)
         if dead:
             msg = f"{s}: {stuck_message(dead)}"
             why.append(msg)

@@ -27,6 +27,10 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
         return None, "needs a recording with accelerometer and gyro columns"
     if len(poses) < 10:
         return None, f"{len(poses)} still poses: the accelerometer needs 10 to give gravity directions"
+    from ..fitting.inputs import stuck_columns, stuck_message
+    stuck = stuck_columns(rec.acc, "accel")
+    if stuck:      # gravity, the rotations' reference, cannot be read along that axis
+        return None, f"the accelerometer's {stuck_message(stuck)}: no gravity direction to refer the rotations to"
     chips = BOARDS.get(rec.meta.get("board", ""), (None, None, None))
     if acc_cal is None:
         acc_cal = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, chip=chips[0],

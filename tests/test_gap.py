@@ -12,6 +12,13 @@ from imucald.fitting.noise.colour import allan_deviation
 from imucald.numerics.tails import chi2_logsf, chi2_sf, norm_sf2
 
 
+def test_chi2_logsf_keeps_its_bits():
+    """The continued fraction's b_i are formed by adding 2 at each step, as they always were:
+    the gate's consistency p and the thermal order choice print these values in full.  Seen
+    to fail with b_i = b0 + 2 i (a last-bit change on 60 of 100,000 random (x, k))."""
+    assert chi2_logsf(6.373006513099645, 3) == -2.3559053756971853
+
+
 @pytest.mark.parametrize("k", [1, 3, 9, 21, 117])
 @pytest.mark.parametrize("q", [0.001, 0.2, 0.5, 0.9, 0.999])
 def test_chi2_sf_matches_scipy(k, q):

@@ -145,3 +145,22 @@ def test_blocks_read_in_place_keep_the_line_numbers(chunk, tmp_path):
     assert _same_bits(rows, _reference(good, spec))
     with pytest.raises(UserError, match=r"^x.csv:301: "):
         list(iter_blocks(io.BytesIO(good + b"   1.0 oops\n"), spec, 1, 0, chunk_bytes=chunk))
+
+
+def test_a_long_line_after_a_fixed_width_block_is_refused_before_its_rows(tmp_path):
+    """A streaming reader (RecordingReader.chunks: replay's loop) gets no row of a block
+    before the line longer than MAX_LINE_BYTES after it is refused, as before the in-place
+    fixed-width path.  Seen to fail with the check after the block's yield (3000 rows first)."""
+    from imucald.errors import UserError
+    from imucald.files.recording import open_recording
+    p = tmp_path / "long.csv"
+    with open(p, "w") as f:
+        f.write("# imucald recording v1\n# board: unknown\n# rate_hz: 100\nt,ax,ay,az\n")
+        for i in range(3000):
+            f.write("%.2f,%+.4f,%+.4f,%+.4f\n" % (10 + i * 0.01, 0.1, -0.2, 0.98))
+        f.write("1" * 300000 + "\n")
+    seen = 0
+    with pytest.raises(UserError, match=r"long\.csv:3005: line longer than"):
+        for r in open_recording(str(p)).chunks(200000):
+            seen += len(r.t)
+    assert seen == 0

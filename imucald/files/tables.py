@@ -109,33 +109,26 @@ def iter_blocks(fh: BinaryIO, spec: TableSpec, lineno: int, offset: int, prev_t:
             cut = buf.rfind(b"\n") + 1
             if cut == 0:            # no newline within the block: keep reading
                 if len(buf) > MAX_LINE_BYTES:
-                    spec.fail(lineno, f"line longer than {MAX_LINE_BYTES} bytes (from byte offset "
-                                      f"{offset}): not a text table; the file is binary or damaged "
-                                      f"(cut the damaged part)")
+                    _long_line(spec, lineno, offset)
                 rest = buf
                 continue
             rows = _fixed_lines(buf, cut, spec, prev_t)
             if rows is not None:        # one fixed-width layout, read in place (no copy, no count)
+                rest = buf[cut:]
+                if len(rest) > MAX_LINE_BYTES:      # refused before the block's rows are handed out
+                    _long_line(spec, lineno + len(rows), offset + cut)
                 if spec.tcol is not None:
                     prev_t = rows[-1, spec.tcol]
                 yield rows
                 lineno += len(rows)
                 offset += cut
-                rest = buf[cut:]
-                if len(rest) > MAX_LINE_BYTES:
-                    spec.fail(lineno, f"line longer than {MAX_LINE_BYTES} bytes (from byte offset "
-                                      f"{offset}): not a text table; the file is binary or "
-                                      f"damaged (cut the damaged part)")
                 if rest and fh.seekable():      # read again with the next block: no joining copy
                     fh.seek(-len(rest), 1)
                     rest = b""
                 continue
             block, rest = buf[:cut], buf[cut:]
             if len(rest) > MAX_LINE_BYTES:
-                rest_ln = lineno + block.count(b"\n")
-                spec.fail(rest_ln, f"line longer than {MAX_LINE_BYTES} bytes (from byte offset "
-                                   f"{offset + cut}): not a text table; the file is binary or "
-                                   f"damaged (cut the damaged part)")
+                _long_line(spec, lineno + block.count(b"\n"), offset + cut)
         else:
             block, rest = buf, b""
             if not block.endswith(b"\n"):
@@ -159,6 +152,12 @@ def iter_blocks(fh: BinaryIO, spec: TableSpec, lineno: int, offset: int, prev_t:
         if not data:
             return
 
+
+
+def _long_line(spec: TableSpec, lineno: int, offset: int) -> None:
+    """Refuse a line longer than MAX_LINE_BYTES (no text table has one) at ``lineno``."""
+    spec.fail(lineno, f"line longer than {MAX_LINE_BYTES} bytes (from byte offset {offset}): not "
+                      f"a text table; the file is binary or damaged (cut the damaged part)")
 
 def _fixed_lines(buf: bytes, cut: int, spec: TableSpec, prev_t: float) -> Optional[np.ndarray]:
     """The rows of ``buf[:cut]`` (whole lines) when they are all of one fixed-width layout and

@@ -33,9 +33,16 @@ def _log_gamma_q(a: float, x: float) -> float:
         logp = math.log(s) - x + a * math.log(x) - lg
         p = math.exp(logp)
         return math.log1p(-p) if p < 1 else -745.0
-    # continued fraction for Q: 1 / (b0 + a1 / (b1 + ...)), a_i = -i (i - a), b_i = b0 + 2 i
+    # continued fraction for Q: 1 / (b0 + a1 / (b1 + ...)), a_i = -i (i - a), b_i = b0 + 2 i,
+    # b_i formed by adding 2 at each step as it always was (b0 + 2.0 * i rounds differently in
+    # the last bit: 60 of 100,000 chi2_logsf values moved)
     b0 = x + 1.0 - a
-    h = _lentz(b0, ((-i * (i - a), b0 + 2.0 * i) for i in range(1, 10000)))
+
+    def terms(b=b0):
+        for i in range(1, 10000):
+            b += 2.0
+            yield -i * (i - a), b
+    h = _lentz(b0, terms())
     return math.log(h) - x + a * math.log(x) - lg
 
 

@@ -311,17 +311,23 @@ def _structure(ps: PoseSet, rec: Recording, rows, centred: Dict[str, list]) -> P
         from ..noise.posefloor import tilt_wander_test_parts
         ps.noise = {}
         parts = [rec.acc[s] for s in rows]
-        ps.acc_cov, ps.noise["accel"] = scale_pose_cov(parts, ps.acc_cov, [d for _, d in centred["acc"]])
+        # the averaging's means and deviations are reused only where they are float64: those of
+        # float32 samples (an API caller's) are the samples' own precision, and these
+        # functions centre in float64 themselves
+        f64 = rec.acc.dtype == np.float64
+        ps.acc_cov, ps.noise["accel"] = scale_pose_cov(parts, ps.acc_cov,
+                                                       [d for _, d in centred["acc"]] if f64 else None)
         # along each pose's direction from the radial series where the direction wanders
         # within the poses (a hand's sway, which the norm model does not see: radial_pose_cov;
         # the test is gap's, fitting/noise/posefloor.py, one-sided ~2 %)
-        tilt = tilt_wander_test_parts(parts, means=[m for m, _ in centred["acc"]])
+        tilt = tilt_wander_test_parts(parts, means=[m for m, _ in centred["acc"]] if f64 else None)
         if tilt["wander"]:
             ps.acc_cov, ps.noise["accel_radial"] = radial_pose_cov(parts, ps.acc, ps.acc_cov)
             ps.noise["accel_radial"]["tilt_wander"] = tilt
         if ps.gyro_cov is not None:
-            ps.gyro_cov, ps.noise["gyro"] = scale_pose_cov([rec.gyro[s] for s in rows], ps.gyro_cov,
-                                                           [d for _, d in centred["gyro"]])
+            ps.gyro_cov, ps.noise["gyro"] = scale_pose_cov(
+                [rec.gyro[s] for s in rows], ps.gyro_cov,
+                [d for _, d in centred["gyro"]] if rec.gyro.dtype == np.float64 else None)
     return ps
 
 

@@ -80,18 +80,25 @@ def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
     return out
 
 
+def _unusable(x, sensor: str, absent: str):
+    """Why ``sensor``'s columns ``x`` cannot be calibrated (``absent`` when there are none, a
+    dead or stuck axis: fitting/inputs.stuck_columns), or None."""
+    from ..fitting.inputs import stuck_columns, stuck_message
+    if x is None:
+        return absent
+    stuck = stuck_columns(x, sensor)
+    return stuck_message(stuck) if stuck else None
+
+
 def _accel(args, rec, poses, pieces, progress):
     from ..fitting.fit import fit_norm
-    from ..fitting.inputs import stuck_columns, stuck_message
     from ..fitting.noise.colour import pose_colour_inflation
     from ..specs import BOARDS
     from .offline import DEFAULT_MODEL, check_rest_norms, file_part
     from .thermal import fit_thermal, pieces_colour_inflation, thermal_json, thermal_lines
-    if rec.acc is None:
-        return {"skipped": "no accelerometer columns (ax, ay, az)"}, None
-    stuck = stuck_columns(rec.acc, "accel")
-    if stuck:
-        return {"skipped": stuck_message(stuck)}, None
+    why = _unusable(rec.acc, "accel", "no accelerometer columns (ax, ay, az)")
+    if why:
+        return {"skipped": why}, None
     if len(poses) < 10:
         return {"skipped": f"only {len(poses)} still poses found; the 9-parameter model needs at least "
                            f"10 (about 25 recommended), well spread over the sphere"}, None
@@ -121,14 +128,11 @@ def _accel(args, rec, poses, pieces, progress):
 
 def _mag(args, rec, progress):
     from ..fitting.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
-    from ..fitting.inputs import stuck_columns, stuck_message
     from .offline import DEFAULT_MODEL, file_part
     from .thermal import thermal_json, thermal_lines
-    if rec.mag is None:
-        return {"skipped": "no magnetometer columns (mx, my, mz)"}, None
-    stuck = stuck_columns(rec.mag, "mag")
-    if stuck:
-        return {"skipped": stuck_message(stuck)}, None
+    why = _unusable(rec.mag, "mag", "no magnetometer columns (mx, my, mz)")
+    if why:
+        return {"skipped": why}, None
     model = DEFAULT_MODEL["mag"]
     if progress:
         progress(f"imucald: mag: {len(rec)} samples; thinning over the sphere and fitting {model} "
@@ -149,15 +153,12 @@ def _mag(args, rec, progress):
 
 def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any]:
     from ..fitting.fit import fit_gyro_bias
-    from ..fitting.inputs import stuck_columns, stuck_message
     from .gyrorot import file_line, fit_rotations, rotation_json, rotation_lines
     from .offline import DEFAULT_MODEL, file_part
     from .thermal import fit_thermal, thermal_json, thermal_lines
-    if rec.gyro is None:
-        return {"skipped": "no gyro columns (gx, gy, gz)"}
-    stuck = stuck_columns(rec.gyro, "gyro")
-    if stuck:
-        return {"skipped": stuck_message(stuck)}
+    why = _unusable(rec.gyro, "gyro", "no gyro columns (gx, gy, gz)")
+    if why:
+        return {"skipped": why}
     if poses is None or len(poses) == 0:
         return {"skipped": "no still poses found (the gyro bias needs at least one, found by the "
                            "accelerometer's stillness)"}

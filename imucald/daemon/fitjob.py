@@ -20,13 +20,12 @@ from typing import Any, Dict, NamedTuple
 
 import numpy as np
 
-from ..fitting.fit import fit_norm
 from ..fitting.models.registry import gyro_bias_scatter_se
 from ..fitting.gate import Decision, fitted_poses, gate_accel, gate_gyro_bias, paired_gate
 from ..fitting.inputs import stuck_columns
 from ..fitting.judging.levels import GATE_FALSE_ACCEPT_RATE
 from ..fitting.magcal import SphereReservoir as MagReservoir
-from ..fitting.magcal import fit_cloud
+from ..fitting.magcal import fit_cloud, fit_points
 from ..fitting.models.mag import MagModel
 from ..fitting.models.accel import Triangular9
 from ..calibration import Calibration, SensorCal, build_calibration
@@ -127,7 +126,6 @@ def _pose_cov(job: Dict[str, Any], notes: Dict[str, Any]) -> Dict[str, Any]:
     k = job.get("acc_colour_k")
     if k is not None and allan_still_needed(info):
         cov = cov * np.asarray(k, float)[:, None, None]
-        notes["colour_inflation_median"] = float(median(np.asarray(k, float)))
     return dict(job, acc_cov=cov)
 
 
@@ -226,10 +224,8 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
                                                          "missing_axes")}
         return
     mc, cv = fc["calibration"], fc["coverage"]
-    cov = None if noise is None else np.diag(noise ** 2)
     mho = _holdout(len(mp), job["holdout_fraction"])
-    mc_ho = fit_norm(mp[~mho], "mag_sym", "lm", rng=job.get("seed"), heldout=False,
-                     pose_cov=None if cov is None else np.broadcast_to(cov, (int((~mho).sum()), 3, 3)))
+    mc_ho = fit_points(_MAG, mp[~mho], noise, "lm", job.get("seed"), heldout=False)
     r_new = np.linalg.norm(_MAG.forward(mc_ho.theta, mp[mho]), axis=1) - 1
     if cur.mag is None:
         hc = np.linalg.norm(mp[mho], axis=1)
@@ -249,4 +245,5 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
     accept["mag"], notes["gate"]["mag"] = dec.accept, dec
     if job.get("thermal") and mt is not None:
         from .thermaljob import mag_thermal
-        mag_thermal(job, cur, raw, mt, cov, mc.theta, parts, accept, notes)
+        mag_thermal(job, cur, raw, mt, None if noise is None else np.diag(noise ** 2), mc.theta, parts,
+                    accept, notes)

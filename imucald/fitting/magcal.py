@@ -56,7 +56,7 @@ from .judging.uncertainty import residual_variance
 from ..numerics.npstats import median
 
 __all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage", "undetermined_terms",
-           "missing_axes", "fit_cloud", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
+           "missing_axes", "fit_cloud", "fit_points", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
            "SOFT_IRON_SE_MAX", "MIN_DIRECTION_EIG"]
 
 #: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
@@ -322,7 +322,9 @@ def rel_std(norms: np.ndarray) -> float:
     return float(np.std(n) / np.mean(n))
 
 
-def _fit(model, points, noise, method, rng, heldout=True) -> FitResult:
+def fit_points(model, points, noise, method, rng, heldout=True) -> FitResult:
+    """The norm fit of rotation points (M, 3) with ``noise`` (3,) per-sample as each point's
+    covariance (None: the fit uses its residuals)."""
     cov = None if noise is None else np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (len(points), 3, 3))
     return fit_norm(points, model, method, pose_cov=cov, rng=rng, heldout=heldout)
 
@@ -340,7 +342,7 @@ def fit_cloud(model: MagModel, points: np.ndarray, noise: Optional[np.ndarray], 
         flat = flat_axis(points, noise)
         if flat is not None:
             return {"determined": False, "flat": flat}
-    cal = _fit(model, points, noise, method, rng, heldout)
+    cal = fit_points(model, points, noise, method, rng, heldout)
     cv = coverage(model, cal.theta, points, cells)
     und = undetermined_terms(cal, cv["direction_eigenvalues"][-1])
     if und:
@@ -408,7 +410,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
         r_tr.add(mag[:k])
         p_tr = r_tr.points()
         if len(p_tr) > int(mdl.free_mask.sum()) and flat_axis(p_tr, sigma) is None:
-            c_tr = _fit(mdl, p_tr, sigma, "lm", rng, heldout=False)
+            c_tr = fit_points(mdl, p_tr, sigma, "lm", rng, heldout=False)
             out["heldout"] = {
                 "train_samples": k, "test_samples": int(len(mag) - k),
                 "norm_rel_std": rel_std(np.linalg.norm(mdl.forward(c_tr.theta, mag[k:]), axis=1)),

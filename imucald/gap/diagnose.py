@@ -453,7 +453,7 @@ def diagnose(rec: Recording, sensors: Optional[Sequence[str]] = None, sims: int 
         for s in sensors or ["mag"]:
             if s != "mag":
                 raise GapError(f"{name}: --sensor {s}: the recording has no {s} columns")
-        _dead_columns(rec, ["mag"], name, [])
+        _dead_columns(rec, ["mag"], name, [])     # for its GapError: nothing else is left to diagnose
         return _mag_only(rec, sims, rng, name)
     sensors = _sensors_asked(rec, sensors, name)
     dead_notes: List[str] = []

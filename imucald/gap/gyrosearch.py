@@ -78,6 +78,10 @@ def coef_level(variants: Dict[str, int]) -> float:
     return GAP_ATTRIBUTION_LEVEL / max(tests, 1)
 
 
+def _key(cands) -> frozenset:
+    """A model's identity: its candidates (the search's cache key and its visited set)."""
+    return frozenset(id(c) for c in cands)
+
 @dataclass
 class GyroFit:
     """One model's weighted least-squares fit and its twin."""
@@ -121,7 +125,7 @@ class GyroFit:
 
     @property
     def key(self) -> frozenset:
-        return frozenset(id(c) for c in self.cands)
+        return _key(self.cands)
 
     @property
     def n_coef(self) -> int:
@@ -152,7 +156,7 @@ class GyroSearch(MemberTests):
         self.cache: Dict[frozenset, Optional[GyroFit]] = {}
 
     def fit(self, cands: Sequence) -> Optional[GyroFit]:
-        key = frozenset(id(c) for c in cands)
+        key = _key(cands)
         if key not in self.cache:
             self.cache[key] = self._fit(tuple(cands))
         return self.cache[key]

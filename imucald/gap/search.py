@@ -397,10 +397,11 @@ def _variant_moves(s, cur, variants, visited) -> list:
                 continue
             # every member passes its tests, and the new variant predicts the held-out poses
             # better than the model it replaces (the same held-out test, against ``cur``)
-            if all(s.passes(*t) for t in s.tests(m).values()) \
-                    and s.heldout_p(cur, m) < GAP_HELDOUT_LEVEL:
-                moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name],
-                              s.heldout_p(cur, m)))
+            if not all(s.passes(*t) for t in s.tests(m).values()):
+                continue
+            pho = s.heldout_p(cur, m)
+            if pho < GAP_HELDOUT_LEVEL:
+                moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], pho))
     return moves
 
 

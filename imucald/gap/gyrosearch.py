@@ -82,6 +82,7 @@ def _key(cands) -> frozenset:
     """A model's identity: its candidates (the search's cache key and its visited set)."""
     return frozenset(id(c) for c in cands)
 
+
 @dataclass
 class GyroFit:
     """One model's weighted least-squares fit and its twin."""

@@ -380,3 +380,15 @@ def test_sigterm_saves_state_and_a_corrupt_calibration_is_set_aside(tmp_path):
     assert "stopped; state saved" in err
     assert sum(1 for l in open(st / "poses.csv") if l[:1].isdigit()) >= 3
     assert not os.path.exists(rt / "control.sock")          # sockets removed on exit
+
+
+def test_sampling_losses_are_said_once_they_pass_one_percent():
+    """The daemon's log line for a stretch that lost samples (loss_warning, called once a
+    minute): none at 1 % or less, the share and the likely cause above.  Breaking the share
+    test (e.g. ``lost <= 0``) fails the first assertion; dropping the --speed clause the last."""
+    from imucald.daemon.run import loss_warning
+    assert loss_warning(6000, 60, 2, 60.0) is None                  # 60 of 6060: under 1 %
+    msg = loss_warning(5400, 600, 30, 60.0)
+    assert msg.startswith("sampling lost 10% of the samples of the last 60 s (30 FIFO resets)"), msg
+    assert "loaded or throttled host" in msg
+    assert "--speed 100 asks more than this machine sustains" in loss_warning(5400, 600, 30, 60.0, 100.0)

@@ -32,7 +32,24 @@ LOCK_FILE = "imucald.lock"
 #: (1024 bytes at 200 Hz x 12 bytes: 0.4 s) and than a re-initialisation (0.5 s of faults).
 STALL_S = 3.0
 
+#: sampling that loses more than LOSS_SHARE of a LOSS_EVERY_S stretch's samples (the chip's
+#: FIFO overflowed: the host read it too late) is said in the log, at most once a stretch
+LOSS_EVERY_S, LOSS_SHARE = 60.0, 0.01
+
 log = logging.getLogger("imucald")
+
+
+def loss_warning(got: int, lost: int, resets: int, span_s: float, speed: float = 1.0) -> Optional[str]:
+    """The log line for a stretch of ``span_s`` wall seconds in which the board delivered
+    ``got`` samples and lost ``lost`` (``resets`` FIFO resets), or None below LOSS_SHARE.
+    ``speed``: an emulated board's clock rate (its FIFO then lasts ``speed`` times less)."""
+    if lost <= LOSS_SHARE * (got + lost):
+        return None
+    why = (f"--speed {speed:g} asks more than this machine sustains (the emulated FIFO lasts "
+           f"{speed:g} times less)" if speed > 1 else "a loaded or throttled host")
+    return (f"sampling lost {100.0 * lost / (got + lost):.0f}% of the samples of the last {span_s:.0f} s "
+            f"({resets} FIFO resets): the sensor is read too late ({why}); a pose needs an unbroken "
+            f"still run, so fewer are found")
 
 
 class Daemon:
@@ -172,6 +189,7 @@ class Daemon:
         last_status = last_wd = -1e9
         last_fresh = time.monotonic()
         t_start = b.clock.now()
+        loss0 = (last_fresh, b.stats.samples, b.stats.missing, b.stats.fifo_resets)
         while not self.stop:
             batch = b.read_batch(batch_s=batch_s)
             data = pipe.process(batch)
@@ -200,6 +218,13 @@ class Daemon:
             if now - last_status >= 1.0:
                 notify(f"STATUS={self._status_line()}")
                 last_status = now
+            if now - loss0[0] >= LOSS_EVERY_S:
+                st = b.stats
+                msg = loss_warning(st.samples - loss0[1], st.missing - loss0[2], st.fifo_resets - loss0[3],
+                                   now - loss0[0], getattr(b.clock, "speed", 1.0))
+                if msg:
+                    log.warning("%s", msg)
+                loss0 = (now, st.samples, st.missing, st.fifo_resets)
             if self.reload or self._reloading is not None:
                 self._reload()
             if self.duration_s is not None and b.clock.now() - t_start >= self.duration_s:

@@ -203,6 +203,7 @@ class MPU6xxx:
         b.write_byte(a, R.USER_CTRL.addr, R.encode("USER_CTRL", 0, FIFO_RESET=1))
         b.write_byte(a, R.FIFO_EN.addr, R.encode("FIFO_EN", 0, TEMP=1, XG=1, YG=1, ZG=1, ACCEL=1))
         b.write_byte(a, R.USER_CTRL.addr, R.encode("USER_CTRL", 0, FIFO_EN=1))
+        self.overflowed()               # clears an overflow flag from before the reset
 
     def still_configured(self) -> bool:
         """Cheap check for a silent reset (brown-out): awake and the ranges still set."""
@@ -220,7 +221,8 @@ class MPU6xxx:
     def read_fifo(self, max_frames: Optional[int] = None) -> FifoRead:
         """Drain whole frames.  Following the kernel (inv_mpu_ring.c): if the count is
         within 3 frames of the FIFO size the FIFO may already have dropped data, so it
-        is reset and the read reports ``reset`` (the caller accounts for the gap)."""
+        is reset and the read reports ``reset`` (the caller accounts for the gap); so is a
+        burst read after the FIFO overflowed (:meth:`overflowed`: three transactions a batch)."""
         size = FIFO_SIZE[self.chip or self.expect]
         count = self.fifo_count()
         if count >= size - 3 * FRAME_BYTES:
@@ -232,7 +234,20 @@ class MPU6xxx:
         if k == 0:
             return FifoRead(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
         raw = self.bus.read_block(self.addr, REGMAP.FIFO_R_W.addr, k * FRAME_BYTES, fifo=True)
+        if self.overflowed():
+            # it overflowed between the count and the burst (a host stalled for more than the
+            # 3 frames of margin): the chip dropped its oldest bytes, and as the FIFO's size is
+            # not a multiple of a frame, every frame read may be shifted (temperature and gyro
+            # bytes read as acceleration) and stays shifted until a reset
+            self.fifo_reset()
+            return FifoRead(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), reset=True)
         return self.parse_frames(raw)
+
+    def overflowed(self) -> bool:
+        """Whether the FIFO overflowed since the last call: INT_STATUS.FIFO_OFLOW_INT (D 4.17),
+        cleared by this read (INT_PIN_CFG.INT_RD_CLEAR left 0, D 4.15)."""
+        st = self.bus.read_byte(self.addr, REGMAP.INT_STATUS.addr)
+        return bool(REGMAP.decode("INT_STATUS", st, "FIFO_OFLOW_INT"))
 
     def parse_frames(self, raw: bytes) -> FifoRead:
         """Whole 14-byte frames -> physical units; a trailing partial frame is ignored."""

@@ -150,7 +150,7 @@ __wait_poses() {  # until the daemon at runtime dir $2 holds $1 poses (a deadlin
   local end=$((SECONDS + 200))
   while [ $SECONDS -lt $end ]; do
     n=$(imucald status --json --runtime-dir "$2" | "$__PY" -c 'import json,sys; print(json.load(sys.stdin).get("poses", 0))')
-    [ "$n" -ge "$1" ] && return 0; sleep 0.1
+    [ "$n" -ge "$1" ] && return 0; sleep 0.5   # each poll starts two Pythons: ~0.2 s of CPU
   done; echo "the daemon has only $n poses" >&2; return 1
 }
 __stop_daemons() { for p in $__pids; do kill $p 2>/dev/null || true; done; for p in $__pids; do wait $p 2>/dev/null || true; done; __pids=""; }

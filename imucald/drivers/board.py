@@ -151,7 +151,7 @@ class Board:
                 if not self._configured():
                     return self._recover(now, "the chip lost its configuration (reset or brown-out)")
             out = self._read(now)
-            self._last_ok = now
+            self._last_ok = max(self._last_ok, now)
             self._fault_since = None
             return out
         except BusError as e:
@@ -242,7 +242,12 @@ class MPUBoard(Board):
         lost = 0
         if fr.reset:
             self.stats.fifo_resets += 1
-            lost = max(1, int(round((now - self._last_ok) * self.rate_hz)))
+            # counted to the reset, not to ``now`` (before the count was read): an overflow
+            # between the count and the burst means the host stalled after ``now``, and the
+            # samples after the reset start there (read_batch keeps the later _last_ok)
+            after = self.clock.now()
+            lost = max(1, int(round((after - self._last_ok) * self.rate_hz)))
+            self._last_ok = after
         mag, fresh = None, False
         if self.ak is not None and now >= self._mag_next:
             mag, _ = self.ak.read()

@@ -104,7 +104,7 @@ class FifoRead:
     acc_g: np.ndarray          #: (k, 3)
     gyro_dps: np.ndarray       #: (k, 3)
     temp_c: np.ndarray         #: (k,)
-    reset: bool = False        #: the FIFO was reset (near overflow): samples were lost
+    reset: bool = False        #: the FIFO was reset (near or after an overflow): samples were lost
 
 
 class MPU6xxx:
@@ -121,6 +121,9 @@ class MPU6xxx:
         self.gyro_range_dps = 250
         self.rate_hz = 100.0
         self._cfg: dict = {}
+        #: a burst is under way, or an overflowed FIFO awaits its reset: if a bus fault cuts
+        #: either short, the FIFO may be left shifted, so the next read resets it first
+        self._resync = False
 
     # -- identification ------------------------------------------------------------
     def identify(self) -> str:
@@ -184,7 +187,10 @@ class MPU6xxx:
             R.CONFIG.addr: R.encode("CONFIG", 0, DLPF_CFG=dl),
             R.GYRO_CONFIG.addr: R.encode("GYRO_CONFIG", 0, FS_SEL=[250, 500, 1000, 2000].index(gyro_range_dps)),
             R.ACCEL_CONFIG.addr: R.encode("ACCEL_CONFIG", 0, AFS_SEL=[2, 4, 8, 16].index(accel_range_g)),
-            R.INT_PIN_CFG.addr: R.encode("INT_PIN_CFG", 0, I2C_BYPASS_EN=int(bypass)),
+            # LATCH_INT_EN: the status bits (FIFO_OFLOW_INT, read by overflowed()) stay set until
+            # INT_STATUS is read, whatever the INT pin does (unused here); kriswiner writes 0x22
+            # (../shared/reference/daemon-and-chips.md, bypass row); INT_RD_CLEAR stays 0 (D 4.15)
+            R.INT_PIN_CFG.addr: R.encode("INT_PIN_CFG", 0, LATCH_INT_EN=1, I2C_BYPASS_EN=int(bypass)),
             R.INT_ENABLE.addr: R.encode("INT_ENABLE", 0, DATA_RDY_EN=1, FIFO_OFLOW_EN=1),
         }
         if self.chip != "mpu6050":
@@ -204,6 +210,7 @@ class MPU6xxx:
         b.write_byte(a, R.FIFO_EN.addr, R.encode("FIFO_EN", 0, TEMP=1, XG=1, YG=1, ZG=1, ACCEL=1))
         b.write_byte(a, R.USER_CTRL.addr, R.encode("USER_CTRL", 0, FIFO_EN=1))
         self.overflowed()               # clears an overflow flag from before the reset
+        self._resync = False
 
     def still_configured(self) -> bool:
         """Cheap check for a silent reset (brown-out): awake and the ranges still set."""
@@ -223,6 +230,9 @@ class MPU6xxx:
         within 3 frames of the FIFO size the FIFO may already have dropped data, so it
         is reset and the read reports ``reset`` (the caller accounts for the gap); so is a
         burst read after the FIFO overflowed (:meth:`overflowed`: three transactions a batch)."""
+        if self._resync:                # a burst or a reset that a bus fault cut short
+            self.fifo_reset()
+            return FifoRead(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), reset=True)
         size = FIFO_SIZE[self.chip or self.expect]
         count = self.fifo_count()
         if count >= size - 3 * FRAME_BYTES:
@@ -233,6 +243,7 @@ class MPU6xxx:
             k = min(k, max_frames)
         if k == 0:
             return FifoRead(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+        self._resync = True             # until the burst and the flag are read, or the reset done
         raw = self.bus.read_block(self.addr, REGMAP.FIFO_R_W.addr, k * FRAME_BYTES, fifo=True)
         if self.overflowed():
             # it overflowed between the count and the burst (a host stalled for more than the
@@ -241,6 +252,7 @@ class MPU6xxx:
             # bytes read as acceleration) and stays shifted until a reset
             self.fifo_reset()
             return FifoRead(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), reset=True)
+        self._resync = False
         return self.parse_frames(raw)
 
     def overflowed(self) -> bool:

@@ -39,17 +39,25 @@ LOSS_EVERY_S, LOSS_SHARE = 60.0, 0.01
 log = logging.getLogger("imucald")
 
 
-def loss_warning(got: int, lost: int, resets: int, span_s: float, speed: float = 1.0) -> Optional[str]:
+def loss_warning(got: int, lost: int, resets: int, reinits: int, span_s: float,
+                 speed: float = 1.0) -> Optional[str]:
     """The log line for a stretch of ``span_s`` wall seconds in which the board delivered
-    ``got`` samples and lost ``lost`` (``resets`` FIFO resets), or None below LOSS_SHARE.
+    ``got`` samples and lost ``lost``, with ``resets`` FIFO resets (overflows: read too late)
+    and ``reinits`` re-initialisations (bus faults, a chip reset), or None below LOSS_SHARE.
     ``speed``: an emulated board's clock rate (its FIFO then lasts ``speed`` times less)."""
     if lost <= LOSS_SHARE * (got + lost):
         return None
-    why = (f"--speed {speed:g} asks more than this machine sustains (the emulated FIFO lasts "
-           f"{speed:g} times less)" if speed > 1 else "a loaded or throttled host")
+    causes = []
+    if resets:
+        why = (f"--speed {speed:g} asks more than this machine sustains, the emulated FIFO lasting "
+               f"{speed:g} times less" if speed > 1 else "a loaded or throttled host")
+        causes.append(f"{resets} FIFO resets: the sensor is read too late, {why}")
+    if reinits:
+        causes.append(f"{reinits} re-initialisations after bus faults or a chip reset: check the "
+                      f"wiring and power")
     return (f"sampling lost {100.0 * lost / (got + lost):.0f}% of the samples of the last {span_s:.0f} s "
-            f"({resets} FIFO resets): the sensor is read too late ({why}); a pose needs an unbroken "
-            f"still run, so fewer are found")
+            f"({'; '.join(causes) or 'cause not recorded'}); a pose needs an unbroken still run, so "
+            f"fewer are found")
 
 
 class Daemon:
@@ -189,7 +197,8 @@ class Daemon:
         last_status = last_wd = -1e9
         last_fresh = time.monotonic()
         t_start = b.clock.now()
-        loss0 = (last_fresh, b.stats.samples, b.stats.missing, b.stats.fifo_resets)
+        st = b.stats
+        loss0 = (last_fresh, st.samples, st.missing, st.fifo_resets, st.reinits)
         while not self.stop:
             batch = b.read_batch(batch_s=batch_s)
             data = pipe.process(batch)
@@ -219,12 +228,11 @@ class Daemon:
                 notify(f"STATUS={self._status_line()}")
                 last_status = now
             if now - loss0[0] >= LOSS_EVERY_S:
-                st = b.stats
                 msg = loss_warning(st.samples - loss0[1], st.missing - loss0[2], st.fifo_resets - loss0[3],
-                                   now - loss0[0], getattr(b.clock, "speed", 1.0))
+                                   st.reinits - loss0[4], now - loss0[0], getattr(b.clock, "speed", 1.0))
                 if msg:
                     log.warning("%s", msg)
-                loss0 = (now, st.samples, st.missing, st.fifo_resets)
+                loss0 = (now, st.samples, st.missing, st.fifo_resets, st.reinits)
             if self.reload or self._reloading is not None:
                 self._reload()
             if self.duration_s is not None and b.clock.now() - t_start >= self.duration_s:

@@ -256,14 +256,11 @@ def test_fifo_overflow_is_detected_reset_and_reported_as_a_gap():
     assert np.all(np.abs(np.linalg.norm(last.acc, axis=1) - 1) < 0.1)
 
 
-def test_fifo_overflow_between_count_and_read_never_yields_misaligned_frames():
-    """The race a loaded host (or a 100x emulated clock) hits: the count is read below the
-    reset threshold, the FIFO overflows before the burst is read, the chip drops its oldest
-    bytes (1024 is not a multiple of 14) and every frame after is shifted.  The overflow bit
-    (INT_STATUS.FIFO_OFLOW_INT) is what tells: the batch is dropped, the FIFO reset and the
-    loss reported.  Without that check (the driver before this test) the next batches read
-    temperature and gyro bytes as acceleration: |acc| far from 1 g, and no pose is ever still
-    again (the CI failure of docs/guide/daemon.md: 4 poses, then none for 200 s)."""
+def _race_rig():
+    """An MPU-6050 at 1 kHz, read for 5 batches, whose next burst read comes after a 30-ms
+    stall of the host (between the count and the burst: 30 more frames arrive), with 60
+    frames (840 bytes, under the reset threshold) waiting: 60 + 30 frames overflow 1024
+    bytes.  Returns (board, armed): armed[0] turns False once the stall happened."""
     eb, bus, clk = rig("mpu6050", still(temp0=25.0))
     b = make_board("mpu6050", bus, clk, rate_hz=1000)
     b.start()
@@ -275,10 +272,22 @@ def test_fifo_overflow_between_count_and_read_never_yields_misaligned_frames():
     def late_read(reg, n):              # the host stalls between the count and the burst
         if reg == mpu6050.REGMAP.FIFO_R_W.addr and armed[0]:
             armed[0] = False
-            clk.advance(0.030)          # 30 more frames: 60 + 30 frames > 1024 bytes
+            clk.advance(0.030)
         return read(reg, n)
     dev.read = late_read
-    clk.advance(0.060)                  # 60 frames = 840 bytes: under the reset threshold
+    clk.advance(0.060)
+    return b, armed
+
+
+def test_fifo_overflow_between_count_and_read_never_yields_misaligned_frames():
+    """The race a loaded host (or a 100x emulated clock) hits: the count is read below the
+    reset threshold, the FIFO overflows before the burst is read, the chip drops its oldest
+    bytes (1024 is not a multiple of 14) and every frame after is shifted.  The overflow bit
+    (INT_STATUS.FIFO_OFLOW_INT) is what tells: the batch is dropped, the FIFO reset and the
+    loss reported.  Without that check (the driver before this test) the next batches read
+    temperature and gyro bytes as acceleration: |acc| far from 1 g, and no pose is ever still
+    again (the CI failure of docs/guide/daemon.md: 4 poses, then none for 200 s)."""
+    b, armed = _race_rig()
     batches = [b.read_batch() for _ in range(20)]
     acc = np.concatenate([x.acc for x in batches])
     temp = np.concatenate([x.temp for x in batches])
@@ -298,20 +307,7 @@ def test_a_bus_fault_during_the_overflow_reset_leaves_no_shifted_frames():
     burst passed the check and was read shifted (365 of 365 samples, no gap reported: seen
     with the marker removed).  With it, the next read resets first and reports the loss."""
     from imucald.drivers.bus import BusError
-    eb, bus, clk = rig("mpu6050", still(temp0=25.0))
-    b = make_board("mpu6050", bus, clk, rate_hz=1000)
-    b.start()
-    for _ in range(5):
-        b.read_batch()
-    dev = eb._dev(0x68)
-    read, armed = dev.read, [True]
-
-    def late_read(reg, n):
-        if reg == mpu6050.REGMAP.FIFO_R_W.addr and armed[0]:
-            armed[0] = False
-            clk.advance(0.030)
-        return read(reg, n)
-    dev.read = late_read
+    b, armed = _race_rig()
     reset, fail = b.mpu.fifo_reset, [True]
 
     def flaky_reset():
@@ -320,10 +316,9 @@ def test_a_bus_fault_during_the_overflow_reset_leaves_no_shifted_frames():
             raise BusError("a NACK on the reset's first write", 0x68, 121)
         return reset()
     b.mpu.fifo_reset = flaky_reset
-    clk.advance(0.060)
     batches = [b.read_batch() for _ in range(20)]
     acc = np.concatenate([x.acc for x in batches])
-    assert not fail[0] and b.stats.bus_faults == 1 and len(acc) > 100
+    assert not armed[0] and not fail[0] and b.stats.bus_faults == 1 and len(acc) > 100
     assert np.all(np.abs(np.linalg.norm(acc, axis=1) - 1) < 0.1)
     assert sum(k for x in batches for _, k in x.gaps) >= 90
 

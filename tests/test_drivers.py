@@ -323,6 +323,47 @@ def test_a_bus_fault_during_the_overflow_reset_leaves_no_shifted_frames():
     assert sum(k for x in batches for _, k in x.gaps) >= 90
 
 
+def _adxl_lag_s(b, clk):
+    """How far the newest sample's time (its sequence number over the rate) is behind the
+    clock, s: constant while nothing is lost unaccounted."""
+    return (clk.now() - b.t0) - b.seq / b.rate_hz
+
+
+@pytest.mark.parametrize("stall_s,at_read,overwritten", [
+    (0.0, 0, 18), (0.030, 0, 21), (0.030, 16, 18)])
+def test_adxl345_overrun_counts_the_samples_lost_up_to_the_read(stall_s, at_read, overwritten):
+    """The 9DOF board's ADXL345 FIFO (32 entries, stream mode) overruns when the host stops
+    reading for more than 0.32 s at 100 Hz: the chip overwrites its oldest entries, and the
+    driver reports the loss as a gap.  A stall of 30 ms (3 samples) between the entry count
+    and the data reads overwrites 3 more; the same stall after 16 of the 32 reads overwrites
+    none (the reads made room) and leaves 3 waiting in the FIFO.  Counted to the time before
+    the count, the first loss was 3 short and every later sample's sequence number, and so
+    its time, stayed 30 ms behind the clock; counted to the end of the read without what
+    waits, the second was 3 over.  The newest sample's lag after the overrun is what it was
+    before (within one sample period: the poll's phase)."""
+    eb, bus, clk = rig("9dof")
+    b = make_board("9dof", bus, clk, rate_hz=100)
+    b.start()
+    for _ in range(10):
+        b.read_batch(batch_s=0.05)
+    lag0 = _adxl_lag_s(b, clk)
+    dev = eb._dev(0x53)
+    read, reads = dev.read, [0]
+
+    def late_read(reg, n):              # the host stalls once, at the given data read
+        if reg == adxl345.REGMAP.DATAX0.addr:
+            if reads[0] == at_read:
+                clk.advance(stall_s)
+            reads[0] += 1
+        return read(reg, n)
+    dev.read = late_read
+    clk.advance(0.5)                    # 50 samples: 18 more than the FIFO holds
+    batches = [b.read_batch(batch_s=0.05) for _ in range(10)]
+    assert reads[0] > at_read and b.stats.fifo_resets == 1
+    assert abs(sum(k for x in batches for _, k in x.gaps) - overwritten) <= 1
+    assert abs(_adxl_lag_s(b, clk) - lag0) <= 1 / b.rate_hz
+
+
 # --- efficiency: burst reads --------------------------------------------------------------
 
 def test_mpu_burst_reads_three_transactions_per_batch_and_sustains_1khz():

@@ -308,7 +308,7 @@ class NineDofBoard(Board):
         lost = 0
         if overrun:
             self.stats.fifo_resets += 1
-            lost = max(0, int(round((now - self._last_ok) * self.rate_hz)) - len(acc))
+            lost = self._overrun_loss(len(acc))
         n = len(acc)
         g, temp = self.gyr.read() if n else (np.zeros(3), np.nan)
         mag, fresh = None, False
@@ -317,6 +317,22 @@ class NineDofBoard(Board):
             fresh = mag is not None
             self._mag_next = now + 1.0 / self.mag_rate_hz
         return self._emit(acc, np.broadcast_to(g, (n, 3)).copy(), np.full(n, temp), mag, fresh, lost)
+
+    def _overrun_loss(self, n_read: int) -> int:
+        """Samples the ADXL345 overwrote (stream mode, full FIFO) since the last good read:
+        the ones the chip made up to now, less the ``n_read`` just read and what already
+        waits in the FIFO again (what came during the reads).  Counted to the end of the
+        read, not to the time before the entry count: a host stalled between the count and
+        the data reads loses more than the count says (each new sample overwrites the
+        oldest), and counted short every later sample's time stays behind by the stall."""
+        after = self.clock.now()
+        try:
+            waiting = self.acc.entries()
+        except BusError:                    # unknown: the samples read are kept, and the loss
+            waiting = 0                     # is over-counted by what came during the reads
+        made = int(round((after - self._last_ok) * self.rate_hz))
+        self._last_ok = after - waiting / self.rate_hz
+        return max(0, made - n_read - waiting)
 
     def read_batch(self, wait: bool = True, batch_s: Optional[float] = None) -> SampleBatch:
         """The gyro has no FIFO: poll once per sample period, so that each accelerometer

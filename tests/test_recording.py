@@ -177,6 +177,33 @@ def test_table_nan_and_1e308_named(tmp_path):
     assert len(rec) == 50 and np.allclose(rec.acc[:, 2], 1.0) and rec.meta["rate_hz"] == "100"
 
 
+def test_table_time_in_milliseconds_or_microseconds(tmp_path):
+    """A logger's millis() (or micros()) is read through a time column named t_ms (t_us): the
+    same recording as seconds in t.  The same column named t (seconds) would make a 10-ms
+    logger a 0.1 Hz one, whose poses hold a few samples each (the freeimu warm-up, logged in
+    ms: 'no still moment ... 3 distinct samples'): refused, naming t_ms, unless --rate-hz
+    confirms so low a rate."""
+    from imucald.fitting.inputs import read_table
+    rng = np.random.default_rng(3)
+    t_ms = 17139 + np.cumsum(rng.integers(9, 12, 200))              # 10 +- 1 ms steps
+    acc = np.round(rng.normal(0, 20, (200, 3)) + [0, 0, 16384])
+    cols = ["t", "ax", "ay", "az"]
+    p_s, p_ms, p_us = tmp_path / "s.csv", tmp_path / "ms.csv", tmp_path / "us.csv"
+    for p, t in ((p_s, t_ms / 1e3), (p_ms, t_ms), (p_us, t_ms * 1000)):
+        p.write_text("".join(f"{a},{b},{c},{x!r}\n" for (a, b, c), x in zip(acc, t.tolist())))
+    # the time column last, as the freeimu logger writes it
+    ref = read_table(str(p_s), cols[1:] + ["t"], 16384.0)
+    for p, name in ((p_ms, "t_ms"), (p_us, "t_us")):
+        rec = read_table(str(p), cols[1:] + [name], 16384.0)
+        assert np.allclose(rec.t, ref.t, rtol=0, atol=1e-9) and np.array_equal(rec.acc, ref.acc)
+        assert rec.meta["rate_hz"] == ref.meta["rate_hz"] == "100"
+    msg = _one_line_error(read_table, str(p_ms), cols[1:] + ["t"], 16384.0, cls=UserError)
+    assert f"{p_ms}: t advances by a median 10 s a row" in msg and "name its column t_ms" in msg
+    assert len(read_table(str(p_ms), cols[1:] + ["t"], 16384.0, rate_hz=0.1)) == 200
+    msg = _one_line_error(read_table, str(p_ms), ["ax", "ay", "az", "t_ms", "t"], 16384.0, cls=UserError)
+    assert "two time columns (t_ms, t)" in msg
+
+
 @pytest.mark.parametrize("make,expect", [
     (lambda d: d / "nope.csv", "No such file"),
     (lambda d: d, "is a directory"),

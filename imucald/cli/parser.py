@@ -115,7 +115,7 @@ def _add_calibrate(c) -> None:
     c.add_argument("--plot", metavar="DIR", help="accel: write coverage.png (the pose-coverage sphere) and "
                                              "residuals.png (|a| - 1 g per pose before/after) here (plots extra)")
     c.add_argument("--seed", type=int, default=0, help="seed for the GA")
-    c.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az (- skips one)")
+    c.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az (- skips one; the time as t_ms or t_us when in ms or us)")
     c.add_argument("--nominal-scale", type=float, default=1.0,
                    help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384")
     c.add_argument("--nominal-offset", type=float, default=0.0,
@@ -249,7 +249,7 @@ def _add_gap(gp) -> None:
     gp.add_argument("--sims", type=count_in(20, 5000, " (p-values need some resolution)"), default=200,
                     help="twin re-simulations (20..5000)")
     gp.add_argument("--seed", type=int, default=0)
-    gp.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,temp")
+    gp.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,temp (t_ms, t_us: time in ms, us)")
     gp.add_argument("--nominal-scale", type=float, default=1.0)
     gp.add_argument("--nominal-offset", type=float, default=0.0)
     gp.add_argument("--rate-hz", type=positive_float)
@@ -271,7 +271,7 @@ def _add_noise(nz) -> None:
     nz.add_argument("--tau-min-s", type=float, help="shortest averaging time fitted (default 10 samples)")
     nz.add_argument("--tau-max-s", type=float, help="longest averaging time fitted (default a tenth)")
     nz.add_argument("--confidence", type=float, default=0.95, help="confidence of the intervals")
-    nz.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,gx,gy,gz")
+    nz.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,gx,gy,gz (t_ms, t_us: time in ms, us)")
     nz.add_argument("--nominal-scale", type=float, default=1.0)
     nz.add_argument("--nominal-offset", type=float, default=0.0)
     nz.add_argument("--rate-hz", type=float, help="sample rate (default: the stretch's mean rate)")

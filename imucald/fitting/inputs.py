@@ -3,6 +3,8 @@
 A raw table (no imucald magic line) is whitespace- or comma-separated numbers
 whose columns are named by ``columns`` (e.g. ``t,ax,ay,az``); sensor columns
 in raw counts are converted with ``(value - nominal_offset) / nominal_scale``.
+The time column is ``t`` in seconds, or ``t_ms`` / ``t_us`` in milliseconds /
+microseconds (a logger's millis() or micros()).
 This is how the IMU-TK Xsens files (ASCII, unsigned 16-bit counts) are read.
 
 Lines that are blank or start with ``#`` or ``%`` are skipped, and so are
@@ -31,6 +33,12 @@ from .stillness.poses import POSES_MAGIC, read_poses
 __all__ = ["load_input", "read_table", "stuck_columns", "stuck_message"]
 
 _SENSOR = {"ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"}
+#: a raw table's time column by its unit, in seconds per unit (loggers often write an Arduino's
+#: millis() or micros())
+TIME_COLUMNS = {"t": 1.0, "t_ms": 1e-3, "t_us": 1e-6}
+#: a time column named ``t`` (seconds) whose rows advance by this or more (a rate under 1 Hz):
+#: refused unless --rate-hz confirms the rate, since it is far likelier in milliseconds
+SLOW_T_S = 1.0
 
 
 _AXES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
@@ -87,13 +95,18 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
                nominal_offset: float = 0.0, rate_hz: Optional[float] = None) -> Recording:
     """A headerless numeric table as a Recording (units after nominal scaling)."""
     cols = list(columns)
-    bad = [c for c in cols if c not in COLUMNS and c != "-"]
+    allowed = COLUMNS + [k for k in TIME_COLUMNS if k not in COLUMNS]
+    bad = [c for c in cols if c not in allowed and c != "-"]
     if bad:
-        raise UserError(f"--columns: unknown column {bad[0]!r}; allowed {', '.join(COLUMNS)} "
+        raise UserError(f"--columns: unknown column {bad[0]!r}; allowed {', '.join(allowed)} "
                         f"(or - to skip one)")
     named = [c for c in cols if c != "-"]
     if len(set(named)) != len(named):
         raise UserError(f"--columns: a column is repeated in {','.join(cols)}")
+    times = [c for c in cols if c in TIME_COLUMNS]
+    if len(times) > 1:
+        raise UserError(f"--columns: two time columns ({', '.join(times)}): name one, and - for the other")
+    t_name = times[0] if times else None
     if not math.isfinite(nominal_scale) or nominal_scale == 0:
         raise UserError(f"--nominal-scale {nominal_scale}: must be a finite, non-zero number "
                         f"(counts per unit, e.g. 16384)")
@@ -107,7 +120,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
     half = [PLAUSIBLE_LIMIT * abs(nominal_scale) if s else (PLAUSIBLE_LIMIT if c == "temp" else np.inf)
             for s, c in zip(sensor, cols)]
     spec = TableSpec(path, cols, UserError, comma_only=False, skip="#%", centre=centre,
-                     halfwidth=half, tcol=cols.index("t") if "t" in cols else None,
+                     halfwidth=half, tcol=cols.index(t_name) if t_name else None,
                      checked=[c != "-" for c in cols],
                      limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
     with open_binary(path, UserError) as fh:
@@ -129,7 +142,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
                 break
             lineno, offset = lineno + 1, offset + len(raw)
         idx = {name: i for i, name in enumerate(cols) if name != "-"}
-        groups = [(k, [idx[k]]) for k in ("t", "temp") if k in idx]
+        groups = [(k, [idx[k]]) for k in (t_name, "temp") if k in idx]
         for g, ks in (("acc", ["ax", "ay", "az"]), ("gyro", ["gx", "gy", "gz"]), ("mag", ["mx", "my", "mz"])):
             if all(k in idx for k in ks):
                 groups.append((g, [idx[k] for k in ks]))
@@ -141,21 +154,32 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
         if g in c:
             c[g] -= nominal_offset
             c[g] /= nominal_scale
-    if "t" in c:
-        t = c["t"]
-        dt = np.diff(t)
-        dt = dt[dt > 0]
-        if not rate_hz and not len(dt):
-            raise UserError(f"{path}: t never advances, so the sample rate is unknown: give --rate-hz")
-        rate = rate_hz or 1.0 / float(median(dt))
+    if t_name:
+        t = c.pop(t_name) * TIME_COLUMNS[t_name] if t_name != "t" else c.pop("t")
+        rate = rate_hz or _table_rate(path, t, t_name)
     else:
         if not rate_hz:
-            raise UserError(f"{path}: no t column: give --rate-hz")
+            raise UserError(f"{path}: no time column (t, t_ms or t_us): give --rate-hz")
         rate = rate_hz
         t = np.arange(n) / rate
     meta = {"board": "unknown", "rate_hz": f"{rate:g}", "source": os.path.basename(path)}
     return Recording(t=t, acc=c.get("acc"), gyro=c.get("gyro"), mag=c.get("mag"),
                      temp=c.get("temp"), meta=meta)
+
+
+def _table_rate(path: str, t: np.ndarray, t_name: str) -> float:
+    """The sample rate of a raw table from its time column ``t`` (s; named ``t_name``): one
+    over the median interval between rows that advance."""
+    dt = np.diff(t)
+    dt = dt[dt > 0]
+    if not len(dt):
+        raise UserError(f"{path}: {t_name} never advances, so the sample rate is unknown: give --rate-hz")
+    step = float(median(dt))
+    if t_name == "t" and step >= SLOW_T_S:
+        raise UserError(f"{path}: t advances by a median {step:g} s a row (a {1 / step:.3g} Hz rate): "
+                        f"if the time is in milliseconds name its column t_ms (t_us: microseconds); "
+                        f"for a rate this low give --rate-hz")
+    return 1.0 / step
 
 
 def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: float = 1.0,

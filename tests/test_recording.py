@@ -204,6 +204,34 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     assert "two time columns (t_ms, t)" in msg
 
 
+def test_table_nominal_scale_and_offset_per_sensor(tmp_path):
+    """An MPU-6050 logged in counts has 16384 counts per g and 131 per deg/s: one scale for
+    both read the gyro 125x too small (the freeimu warm-up's gyro in gap: thermal terms of
+    1e-6 deg/s/degC).  Per sensor, each is converted with its own; a per-sensor value that
+    leaves out a sensor whose columns the table has is refused, naming it."""
+    from imucald.cli.checks import per_sensor
+    from imucald.fitting.inputs import read_table
+    p = tmp_path / "raw.csv"
+    p.write_text("".join(f"{i * 0.01:.2f},0,0,16384,{131 * 2 + 32768},32768,{32768 - 131}\n"
+                         for i in range(50)))
+    cols = ["t", "ax", "ay", "az", "gx", "gy", "gz"]
+    rec = read_table(str(p), cols, per_sensor("accel=16384,gyro=131"), per_sensor("accel=0,gyro=32768"))
+    assert np.allclose(rec.acc, [0, 0, 1]) and np.allclose(rec.gyro, [2, 0, -1])
+    rec = read_table(str(p), cols, 16384.0, 0.0)                         # one for both: as before
+    assert np.allclose(rec.gyro[0], [(131 * 2 + 32768) / 16384, 2, (32768 - 131) / 16384])
+    msg = _one_line_error(read_table, str(p), cols, {"accel": 16384.0}, 0.0, cls=UserError)
+    assert "--nominal-scale: no value for the gyro columns (gx,gy,gz): add gyro=N" in msg
+    msg = _one_line_error(read_table, str(p), cols, {"accel": 16384.0, "gyro": 0.0}, 0.0, cls=UserError)
+    assert "--nominal-scale 0 (gyro): must be a finite, non-zero number" in msg
+    import argparse
+    for bad, what in (("accel=16384,gyr=131", "expected accel=N, gyro=N and mag=N"),
+                      ("accel=1,accel=2", "each at most once"), ("accel=x", "'x' is not a number"),
+                      ("inf", "not a finite number"), ("16k", "is not a number")):
+        with pytest.raises(argparse.ArgumentTypeError, match=what):
+            per_sensor(bad)
+    assert per_sensor("4069.76") == 4069.76
+
+
 @pytest.mark.parametrize("make,expect", [
     (lambda d: d / "nope.csv", "No such file"),
     (lambda d: d, "is a directory"),

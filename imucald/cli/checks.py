@@ -11,7 +11,7 @@ import os
 
 from ..errors import CannotCreate, UserError
 
-__all__ = ["positive_float", "non_negative_float", "at_least", "check_args", "output_file", "output_dir",
+__all__ = ["positive_float", "non_negative_float", "per_sensor", "at_least", "check_args", "output_file", "output_dir",
            "LIMITS", "number_in", "count_in", "SIM_MAX_SAMPLES"]
 
 #: The stated limits of the arguments that imply memory or time (docs/changes/issue-21.md):
@@ -42,6 +42,33 @@ def positive_float(text: str) -> float:
     if not math.isfinite(v) or v <= 0:
         raise argparse.ArgumentTypeError(f"{text} is not a number > 0")
     return v
+
+
+def per_sensor(text: str):
+    """argparse type of --nominal-scale / --nominal-offset: one finite number for every sensor
+    column, or one per sensor as ``accel=16384,gyro=131`` (accel, gyro, mag), a dict."""
+    if "=" not in text:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number (or accel=N,gyro=N,mag=N)") from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"{text} is not a finite number")
+        return v
+    out = {}
+    for part in text.split(","):
+        key, _, val = part.partition("=")
+        key = key.strip()
+        if key not in ("accel", "gyro", "mag") or key in out:
+            raise argparse.ArgumentTypeError(
+                f"{part!r} in {text!r}: expected accel=N, gyro=N and mag=N, each at most once")
+        try:
+            out[key] = float(val)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{part!r} in {text!r}: {val!r} is not a number") from None
+        if not math.isfinite(out[key]):
+            raise argparse.ArgumentTypeError(f"{part!r} in {text!r}: not a finite number")
+    return out
 
 
 def non_negative_float(text: str) -> float:

@@ -17,7 +17,7 @@ import importlib
 from typing import Optional
 
 from .. import __version__
-from .checks import LIMITS, at_least, count_in, number_in, positive_float
+from .checks import LIMITS, at_least, count_in, number_in, per_sensor, positive_float
 
 
 def _lim(name: str):
@@ -116,10 +116,12 @@ def _add_calibrate(c) -> None:
                                              "residuals.png (|a| - 1 g per pose before/after) here (plots extra)")
     c.add_argument("--seed", type=int, default=0, help="seed for the GA")
     c.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az (- skips one; the time as t_ms or t_us when in ms or us)")
-    c.add_argument("--nominal-scale", type=float, default=1.0,
-                   help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384")
-    c.add_argument("--nominal-offset", type=float, default=0.0,
-                   help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit")
+    c.add_argument("--nominal-scale", type=per_sensor, default=1.0,
+                   help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384, or one per "
+                        "sensor, e.g. accel=16384,gyro=131")
+    c.add_argument("--nominal-offset", type=per_sensor, default=0.0,
+                   help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit (or "
+                        "accel=N,gyro=N)")
     c.add_argument("--rate-hz", type=positive_float, help="raw table without a t column: sample rate")
     c.add_argument("--window-s", type=_lim("window"), default=_ST["window_s"], help="still detector window, s")
     c.add_argument("--threshold-k", type=positive_float, default=_ST["k"],
@@ -250,8 +252,10 @@ def _add_gap(gp) -> None:
                     help="twin re-simulations (20..5000)")
     gp.add_argument("--seed", type=int, default=0)
     gp.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,temp (t_ms, t_us: time in ms, us)")
-    gp.add_argument("--nominal-scale", type=float, default=1.0)
-    gp.add_argument("--nominal-offset", type=float, default=0.0)
+    gp.add_argument("--nominal-scale", type=per_sensor, default=1.0,
+                    help="raw table: counts per unit, or one per sensor, e.g. accel=16384,gyro=131")
+    gp.add_argument("--nominal-offset", type=per_sensor, default=0.0,
+                    help="raw table: counts at zero input (or accel=N,gyro=N)")
     gp.add_argument("--rate-hz", type=positive_float)
     gp.set_defaults(func=_command("gap", "cmd_gap"))
 
@@ -272,8 +276,10 @@ def _add_noise(nz) -> None:
     nz.add_argument("--tau-max-s", type=float, help="longest averaging time fitted (default a tenth)")
     nz.add_argument("--confidence", type=float, default=0.95, help="confidence of the intervals")
     nz.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,gx,gy,gz (t_ms, t_us: time in ms, us)")
-    nz.add_argument("--nominal-scale", type=float, default=1.0)
-    nz.add_argument("--nominal-offset", type=float, default=0.0)
+    nz.add_argument("--nominal-scale", type=per_sensor, default=1.0,
+                    help="raw table: counts per unit, or one per sensor, e.g. accel=16384,gyro=131")
+    nz.add_argument("--nominal-offset", type=per_sensor, default=0.0,
+                    help="raw table: counts at zero input (or accel=N,gyro=N)")
     nz.add_argument("--rate-hz", type=float, help="sample rate (default: the stretch's mean rate)")
     nz.set_defaults(func=_command("noise", "cmd_noise"))
 

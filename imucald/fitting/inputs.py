@@ -2,7 +2,9 @@
 
 A raw table (no imucald magic line) is whitespace- or comma-separated numbers
 whose columns are named by ``columns`` (e.g. ``t,ax,ay,az``); sensor columns
-in raw counts are converted with ``(value - nominal_offset) / nominal_scale``.
+in raw counts are converted with ``(value - nominal_offset) / nominal_scale``, one
+number for every sensor or one per sensor (``{"accel": 16384, "gyro": 131}``: an
+MPU-6050's counts per g and per deg/s).
 The time column is ``t`` in seconds, or ``t_ms`` / ``t_us`` in milliseconds /
 microseconds (a logger's millis() or micros()).
 This is how the IMU-TK Xsens files (ASCII, unsigned 16-bit counts) are read.
@@ -19,7 +21,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
@@ -32,7 +34,10 @@ from .stillness.poses import POSES_MAGIC, read_poses
 
 __all__ = ["load_input", "read_table", "stuck_columns", "stuck_message"]
 
-_SENSOR = {"ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"}
+_GROUP_COLUMNS = {"acc": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
+_NAMES = {"acc": "accel", "gyro": "gyro", "mag": "mag"}        # as --nominal-scale names them
+#: a nominal scale or offset: one number for every sensor, or one per sensor by name
+PerSensor = Union[float, Dict[str, float]]
 #: a raw table's time column by its unit, in seconds per unit (loggers often write an Arduino's
 #: millis() or micros())
 TIME_COLUMNS = {"t": 1.0, "t_ms": 1e-3, "t_us": 1e-6}
@@ -91,8 +96,8 @@ def _numeric(parts) -> bool:
         return False
 
 
-def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
-               nominal_offset: float = 0.0, rate_hz: Optional[float] = None) -> Recording:
+def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0,
+               nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None) -> Recording:
     """A headerless numeric table as a Recording (units after nominal scaling)."""
     cols = list(columns)
     allowed = COLUMNS + [k for k in TIME_COLUMNS if k not in COLUMNS]
@@ -107,18 +112,22 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
     if len(times) > 1:
         raise UserError(f"--columns: two time columns ({', '.join(times)}): name one, and - for the other")
     t_name = times[0] if times else None
-    if not math.isfinite(nominal_scale) or nominal_scale == 0:
-        raise UserError(f"--nominal-scale {nominal_scale}: must be a finite, non-zero number "
-                        f"(counts per unit, e.g. 16384)")
-    if not math.isfinite(nominal_offset):
-        raise UserError(f"--nominal-offset {nominal_offset}: must be a finite number "
-                        f"(counts at zero input, e.g. 32768)")
+    present = [g for g, ks in _GROUP_COLUMNS.items() if any(k in cols for k in ks)]
+    scales = _per_sensor(nominal_scale, "--nominal-scale", present, cols)
+    offsets = _per_sensor(nominal_offset, "--nominal-offset", present, cols)
+    for g in present:
+        if not math.isfinite(scales[g]) or scales[g] == 0:
+            raise UserError(f"--nominal-scale {scales[g]:g} ({_NAMES[g]}): must be a finite, non-zero "
+                            f"number (counts per unit, e.g. 16384)")
+        if not math.isfinite(offsets[g]):
+            raise UserError(f"--nominal-offset {offsets[g]:g} ({_NAMES[g]}): must be a finite number "
+                            f"(counts at zero input, e.g. 32768)")
     if rate_hz is not None and not (0 < rate_hz < math.inf):
         raise UserError(f"--rate-hz {rate_hz}: must be a number of samples per second > 0")
-    sensor = [c in _SENSOR for c in cols]
-    centre = [nominal_offset if s else 0.0 for s in sensor]
-    half = [PLAUSIBLE_LIMIT * abs(nominal_scale) if s else (PLAUSIBLE_LIMIT if c == "temp" else np.inf)
-            for s, c in zip(sensor, cols)]
+    group = {k: g for g, ks in _GROUP_COLUMNS.items() for k in ks}
+    centre = [offsets[group[c]] if c in group else 0.0 for c in cols]
+    half = [PLAUSIBLE_LIMIT * abs(scales[group[c]]) if c in group else
+            (PLAUSIBLE_LIMIT if c == "temp" else np.inf) for c in cols]
     spec = TableSpec(path, cols, UserError, comma_only=False, skip="#%", centre=centre,
                      halfwidth=half, tcol=cols.index(t_name) if t_name else None,
                      checked=[c != "-" for c in cols],
@@ -152,8 +161,8 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
                         f"{','.join(cols)})")
     for g in ("acc", "gyro", "mag"):
         if g in c:
-            c[g] -= nominal_offset
-            c[g] /= nominal_scale
+            c[g] -= offsets[g]
+            c[g] /= scales[g]
     if t_name:
         t = c.pop(t_name) * TIME_COLUMNS[t_name] if t_name != "t" else c.pop("t")
         rate = rate_hz or _table_rate(path, t, t_name)
@@ -165,6 +174,21 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: float = 1.0,
     meta = {"board": "unknown", "rate_hz": f"{rate:g}", "source": os.path.basename(path)}
     return Recording(t=t, acc=c.get("acc"), gyro=c.get("gyro"), mag=c.get("mag"),
                      temp=c.get("temp"), meta=meta)
+
+
+def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str]) -> dict:
+    """``value`` of ``option`` (one number for every sensor, or a mapping accel/gyro/mag ->
+    number) for each sensor group in ``present``: a mapping must name every sensor whose
+    columns the table has (one accelerometer scale left on a gyro's counts reads 131 counts
+    per deg/s as 1 deg/s a count, a plausible but wrong number)."""
+    if not isinstance(value, dict):
+        return {g: float(value) for g in present}
+    for g in present:
+        if _NAMES[g] not in value:
+            have = ",".join(k for k in _GROUP_COLUMNS[g] if k in cols)
+            raise UserError(f"{option}: no value for the {_NAMES[g]} columns ({have}): add "
+                            f"{_NAMES[g]}=N to it (or give one number for every sensor)")
+    return {g: float(value[_NAMES[g]]) for g in present}
 
 
 def _table_rate(path: str, t: np.ndarray, t_name: str) -> float:
@@ -182,8 +206,8 @@ def _table_rate(path: str, t: np.ndarray, t_name: str) -> float:
     return 1.0 / step
 
 
-def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: float = 1.0,
-               nominal_offset: float = 0.0, rate_hz: Optional[float] = None):
+def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: PerSensor = 1.0,
+               nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None):
     """Return (kind, obj): ('recording', Recording) or ('poses', PoseSet)."""
     first = _first_line(path)
     if first == MAGIC:

@@ -204,6 +204,21 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     assert "two time columns (t_ms, t)" in msg
 
 
+@pytest.mark.parametrize("rows,where", [(300, ": no numeric rows"), (1500, ":1001: no row of 4 numbers")])
+def test_table_with_semicolons_and_decimal_commas_says_so(tmp_path, rows, where):
+    """A spreadsheet's export in a locale whose decimal mark is the comma (0,01;0;0;16384):
+    no row parses, and the one-line error says why and how to export it, whether the file
+    ends before 1000 lines or not.  A file that is not a table at all gets no such hint."""
+    from imucald.fitting.inputs import read_table
+    p = tmp_path / "semi.csv"
+    p.write_text("time;ax;ay;az\n" + "".join(f"0,{i:02d};0;0;16384\n" for i in range(rows)))
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg.startswith(f"{p}{where}") and "separated by ';' (a decimal comma?)" in msg
+    p.write_text("time ax ay az\n" + "no numbers here\n" * rows)
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg.startswith(f"{p}{where}") and "';'" not in msg
+
+
 def test_table_nominal_scale_and_offset_per_sensor(tmp_path):
     """An MPU-6050 logged in counts has 16384 counts per g and 131 per deg/s: one scale for
     both read the gyro 125x too small (the freeimu warm-up's gyro in gap: thermal terms of

@@ -133,23 +133,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
                      checked=[c != "-" for c in cols],
                      limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
     with open_binary(path, UserError) as fh:
-        lineno, offset = 1, 0
-        if fh.read(len(BOM)) == BOM:        # a UTF-8 byte-order mark: skipped
-            offset = len(BOM)
-        fh.seek(offset)
-        while True:             # skip blank, comment and header lines before the first numbers
-            raw = fh.readline(1 << 16)
-            if lineno > 1000 or (len(raw) >= 1 << 16 and not raw.endswith(b"\n")):
-                raise UserError(f"{path}:{lineno}: no row of {len(cols)} numbers in the first "
-                                f"{lineno} lines: not a numeric table ({','.join(cols)})")
-            if not raw:
-                raise UserError(f"{path}: no numeric rows (expected {len(cols)} numbers per line: "
-                                f"{','.join(cols)})")
-            s = decode_line(path, raw, lineno, offset).strip()
-            if s and s[0] not in "#%" and _numeric(s.replace(",", " ").split()):
-                fh.seek(offset)
-                break
-            lineno, offset = lineno + 1, offset + len(raw)
+        lineno, offset = _first_row(fh, path, cols)
         idx = {name: i for i, name in enumerate(cols) if name != "-"}
         groups = [(k, [idx[k]]) for k in (t_name, "temp") if k in idx]
         for g, ks in (("acc", ["ax", "ay", "az"]), ("gyro", ["gx", "gy", "gz"]), ("mag", ["mx", "my", "mz"])):
@@ -174,6 +158,33 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
     meta = {"board": "unknown", "rate_hz": f"{rate:g}", "source": os.path.basename(path)}
     return Recording(t=t, acc=c.get("acc"), gyro=c.get("gyro"), mag=c.get("mag"),
                      temp=c.get("temp"), meta=meta)
+
+
+def _first_row(fh, path: str, cols: Sequence[str]):
+    """(line number, byte offset) of a raw table's first row of numbers, ``fh`` left there:
+    blank, comment (#, %) and header lines before it skipped, and a UTF-8 byte-order mark."""
+    lineno, offset = 1, 0
+    if fh.read(len(BOM)) == BOM:
+        offset = len(BOM)
+    fh.seek(offset)
+    hint = ""
+    while True:
+        raw = fh.readline(1 << 16)
+        if lineno > 1000 or (len(raw) >= 1 << 16 and not raw.endswith(b"\n")):
+            raise UserError(f"{path}:{lineno}: no row of {len(cols)} numbers in the first "
+                            f"{lineno} lines: not a numeric table ({','.join(cols)}){hint}")
+        if not raw:
+            raise UserError(f"{path}: no numeric rows (expected {len(cols)} numbers per line: "
+                            f"{','.join(cols)}){hint}")
+        s = decode_line(path, raw, lineno, offset).strip()
+        if s and s[0] not in "#%" and _numeric(s.replace(",", " ").split()):
+            fh.seek(offset)
+            return lineno, offset
+        if not hint and ";" in s and _numeric(s.replace(",", ".").replace(";", " ").split()):
+            # a spreadsheet's export where the comma is the decimal mark: 0,01;0;16384
+            hint = ("; its values are separated by ';' (a decimal comma?): export it with ',' or "
+                    "tabs between values and '.' as the decimal point")
+        lineno, offset = lineno + 1, offset + len(raw)
 
 
 def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str]) -> dict:

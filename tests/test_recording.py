@@ -204,6 +204,21 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     assert "two time columns (t_ms, t)" in msg
 
 
+def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
+    """A time column that steps back is named in its own unit; in t_us a step back by more
+    than 2**31 us is an Arduino's 32-bit micros() wrapping (every 71.6 min), said as such."""
+    from imucald.fitting.inputs import read_table
+    p = tmp_path / "us.csv"
+    t = [2 ** 32 - 30000 + 10000 * i for i in range(3)] + [(10000 * i) % 2 ** 32 for i in range(1, 4)]
+    p.write_text("".join(f"0,0,16384,{x}\n" for x in t))
+    msg = _one_line_error(read_table, str(p), ["ax", "ay", "az", "t_us"], 16384.0, cls=UserError)
+    assert msg.startswith(f"{p}:4: time goes backwards (10000 us after 4294957296 us)")
+    assert "micros() counter wraps every 71.6 min" in msg
+    p.write_text("".join(f"0,0,16384,{x}\n" for x in (10, 20, 30, 25, 40)))
+    msg = _one_line_error(read_table, str(p), ["ax", "ay", "az", "t_ms"], 16384.0, cls=UserError)
+    assert msg.startswith(f"{p}:4: time goes backwards (25 ms after 30 ms); sort the rows")
+
+
 @pytest.mark.parametrize("rows,where", [(300, ": no numeric rows"), (1500, ":1001: no row of 4 numbers")])
 def test_table_with_semicolons_and_decimal_commas_says_so(tmp_path, rows, where):
     """A spreadsheet's export in a locale whose decimal mark is the comma (0,01;0;0;16384):

@@ -44,6 +44,18 @@ def warn(msg: str) -> None:
     print(f"imucald: warning: {msg}", file=sys.stderr, flush=True)
 
 
+def _backwards(name: str, t: float, prev_t: float) -> str:
+    """The message for a time column ``name`` (t in s; a raw table's t_ms, t_us) that steps
+    back from ``prev_t`` to ``t``, in its unit: an Arduino's 32-bit micros() wraps every
+    2**32 us (71.6 min), which a long recording in t_us meets."""
+    unit = {"t_ms": "ms", "t_us": "us"}.get(name, "s")
+    if name == "t_us" and prev_t - t > 2 ** 31:
+        return (f"time goes backwards ({t:.12g} us after {prev_t:.12g} us): a 32-bit micros() "
+                f"counter wraps every 71.6 min; split the file there, or log a wider counter")
+    return (f"time goes backwards ({t:.12g} {unit} after {prev_t:.12g} {unit}); sort the rows by "
+            f"time or cut the file there")
+
+
 class TableSpec:
     """How the body of one file is laid out and checked."""
 
@@ -496,8 +508,7 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
         if spec.tcol is not None:
             t = row[spec.tcol]
             if t < prev_t:
-                spec.fail(ln, f"time goes backwards ({t:.9g} s after {prev_t:.9g} s); sort the "
-                              f"rows by time or cut the file there")
+                spec.fail(ln, _backwards(spec.names[spec.tcol], t, prev_t))
             prev_t = t
         out.append(row)
     return np.array(out, dtype=np.float64).reshape(len(out), n)

@@ -176,3 +176,48 @@ def test_replay_starts_from_the_calibration_in_the_state_dir(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(d / "calibration.yaml") in err and "9dof" in err, err
     assert (d / "calibration.yaml").read_text() == text
+
+
+def _as_logger_table(rec_path, out_path):
+    """The recording as a logger writes it: counts (16384 per g, 131 per deg/s), the time in
+    milliseconds, a header line, the time column last."""
+    from imucald.files.recording import read_recording
+    r = read_recording(rec_path)
+    rows = np.column_stack([r.acc * 16384, r.gyro * 131, r.temp, r.t * 1000])
+    with open(out_path, "w") as fh:
+        fh.write("ax,ay,az,gx,gy,gz,temp,millis\n")
+        fh.writelines(",".join(repr(float(v)) for v in row) + "\n" for row in rows)
+    return r
+
+
+RAW = ["--columns", "ax,ay,az,gx,gy,gz,temp,t_ms", "--nominal-scale", "accel=16384,gyro=131"]
+
+
+def test_replay_and_apply_read_a_raw_logger_table(tmp_path):
+    """A logger's table (counts, milliseconds) is replayed and corrected as the recording it
+    holds: replay streams every row with the same samples as the recording's replay until a
+    calibration is applied, and reaches one; apply writes the same corrected samples.
+    (Before, both read imucald recordings only: a user had to convert the file first.)"""
+    rec, tab = tmp_path / "r.csv", tmp_path / "logger.csv"
+    assert main(["simulate", "-o", str(rec), "--board", "mpu6050", "--poses", "14", "--hold", "4",
+                 "--move", "2", "--rate", "50", "--seed", "7"]) == 0
+    r = _as_logger_table(rec, tab)
+    a, _ = _replay(rec, "--min-poses", "12", "--orientation", "no")
+    b, _ = _replay(tab, "--min-poses", "12", "--orientation", "no", *RAW)
+    ia = [json.loads(l) for l in a if '"IMU"' in l]
+    ib = [json.loads(l) for l in b if '"IMU"' in l]
+    assert len(ib) == len(ia) == len(r)
+    raw = [(x, y) for x, y in zip(ia, ib) if x["cal"] == 0 and y["cal"] == 0]
+    assert len(raw) > len(r) // 2
+    for x, y in raw:            # the stream prints 6 digits: one unit in the last place
+        _close({k: x[k] for k in ("seq", "t", "acc_g", "gyro_dps", "temp_c")},
+               {k: y[k] for k in ("seq", "t", "acc_g", "gyro_dps", "temp_c")})
+    assert any('"CAL"' in l for l in b)
+    cal = tmp_path / "cal.yaml"
+    assert main(["calibrate", str(rec), "--sensor", "all", "-o", str(cal)]) == 0
+    assert main(["apply", str(cal), str(rec), "-o", str(tmp_path / "a.csv")]) == 0
+    assert main(["apply", str(cal), str(tab), "-o", str(tmp_path / "b.csv"), *RAW]) == 0
+    from imucald.files.recording import read_recording
+    ca, cb = read_recording(tmp_path / "a.csv"), read_recording(tmp_path / "b.csv")
+    assert np.allclose(ca.acc, cb.acc, rtol=0, atol=1e-9) and np.allclose(ca.gyro, cb.gyro, rtol=0, atol=1e-9)
+    assert np.allclose(ca.t, cb.t, rtol=0, atol=1e-9)

@@ -6,3 +6,35 @@ import sys
 
 def eprint(*a) -> None:
     print(*a, file=sys.stderr, flush=True)
+
+
+class TableReader:
+    """A raw numeric table (a logger's file, read whole by ``imucald.fitting.inputs.read_table``)
+    served as ``open_recording``'s reader is: ``header``, ``meta`` and ``chunks()``."""
+
+    def __init__(self, rec, rows: int = 1 << 16):
+        self.rec, self.rows = rec, rows
+        self.header, self.meta = rec.columns(), rec.meta
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        return False
+
+    def chunks(self):
+        for i in range(0, len(self.rec), self.rows):
+            yield self.rec.slice(i, i + self.rows)
+
+
+def input_recording(args, path: str, whole: bool = True):
+    """The recording a command reads: an imucald recording, or with ``--columns`` a raw table
+    (``--nominal-scale``, ``--nominal-offset``, ``--rate-hz``).  ``whole``: the Recording;
+    else a reader (a recording streamed block by block, a table read whole)."""
+    if getattr(args, "columns", None):
+        from ..fitting.inputs import read_table
+        rec = read_table(path, args.columns.split(","), args.nominal_scale, args.nominal_offset,
+                         args.rate_hz)
+        return rec if whole else TableReader(rec)
+    from ..files.recording import open_recording, read_recording
+    return read_recording(path) if whole else open_recording(path)

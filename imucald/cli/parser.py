@@ -99,6 +99,19 @@ def _add_simulate(s) -> None:
     s.set_defaults(func=_command("offline", "cmd_simulate"))
 
 
+def _raw_table_options(p, example: str) -> None:
+    """The options that read a raw numeric table (a logger's file) as a recording."""
+    p.add_argument("--columns", help=f"raw table columns, e.g. {example} (- skips one; the time as "
+                                     f"t_ms or t_us when in ms or us)")
+    p.add_argument("--nominal-scale", type=per_sensor, default=1.0,
+                   help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384, or one per "
+                        "sensor, e.g. accel=16384,gyro=131")
+    p.add_argument("--nominal-offset", type=per_sensor, default=0.0,
+                   help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit (or "
+                        "accel=N,gyro=N)")
+    p.add_argument("--rate-hz", type=positive_float, help="raw table without a time column: sample rate")
+
+
 def _add_calibrate(c) -> None:
     from ..stillness_defaults import STILLNESS_DEFAULTS as _ST
     from .offline import SENSORS
@@ -115,14 +128,7 @@ def _add_calibrate(c) -> None:
     c.add_argument("--plot", metavar="DIR", help="accel: write coverage.png (the pose-coverage sphere) and "
                                              "residuals.png (|a| - 1 g per pose before/after) here (plots extra)")
     c.add_argument("--seed", type=int, default=0, help="seed for the GA")
-    c.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az (- skips one; the time as t_ms or t_us when in ms or us)")
-    c.add_argument("--nominal-scale", type=per_sensor, default=1.0,
-                   help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384, or one per "
-                        "sensor, e.g. accel=16384,gyro=131")
-    c.add_argument("--nominal-offset", type=per_sensor, default=0.0,
-                   help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit (or "
-                        "accel=N,gyro=N)")
-    c.add_argument("--rate-hz", type=positive_float, help="raw table without a t column: sample rate")
+    _raw_table_options(c, "t,ax,ay,az")
     c.add_argument("--window-s", type=_lim("window"), default=_ST["window_s"], help="still detector window, s")
     c.add_argument("--threshold-k", type=positive_float, default=_ST["k"],
                    help="still when the accelerometer's moving variance < k x its noise floor")
@@ -137,11 +143,12 @@ def _add_calibrate(c) -> None:
 
 def _add_apply(ap) -> None:
     ap.add_argument("calibration", help="calibration file (calibrate -o, or the daemon's state)")
-    ap.add_argument("recording")
+    ap.add_argument("recording", help="recording, or raw table (with --columns)")
     ap.add_argument("-o", "--output", required=True, help="corrected recording to write")
     ap.add_argument("--orientation", metavar="FILE",
                     help="also write the orientation of the corrected samples to this CSV table "
                          "(the orientation extra)")
+    _raw_table_options(ap, "t,ax,ay,az,gx,gy,gz,temp")
     ap.set_defaults(func=_command("thermal", "cmd_apply"))
 
 
@@ -210,7 +217,8 @@ def _add_run(rn) -> None:
 
 
 def _add_replay(rp) -> None:
-    rp.add_argument("recording")
+    rp.add_argument("recording", help="recording, or raw table (with --columns)")
+    _raw_table_options(rp, "t,ax,ay,az,gx,gy,gz,temp")
     rp.add_argument("--state-dir", help="save the calibration reached as DIR/calibration.yaml")
     rp.add_argument("--config")
     rp.add_argument("--format", choices=_choices("output.format"))
@@ -251,12 +259,7 @@ def _add_gap(gp) -> None:
     gp.add_argument("--sims", type=count_in(20, 5000, " (p-values need some resolution)"), default=200,
                     help="twin re-simulations (20..5000)")
     gp.add_argument("--seed", type=int, default=0)
-    gp.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,temp (t_ms, t_us: time in ms, us)")
-    gp.add_argument("--nominal-scale", type=per_sensor, default=1.0,
-                    help="raw table: counts per unit, or one per sensor, e.g. accel=16384,gyro=131")
-    gp.add_argument("--nominal-offset", type=per_sensor, default=0.0,
-                    help="raw table: counts at zero input (or accel=N,gyro=N)")
-    gp.add_argument("--rate-hz", type=positive_float)
+    _raw_table_options(gp, "t,ax,ay,az,temp")
     gp.set_defaults(func=_command("gap", "cmd_gap"))
 
 

@@ -77,10 +77,11 @@ def cmd_replay(args) -> int:
     from ..daemon.pipeline import Pipeline
     from ..daemon.state import save_calibration
     from ..drivers.board import SampleBatch
-    from ..files.recording import open_recording
+    from ._common import input_recording
     cfg, _ = daemon_config(args)
     setup_logging(cfg["log"]["level"])
-    with open_recording(args.recording) as reader:      # streamed: memory bounded by one block
+    # a recording is streamed (memory bounded by one block); a raw table is read whole
+    with input_recording(args, args.recording, whole=False) as reader:
         cols = reader.header
         if "ax" not in cols and "mx" not in cols:
             raise UserError(f"{args.recording}: no accelerometer (ax, ay, az) or magnetometer "

@@ -110,12 +110,13 @@ def cmd_apply(args) -> int:
     """Correct a recording with a calibration file: every sensor the file has a part for,
     each sample at its own temperature (thermal terms)."""
     from ..calibration import load
-    from ..files.recording import Recording, read_recording, write_recording
+    from ..files.recording import Recording, write_recording
+    from ._common import input_recording
     if getattr(args, "orientation", None):          # the extra missing: say so before writing
         from ..orientation import load_vqf
         load_vqf()
     cal = load(args.calibration)
-    rec = read_recording(args.recording)
+    rec = input_recording(args, args.recording)
     board = rec.meta.get("board", "unknown")
     why = None if "unknown" in (board, cal.board) else cal.mismatch(board)
     if why:

@@ -146,3 +146,28 @@ def test_simulate_sway_deg_reaches_the_motion(tmp_path, effect):
     cos = np.sum(a.acc * s.acc, 1) / np.linalg.norm(a.acc, axis=1) / np.linalg.norm(s.acc, axis=1)
     dev = np.degrees(np.arccos(np.clip(cos, -1, 1)))
     assert 0.1 < np.median(dev) < 1.0, np.median(dev)
+
+
+def test_every_numeric_option_refuses_nan_and_inf_up_front(capsys):
+    """Every option the parser converts (a type other than str) refuses 'nan' and 'inf' in
+    one argparse line naming the option (exit 2), before any command runs: before this,
+    `--seed -1` gave a numpy traceback in every command, `noise --rate-hz nan` a traceback,
+    and `simulate --magnitude nan` wrote a recording of NaN that nothing reads.  A seed is
+    an integer >= 0, a bus number 0..99."""
+    from imucald.cli import main
+    from imucald.cli.parser import build_parser
+    sub = next(a for a in build_parser()._actions if a.dest == "cmd").choices
+    typed = [(cmd, a.option_strings[0]) for cmd, sp in sub.items() for a in sp._actions
+             if a.option_strings and a.type not in (None, str) and a.nargs != 0]
+    assert len(typed) > 30
+    for cmd, flag in typed:
+        for bad in ("nan", "inf"):
+            with pytest.raises(SystemExit) as e:
+                main([cmd, flag, bad])
+            err = capsys.readouterr().err
+            assert e.value.code == 2 and f"argument {flag}" in err and err.count("\n") == 1, (cmd, flag, err)
+    for cmd, flag in (("calibrate", "--seed"), ("simulate", "--seed"), ("probe", "--bus"),
+                      ("run", "--bus")):
+        with pytest.raises(SystemExit):
+            main([cmd, flag, "-1"])
+        assert f"argument {flag}: -1 is" in capsys.readouterr().err

@@ -11,7 +11,7 @@ import os
 
 from ..errors import CannotCreate, UserError
 
-__all__ = ["positive_float", "non_negative_float", "per_sensor", "at_least", "check_args", "output_file", "output_dir",
+__all__ = ["positive_float", "non_negative_float", "per_sensor", "finite_float", "fraction", "seed", "bus_number", "at_least", "check_args", "output_file", "output_dir",
            "LIMITS", "number_in", "count_in", "SIM_MAX_SAMPLES"]
 
 #: The stated limits of the arguments that imply memory or time (docs/changes/issue-21.md):
@@ -69,6 +69,51 @@ def per_sensor(text: str):
         if not math.isfinite(out[key]):
             raise argparse.ArgumentTypeError(f"{part!r} in {text!r}: not a finite number")
     return out
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number (no nan, no inf)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text} is not a finite number")
+    return v
+
+
+def fraction(text: str) -> float:
+    """argparse type: a number strictly between 0 and 1 (a confidence level)."""
+    v = finite_float(text)
+    if not 0 < v < 1:
+        raise argparse.ArgumentTypeError(f"{text} is not a fraction between 0 and 1, e.g. 0.95")
+    return v
+
+
+def seed(text: str) -> int:
+    """argparse type: a random seed, an integer >= 0 (numpy's generators take no other)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{v} is negative: a seed is an integer >= 0")
+    return v
+
+
+#: an I2C bus number N of /dev/i2c-N: the range of the configuration's sensor.bus
+BUS_NUMBER_MAX = 99
+
+
+def bus_number(text: str) -> int:
+    """argparse type: N of /dev/i2c-N, 0..BUS_NUMBER_MAX."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 0 <= v <= BUS_NUMBER_MAX:
+        raise argparse.ArgumentTypeError(f"{v} is not a bus number 0..{BUS_NUMBER_MAX} (N of /dev/i2c-N)")
+    return v
 
 
 def non_negative_float(text: str) -> float:

@@ -44,8 +44,6 @@ def cmd_noise(args) -> int:
     i0, i1, rate = still_stretch(rec.t, args.start_s, args.end_s, args.max_gap_s)
     if args.rate_hz:
         rate = float(args.rate_hz)
-    if not 0 < args.confidence < 1:
-        raise UserError(f"--confidence {args.confidence}: give a fraction, e.g. 0.95")
     keep = slice(None)
     ref = next((getattr(rec, a) for a in ("acc", "gyro", "mag") if getattr(rec, a) is not None), None)
     if ref is not None and i1 - i0 > 3:

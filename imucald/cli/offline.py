@@ -5,6 +5,7 @@ that ``imucald --help`` stays light; json too, which only ``--json`` and ``--tru
 """
 from __future__ import annotations
 
+import math
 import os
 
 from ..errors import UserError, write_failure
@@ -46,6 +47,8 @@ def cmd_simulate(args) -> int:
                 spec.append((name, float(m) if m else args.magnitude))
             except ValueError:
                 raise UserError(f"--effect {e!r}: the magnitude after '=' is not a number") from None
+            if spec[-1][1] is not None and not math.isfinite(spec[-1][1]):
+                raise UserError(f"--effect {e!r}: the magnitude after '=' is not a finite number")
         try:
             s, effects = effect_session(args.board, R, rng, spec, args.rate, hold, move,
                                         args.temp_profile, args.temp_rise, args.tremor_dps,

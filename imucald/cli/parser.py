@@ -17,7 +17,8 @@ import importlib
 from typing import Optional
 
 from .. import __version__
-from .checks import LIMITS, at_least, count_in, number_in, per_sensor, positive_float
+from .checks import (LIMITS, at_least, bus_number, count_in, finite_float, fraction, number_in,
+                     per_sensor, positive_float, seed)
 
 
 def _lim(name: str):
@@ -81,7 +82,7 @@ def _add_simulate(s) -> None:
     s.add_argument("--temp-profile", default="warmup", choices=["warmup", "ramp", "heatcool", "constant"])
     s.add_argument("--temp-rise", type=number_in(*LIMITS["temp_rise"][:2], "degC", low_open=False), default=6.0,
                    help="temperature change, degC")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=seed, default=0)
     s.add_argument("--tremor-dps", type=number_in(0, LIMITS["tremor"][1], "deg/s", low_open=False), default=0.0,
                    help="hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
     s.add_argument("--sway-deg", type=number_in(0, LIMITS["sway"][1], "deg", low_open=False), default=0.0,
@@ -90,7 +91,7 @@ def _add_simulate(s) -> None:
     s.add_argument("--effect", action="append", help="inject an unmodelled effect: NAME or NAME=MAGNITUDE, "
                    "e.g. thermal_bias, accel.nonlinearity=0.002, gyro.g_sensitivity, mag.thermal_bias; "
                    "'none' for a baseline-only recording (repeatable)")
-    s.add_argument("--magnitude", type=float, help="magnitude of the single --effect (default: datasheet)")
+    s.add_argument("--magnitude", type=finite_float, help="magnitude of the single --effect (default: datasheet)")
     s.add_argument("--logger-rate", type=positive_float, metavar="HZ",
                    help="sample-and-hold: a logger reads the chip (at --rate) at HZ, repeating its latest "
                         "sample (e.g. --rate 100 --logger-rate 385: each value 3-4 times)")
@@ -127,7 +128,7 @@ def _add_calibrate(c) -> None:
                                           "format, read by imucald.load_calibration)")
     c.add_argument("--plot", metavar="DIR", help="accel: write coverage.png (the pose-coverage sphere) and "
                                              "residuals.png (|a| - 1 g per pose before/after) here (plots extra)")
-    c.add_argument("--seed", type=int, default=0, help="seed for the GA")
+    c.add_argument("--seed", type=seed, default=0, help="seed for the GA")
     _raw_table_options(c, "t,ax,ay,az")
     c.add_argument("--window-s", type=_lim("window"), default=_ST["window_s"], help="still detector window, s")
     c.add_argument("--threshold-k", type=positive_float, default=_ST["k"],
@@ -154,7 +155,7 @@ def _add_apply(ap) -> None:
 
 def _add_probe(pr) -> None:
     from .boards import EMULATED_BOARDS
-    pr.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1, or the first present)")
+    pr.add_argument("--bus", type=bus_number, help="bus number N of /dev/i2c-N (default 1, or the first present)")
     pr.add_argument("--emulate", choices=EMULATED_BOARDS,
                     help="probe an emulated board instead of hardware")
     pr.set_defaults(func=_command("hardware", "cmd_probe"))
@@ -168,11 +169,11 @@ def _add_record(r) -> None:
                         "HMC5883L on 9dof, QMC5883L on gy273")
     r.add_argument("--seconds", type=_lim("seconds"), default=10.0)
     r.add_argument("--rate", type=_lim("rate"), default=100.0, help="sample rate, Hz")
-    r.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N (default 1)")
+    r.add_argument("--bus", type=bus_number, help="bus number N of /dev/i2c-N (default 1)")
     r.add_argument("--emulate", action="store_true", help="use the emulated board even if a bus exists")
     r.add_argument("--realtime", action="store_true", help="emulator runs in wall-clock time")
     r.add_argument("--poses", type=count_in(1, 10000), default=30, help="emulator: orientations to move through")
-    r.add_argument("--seed", type=int, default=0, help="emulator: seed")
+    r.add_argument("--seed", type=seed, default=0, help="emulator: seed")
     r.add_argument("--tremor-dps", type=number_in(0, LIMITS["tremor"][1], "deg/s", low_open=False), default=0.0,
                    help="emulator: hand tremor (6-12 Hz) RMS per gyro axis, deg/s; real hands 0.5-2")
     r.add_argument("--fault", action="append", help="emulator fault, e.g. nack=0.01, reset=0x68@3 "
@@ -195,7 +196,7 @@ def _add_run(rn) -> None:
     rn.add_argument("--mag", choices=_choices("sensor.magnetometer"),
                     help="9dof/gy273 magnetometer (overrides sensor.magnetometer)")
     rn.add_argument("--rate", type=_lim("rate"), help="sample rate, Hz")
-    rn.add_argument("--bus", type=int, help="bus number N of /dev/i2c-N")
+    rn.add_argument("--bus", type=bus_number, help="bus number N of /dev/i2c-N")
     rn.add_argument("--format", choices=_choices("output.format"))
     rn.add_argument("--fifo", help="also stream to this FIFO")
     rn.add_argument("--orientation", choices=_choices("output.orientation"),
@@ -206,7 +207,7 @@ def _add_run(rn) -> None:
     g.add_argument("--emulate", action="store_true", help="use the emulated board")
     g.add_argument("--no-emulate", action="store_true", help="never fall back to the emulator")
     rn.add_argument("--speed", type=_lim("speed"), default=1.0, help="emulator: time runs this much faster")
-    rn.add_argument("--seed", type=int, default=0, help="emulator: seed")
+    rn.add_argument("--seed", type=seed, default=0, help="emulator: seed")
     rn.add_argument("--tremor-dps", type=number_in(0, LIMITS["tremor"][1], "deg/s", low_open=False), default=1.0,
                     help="emulator: hand tremor RMS per gyro axis, deg/s (default 1: a hand-held "
                          "tour with 1.5-4 s holds; 0: a board set down on a bench)")
@@ -258,7 +259,7 @@ def _add_gap(gp) -> None:
     gp.add_argument("--report", help="write plots to this directory (needs the plots extra)")
     gp.add_argument("--sims", type=count_in(20, 5000, " (p-values need some resolution)"), default=200,
                     help="twin re-simulations (20..5000)")
-    gp.add_argument("--seed", type=int, default=0)
+    gp.add_argument("--seed", type=seed, default=0)
     _raw_table_options(gp, "t,ax,ay,az,temp")
     gp.set_defaults(func=_command("gap", "cmd_gap"))
 
@@ -271,19 +272,19 @@ def _add_noise(nz) -> None:
     nz.add_argument("--kalibr", help="write kalibr's imu.yaml here")
     nz.add_argument("--plot", help="write Allan deviation plots to this directory (plots extra)")
     nz.add_argument("--json", action="store_true", help="print one JSON object")
-    nz.add_argument("--start-s", type=float, help="use samples from this time (s after the first)")
-    nz.add_argument("--end-s", type=float, help="use samples up to this time (s after the first)")
-    nz.add_argument("--max-gap-s", type=float, default=1.0,
+    nz.add_argument("--start-s", type=finite_float, help="use samples from this time (s after the first)")
+    nz.add_argument("--end-s", type=finite_float, help="use samples up to this time (s after the first)")
+    nz.add_argument("--max-gap-s", type=positive_float, default=1.0,
                     help="a time step above this splits the recording; the longest piece is used")
-    nz.add_argument("--tau-min-s", type=float, help="shortest averaging time fitted (default 10 samples)")
-    nz.add_argument("--tau-max-s", type=float, help="longest averaging time fitted (default a tenth)")
-    nz.add_argument("--confidence", type=float, default=0.95, help="confidence of the intervals")
+    nz.add_argument("--tau-min-s", type=positive_float, help="shortest averaging time fitted (default 10 samples)")
+    nz.add_argument("--tau-max-s", type=positive_float, help="longest averaging time fitted (default a tenth)")
+    nz.add_argument("--confidence", type=fraction, default=0.95, help="confidence of the intervals")
     nz.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,gx,gy,gz (t_ms, t_us: time in ms, us)")
     nz.add_argument("--nominal-scale", type=per_sensor, default=1.0,
                     help="raw table: counts per unit, or one per sensor, e.g. accel=16384,gyro=131")
     nz.add_argument("--nominal-offset", type=per_sensor, default=0.0,
                     help="raw table: counts at zero input (or accel=N,gyro=N)")
-    nz.add_argument("--rate-hz", type=float, help="sample rate (default: the stretch's mean rate)")
+    nz.add_argument("--rate-hz", type=positive_float, help="sample rate (default: the stretch's mean rate)")
     nz.set_defaults(func=_command("noise", "cmd_noise"))
 
 
@@ -305,7 +306,7 @@ def _add_calibration(cf) -> None:
 
 
 def _add_demo(d) -> None:
-    d.add_argument("--seed", type=int, default=1)
+    d.add_argument("--seed", type=seed, default=1)
     d.add_argument("--poses", type=count_in(10, 1000, " (the 9-parameter fit scored by leave-one-pose-out)"), default=25)
     d.set_defaults(func=_command("offline", "cmd_demo"))
 

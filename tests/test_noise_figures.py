@@ -141,6 +141,23 @@ def test_short_or_bad_input_is_one_line(tmp_path, capsys):
         read_figures(str(bad))
 
 
+def test_a_stuck_axis_is_one_line_not_zero_figures(tmp_path, capsys):
+    """An axis that holds one value (a dead axis, a column mapped to nothing, or a noise
+    below half an LSB) has no noise to read: one line naming it, exit 2, as calibrate and gap
+    say.  Before, noise printed figures of 0 with numpy's divide-by-zero warnings."""
+    x = 1e-3 * np.random.default_rng(1).standard_normal((20000, 3))
+    x[:, 1] = 0.25
+    rec = Recording(np.arange(20000) / FS, acc=x, meta={"board": "mpu6050", "rate_hz": "100"})
+    p = tmp_path / "stuck.csv"
+    write_recording(rec, str(p))
+    assert main(["noise", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "accel: column ay (always 0.25) holds one value" in err
+    x[:, 1] = x[:, 0]
+    write_recording(Recording(rec.t, acc=x, meta=rec.meta), str(p))
+    assert main(["noise", str(p)]) == 0
+
+
 def test_real_mpu6050_white_noise_is_a_property_of_the_sensor():
     """sunsided MPU-6050, same pose: the 10-minute and the 2-minute recordings give the same
     white densities (their 95 % intervals overlap on every axis; the noise does not depend on

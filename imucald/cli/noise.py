@@ -36,7 +36,7 @@ def cmd_noise(args) -> int:
     import yaml
     from ..files.atomic import atomic_write_text
     from ..fitting.noise.allan import characterise, figures_document, kalibr_text
-    from ..fitting.inputs import load_input
+    from ..fitting.inputs import load_input, stuck_columns, stuck_message
     columns = args.columns.split(",") if args.columns else None
     kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
     if kind != "recording":
@@ -63,6 +63,12 @@ def cmd_noise(args) -> int:
         x = np.asarray(x[i0:i1], float)[keep]
         if not np.all(np.isfinite(x)):
             raise UserError(f"{args.recording}: {sensor} has non-finite values in the stretch used")
+        stuck = stuck_columns(x, sensor)
+        if stuck:
+            # no sample-to-sample change: an Allan deviation of zero, and a fit that divides
+            # by it (a noise below half an LSB reads so too: the figures need a finer range)
+            raise UserError(f"{args.recording}: {sensor}: {stuck_message(stuck)}; or a noise below "
+                            f"half an LSB, which no figure can be read from")
         figs[sensor] = characterise(x, rate, axes, args.confidence, args.tau_min_s, args.tau_max_s)
     if not figs:
         raise UserError(f"{args.recording}: no accel, gyro or mag columns to characterise")

@@ -19,6 +19,7 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from .adxl345 import ADXL345
+from .adxl345 import FIFO_DEPTH as ADXL_FIFO_DEPTH
 from .ak8963 import AK8963
 from .bus import Bus, BusError, Clock, RealClock
 from .itg3200 import ITG3200
@@ -308,7 +309,7 @@ class NineDofBoard(Board):
         lost = 0
         if overrun:
             self.stats.fifo_resets += 1
-            lost = self._overrun_loss(len(acc))
+            lost = self._overrun_loss(len(acc), now)
         n = len(acc)
         g, temp = self.gyr.read() if n else (np.zeros(3), np.nan)
         mag, fresh = None, False
@@ -318,18 +319,22 @@ class NineDofBoard(Board):
             self._mag_next = now + 1.0 / self.mag_rate_hz
         return self._emit(acc, np.broadcast_to(g, (n, 3)).copy(), np.full(n, temp), mag, fresh, lost)
 
-    def _overrun_loss(self, n_read: int) -> int:
+    def _overrun_loss(self, n_read: int, before: float) -> int:
         """Samples the ADXL345 overwrote (stream mode, full FIFO) since the last good read:
         the ones the chip made up to now, less the ``n_read`` just read and what already
         waits in the FIFO again (what came during the reads).  Counted to the end of the
-        read, not to the time before the entry count: a host stalled between the count and
-        the data reads loses more than the count says (each new sample overwrites the
+        read, not to the time ``before`` the entry count: a host stalled between the count
+        and the data reads loses more than the count says (each new sample overwrites the
         oldest), and counted short every later sample's time stays behind by the stall."""
         after = self.clock.now()
         try:
             waiting = self.acc.entries()
-        except BusError:                    # unknown: the samples read are kept, and the loss
-            waiting = 0                     # is over-counted by what came during the reads
+        except BusError as e:
+            # the samples read are kept; what waits is taken as what the chip made during the
+            # read (right unless the FIFO overflowed in it, when that many too few are counted)
+            self.stats.bus_faults += 1
+            self.last_fault = str(e)
+            waiting = min(ADXL_FIFO_DEPTH, max(0, int(round((after - before) * self.rate_hz))))
         made = int(round((after - self._last_ok) * self.rate_hz))
         self._last_ok = after - waiting / self.rate_hz
         return max(0, made - n_read - waiting)

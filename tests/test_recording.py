@@ -1,4 +1,6 @@
 """The recording format: round trip and errors that name the file and line."""
+import os
+
 import numpy as np
 import pytest
 
@@ -196,12 +198,42 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     for p, name in ((p_ms, "t_ms"), (p_us, "t_us")):
         rec = read_table(str(p), cols[1:] + [name], 16384.0)
         assert np.allclose(rec.t, ref.t, rtol=0, atol=1e-9) and np.array_equal(rec.acc, ref.acc)
-        assert rec.meta["rate_hz"] == ref.meta["rate_hz"] == "100"
+        # t: the median step, 10 ms; t_ms, t_us: the mean of the whole-unit steps (9-11 ms,
+        # drawn uniformly: within 1 % of 10 ms over 199 steps)
+        assert ref.meta["rate_hz"] == "100" and abs(float(rec.meta["rate_hz"]) / 100 - 1) < 0.01
+    names = "name the time column by its unit (t: s, t_ms: ms, t_us: us)"
     msg = _one_line_error(read_table, str(p_ms), cols[1:] + ["t"], 16384.0, cls=UserError)
-    assert f"{p_ms}: t advances by a median 10 s a row" in msg and "name its column t_ms" in msg
+    assert msg.startswith(f"{p_ms}: t advances by a median 10 s a row (0.1 Hz), slower than")
+    assert names in msg and msg.endswith("give --rate-hz 0.1")
     assert len(read_table(str(p_ms), cols[1:] + ["t"], 16384.0, rate_hz=0.1)) == 200
+    # a rate given beside the wrong unit does not silence it (a logger's 100 Hz, its ms as s)
+    msg = _one_line_error(read_table, str(p_ms), cols[1:] + ["t"], 16384.0, 0.0, 100.0, cls=UserError)
+    assert "--rate-hz 100 but t advances by a median 10 s a row" in msg and names in msg
+    # seconds named t_ms: 100 k rows a second
+    msg = _one_line_error(read_table, str(p_s), cols[1:] + ["t_ms"], 16384.0, cls=UserError)
+    assert f"{p_s}: t_ms spans " in msg and "faster than an IMU is read at" in msg and names in msg
     msg = _one_line_error(read_table, str(p_ms), ["ax", "ay", "az", "t_ms", "t"], 16384.0, cls=UserError)
     assert "two time columns (t_ms, t)" in msg
+
+
+def test_table_rate_of_whole_millisecond_steps():
+    """A 400 Hz chip logged with millis() steps by 2 and 3 ms: the median says 333 or 500 Hz;
+    the mean of the steps near it says 400.  A logger that stamps each row of a FIFO burst
+    as it prints it (steps of a few us, a pause of ~10 ms between bursts) is read at its
+    rate on average, not refused as too fast."""
+    import tempfile
+    from imucald.fitting.inputs import read_table
+    t_ms = np.floor(np.arange(4000) * 2.5)
+    bursts_us = (np.arange(4000) // 4) * 40000 + (np.arange(4000) % 4) * 15      # 4 rows / 40 ms
+    with tempfile.TemporaryDirectory() as d:
+        for t, name, want in ((t_ms, "t_ms", 400.0), (bursts_us, "t_us", None)):
+            p = os.path.join(d, f"{name}.csv")
+            with open(p, "w") as fh:
+                fh.writelines(f"{x:.0f},0,0,16384\n" for x in t)
+            rec = read_table(p, [name, "ax", "ay", "az"], 16384.0)
+            assert len(rec) == 4000
+            if want:        # 3999 steps, 2000 of one length and 1999 of the other: 1 in 4000
+                assert abs(float(rec.meta["rate_hz"]) - want) <= want / 4000
 
 
 def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):

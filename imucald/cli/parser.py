@@ -110,7 +110,9 @@ def _raw_table_options(p, example: str) -> None:
     p.add_argument("--nominal-offset", type=per_sensor, default=0.0,
                    help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit (or "
                         "accel=N,gyro=N)")
-    p.add_argument("--rate-hz", type=positive_float, help="raw table without a time column: sample rate")
+    p.add_argument("--rate-hz", type=positive_float,
+                   help="raw table: the sample rate (needed without a time column; with one, within "
+                        "100x of its steps)")
 
 
 def _add_calibrate(c) -> None:

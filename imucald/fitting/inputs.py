@@ -40,10 +40,12 @@ _NAMES = {"acc": "accel", "gyro": "gyro", "mag": "mag"}        # as --nominal-sc
 PerSensor = Union[float, Dict[str, float]]
 #: a raw table's time column by its unit, in seconds per unit (loggers often write an Arduino's
 #: millis() or micros())
-TIME_COLUMNS = {"t": 1.0, "t_ms": 1e-3, "t_us": 1e-6}
-#: a time column named ``t`` (seconds) whose rows advance by this or more (a rate under 1 Hz):
-#: refused unless --rate-hz confirms the rate, since it is far likelier in milliseconds
-SLOW_T_S = 1.0
+TIME_COLUMNS_S_PER_UNIT = {"t": 1.0, "t_ms": 1e-3, "t_us": 1e-6}
+_UNIT = {"t": "s", "t_ms": "ms", "t_us": "us"}
+#: the step of a raw table's time column, s: an IMU read at 1 Hz to 10 kHz (the supported chips'
+#: rates, LIMITS["rate"] of the CLI).  Outside, the column is refused (:func:`_table_rate`): a
+#: column in ms read as s steps 1000x too far (the freeimu warm-up: 17 "s")
+STEP_RANGE_S = (1e-4, 1.0)
 
 
 _AXES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
@@ -100,7 +102,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
                nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None) -> Recording:
     """A headerless numeric table as a Recording (units after nominal scaling)."""
     cols = list(columns)
-    allowed = COLUMNS + [k for k in TIME_COLUMNS if k not in COLUMNS]
+    allowed = COLUMNS + [k for k in TIME_COLUMNS_S_PER_UNIT if k not in COLUMNS]
     bad = [c for c in cols if c not in allowed and c != "-"]
     if bad:
         raise UserError(f"--columns: unknown column {bad[0]!r}; allowed {', '.join(allowed)} "
@@ -108,7 +110,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
     named = [c for c in cols if c != "-"]
     if len(set(named)) != len(named):
         raise UserError(f"--columns: a column is repeated in {','.join(cols)}")
-    times = [c for c in cols if c in TIME_COLUMNS]
+    times = [c for c in cols if c in TIME_COLUMNS_S_PER_UNIT]
     if len(times) > 1:
         raise UserError(f"--columns: two time columns ({', '.join(times)}): name one, and - for the other")
     t_name = times[0] if times else None
@@ -148,8 +150,8 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
             c[g] -= offsets[g]
             c[g] /= scales[g]
     if t_name:
-        t = c.pop(t_name) * TIME_COLUMNS[t_name] if t_name != "t" else c.pop("t")
-        rate = rate_hz or _table_rate(path, t, t_name)
+        t = c.pop(t_name) * TIME_COLUMNS_S_PER_UNIT[t_name] if t_name != "t" else c.pop("t")
+        rate = _table_rate(path, t, t_name, rate_hz)
     else:
         if not rate_hz:
             raise UserError(f"{path}: no time column (t, t_ms or t_us): give --rate-hz")
@@ -202,18 +204,41 @@ def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str])
     return {g: float(value[_NAMES[g]]) for g in present}
 
 
-def _table_rate(path: str, t: np.ndarray, t_name: str) -> float:
-    """The sample rate of a raw table from its time column ``t`` (s; named ``t_name``): one
-    over the median interval between rows that advance."""
+def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float]) -> float:
+    """The sample rate of a raw table (``rate_hz`` when given) from its time column ``t`` (s;
+    named ``t_name``): one over the median interval between rows that advance; for a column in
+    whole ms or us (t_ms, t_us) the mean of the intervals within a factor 2 of the median (a
+    2.5-ms period logged in whole ms steps by 2 and 3: either median is 20 % off).
+    A column far likelier in another unit is refused, naming the time columns by unit: a median
+    step of STEP_RANGE_S[1] or more (the slowest an IMU is read at; a pause does not move the
+    median), rows that come faster on average than one per STEP_RANGE_S[0] (a logger that
+    stamps a FIFO's burst as it prints it has tiny steps but the chip's rate on average), or a
+    ``rate_hz`` more than 100x away from the step."""
     dt = np.diff(t)
     dt = dt[dt > 0]
     if not len(dt):
+        if rate_hz:
+            return rate_hz
         raise UserError(f"{path}: {t_name} never advances, so the sample rate is unknown: give --rate-hz")
     step = float(median(dt))
-    if t_name == "t" and step >= SLOW_T_S:
-        raise UserError(f"{path}: t advances by a median {step:g} s a row (a {1 / step:.3g} Hz rate): "
-                        f"if the time is in milliseconds name its column t_ms (t_us: microseconds); "
-                        f"for a rate this low give --rate-hz")
+    if t_name != "t":
+        step = float(dt[(dt >= step / 2) & (dt <= 2 * step)].mean())
+    unit = TIME_COLUMNS_S_PER_UNIT[t_name]
+    said = f"{t_name} advances by a median {step / unit:.4g} {_UNIT[t_name]} a row ({1 / step:.4g} Hz)"
+    names = "name the time column by its unit (t: s, t_ms: ms, t_us: us)"
+    if rate_hz:
+        if not 1e-2 <= rate_hz * step <= 1e2:
+            raise UserError(f"{path}: --rate-hz {rate_hz:g} but {said}: {names}, or leave --rate-hz out")
+        return rate_hz
+    lo, hi = STEP_RANGE_S
+    mean_step = float(t[-1] - t[0]) / (len(dt))
+    if step >= hi:
+        raise UserError(f"{path}: {said}, slower than an IMU is read at: {names}; for so low a "
+                        f"rate give --rate-hz {1 / step:.4g}")
+    if mean_step < lo:
+        raise UserError(f"{path}: {t_name} spans {(t[-1] - t[0]) / unit:.4g} {_UNIT[t_name]} over "
+                        f"{len(dt) + 1} rows ({1 / mean_step:.4g} rows a second), faster than an IMU "
+                        f"is read at: {names}")
     return 1.0 / step
 
 

@@ -44,7 +44,7 @@ def positive_float(text: str) -> float:
     return v
 
 
-def per_sensor(text: str):
+def per_sensor(text: str) -> "float | dict[str, float]":
     """argparse type of --nominal-scale / --nominal-offset: one finite number for every sensor
     column, or one per sensor as ``accel=16384,gyro=131`` (accel, gyro, mag), a dict."""
     if "=" not in text:

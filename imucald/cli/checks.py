@@ -11,8 +11,9 @@ import os
 
 from ..errors import CannotCreate, UserError
 
-__all__ = ["positive_float", "non_negative_float", "per_sensor", "finite_float", "fraction", "seed", "bus_number", "at_least", "check_args", "output_file", "output_dir",
-           "LIMITS", "number_in", "count_in", "SIM_MAX_SAMPLES"]
+__all__ = ["positive_float", "non_negative_float", "per_sensor", "finite_float", "fraction", "seed",
+           "bus_number", "at_least", "check_args", "output_file", "output_dir", "LIMITS", "number_in",
+           "count_in", "SIM_MAX_SAMPLES"]
 
 #: The stated limits of the arguments that imply memory or time (docs/changes/issue-21.md):
 #: a value beyond is refused in one line before anything runs.  (low, high, unit)

@@ -9,7 +9,8 @@ import numpy as np
 
 from ...numerics.rng import as_rng
 
-from .lsq import OptimResult, Problem, optim_result, closed_form_starts, lm_converge, lm_steps
+from .lsq import (OptimResult, Problem, optim_result, closed_form_starts, lm_converge,
+                  lm_converge_rows, lm_steps)
 from ...numerics.rng import RngLike
 from ..models.base import NormModel
 
@@ -213,12 +214,12 @@ def ga(prob: Problem, rng: RngLike = None, pop: int = 100, max_gen: int = 60,
     prob.nfev = 0
     z, f, g = ga_core(prob, prob.lo, prob.hi, 1, rng, pop=pop, max_gen=max_gen,
                        stall_gen=stall_gen, mig_interval=10, progress=progress)
-    zp, fp, it = lm_converge(prob, z[0])
-    # the closed-form starts are polished too, so the GA can only add to what lm finds
-    ga_won = True
-    for s in closed_form_starts(prob):
-        zs, fs, its = lm_converge(prob, s)
-        it += its
+    # the closed-form starts are polished too, so the GA can only add to what lm finds (all
+    # the starts at once, each as lm_converge alone polishes it)
+    Zp, Fp, its = lm_converge_rows(prob, np.array([z[0]] + closed_form_starts(prob)))
+    zp, fp, it, ga_won = Zp[0], float(Fp[0]), int(its[0]), True
+    for zs, fs, n in zip(Zp[1:], Fp[1:].tolist(), its[1:].tolist()):
+        it += n
         if fs < fp:
             zp, fp, ga_won = zs, fs, False
     return optim_result(prob, zp, fp, int(g[0]) + it, "ga",

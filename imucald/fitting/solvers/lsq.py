@@ -24,7 +24,7 @@ from ...numerics.rng import RngLike
 from ...numerics import allocator
 from ..models.base import NormModel
 
-__all__ = ["Problem", "OptimResult", "lm", "lm_converge", "lm_steps", "closed_form_starts",
+__all__ = ["Problem", "OptimResult", "lm", "lm_converge", "lm_converge_rows", "lm_steps", "closed_form_starts",
            "sphere_fit", "ellipsoid_fit", "optim_result"]
 
 
@@ -295,24 +295,62 @@ def lm_converge(prob: Problem, z0: np.ndarray, max_iter: int = 200, ftol: float 
                 ) -> Tuple[np.ndarray, float, int]:
     """Projected LM from z0 until a step improves the fitness by <= ftol (relative) with
     the damping above 1e10 or six such steps in a row, or max_iter: (z, fitness, iterations)."""
-    Z = np.asarray(z0, float)[None, :]
+    Z, f, it = lm_converge_rows(prob, np.asarray(z0, float)[None, :], max_iter, ftol)
+    return Z[0], float(f[0]), int(it[0])
+
+
+def lm_converge_rows(prob: Problem, Z0: np.ndarray, max_iter: int = 200, ftol: float = 1e-15
+                     ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`lm_converge` from each row of Z0 (B, kf), the rows run side by side: one
+    residual-and-Jacobian and one fitness evaluation per step for the rows still going, where
+    one start after the other cost one of each per row and step (the GA's polish runs its
+    result and the closed-form starts so: ~50 single-row steps, most of their time numpy's
+    per-call overhead).  Each row takes the steps it takes alone, to the bit: every
+    operation is row by row (the batched products and solves give each row's own numbers),
+    a row whose step was rejected reuses its gradient and Gauss-Newton matrix, and a row
+    stops on its own test.  Returns (Z (B, kf), fitness (B,), iterations (B,))."""
+    Z = np.array(Z0, float)
+    B, kf = Z.shape
     f = prob.fitness(Z)
-    mu = np.array([1e-3])
-    it_total = 0
-    stall = 0
-    cache: dict = {}
-    while it_total < max_iter:
-        f_old = f[0]
-        Z, f, mu, it = lm_steps(prob, Z, f, mu, 1, cache)
-        it_total += it
-        rel = (f_old - f[0]) / max(f_old, 1e-300)
-        if rel <= ftol:
-            stall += 1
-            if mu[0] > 1e10 or stall >= 6 or f[0] == 0.0:
-                break
-        else:
-            stall = 0
-    return Z[0], float(f[0]), it_total
+    mu = np.full(B, 1e-3)
+    its = np.zeros(B, int)
+    stall = np.zeros(B, int)
+    g, H, d = np.empty((B, kf)), np.empty((B, kf, kf)), np.empty((B, kf))
+    moved = np.ones(B, bool)                 # g, H, d to be formed at the row's Z
+    eye = np.eye(kf)
+    go = np.arange(B) if max_iter > 0 else np.zeros(0, int)
+    while len(go):
+        new = go[moved[go]]
+        if len(new):
+            r, J = prob.rj(Z[new])                                  # (b, N), (b, N, kf)
+            g[new] = np.einsum("bnk,bn->bk", J, r)
+            Hn = np.einsum("bnk,bnl->bkl", J, J)
+            H[new], d[new] = Hn, np.einsum("bkk->bk", Hn)
+            moved[new] = False
+        Hg, dg, mg, f_old = H[go], d[go], mu[go], f[go]
+        Hd = Hg + mg[:, None, None] * (dg[:, :, None] * eye + 1e-12 * eye * dg.max(1)[:, None, None])
+        Zc = prob.clip(Z[go] + _lm_step(Hd, g[go]))
+        fc = prob.fitness(Zc)
+        ok = fc < f_old
+        Z[go[ok]], f[go[ok]], moved[go[ok]] = Zc[ok], fc[ok], True
+        mu[go] = np.where(ok, np.maximum(mg / 3.0, 1e-12), mg * 4.0)
+        its[go] += 1
+        flat = (f_old - f[go]) / np.maximum(f_old, 1e-300) <= ftol
+        stall[go] = np.where(flat, stall[go] + 1, 0)
+        done = flat & ((mu[go] > 1e10) | (stall[go] >= 6) | (f[go] == 0.0))
+        go = go[~done & (its[go] < max_iter)]
+    return Z, f, its
+
+
+def _lm_step(Hd: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """-Hd^-1 g of each row (B, kf); a row whose damped matrix is singular takes the
+    pseudo-inverse's step (row by row then, as each row alone did)."""
+    try:
+        return -np.linalg.solve(Hd, g[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        if len(Hd) > 1:
+            return np.concatenate([_lm_step(Hd[i:i + 1], g[i:i + 1]) for i in range(len(Hd))])
+        return -np.einsum("bkl,bl->bk", np.linalg.pinv(Hd), g)
 
 
 def lm(prob: Problem, z0: Optional[np.ndarray] = None, max_iter: int = 200,

@@ -77,3 +77,31 @@ def test_nanmedian_equals_numpy_bit_for_bit():
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("C", [1, 3, 6])
+def test_window_var_equals_numpy_bit_for_bit(C):
+    """window_var(b) is numpy's b.var(1, ddof=1) exactly (the stillness detector's noise floor
+    depends on it bit for bit), on C-order windows, on the strided first-3-columns view
+    the detector passes with a gyro, on one column and on column-major windows (numpy's own
+    var there: it sums those pairwise), offsets large against the scatter (where the order of
+    the sums shows), a NaN and an inf.  Breakage it catches (measured on windows like these): a
+    copy laid out (m, C, w), whose sums run along the innermost axis, which numpy adds
+    pairwise (459 of 654 values differ at C = 3); the copy's path taken for one column, where
+    numpy's own sum is the pairwise one (150 of 218); centring the caller's windows in place
+    (a single window's transpose is C-contiguous already: no copy without order="C")."""
+    from imucald.numerics.npstats import window_var
+    rng = np.random.default_rng(C)
+    for m, w in [(1, 3), (2, 8), (7, 100), (163, 100), (40, 9), (5, 400)]:
+        x = rng.normal(size=(m * w, 2 * C)) * 10.0 ** rng.uniform(-6, 1, 2 * C) + 10.0 ** rng.uniform(-1, 4, 2 * C)
+        b = x.reshape(m, w, 2 * C)
+        for v in (b[:, :, :C], np.ascontiguousarray(b[:, :, :C])):
+            want, keep = v.var(1, ddof=1), v.copy()
+            assert np.array_equal(window_var(v), want)
+            assert np.array_equal(v, keep)          # the windows themselves left as they were
+        f = np.asfortranarray(x[:, :C]).reshape(m, w, C)   # column-major: numpy sums it pairwise
+        assert np.array_equal(window_var(f), f.var(1, ddof=1))
+    b = rng.normal(size=(4, 10, C))
+    b[1, 3, 0], b[2, 5, C - 1] = np.nan, np.inf
+    with np.errstate(invalid="ignore"):
+        assert np.array_equal(window_var(b), b.var(1, ddof=1), equal_nan=True)

@@ -15,12 +15,18 @@ of a tall array of a few columns (samples x axes), column by column: numpy reduc
 form).  The same values bit for bit: below 8 columns numpy adds a row left to right (its
 pairwise summation starts at 8), as the column-wise sum does; ``&`` and ``maximum`` are
 exact and ``maximum`` propagates NaN as ``max`` does.
+
+:func:`window_var`: ``b.var(1, ddof=ddof)`` of m windows of w rows of a few columns, (m, w, C),
+the same steps on a (w, m, C) copy: numpy sums a middle axis C values at a time (~5x slower).
+The same values bit for bit: where the columns lie closer in memory than the rows, numpy adds
+each window's rows in order, one after the other (pairwise summation is for the innermost
+axis only), and so does the sum down the copy's rows; elsewhere it is numpy's own var.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["median", "nanmedian", "row_sum", "row_all", "row_max", "row_prod"]
+__all__ = ["median", "nanmedian", "row_sum", "row_all", "row_max", "row_prod", "window_var"]
 
 
 def median(a, axis=None):
@@ -113,3 +119,20 @@ def row_prod(x: np.ndarray) -> np.ndarray:
     for j in range(1, x.shape[1]):
         out *= x[:, j]
     return out
+
+
+def window_var(b: np.ndarray, ddof: int = 1) -> np.ndarray:
+    """``b.var(1, ddof=ddof)`` of a float64 (m, w, C) array: numpy's steps (each window's sum /
+    w, the deviations squared, summed, / (w - ddof)) with the windows' rows outermost.  Only
+    where numpy adds the window's rows in order: C >= 2 columns lying closer in memory than
+    the rows (a C-order array or its column slice); else (one column, or a column-major
+    array: numpy sums the window pairwise there) numpy's own var."""
+    b = np.asarray(b)
+    if (b.ndim != 3 or b.dtype != np.float64 or b.shape[1] - ddof <= 0 or b.shape[2] < 2
+            or not 0 < b.strides[2] < b.strides[1]):
+        return b.var(1, ddof=ddof)
+    w = b.shape[1]
+    x = np.array(b.transpose(1, 0, 2), order="C")     # (w, m, C), a copy (centred in place)
+    x -= x.sum(0, keepdims=True) / w
+    np.multiply(x, x, out=x)
+    return x.sum(0) / (w - ddof)

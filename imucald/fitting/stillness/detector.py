@@ -82,7 +82,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from ...numerics.npstats import median, row_all, row_sum
+from ...numerics.npstats import median, row_all, row_sum, window_var
 from .floor import FLOOR_WINDOWS, floors as _floors, onset as _onset
 from ..noise.posecov import MIN_SAMPLES as SF_MIN_SAMPLES, pose_sf_rows
 
@@ -209,7 +209,7 @@ class _Core:
         # the m completed windows at once; each one's floor is a percentile of the variances
         # of the FLOOR_WINDOWS windows up to it (itself included), its bias the median mean
         # rate of the quiet ones among them
-        hist_a = np.concatenate([self._hist_a, b[:, :, :3].var(1, ddof=1).sum(1)])
+        hist_a = np.concatenate([self._hist_a, window_var(b[:, :, :3]).sum(1)])
         # the learnt floor, capped by the chip's noise bound (a recording without a still
         # moment learns its floor from motion)
         fas = np.minimum(_floors(hist_a, m), self.floor_cap)

@@ -18,14 +18,12 @@ draws true errors as N(0, tol/2) clipped to +-tol.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Dict, Optional
+from typing import Dict, NamedTuple, Optional
 
 __all__ = ["AccelSpec", "GyroSpec", "MagSpec", "ACCEL", "GYRO", "MAG", "BOARDS", "recording_chips"]
 
 
-@dataclass(frozen=True)
-class AccelSpec:
+class AccelSpec(NamedTuple):
     name: str
     range_g: float                  #: full scale, +- g
     lsb_g: float                    #: one count, g
@@ -39,8 +37,7 @@ class AccelSpec:
     temp_lsb_c: Optional[float]     #: temperature sensor resolution, degC (None: no sensor)
 
 
-@dataclass(frozen=True)
-class GyroSpec:
+class GyroSpec(NamedTuple):
     name: str
     range_dps: float
     lsb_dps: float
@@ -53,8 +50,7 @@ class GyroSpec:
     temp_lsb_c: Optional[float]
 
 
-@dataclass(frozen=True)
-class MagSpec:
+class MagSpec(NamedTuple):
     name: str
     range_gauss: float
     lsb_gauss: float

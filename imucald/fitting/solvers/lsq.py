@@ -24,8 +24,8 @@ from ...numerics.rng import RngLike
 from ...numerics import allocator
 from ..models.base import NormModel
 
-__all__ = ["Problem", "OptimResult", "lm", "lm_converge", "lm_converge_rows", "lm_steps", "closed_form_starts",
-           "sphere_fit", "ellipsoid_fit", "optim_result"]
+__all__ = ["Problem", "OptimResult", "lm", "lm_converge", "lm_converge_rows", "lm_steps",
+           "closed_form_starts", "sphere_fit", "ellipsoid_fit", "optim_result"]
 
 
 

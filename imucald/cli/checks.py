@@ -34,12 +34,16 @@ LIMITS = {
 SIM_MAX_SAMPLES = 1_000_000
 
 
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
+def _number(text: str) -> float:
     try:
-        v = float(text)
+        return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    v = _number(text)
     if not math.isfinite(v) or v <= 0:
         raise argparse.ArgumentTypeError(f"{text} is not a number > 0")
     return v
@@ -49,13 +53,7 @@ def per_sensor(text: str) -> "float | dict[str, float]":
     """argparse type of --nominal-scale / --nominal-offset: one finite number for every sensor
     column, or one per sensor as ``accel=16384,gyro=131`` (accel, gyro, mag), a dict."""
     if "=" not in text:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number (or accel=N,gyro=N,mag=N)") from None
-        if not math.isfinite(v):
-            raise argparse.ArgumentTypeError(f"{text} is not a finite number")
-        return v
+        return finite_float(text)
     out = {}
     for part in text.split(","):
         key, _, val = part.partition("=")
@@ -63,21 +61,13 @@ def per_sensor(text: str) -> "float | dict[str, float]":
         if key not in ("accel", "gyro", "mag") or key in out:
             raise argparse.ArgumentTypeError(
                 f"{part!r} in {text!r}: expected accel=N, gyro=N and mag=N, each at most once")
-        try:
-            out[key] = float(val)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{part!r} in {text!r}: {val!r} is not a number") from None
-        if not math.isfinite(out[key]):
-            raise argparse.ArgumentTypeError(f"{part!r} in {text!r}: not a finite number")
+        out[key] = finite_float(val)
     return out
 
 
 def finite_float(text: str) -> float:
     """argparse type: a finite number (no nan, no inf)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    v = _number(text)
     if not math.isfinite(v):
         raise argparse.ArgumentTypeError(f"{text} is not a finite number")
     return v
@@ -91,12 +81,16 @@ def fraction(text: str) -> float:
     return v
 
 
-def seed(text: str) -> int:
-    """argparse type: a random seed, an integer >= 0 (numpy's generators take no other)."""
+def _integer(text: str) -> int:
     try:
-        v = int(text)
+        return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+
+
+def seed(text: str) -> int:
+    """argparse type: a random seed, an integer >= 0 (numpy's generators take no other)."""
+    v = _integer(text)
     if v < 0:
         raise argparse.ArgumentTypeError(f"{v} is negative: a seed is an integer >= 0")
     return v
@@ -108,10 +102,7 @@ BUS_NUMBER_MAX = 99
 
 def bus_number(text: str) -> int:
     """argparse type: N of /dev/i2c-N, 0..BUS_NUMBER_MAX."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    v = _integer(text)
     if not 0 <= v <= BUS_NUMBER_MAX:
         raise argparse.ArgumentTypeError(f"{v} is not a bus number 0..{BUS_NUMBER_MAX} (N of /dev/i2c-N)")
     return v
@@ -119,10 +110,7 @@ def bus_number(text: str) -> int:
 
 def non_negative_float(text: str) -> float:
     """argparse type: a finite number >= 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    v = _number(text)
     if not math.isfinite(v) or v < 0:
         raise argparse.ArgumentTypeError(f"{text} is not a number >= 0")
     return v
@@ -131,10 +119,7 @@ def non_negative_float(text: str) -> float:
 def number_in(lo: float, hi: float, unit: str = "", low_open: bool = True):
     """argparse type: a finite number in (lo, hi] (or [lo, hi] with low_open=False)."""
     def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        v = _number(text)
         if not math.isfinite(v) or (v <= lo if low_open else v < lo):
             raise argparse.ArgumentTypeError(f"{text} is not a number {'>' if low_open else '>='} {lo:g}")
         if v > hi:
@@ -161,10 +146,7 @@ def count_in(n: int, hi: int, why: str = ""):
 def at_least(n: int, why: str = ""):
     """argparse type: an integer >= n (``why`` says what needs that many)."""
     def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        v = _integer(text)
         if v < n:
             raise argparse.ArgumentTypeError(f"{v} is too few: at least {n}{why}")
         return v

@@ -171,3 +171,11 @@ def test_every_numeric_option_refuses_nan_and_inf_up_front(capsys):
         with pytest.raises(SystemExit):
             main([cmd, flag, "-1"])
         assert f"argument {flag}: -1 is" in capsys.readouterr().err
+
+
+def test_the_bus_number_limit_is_the_configurations():
+    """--bus and sensor.bus take the same range (two declarations, one of them numpy- and
+    YAML-free for --help: this keeps them one)."""
+    from imucald.cli.checks import BUS_NUMBER_MAX
+    from imucald.daemon.config import SCHEMA
+    assert SCHEMA["sensor.bus"][2] == (0, BUS_NUMBER_MAX)

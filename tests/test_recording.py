@@ -1,6 +1,4 @@
 """The recording format: round trip and errors that name the file and line."""
-import os
-
 import numpy as np
 import pytest
 
@@ -208,7 +206,7 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     assert len(read_table(str(p_ms), cols[1:] + ["t"], 16384.0, rate_hz=0.1)) == 200
     # a rate given beside the wrong unit does not silence it (a logger's 100 Hz, its ms as s)
     msg = _one_line_error(read_table, str(p_ms), cols[1:] + ["t"], 16384.0, 0.0, 100.0, cls=UserError)
-    assert "--rate-hz 100 but t advances by a median 10 s a row" in msg and names in msg
+    assert msg.startswith(f"{p_ms}: --rate-hz 100 but t spans ") and "over 200 rows" in msg and names in msg
     # seconds named t_ms: 100 k rows a second
     msg = _one_line_error(read_table, str(p_s), cols[1:] + ["t_ms"], 16384.0, cls=UserError)
     assert f"{p_s}: t_ms spans " in msg and "faster than an IMU is read at" in msg and names in msg
@@ -216,24 +214,27 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     assert "two time columns (t_ms, t)" in msg
 
 
-def test_table_rate_of_whole_millisecond_steps():
+def test_table_rate_of_whole_millisecond_steps_bursts_and_coarse_clocks(tmp_path):
     """A 400 Hz chip logged with millis() steps by 2 and 3 ms: the median says 333 or 500 Hz;
-    the mean of the steps near it says 400.  A logger that stamps each row of a FIFO burst
-    as it prints it (steps of a few us, a pause of ~10 ms between bursts) is read at its
-    rate on average, not refused as too fast."""
-    import tempfile
+    the mean of the steps near it says 400.  Two loggers whose steps are not their rate are
+    judged by their rows a second: one that stamps each row of a FIFO burst as it prints it (4
+    rows 15 us apart every 40 ms: 100 rows a second) is not refused as too fast, and its
+    --rate-hz 100 is taken; one with a whole-second clock at 200 Hz is refused without
+    --rate-hz, the message giving the rate its rows have, and read with it."""
     from imucald.fitting.inputs import read_table
-    t_ms = np.floor(np.arange(4000) * 2.5)
-    bursts_us = (np.arange(4000) // 4) * 40000 + (np.arange(4000) % 4) * 15      # 4 rows / 40 ms
-    with tempfile.TemporaryDirectory() as d:
-        for t, name, want in ((t_ms, "t_ms", 400.0), (bursts_us, "t_us", None)):
-            p = os.path.join(d, f"{name}.csv")
-            with open(p, "w") as fh:
-                fh.writelines(f"{x:.0f},0,0,16384\n" for x in t)
-            rec = read_table(p, [name, "ax", "ay", "az"], 16384.0)
-            assert len(rec) == 4000
-            if want:        # 3999 steps, 2000 of one length and 1999 of the other: 1 in 4000
-                assert abs(float(rec.meta["rate_hz"]) - want) <= want / 4000
+    i = np.arange(4000)
+    cases = ((np.floor(i * 2.5), "t_ms", None, 400.0), ((i // 4) * 40000 + (i % 4) * 15, "t_us", 100.0, 100.0),
+             (np.floor(i / 200), "t", 200.0, 200.0))
+    for t, name, given, want in cases:
+        p = tmp_path / f"{name}.csv"
+        p.write_text("".join(f"{x:.0f},0,0,16384\n" for x in t))
+        rec = read_table(str(p), [name, "ax", "ay", "az"], 16384.0, 0.0, given)
+        # 3999 steps: 2000 of one length and 1999 of the other, 1 in 4000
+        assert len(rec) == 4000 and abs(float(rec.meta["rate_hz"]) - want) <= want / 4000
+    read_table(str(tmp_path / "t_us.csv"), ["t_us", "ax", "ay", "az"], 16384.0)      # not refused
+    msg = _one_line_error(read_table, str(tmp_path / "t.csv"), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert "t advances by a median 1 s a row but t spans 19 s over 4000 rows (210.5 rows a second)" in msg
+    assert "a clock coarser than the samples; give --rate-hz, the rate it was logged at (about 210.5" in msg
 
 
 def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
@@ -287,8 +288,10 @@ def test_table_nominal_scale_and_offset_per_sensor(tmp_path):
     assert "--nominal-scale 0 (gyro): must be a finite, non-zero number" in msg
     import argparse
     for bad, what in (("accel=16384,gyr=131", "expected accel=N, gyro=N and mag=N"),
-                      ("accel=1,accel=2", "each at most once"), ("accel=x", "'x' is not a number"),
-                      ("inf", "not a finite number"), ("16k", "is not a number")):
+                      ("accel=1,accel=2", "each at most once"),
+                      ("accel=x,gyro=131", "'accel=x' in 'accel=x,gyro=131': 'x' is not a number"),
+                      ("inf", "inf is not a finite number \\(one for every sensor, or accel=N"),
+                      ("16k", "'16k' is not a number \\(one for every sensor")):
         with pytest.raises(argparse.ArgumentTypeError, match=what):
             per_sensor(bad)
     assert per_sensor("4069.76") == 4069.76

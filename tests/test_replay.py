@@ -221,3 +221,8 @@ def test_replay_and_apply_read_a_raw_logger_table(tmp_path):
     ca, cb = read_recording(tmp_path / "a.csv"), read_recording(tmp_path / "b.csv")
     assert np.allclose(ca.acc, cb.acc, rtol=0, atol=1e-9) and np.allclose(ca.gyro, cb.gyro, rtol=0, atol=1e-9)
     assert np.allclose(ca.t, cb.t, rtol=0, atol=1e-9)
+    # an imucald recording is read as one whatever --columns says (its header names its board,
+    # which apply checks): the same output as without the options
+    assert main(["apply", str(cal), str(rec), "-o", str(tmp_path / "c.csv"), *RAW]) == 0
+    cc = read_recording(tmp_path / "c.csv")
+    assert np.array_equal(cc.acc, ca.acc) and cc.meta["board"] == "mpu6050"

@@ -53,7 +53,10 @@ def per_sensor(text: str) -> "float | dict[str, float]":
     """argparse type of --nominal-scale / --nominal-offset: one finite number for every sensor
     column, or one per sensor as ``accel=16384,gyro=131`` (accel, gyro, mag), a dict."""
     if "=" not in text:
-        return finite_float(text)
+        try:
+            return finite_float(text)
+        except argparse.ArgumentTypeError as e:
+            raise argparse.ArgumentTypeError(f"{e} (one for every sensor, or accel=N,gyro=N,mag=N)") from None
     out = {}
     for part in text.split(","):
         key, _, val = part.partition("=")
@@ -61,7 +64,10 @@ def per_sensor(text: str) -> "float | dict[str, float]":
         if key not in ("accel", "gyro", "mag") or key in out:
             raise argparse.ArgumentTypeError(
                 f"{part!r} in {text!r}: expected accel=N, gyro=N and mag=N, each at most once")
-        out[key] = finite_float(val)
+        try:
+            out[key] = finite_float(val)
+        except argparse.ArgumentTypeError as e:
+            raise argparse.ArgumentTypeError(f"{part!r} in {text!r}: {e}") from None
     return out
 
 

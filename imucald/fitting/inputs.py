@@ -32,7 +32,7 @@ from ..numerics.npstats import median
 from ..files.tables import TableSpec, collect, decode_line, iter_blocks
 from .stillness.poses import POSES_MAGIC, read_poses
 
-__all__ = ["load_input", "read_table", "stuck_columns", "stuck_message"]
+__all__ = ["input_kind", "load_input", "read_table", "stuck_columns", "stuck_message"]
 
 _GROUP_COLUMNS = {"acc": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
 _NAMES = {"acc": "accel", "gyro": "gyro", "mag": "mag"}        # as --nominal-scale names them
@@ -209,11 +209,11 @@ def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float])
     named ``t_name``): one over the median interval between rows that advance; for a column in
     whole ms or us (t_ms, t_us) the mean of the intervals within a factor 2 of the median (a
     2.5-ms period logged in whole ms steps by 2 and 3: either median is 20 % off).
-    A column far likelier in another unit is refused, naming the time columns by unit: a median
-    step of STEP_RANGE_S[1] or more (the slowest an IMU is read at; a pause does not move the
-    median), rows that come faster on average than one per STEP_RANGE_S[0] (a logger that
-    stamps a FIFO's burst as it prints it has tiny steps but the chip's rate on average), or a
-    ``rate_hz`` more than 100x away from the step."""
+    A column far likelier in another unit is refused, naming the time columns by unit.  Judged
+    on the rows a second over the column's span (a logger that stamps a FIFO's burst as it
+    prints it, or a coarse clock, has steps far from its rate but rows at it): more than 1/
+    STEP_RANGE_S[0], or a ``rate_hz`` more than 100x away; and on a median step of
+    STEP_RANGE_S[1] or more while the rows come no faster (a pause does not move either)."""
     dt = np.diff(t)
     dt = dt[dt > 0]
     if not len(dt):
@@ -221,38 +221,56 @@ def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float])
             return rate_hz
         raise UserError(f"{path}: {t_name} never advances, so the sample rate is unknown: give --rate-hz")
     step = float(median(dt))
+    how = "a median"
     if t_name != "t":
-        step = float(dt[(dt >= step / 2) & (dt <= 2 * step)].mean())
+        step, how = float(dt[(dt >= step / 2) & (dt <= 2 * step)].mean()), "on average"
     unit = TIME_COLUMNS_S_PER_UNIT[t_name]
-    said = f"{t_name} advances by a median {step / unit:.4g} {_UNIT[t_name]} a row ({1 / step:.4g} Hz)"
+    rows_per_s = (len(t) - 1) / float(t[-1] - t[0])
+    said = (f"{t_name} spans {(t[-1] - t[0]) / unit:.4g} {_UNIT[t_name]} over {len(t)} rows "
+            f"({rows_per_s:.4g} rows a second)")
     names = "name the time column by its unit (t: s, t_ms: ms, t_us: us)"
     if rate_hz:
-        if not 1e-2 <= rate_hz * step <= 1e2:
+        if not 1e-2 <= rate_hz / rows_per_s <= 1e2:
             raise UserError(f"{path}: --rate-hz {rate_hz:g} but {said}: {names}, or leave --rate-hz out")
         return rate_hz
     lo, hi = STEP_RANGE_S
-    mean_step = float(t[-1] - t[0]) / (len(dt))
+    if rows_per_s > 1 / lo:
+        raise UserError(f"{path}: {said}, faster than an IMU is read at: {names}")
     if step >= hi:
-        raise UserError(f"{path}: {said}, slower than an IMU is read at: {names}; for so low a "
-                        f"rate give --rate-hz {1 / step:.4g}")
-    if mean_step < lo:
-        raise UserError(f"{path}: {t_name} spans {(t[-1] - t[0]) / unit:.4g} {_UNIT[t_name]} over "
-                        f"{len(dt) + 1} rows ({1 / mean_step:.4g} rows a second), faster than an IMU "
-                        f"is read at: {names}")
+        if rows_per_s * step >= 2:      # many rows a tick: a coarse clock, not a slow one
+            raise UserError(f"{path}: {t_name} advances by {how} {step / unit:.4g} {_UNIT[t_name]} a "
+                            f"row but {said}: a clock coarser than the samples; give --rate-hz, the rate "
+                            f"it was logged at (about {rows_per_s:.4g} by its span), or {names}")
+        raise UserError(f"{path}: {t_name} advances by {how} {step / unit:.4g} {_UNIT[t_name]} a "
+                        f"row ({1 / step:.4g} Hz), slower than an IMU is read at: {names}; for so "
+                        f"low a rate give --rate-hz {1 / step:.4g}")
     return 1.0 / step
+
+
+def input_kind(path: str) -> str:
+    """What a file is by its first line: 'recording', 'poses' or 'table' (anything else: a
+    raw numeric table, read only with named columns); an imucald file of another version is
+    refused here."""
+    first = _first_line(path)
+    if first == MAGIC:
+        return "recording"
+    if first.strip() == POSES_MAGIC:
+        return "poses"
+    if first.startswith("# imucald"):
+        raise UserError(f"{path}:1: unsupported imucald file {first!r} "
+                        f"(this version reads {MAGIC!r} and {POSES_MAGIC!r})")
+    return "table"
 
 
 def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: PerSensor = 1.0,
                nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None):
-    """Return (kind, obj): ('recording', Recording) or ('poses', PoseSet)."""
-    first = _first_line(path)
-    if first == MAGIC:
+    """Return (kind, obj): ('recording', Recording) or ('poses', PoseSet).  An imucald file is
+    read as what it is, whatever ``columns`` say."""
+    kind = input_kind(path)
+    if kind == "recording":
         return "recording", read_recording(path)
-    if first.strip() == POSES_MAGIC:
+    if kind == "poses":
         return "poses", read_poses(path)
-    if first.startswith("# imucald"):
-        raise UserError(f"{path}:1: unsupported imucald file {first!r} "
-                        f"(this version reads {MAGIC!r} and {POSES_MAGIC!r})")
     if columns is None:
         raise UserError(f"{path}: not an imucald recording or pose file; for a raw numeric "
                         f"table name its columns, e.g. --columns t,ax,ay,az")

@@ -68,6 +68,10 @@ LEGACY_GYRO_RANGE_C = (-PARAM_LIMIT, PARAM_LIMIT)
 LEGACY_GYRO_NOTE = "migrated from params.bias_temp_poly_dps (no fitted range recorded: not clamped)"
 #: plausible bounds: |M - I| (a gyro scale/misalignment matrix), |G| deg/s per g
 _GYRO_BOUNDS = {"matrix": (0.5, "scale and misalignment within 50 %"), "g_sens_dps_per_g": (10.0, "|G| <= 10 deg/s per g")}
+#: plausible bounds of an accelerometer part's correction (corrected = A raw + c): |A - I| and
+#: |c| in g.  Datasheets give scale and cross-axis within a few %, zero-g within 0.15 g
+#: (specs.ACCEL); a scale of -1 or 5, or an offset of 3 g, is a sign, unit or typing error
+_ACCEL_BOUNDS = (0.5, 0.5)
 _SYM = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
 #: largest condition number of a part's correction matrix A: a sensor's scale and
 #: misalignment errors are percents (A near I, condition ~1.1); a singular A maps a whole
@@ -301,6 +305,13 @@ class SensorCal:
             fail_check(f"{path}.params", f"the correction matrix is singular or nearly so (condition "
                   f"number {cond:.3g} > {MAX_CONDITION:g}): it would lose an axis",
                   "a scale of 0 or a degenerate soft iron is not a calibration: recalibrate")
+        if sensor == "accel":
+            dev, off = float(np.max(np.abs(A - np.eye(3)))), float(np.max(np.abs(part.affine[1])))
+            lim, off_lim = _ACCEL_BOUNDS
+            if not (dev <= lim and off <= off_lim):
+                fail_check(f"{path}.params", f"not plausible: the correction changes a scale or an "
+                      f"axis by {100 * dev:.3g} % and offsets by {off:.3g} g (at most "
+                      f"{100 * lim:g} % and {off_lim:g} g)", "check the file (a sign, a unit) or recalibrate")
         return part
 
 

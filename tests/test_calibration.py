@@ -426,6 +426,22 @@ def test_an_absurd_thermal_coefficient_is_refused_not_turned_into_inf(key, value
     assert "\n" not in str(e.value) and str(e.value).startswith(key) and "beyond" in str(e.value)
 
 
+@pytest.mark.parametrize("key,value,dev", [("accel.params.scale", [-1.0, 1.0, 1.0], "200 %"),
+                                           ("accel.params.scale", [5.0, 1.0, 1.0], "400 %"),
+                                           ("accel.params.scale", [1.0, 1.6, 1.0], "60 %"),
+                                           ("accel.params.bias_g", [3.0, 0.0, 0.0], "offsets by 3.0")])
+def test_an_implausible_accelerometer_correction_is_refused(key, value, dev):
+    """A scale of -1 (a sign), 5 or 1.6, or a bias of 3 g, loaded and corrected every sample
+    into nonsense: only a singular matrix was refused, and the gyro's matrix had bounds the
+    accelerometer lacked.  Now a correction beyond 50 % of scale or axis, or 0.5 g of offset
+    (datasheets: a few %, 0.15 g), is one line naming the part; 1.4 (40 %) still loads."""
+    with pytest.raises(CalibrationError) as e:
+        Calibration.from_dict(_corrupt(key, "implausible", value))
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith("accel.params: not plausible") and dev in msg, msg
+    Calibration.from_dict(_corrupt("accel.params.scale", "plausible", [1.4, 1.0, 1.0]))
+
+
 @pytest.mark.parametrize("key,value", [("accel.params.scale", [0.0, 1.0, 1.0]),
                                        ("mag.params.soft_iron", [1.0, 1.0, 0.0, 0.0, 0.0, 0.0]),
                                        ("mag.params.soft_iron", [1.0, 1.0, 1.0, 1.0, 0.0, 0.0])])

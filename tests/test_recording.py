@@ -1,4 +1,6 @@
 """The recording format: round trip and errors that name the file and line."""
+import math
+
 import numpy as np
 import pytest
 
@@ -199,7 +201,7 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
         # t: the median step, 10 ms; t_ms, t_us: the mean of the whole-unit steps (9-11 ms,
         # drawn uniformly: within 1 % of 10 ms over 199 steps)
         assert ref.meta["rate_hz"] == "100" and abs(float(rec.meta["rate_hz"]) / 100 - 1) < 0.01
-    names = "name the time column by its unit (t: s, t_ms: ms, t_us: us)"
+    names = "name the time column by its unit (t: s, t_ms: ms, t_us: us, t_ns: ns)"
     msg = _one_line_error(read_table, str(p_ms), cols[1:] + ["t"], 16384.0, cls=UserError)
     assert msg.startswith(f"{p_ms}: t advances by a median 10 s a row (0.1 Hz), slower than")
     assert names in msg and msg.endswith("give --rate-hz 0.1")
@@ -212,6 +214,28 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     assert f"{p_s}: t_ms spans " in msg and "faster than an IMU is read at" in msg and names in msg
     msg = _one_line_error(read_table, str(p_ms), ["ax", "ay", "az", "t_ms", "t"], 16384.0, cls=UserError)
     assert "two time columns (t_ms, t)" in msg
+
+
+def test_a_phone_log_in_si_units_with_nanosecond_stamps(tmp_path):
+    """A phone's sensor log (Android: event times in ns since boot, m/s^2 and rad/s) is read
+    with t_ns and a scale per sensor: the same samples as the recording it was made from
+    (times within the 256 ns a double keeps of a 1.7e18 ns stamp)."""
+    from imucald.fitting.inputs import read_table
+    from imucald.cli import main
+    rec_path, tab = tmp_path / "r.csv", tmp_path / "phone.csv"
+    assert main(["simulate", "-o", str(rec_path), "--poses", "12", "--rate", "50", "--seed", "3"]) == 0
+    r = read_recording(str(rec_path))
+    g, rad = 9.80665, math.pi / 180
+    t_ns = 1_700_000_000_000_000_000 + np.round(r.t * 1e9)
+    with open(tab, "w") as fh:
+        fh.write("timestamp_ns,ax_ms2,ay_ms2,az_ms2,gx_rads,gy_rads,gz_rads\n")
+        fh.writelines(f"{t:.0f}," + ",".join(repr(float(x)) for x in (*a, *w)) + "\n"
+                      for t, a, w in zip(t_ns, r.acc * g, r.gyro * rad))
+    got = read_table(str(tab), ["t_ns", "ax", "ay", "az", "gx", "gy", "gz"],
+                     {"accel": g, "gyro": rad})
+    assert np.allclose(got.acc, r.acc, rtol=1e-12, atol=0) and np.allclose(got.gyro, r.gyro, rtol=1e-12, atol=1e-12)
+    assert np.allclose(got.t - got.t[0], r.t - r.t[0], rtol=0, atol=1e-6)
+    assert abs(float(got.meta["rate_hz"]) - 50) < 0.01
 
 
 def test_table_rate_of_whole_millisecond_steps_bursts_and_coarse_clocks(tmp_path):

@@ -103,7 +103,7 @@ def _add_simulate(s) -> None:
 def _raw_table_options(p, example: str) -> None:
     """The options that read a raw numeric table (a logger's file) as a recording."""
     p.add_argument("--columns", help=f"raw table columns, e.g. {example} (- skips one; the time as "
-                                     f"t_ms or t_us when in ms or us)")
+                                     f"t_ms, t_us or t_ns when in ms, us or ns)")
     p.add_argument("--nominal-scale", type=per_sensor, default=1.0,
                    help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384, or one per "
                         "sensor, e.g. accel=16384,gyro=131")
@@ -281,7 +281,7 @@ def _add_noise(nz) -> None:
     nz.add_argument("--tau-min-s", type=positive_float, help="shortest averaging time fitted (default 10 samples)")
     nz.add_argument("--tau-max-s", type=positive_float, help="longest averaging time fitted (default a tenth)")
     nz.add_argument("--confidence", type=fraction, default=0.95, help="confidence of the intervals")
-    nz.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,gx,gy,gz (t_ms, t_us: time in ms, us)")
+    nz.add_argument("--columns", help="raw table columns, e.g. t,ax,ay,az,gx,gy,gz (t_ms, t_us, t_ns: time in ms, us, ns)")
     nz.add_argument("--nominal-scale", type=per_sensor, default=1.0,
                     help="raw table: counts per unit, or one per sensor, e.g. accel=16384,gyro=131")
     nz.add_argument("--nominal-offset", type=per_sensor, default=0.0,

@@ -5,8 +5,8 @@ whose columns are named by ``columns`` (e.g. ``t,ax,ay,az``); sensor columns
 in raw counts are converted with ``(value - nominal_offset) / nominal_scale``, one
 number for every sensor or one per sensor (``{"accel": 16384, "gyro": 131}``: an
 MPU-6050's counts per g and per deg/s).
-The time column is ``t`` in seconds, or ``t_ms`` / ``t_us`` in milliseconds /
-microseconds (a logger's millis() or micros()).
+The time column is ``t`` in seconds, or ``t_ms`` / ``t_us`` / ``t_ns`` in milli-, micro- or
+nanoseconds (a logger's millis() or micros(), a phone's sensor timestamps).
 This is how the IMU-TK Xsens files (ASCII, unsigned 16-bit counts) are read.
 
 Lines that are blank or start with ``#`` or ``%`` are skipped, and so are
@@ -39,9 +39,9 @@ _NAMES = {"acc": "accel", "gyro": "gyro", "mag": "mag"}        # as --nominal-sc
 #: a nominal scale or offset: one number for every sensor, or one per sensor by name
 PerSensor = Union[float, Dict[str, float]]
 #: a raw table's time column by its unit, in seconds per unit (loggers often write an Arduino's
-#: millis() or micros())
-TIME_COLUMNS_S_PER_UNIT = {"t": 1.0, "t_ms": 1e-3, "t_us": 1e-6}
-_UNIT = {"t": "s", "t_ms": "ms", "t_us": "us"}
+#: millis() or micros(); Android's sensor events are stamped in ns)
+TIME_COLUMNS_S_PER_UNIT = {"t": 1.0, "t_ms": 1e-3, "t_us": 1e-6, "t_ns": 1e-9}
+_UNIT = {"t": "s", "t_ms": "ms", "t_us": "us", "t_ns": "ns"}
 #: the step of a raw table's time column, s: an IMU read at 1 Hz to 10 kHz (the supported chips'
 #: rates, LIMITS["rate"] of the CLI).  Outside, the column is refused (:func:`_table_rate`): a
 #: column in ms read as s steps 1000x too far (the freeimu warm-up: 17 "s")
@@ -154,7 +154,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         rate = _table_rate(path, t, t_name, rate_hz)
     else:
         if not rate_hz:
-            raise UserError(f"{path}: no time column (t, t_ms or t_us): give --rate-hz")
+            raise UserError(f"{path}: no time column (t, t_ms, t_us or t_ns): give --rate-hz")
         rate = rate_hz
         t = np.arange(n) / rate
     meta = {"board": "unknown", "rate_hz": f"{rate:g}", "source": os.path.basename(path)}
@@ -228,7 +228,7 @@ def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float])
     rows_per_s = (len(t) - 1) / float(t[-1] - t[0])
     said = (f"{t_name} spans {(t[-1] - t[0]) / unit:.4g} {_UNIT[t_name]} over {len(t)} rows "
             f"({rows_per_s:.4g} rows a second)")
-    names = "name the time column by its unit (t: s, t_ms: ms, t_us: us)"
+    names = "name the time column by its unit (t: s, t_ms: ms, t_us: us, t_ns: ns)"
     if rate_hz:
         if not 1e-2 <= rate_hz / rows_per_s <= 1e2:
             raise UserError(f"{path}: --rate-hz {rate_hz:g} but {said}: {names}, or leave --rate-hz out")

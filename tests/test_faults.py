@@ -131,3 +131,21 @@ def test_record_cli_writes_a_readable_recording(tmp_path):
     assert rec.meta["board"] == "mpu9250" and len(rec) > 0.95 * 600
     assert rec.mag is not None and np.all(np.isfinite(rec.mag))
     assert np.all(np.abs(np.linalg.norm(rec.acc, axis=1) - 1) < 0.6)
+
+
+@pytest.mark.parametrize("spec,why", [
+    ("nack=2", "2 is not a probability 0..1"), ("nack=nan", "nan is not a probability 0..1"),
+    ("stuck=inf+1", "inf s is not a time >= 0"), ("disconnect=0x53@3+-2", "-2 s is not a time >= 0"),
+    ("reset=0x68@nan", "nan s is not a time >= 0"), ("busy=0x300", "0x300 is not a 7-bit device address"),
+    ("wrong-id=0x68:0x1ff", "0x1ff is not a byte")])
+def test_a_fault_out_of_range_is_refused_saying_why(spec, why):
+    """The emulator's --fault values were only parsed: nack=2 made every transaction fail
+    (the run ended 'no acknowledge'), nack=-1, a negative duration or a NaN time ran as if no
+    fault were asked for, silently."""
+    from imucald.cli.faults import faults_from_options
+    from imucald.errors import UserError
+    with pytest.raises(UserError) as e:
+        faults_from_options([spec])
+    assert f"--fault {spec!r} ({why}" in str(e.value) and "\n" not in str(e.value)
+    assert faults_from_options(["nack=0.05", "stuck=4+0.1", "reset=0x68@3", "disconnect=0x53@3+2",
+                                "busy=0x1e", "wrong-id=0x68:0x70"]) is not None

@@ -207,7 +207,7 @@ def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str])
 def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float]) -> float:
     """The sample rate of a raw table (``rate_hz`` when given) from its time column ``t`` (s;
     named ``t_name``): one over the median interval between rows that advance; for a column in
-    whole ms or us (t_ms, t_us) the mean of the intervals within a factor 2 of the median (a
+    whole ms, us or ns (t_ms, t_us, t_ns) the mean of the intervals within a factor 2 of the median (a
     2.5-ms period logged in whole ms steps by 2 and 3: either median is 20 % off).
     A column far likelier in another unit is refused, naming the time columns by unit.  Judged
     on the rows a second over the column's span (a logger that stamps a FIFO's burst as it

@@ -179,3 +179,22 @@ def test_the_bus_number_limit_is_the_configurations():
     from imucald.cli.checks import BUS_NUMBER_MAX
     from imucald.daemon.config import SCHEMA
     assert SCHEMA["sensor.bus"][2] == (0, BUS_NUMBER_MAX)
+
+
+@pytest.mark.parametrize("argv", [["calibrate", "REC", "--plot", "DIR"], ["gap", "REC", "--report", "DIR"],
+                                  ["noise", "REC", "--plot", "DIR"], ["status", "--plot", "DIR/c.png"]])
+def test_a_missing_plots_extra_is_said_before_any_work(argv, tmp_path, monkeypatch, capsys):
+    """Without matplotlib, --plot (--report) said so only after the fit had printed its
+    report: now one line before anything runs, naming the extra."""
+    import importlib.util
+    from imucald.cli import main
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "matplotlib" else real(name, *a))
+    rec = tmp_path / "r.csv"
+    rec.write_text("not read\n")
+    (tmp_path / "p").mkdir()
+    argv = [str(rec) if a == "REC" else a.replace("DIR", str(tmp_path / "p")) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "needs matplotlib: pip install 'imucald[plots]'" in err, err

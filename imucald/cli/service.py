@@ -248,7 +248,9 @@ def cmd_watch(args) -> int:
         s.connect(p)
     except OSError as e:
         from ..errors import DeviceUnavailable
-        raise DeviceUnavailable(f"{p}: cannot connect: {e.strerror}: is imucald running?") from None
+        raise DeviceUnavailable(f"{p}: cannot connect: {e.strerror}: is imucald running? (one started "
+                                f"with --runtime-dir DIR, as make run does, takes the same --runtime-dir "
+                                f"here)") from None
     f = s.makefile("rb")
     count = 0
     for line in f:

@@ -177,7 +177,9 @@ def request(path: str, cmd: str, timeout: float = 5.0) -> Dict:
     try:
         s.connect(path)
     except FileNotFoundError:
-        raise UserError(f"{path}: no control socket: is imucald running? (systemctl status imucald)") from None
+        raise UserError(f"{path}: no control socket: is imucald running? (systemctl status imucald; "
+                        f"one started with --runtime-dir DIR, as make run does, takes the same "
+                        f"--runtime-dir here)") from None
     except PermissionError:
         raise UserError(f"{path}: permission denied: join the socket's group, or use sudo") from None
     except OSError as e:

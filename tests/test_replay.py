@@ -221,6 +221,8 @@ def test_replay_and_apply_read_a_raw_logger_table(tmp_path):
     ca, cb = read_recording(tmp_path / "a.csv"), read_recording(tmp_path / "b.csv")
     assert np.allclose(ca.acc, cb.acc, rtol=0, atol=1e-9) and np.allclose(ca.gyro, cb.gyro, rtol=0, atol=1e-9)
     assert np.allclose(ca.t, cb.t, rtol=0, atol=1e-9)
+    # the counts without their scale: refused, naming it (it wrote 16000-g samples, exit 0)
+    assert main(["apply", str(cal), str(tab), "-o", str(tmp_path / "d.csv"), *RAW[:2]]) == 2
     # an imucald recording is read as one whatever --columns says (its header names its board,
     # which apply checks): the same output as without the options
     assert main(["apply", str(cal), str(rec), "-o", str(tmp_path / "c.csv"), *RAW]) == 0

@@ -149,6 +149,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         if g in c:
             c[g] -= offsets[g]
             c[g] /= scales[g]
+    _check_units(path, c)
     if t_name:
         t = c.pop(t_name) * TIME_COLUMNS_S_PER_UNIT[t_name] if t_name != "t" else c.pop("t")
         rate = _table_rate(path, t, t_name, rate_hz)
@@ -202,6 +203,43 @@ def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str])
             raise UserError(f"{option}: no value for the {_NAMES[g]} columns ({have}): add "
                             f"{_NAMES[g]}=N to it (or give one number for every sensor)")
     return {g: float(value[_NAMES[g]]) for g in present}
+
+
+#: a raw table's median |accelerometer|, g, after --nominal-scale: about 1 at rest and in a
+#: hand's motion; at or above the first, counts (or mg) read as g; between the next two, m/s^2;
+#: below the last, a file already in g divided by a scale
+ACC_MEDIAN_COUNTS_G, ACC_MEDIAN_SI_G, ACC_MEDIAN_TINY_G = 20.0, (8.8, 10.8), 0.1
+#: the same of the magnetometer, gauss (Earth's field 0.25-0.65): at or above the first,
+#: counts; between the two, microtesla (1 gauss = 100 uT)
+MAG_MEDIAN_COUNTS_GAUSS, MAG_MEDIAN_UT_GAUSS = 200.0, 10.0
+
+
+def _check_units(path: str, c: dict) -> None:
+    """A raw table's accelerometer and magnetometer in the units the fit takes (g, gauss), by
+    the median magnitude of their rows: counts without --nominal-scale, m/s^2, microtesla and
+    a scale given to a file already in g each read as plausible numbers a fit then fails on
+    ('no still moment') or, in apply, writes out as nonsense; refused, naming the scale."""
+    acc, mag = c.get("acc"), c.get("mag")
+    if acc is not None and len(acc):
+        a = float(median(np.sqrt(np.einsum("ij,ij->i", acc, acc))))
+        say = f"{path}: the accelerometer reads a median |a| of {a:.4g} g after --nominal-scale"
+        if a >= ACC_MEDIAN_COUNTS_G:
+            raise UserError(f"{say}: raw counts (or mg)? give --nominal-scale, the counts per g (16384 for "
+                            f"an MPU-6050 at +-2 g, 256 for an ADXL345 at full resolution; accel=N,gyro=N "
+                            f"when the gyro's differ)")
+        if ACC_MEDIAN_SI_G[0] <= a <= ACC_MEDIAN_SI_G[1]:
+            raise UserError(f"{say}: m/s^2? give --nominal-scale accel=9.80665 (and gyro=0.0174533 for "
+                            f"rad/s)")
+        if a < ACC_MEDIAN_TINY_G:
+            raise UserError(f"{say}: already in g? leave --nominal-scale out, or give the counts per g")
+    if mag is not None and len(mag):
+        m = float(median(np.sqrt(np.einsum("ij,ij->i", mag, mag))))
+        say = f"{path}: the magnetometer reads a median |m| of {m:.4g} gauss after --nominal-scale"
+        if m >= MAG_MEDIAN_COUNTS_GAUSS:
+            raise UserError(f"{say}: raw counts? give --nominal-scale mag=N, the counts per gauss (1090 "
+                            f"for an HMC5883L at its default gain)")
+        if m >= MAG_MEDIAN_UT_GAUSS:
+            raise UserError(f"{say}: microtesla? give --nominal-scale mag=100")
 
 
 def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float]) -> float:

@@ -440,3 +440,28 @@ def test_file_line_names_where_the_files_bias_comes_from():
     assert "at its reference 25.20 degC" in file_line(mk(th1))
     assert "still-pose mean" in file_line(p) and "bias only" in file_line(p)
     assert "G a removed" in file_line(_gyro_part(np.eye(3), np.zeros((3, 3))))
+
+
+@pytest.mark.parametrize("gain", [1.0, 1.07, 2.0, -1.0])
+def test_a_gyro_in_other_units_or_flipped_is_warned_of(tmp_path, capsys, gain):
+    """A gyro read with the wrong counts per deg/s (2x) or an axis's sign flipped (as the
+    sunsided logs' X is) was calibrated in silence: 'K and G not used' and a bias in the wrong
+    units written, exit 0.  Now a warning when the rotations between poses miss the gravity
+    directions by more than ROTATION_DISAGREE_DEG held out; none for a gyro as read, nor for
+    one 7 % off (within what K takes up: 6 deg before K, under 1 after)."""
+    from imucald.cli import main
+    from imucald.files.recording import read_recording, write_recording
+    rec = tmp_path / "r.csv"
+    assert main(["simulate", "-o", str(rec), "--board", "mpu6050", "--poses", "24", "--hold", "6",
+                 "--seed", "5"]) == 0
+    r = read_recording(str(rec))
+    if gain < 0:
+        r.gyro[:, 0] *= gain                     # x's sign flipped
+    else:
+        r.gyro *= gain                           # read with counts per deg/s 1/gain of the true
+    write_recording(r, str(rec))
+    capsys.readouterr()
+    assert main(["calibrate", str(rec), "--sensor", "gyro"]) == 0
+    err = capsys.readouterr().err
+    warned = "the gyro's rotations between poses miss the accelerometer's gravity directions" in err
+    assert warned == (gain in (2.0, -1.0)), err

@@ -567,7 +567,7 @@ class Pipeline:
                          **{k: cand.part(k) for k in take})
         self.applied, self.applied_t_s = new, self.t_last
         self.persist("calibration", new)
-        msg = f"calibration #{new.id} applied{_provisional_text(prov)}: " + "; ".join(parts)
+        msg = f"calibration #{new.id} applied{_provisional_text(prov)}{_partly(cand, take)}: " + "; ".join(parts)
         log.info(msg)
         self.events.append(msg)
         self.history.append({"applied": True, "id": new.id, **_summary(cand)})
@@ -629,6 +629,16 @@ def _confirms(gates) -> bool:
     force, unless the gate found the new poses at odds with it (fitting/gate.py rule 1)."""
     d = gates.get("accel")
     return not (d is not None and d.consistency_p is not None and not d.consistent)
+
+
+def _partly(cand: Calibration, take) -> str:
+    """' (gyro part; accel kept)' when the job's fit had parts the gate kept out, else '': the
+    log line's head then says what it applied (its parts' own phrases follow)."""
+    kept = [k for k in ("accel", "gyro", "mag") if cand.part(k) is not None and k not in take]
+    if not kept:
+        return ""
+    taken = [k for k in ("accel", "gyro", "mag") if k in take]
+    return f" ({', '.join(taken)} part{'s' if len(taken) > 1 else ''}; {', '.join(kept)} kept)"
 
 
 def _provisional_text(prov) -> str:

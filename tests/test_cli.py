@@ -198,3 +198,19 @@ def test_a_missing_plots_extra_is_said_before_any_work(argv, tmp_path, monkeypat
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "needs matplotlib: pip install 'imucald[plots]'" in err, err
+
+
+def test_an_unknown_option_names_the_nearest_and_the_commands_help(capsys):
+    """A typo in an option ('--colums') was 'unrecognized arguments ... (see imucald --help)':
+    the top-level help, and no hint.  Now the command's parser says it, with the nearest of
+    its options when one is close, in one line."""
+    from imucald.cli import main
+    with pytest.raises(SystemExit) as e:
+        main(["calibrate", "x.csv", "--colums", "t,ax,ay,az"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1
+    assert err.startswith("imucald calibrate: error: unrecognized arguments: --colums t,ax,ay,az "
+                          "(did you mean --columns?) (see 'imucald calibrate --help')"), err
+    with pytest.raises(SystemExit):
+        main(["gap", "x.csv", "--zzz"])
+    assert "unrecognized arguments: --zzz (see 'imucald gap --help')" in capsys.readouterr().err

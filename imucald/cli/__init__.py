@@ -38,13 +38,29 @@ COMMAND_NAMES = frozenset(c[0] for c in COMMANDS)
 __all__ = ["main", "build_parser"]
 
 
+def _unrecognized(parser, cmd: Optional[str], extra: List[str]) -> None:
+    """argparse's 'unrecognized arguments' from the command's own parser (its --help named),
+    with the nearest of its options when one is close: '--colums' -> 'did you mean --columns?'."""
+    import argparse
+    import difflib
+    sub = next((a.choices.get(cmd) for a in parser._actions
+                if isinstance(a, argparse._SubParsersAction) and cmd), None) or parser
+    options = [o for a in sub._actions for o in a.option_strings]
+    near = [m for w in extra if w.startswith("-")
+            for m in difflib.get_close_matches(w.split("=", 1)[0], options, n=1, cutoff=0.7)]
+    hint = f" (did you mean {', '.join(dict.fromkeys(near))}?)" if near else ""
+    sub.error(f"unrecognized arguments: {' '.join(extra)}{hint}")
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     words = sys.argv[1:] if argv is None else list(argv)
     # only the subcommand given gets its arguments built (--help and a typo: none)
     cmd = next((w for w in words if not w.startswith("-")), "")
     parser = build_parser(cmd if cmd in COMMAND_NAMES else "")
     type(parser).json_errors = "--json" in words
-    args = parser.parse_args(words)
+    args, extra = parser.parse_known_args(words)
+    if extra:
+        _unrecognized(parser, getattr(args, "cmd", None), extra)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -214,3 +214,25 @@ def test_an_unknown_option_names_the_nearest_and_the_commands_help(capsys):
     with pytest.raises(SystemExit):
         main(["gap", "x.csv", "--zzz"])
     assert "unrecognized arguments: --zzz (see 'imucald gap --help')" in capsys.readouterr().err
+
+
+def test_echo_prints_every_event_and_one_sample_a_second(capsys, tmp_path):
+    """make run's --echo printed the last line of a batch once a second, so 4 of the demo's 5
+    CAL events never showed (newcomer walk-through); with --format binary it decoded record
+    bytes as text.  Now every event line (a JSON object other than a sample, a CSV '# '
+    comment) and one sample a second; binary refused up front."""
+    from types import SimpleNamespace
+    from imucald.cli import main
+    from imucald.daemon.run import Daemon
+    d = SimpleNamespace()
+    imu = b'{"class":"IMU","seq":%d}'
+    batch = b"\n".join([imu % 1, b'{"class":"CAL","id":1}', imu % 2, b""])
+    Daemon._echo(d, batch, 100.0)
+    assert capsys.readouterr().out.splitlines() == ['{"class":"CAL","id":1}', '{"class":"IMU","seq":2}']
+    Daemon._echo(d, b"\n".join([imu % 3, b'{"class":"CAL","id":2}', b""]), 100.5)
+    assert capsys.readouterr().out.splitlines() == ['{"class":"CAL","id":2}']
+    Daemon._echo(d, b"1.0,0,0,1\n# {\"class\":\"GAP\"}\n", 101.5)
+    assert capsys.readouterr().out.splitlines() == ['# {"class":"GAP"}', "1.0,0,0,1"]
+    assert main(["run", "--emulate", "--echo", "--format", "binary", "--duration", "1",
+                 "--state-dir", str(tmp_path / "s"), "--runtime-dir", str(tmp_path / "r")]) == 2
+    assert "output.format binary has none" in capsys.readouterr().err

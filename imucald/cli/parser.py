@@ -215,7 +215,7 @@ def _add_run(rn) -> None:
                          "tour with 1.5-4 s holds; 0: a board set down on a bench)")
     rn.add_argument("--fault", action="append", help="emulator fault (as for record)")
     rn.add_argument("--duration", type=_lim("duration"), help="stop after this many (sensor-clock) seconds")
-    rn.add_argument("--echo", action="store_true", help="print one stream line per second")
+    rn.add_argument("--echo", action="store_true", help="print every event line (CAL, GAP) and one sample line a second")
     rn.set_defaults(func=_command("service", "cmd_run"))
 
 

@@ -52,6 +52,9 @@ def cmd_run(args) -> int:
     from .boards import RUN_TOUR, open_board
     from .faults import faults_from_options
     cfg, path, overrides = daemon_config(args, with_overrides=True)
+    if args.echo and cfg["output"]["format"] == "binary":
+        raise UserError("--echo prints the stream's lines, and output.format binary has none: "
+                        "give --format ndjson (or csv) with --echo")
     setup_logging(cfg["log"]["level"])
     s = cfg["sensor"]
     emulate = "yes" if args.emulate else ("no" if args.no_emulate else s["emulate"])

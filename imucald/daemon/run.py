@@ -206,6 +206,8 @@ class Daemon:
                 s.write(data)
             self.control.poll()
             now = time.monotonic()
+            if self.echo and data:
+                self._echo(data, now)
             if len(batch):
                 if stalled:
                     stalled = False
@@ -215,9 +217,6 @@ class Daemon:
                     notify("READY=1", f"STATUS={self._status_line()}")
                     log.info("first valid sample: ready")
                     ready = True
-                if self.echo and now - getattr(self, "_last_echo", 0) >= 1.0:
-                    self._last_echo = now
-                    print(data.split(b"\n")[-2].decode() if data.count(b"\n") else "", flush=True)
             if ready and not stalled and now - last_fresh >= STALL_S:
                 stalled = True
                 self._stalled(now - last_fresh, wd is not None)
@@ -239,6 +238,21 @@ class Daemon:
                 break
         notify("STOPPING=1")
         return 0
+
+    def _echo(self, data: bytes, now: float) -> None:
+        """--echo (ndjson or csv; cmd_run refuses it for binary): every event line of the batch
+        (CAL, GAP: a JSON object other than a sample, or a CSV '# ' comment) and the last
+        sample line once a second.  Printing one line a second alone missed most CAL events."""
+        lines = data.split(b"\n")[:-1]
+        is_event = [ln.startswith(b"# ") or (ln.startswith(b"{") and not ln.startswith(b'{"class":"IMU"'))
+                    for ln in lines]
+        out = [ln for ln, e in zip(lines, is_event) if e]
+        samples = [ln for ln, e in zip(lines, is_event) if not e]
+        if samples and now - getattr(self, "_last_echo", 0) >= 1.0:
+            self._last_echo = now
+            out.append(samples[-1])
+        for ln in out:
+            print(ln.decode("utf-8", "replace"), flush=True)
 
     def _stalled(self, idle_s: float, watchdog: bool) -> None:
         """No fresh sample for ``idle_s``: say so (once per stall), and under the watchdog

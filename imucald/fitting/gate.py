@@ -187,8 +187,8 @@ class Decision:
         sig = f"p = {self.p_value:.2g} {rel(self.p_value)} {self.alpha:g}"
         cons = ("" if self.consistency_p is None else
                 f"chi2 = {self.consistency_chi2:.1f} on {self.consistency_dof}, largest {one} "
-                f"{self.consistency_max:.1f}: p = {self.consistency_p:.2g} "
-                f"{rel(self.consistency_p)} {self.alpha:g}")
+                f"{self.consistency_max:.1f}: p = {self.consistency_p:.2g} (the smaller of the two "
+                f"tests' p, doubled) {rel(self.consistency_p)} {self.alpha:g}")
         if self.rule == "consistent":
             how = "higher, but not significantly" if self.rms_cv > self.rms_incumbent else "no worse"
             return (f"{head}; {how} (p_worse = {self.p_worse:.2g} > {self.alpha:g}), and these {what} "

@@ -214,6 +214,10 @@ def test_an_unknown_option_names_the_nearest_and_the_commands_help(capsys):
     with pytest.raises(SystemExit):
         main(["gap", "x.csv", "--zzz"])
     assert "unrecognized arguments: --zzz (see 'imucald gap --help')" in capsys.readouterr().err
+    # words after '--' are positionals: no option suggested for them (a cold review)
+    with pytest.raises(SystemExit):
+        main(["calibrate", "x.csv", "--", "--colums"])
+    assert "did you mean" not in capsys.readouterr().err
 
 
 def test_echo_prints_every_event_and_one_sample_a_second(capsys, tmp_path):

@@ -51,12 +51,13 @@ def test_rule_one_with_a_higher_figure_says_it_is_within_noise_and_on_which_pose
 def test_the_line_head_says_which_parts_were_applied_and_which_kept():
     """'calibration #5 applied: accel ... (kept the current one); gyro bias applied' read as
     the accelerometer applied (a newcomer's walk-through): the head now names the parts taken
-    and those kept when the gate split them, and says nothing more when it took them all."""
+    and those not applied when the gate split them ('not applied', not 'kept': with nothing
+    in force there is nothing to keep), and says nothing more when it took them all."""
     from imucald.daemon.pipeline import _partly
     acc = SensorCal.accel("triangular9", Triangular9().nominal)
     gyro = SensorCal("gyro", "bias", {"bias_dps": np.zeros(3)})
     cand = Calibration("mpu6050", {}, accel=acc, gyro=gyro)
-    assert _partly(cand, {"gyro"}) == " (gyro part; accel kept)"
-    assert _partly(cand, {"accel"}) == " (accel part; gyro kept)"
+    assert _partly(cand, {"gyro"}) == " (gyro part; accel not applied)"
+    assert _partly(cand, {"accel"}) == " (accel part; gyro not applied)"
     assert _partly(cand, {"accel", "gyro"}) == ""
     assert _partly(Calibration("mpu6050", {}, accel=acc), {"accel"}) == ""

@@ -217,28 +217,36 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
 
 
 @pytest.mark.parametrize("cols,scale,rows,why", [
-    ("ax,ay,az", 1.0, "0,0,16384", "g after --nominal-scale: raw counts (or mg)?"),
-    ("ax,ay,az", 1.0, "0,0,9.81", "g after --nominal-scale: m/s^2? give --nominal-scale accel=9.80665"),
-    ("ax,ay,az", 16384.0, "0,0,1.0", "g after --nominal-scale: already in g?"),
-    ("mx,my,mz", 1.0, "20,-5,-40", "gauss after --nominal-scale: microtesla? give --nominal-scale mag=100"),
-    ("mx,my,mz", 1.0, "218,-55,-436", "gauss after --nominal-scale: raw counts? give --nominal-scale mag=N")])
-def test_a_raw_table_in_other_units_is_named(tmp_path, cols, scale, rows, why):
+    ("ax,ay,az", 1.0, "0,0,16384", "g after --nominal-scale (none given): raw counts (or mg)? give --nominal-scale"),
+    ("ax,ay,az", 1.0, "0,0,9.81", "g after --nominal-scale (none given): m/s^2? give --nominal-scale accel=9.80665"),
+    ("ax,ay,az", 16384.0, "0,0,1.0", "g after --nominal-scale: already in g? then leave --nominal-scale out"),
+    ("mx,my,mz", 1.0, "20,-5,-40", "gauss after --nominal-scale (none given): microtesla (--nominal-scale mag=100)"),
+    ("mx,my,mz", 1.0, "218,-55,-436", "gauss after --nominal-scale (none given): raw counts or milligauss?")])
+def test_a_raw_table_in_other_units_is_warned_of(tmp_path, capsys, cols, scale, rows, why):
     """Counts read without --nominal-scale (a newcomer's first try), m/s^2, a scale given to
     a file already in g, microtesla: each read as plausible-looking numbers that the fit then
     failed on ('no still moment: ... 4.37e+04 mg per axis: hold the board still') or that
-    apply wrote out as nonsense with exit 0.  Judged on the median magnitude (about 1 g at
-    rest and in a hand's motion; Earth's field 0.25-0.65 gauss); 1 g and 0.5 gauss pass."""
+    apply wrote out in silence.  Judged on the median magnitude (about 1 g at rest and in a
+    hand's motion; Earth's field 0.25-0.65 gauss): one warning line naming the scale to give.
+    A warning, not a refusal: a centrifuge, free fall or a sensor the command does not use
+    is no error.  1 g and 0.5 gauss say nothing."""
     from imucald.fitting.inputs import read_table
     rng = np.random.default_rng(0)
     base = np.array([float(x) for x in rows.split(",")])
     p = tmp_path / "u.csv"
     p.write_text("".join(f"{i / 100:.2f}," + ",".join(f"{v:.6g}" for v in base * (1 + 0.01 * rng.standard_normal(3)))
                          + "\n" for i in range(200)))
-    msg = _one_line_error(read_table, str(p), ["t"] + cols.split(","), scale, cls=UserError)
-    assert msg.startswith(f"{p}: the ") and " reads a median |" in msg and why in msg, msg
+    assert len(read_table(str(p), ["t"] + cols.split(","), scale)) == 200
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"imucald: warning: {p}: the ") and why in err, err
     good = base / np.linalg.norm(base) * (1.0 if cols[0] == "a" else 0.5) * scale
     p.write_text("".join(f"{i / 100:.2f}," + ",".join(f"{v:.6g}" for v in good) + "\n" for i in range(200)))
     assert len(read_table(str(p), ["t"] + cols.split(","), scale)) == 200
+    assert capsys.readouterr().err == ""
+    # free fall in g, no scale given: no advice to leave out a scale that was not given
+    p.write_text("".join(f"{i / 100:.2f},0,0,0.02\n" for i in range(200)))
+    read_table(str(p), ["t", "ax", "ay", "az"], 1.0)
+    assert capsys.readouterr().err == ""
 
 
 def test_a_phone_log_in_si_units_with_nanosecond_stamps(tmp_path):

@@ -38,15 +38,16 @@ COMMAND_NAMES = frozenset(c[0] for c in COMMANDS)
 __all__ = ["main", "build_parser"]
 
 
-def _unrecognized(parser, cmd: Optional[str], extra: List[str]) -> None:
+def _unrecognized(parser, cmd: Optional[str], extra: List[str], positional: List[str]) -> None:
     """argparse's 'unrecognized arguments' from the command's own parser (its --help named),
-    with the nearest of its options when one is close: '--colums' -> 'did you mean --columns?'."""
+    with the nearest of its options when one is close: '--colums' -> 'did you mean --columns?'
+    (not for a word given after '--', a positional: ``positional``)."""
     import argparse
     import difflib
     sub = next((a.choices.get(cmd) for a in parser._actions
                 if isinstance(a, argparse._SubParsersAction) and cmd), None) or parser
     options = [o for a in sub._actions for o in a.option_strings]
-    near = [m for w in extra if w.startswith("-")
+    near = [m for w in extra if w.startswith("-") and w not in positional and w.split("=", 1)[0] not in options
             for m in difflib.get_close_matches(w.split("=", 1)[0], options, n=1, cutoff=0.7)]
     hint = f" (did you mean {', '.join(dict.fromkeys(near))}?)" if near else ""
     sub.error(f"unrecognized arguments: {' '.join(extra)}{hint}")
@@ -60,7 +61,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     type(parser).json_errors = "--json" in words
     args, extra = parser.parse_known_args(words)
     if extra:
-        _unrecognized(parser, getattr(args, "cmd", None), extra)
+        after = words[words.index("--") + 1:] if "--" in words else []      # positionals there
+        _unrecognized(parser, getattr(args, "cmd", None), extra, after)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

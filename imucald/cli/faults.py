@@ -18,6 +18,15 @@ def _time_s(text: str) -> float:
     return v
 
 
+def _span_s(t: str, d: str) -> tuple:
+    """(start, end) s of a fault from T+D: both times >= 0, the end finite too."""
+    t0 = _time_s(t)
+    t1 = t0 + _time_s(d)
+    if not t1 < math.inf:
+        raise ValueError(f"{t}+{d} s is not a time >= 0")
+    return t0, t1
+
+
 def _address(text: str) -> int:
     """A 7-bit I2C address in hex (0x03..0x77, the ones a device may answer at)."""
     v = int(text, 16)
@@ -39,7 +48,7 @@ def parse_fault(spec: str, faults) -> None:
             faults.nack_prob = p
         elif kind == "stuck":
             t, d = val.split("+")
-            faults.stuck.append((_time_s(t), _time_s(t) + _time_s(d)))
+            faults.stuck.append(_span_s(t, d))
         elif kind == "busy":
             faults.busy.add(_address(val))
         elif kind == "wrong-id":
@@ -53,7 +62,7 @@ def parse_fault(spec: str, faults) -> None:
         elif kind == "disconnect":
             a, w = val.split("@")
             t, d = w.split("+")
-            faults.disconnected[_address(a)] = (_time_s(t), _time_s(t) + _time_s(d))
+            faults.disconnected[_address(a)] = _span_s(t, d)
         else:
             raise ValueError
     except ValueError as e:

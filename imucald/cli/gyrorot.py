@@ -32,7 +32,8 @@ def disagreement(fit) -> Optional[str]:
     return (f"the gyro's rotations between poses miss the accelerometer's gravity directions by "
             f"{miss:.0f} deg on average (held out; a gyro within its datasheet misses by a few): its "
             f"scale (--nominal-scale gyro=N, counts per deg/s), its axes or a sign disagree with the "
-            f"accelerometer's, and the bias written is in those units")
+            f"accelerometer's (a wrong scale makes the bias written wrong too), or it saturated in "
+            f"the turns (a raw table gives no range to leave those out)")
 
 
 def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, slices=None):
@@ -76,19 +77,25 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
     if fit is None:
         return None, "fewer than 3 clean rotations between consecutive still poses"
     fit.reference += tnote
-    warn = disagreement(fit)
-    if warn:
-        from ._common import eprint
-        eprint(f"imucald: warning: {getattr(args, 'input', 'the recording')}: {warn}")
     mag = _calibrated_mag(rec, args.seed, mag_cal)
     if mag is not None:     # the field direction too, when it agrees with its noise model
         fm = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, mag=mag, chip=chips[1], range_dps=rng,
                                 acc_frame=frame)
         if fm is not None and fm.excess_scatter == 1.0:
             fm.reference += tnote
-            return fm, ""
+            return _warned(fm, args), ""
         fit.reference += " (field directions left out: they scatter beyond their noise)"
-    return fit, ""
+    return _warned(fit, args), ""
+
+
+def _warned(fit, args):
+    """``fit``, after a warning on stderr when it disagrees with gravity (:func:`disagreement`):
+    judged on the fit whose correction the file keeps."""
+    warn = disagreement(fit)
+    if warn:
+        from ._common import eprint
+        eprint(f"imucald: warning: {getattr(args, 'input', 'the recording')}: {warn}")
+    return fit
 
 
 def pose_slices(rec, poses) -> Optional[List[slice]]:

@@ -632,13 +632,13 @@ def _confirms(gates) -> bool:
 
 
 def _partly(cand: Calibration, take) -> str:
-    """' (gyro part; accel kept)' when the job's fit had parts the gate kept out, else '': the
-    log line's head then says what it applied (its parts' own phrases follow)."""
-    kept = [k for k in ("accel", "gyro", "mag") if cand.part(k) is not None and k not in take]
-    if not kept:
+    """' (gyro part; accel not applied)' when the job's fit had parts the gate kept out, else
+    '': the log line's head then says what it applied (its parts' own phrases follow)."""
+    out = [k for k in ("accel", "gyro", "mag") if cand.part(k) is not None and k not in take]
+    if not out:
         return ""
     taken = [k for k in ("accel", "gyro", "mag") if k in take]
-    return f" ({', '.join(taken)} part{'s' if len(taken) > 1 else ''}; {', '.join(kept)} kept)"
+    return f" ({', '.join(taken)} part{'s' if len(taken) > 1 else ''}; {', '.join(out)} not applied)"
 
 
 def _provisional_text(prov) -> str:

@@ -188,7 +188,7 @@ class Decision:
         cons = ("" if self.consistency_p is None else
                 f"chi2 = {self.consistency_chi2:.1f} on {self.consistency_dof}, largest {one} "
                 f"{self.consistency_max:.1f}: p = {self.consistency_p:.2g} (the smaller of the two "
-                f"tests' p, doubled) {rel(self.consistency_p)} {self.alpha:g}")
+                f"tests' p, doubled, at most 1) {rel(self.consistency_p)} {self.alpha:g}")
         if self.rule == "consistent":
             how = "higher, but not significantly" if self.rms_cv > self.rms_incumbent else "no worse"
             return (f"{head}; {how} (p_worse = {self.p_worse:.2g} > {self.alpha:g}), and these {what} "

@@ -29,7 +29,7 @@ from ..errors import UserError
 from ..files.recording import (BOM, COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, open_binary,
                                 read_recording)
 from ..numerics.npstats import median
-from ..files.tables import TableSpec, collect, decode_line, iter_blocks
+from ..files.tables import TableSpec, collect, decode_line, iter_blocks, warn
 from .stillness.poses import POSES_MAGIC, read_poses
 
 __all__ = ["input_kind", "load_input", "read_table", "stuck_columns", "stuck_message"]
@@ -149,7 +149,8 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         if g in c:
             c[g] -= offsets[g]
             c[g] /= scales[g]
-    _check_units(path, c)
+    for msg in _unit_warnings(path, c, nominal_scale):
+        warn(msg)
     if t_name:
         t = c.pop(t_name) * TIME_COLUMNS_S_PER_UNIT[t_name] if t_name != "t" else c.pop("t")
         rate = _table_rate(path, t, t_name, rate_hz)
@@ -207,39 +208,44 @@ def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str])
 
 #: a raw table's median |accelerometer|, g, after --nominal-scale: about 1 at rest and in a
 #: hand's motion; at or above the first, counts (or mg) read as g; between the next two, m/s^2;
-#: below the last, a file already in g divided by a scale
+#: below the last, with a scale given, a file already in g divided by it
 ACC_MEDIAN_COUNTS_G, ACC_MEDIAN_SI_G, ACC_MEDIAN_TINY_G = 20.0, (8.8, 10.8), 0.1
-#: the same of the magnetometer, gauss (Earth's field 0.25-0.65): at or above the first,
-#: counts; between the two, microtesla (1 gauss = 100 uT)
+#: the same of the magnetometer, gauss (Earth's field 0.25-0.65): at or above the first, counts
+#: or milligauss; from the second, microtesla or counts at a low gain (230-390 per gauss)
 MAG_MEDIAN_COUNTS_GAUSS, MAG_MEDIAN_UT_GAUSS = 200.0, 10.0
 
 
-def _check_units(path: str, c: dict) -> None:
-    """A raw table's accelerometer and magnetometer in the units the fit takes (g, gauss), by
-    the median magnitude of their rows: counts without --nominal-scale, m/s^2, microtesla and
-    a scale given to a file already in g each read as plausible numbers a fit then fails on
-    ('no still moment') or, in apply, writes out as nonsense; refused, naming the scale."""
+def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
+    """Warnings for a raw table's accelerometer and magnetometer in units other than those the
+    fit takes (g, gauss), by the median magnitude of their rows: counts without
+    --nominal-scale, m/s^2, microtesla, a scale given to a file already in g.  Each reads as
+    plausible numbers that a fit then fails on ('no still moment: hold the board still') or
+    that apply writes out; a warning, not a refusal, since a centrifuge, free fall or a table
+    whose other sensors the command does not use is no error (a cold review)."""
+    given = "" if (isinstance(nominal_scale, dict) or nominal_scale != 1.0) else " (none given)"
+    out = []
     acc, mag = c.get("acc"), c.get("mag")
     if acc is not None and len(acc):
         a = float(median(np.sqrt(np.einsum("ij,ij->i", acc, acc))))
-        say = f"{path}: the accelerometer reads a median |a| of {a:.4g} g after --nominal-scale"
+        say = f"{path}: the accelerometer reads a median |a| of {a:.4g} g after --nominal-scale{given}"
         if a >= ACC_MEDIAN_COUNTS_G:
-            raise UserError(f"{say}: raw counts (or mg)? give --nominal-scale, the counts per g (16384 for "
-                            f"an MPU-6050 at +-2 g, 256 for an ADXL345 at full resolution; accel=N,gyro=N "
-                            f"when the gyro's differ)")
-        if ACC_MEDIAN_SI_G[0] <= a <= ACC_MEDIAN_SI_G[1]:
-            raise UserError(f"{say}: m/s^2? give --nominal-scale accel=9.80665 (and gyro=0.0174533 for "
-                            f"rad/s)")
-        if a < ACC_MEDIAN_TINY_G:
-            raise UserError(f"{say}: already in g? leave --nominal-scale out, or give the counts per g")
+            out.append(f"{say}: raw counts (or mg)? give --nominal-scale, its counts per g, e.g. 16384 "
+                       f"for an MPU-6050 at +-2 g, 256 for an ADXL345 at full resolution "
+                       f"(accel=N,gyro=N when the gyro's differ; - in --columns leaves a sensor out)")
+        elif ACC_MEDIAN_SI_G[0] <= a <= ACC_MEDIAN_SI_G[1]:
+            out.append(f"{say}: m/s^2? give --nominal-scale accel=9.80665 (and gyro=0.0174533 for rad/s)")
+        elif a < ACC_MEDIAN_TINY_G and not given:
+            out.append(f"{say}: already in g? then leave --nominal-scale out")
     if mag is not None and len(mag):
         m = float(median(np.sqrt(np.einsum("ij,ij->i", mag, mag))))
-        say = f"{path}: the magnetometer reads a median |m| of {m:.4g} gauss after --nominal-scale"
+        say = f"{path}: the magnetometer reads a median |m| of {m:.4g} gauss after --nominal-scale{given}"
         if m >= MAG_MEDIAN_COUNTS_GAUSS:
-            raise UserError(f"{say}: raw counts? give --nominal-scale mag=N, the counts per gauss (1090 "
-                            f"for an HMC5883L at its default gain)")
-        if m >= MAG_MEDIAN_UT_GAUSS:
-            raise UserError(f"{say}: microtesla? give --nominal-scale mag=100")
+            out.append(f"{say}: raw counts or milligauss? give --nominal-scale mag=N, its counts per "
+                       f"gauss (1090 for an HMC5883L at its default gain; 1000 for mG)")
+        elif m >= MAG_MEDIAN_UT_GAUSS:
+            out.append(f"{say}: microtesla (--nominal-scale mag=100) or counts at a low gain (mag=N, "
+                       f"its counts per gauss: 230-390 for an HMC5883L's lower gains)?")
+    return out
 
 
 def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float]) -> float:

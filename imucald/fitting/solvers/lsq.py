@@ -271,12 +271,9 @@ def lm_steps(prob: Problem, Z: np.ndarray, f: np.ndarray, mu: np.ndarray, n: int
         if cache.get("Z") is Z:
             g, H, d = cache["gHd"]
         else:
-            r, J = prob.rj(Z)                                   # (B, N), (B, N, kf)
-            g = np.einsum("bnk,bn->bk", J, r)
-            H = np.einsum("bnk,bnl->bkl", J, J)
-            d = np.einsum("bkk->bk", H)
+            g, H, d = _gauss_newton(prob, Z)
             cache["Z"], cache["gHd"] = Z, (g, H, d)
-        Hd = H + mu[:, None, None] * (d[:, :, None] * eye + 1e-12 * eye * d.max(1)[:, None, None])
+        Hd = _damped(H, d, mu, eye)
         try:
             step = -np.linalg.solve(Hd, g[..., None])[..., 0]
         except np.linalg.LinAlgError:
@@ -287,8 +284,26 @@ def lm_steps(prob: Problem, Z: np.ndarray, f: np.ndarray, mu: np.ndarray, n: int
         if ok.any():                      # else Z and f stay (the same arrays, the same values)
             Z = np.where(ok[:, None], Zc, Z)
             f = np.where(ok, fc, f)
-        mu = np.where(ok, np.maximum(mu / 3.0, 1e-12), mu * 4.0)
+        mu = _next_damping(mu, ok)
     return Z, f, mu, it
+
+
+def _gauss_newton(prob: Problem, Z: np.ndarray):
+    """(gradient J'r (B, kf), Gauss-Newton matrix J'J (B, kf, kf), its diagonal (B, kf)) at each
+    row of Z: the one place an LM step forms them (lm_steps, lm_converge_rows)."""
+    r, J = prob.rj(Z)                                           # (B, N), (B, N, kf)
+    H = np.einsum("bnk,bnl->bkl", J, J)
+    return np.einsum("bnk,bn->bk", J, r), H, np.einsum("bkk->bk", H)
+
+
+def _damped(H: np.ndarray, d: np.ndarray, mu: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """The damped matrix H + mu (diag(d) + 1e-12 max(d) I) of each row."""
+    return H + mu[:, None, None] * (d[:, :, None] * eye + 1e-12 * eye * d.max(1)[:, None, None])
+
+
+def _next_damping(mu: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """mu / 3 after an accepted step (not below 1e-12), x 4 after a rejected one."""
+    return np.where(ok, np.maximum(mu / 3.0, 1e-12), mu * 4.0)
 
 
 def lm_converge(prob: Problem, z0: np.ndarray, max_iter: int = 200, ftol: float = 1e-15
@@ -322,18 +337,14 @@ def lm_converge_rows(prob: Problem, Z0: np.ndarray, max_iter: int = 200, ftol: f
     while len(go):
         new = go[moved[go]]
         if len(new):
-            r, J = prob.rj(Z[new])                                  # (b, N), (b, N, kf)
-            g[new] = np.einsum("bnk,bn->bk", J, r)
-            Hn = np.einsum("bnk,bnl->bkl", J, J)
-            H[new], d[new] = Hn, np.einsum("bkk->bk", Hn)
+            g[new], H[new], d[new] = _gauss_newton(prob, Z[new])
             moved[new] = False
-        Hg, dg, mg, f_old = H[go], d[go], mu[go], f[go]
-        Hd = Hg + mg[:, None, None] * (dg[:, :, None] * eye + 1e-12 * eye * dg.max(1)[:, None, None])
-        Zc = prob.clip(Z[go] + _lm_step(Hd, g[go]))
+        mg, f_old = mu[go], f[go]
+        Zc = prob.clip(Z[go] + _lm_step(_damped(H[go], d[go], mg, eye), g[go]))
         fc = prob.fitness(Zc)
         ok = fc < f_old
         Z[go[ok]], f[go[ok]], moved[go[ok]] = Zc[ok], fc[ok], True
-        mu[go] = np.where(ok, np.maximum(mg / 3.0, 1e-12), mg * 4.0)
+        mu[go] = _next_damping(mg, ok)
         its[go] += 1
         flat = (f_old - f[go]) / np.maximum(f_old, 1e-300) <= ftol
         stall[go] = np.where(flat, stall[go] + 1, 0)

@@ -204,14 +204,6 @@ def output_dir(path: str, flag: str) -> None:
         raise CannotCreate(f"{flag} {path}: {top} is not writable by this user")
 
 
-def plots_extra(flag: str) -> None:
-    """The plots extra present (matplotlib found, not imported), or the one-line error before
-    any work: asked for after a fit, it came after the fit's output."""
-    import importlib.util
-    if importlib.util.find_spec("matplotlib") is None:
-        raise UserError(f"{flag} needs matplotlib: pip install 'imucald[plots]'")
-
-
 def check_args(args) -> None:
     """Per command: output paths, and the rate against the board (record; run checks it
     with its configuration)."""
@@ -236,7 +228,8 @@ def check_args(args) -> None:
         output_file(args.plot, "--plot")
     for c, flag in (("calibrate", "--plot"), ("status", "--plot"), ("noise", "--plot"), ("gap", "--report")):
         if cmd == c and getattr(args, flag.lstrip("-"), None):
-            plots_extra(flag)
+            from ..plots._mpl import require      # said before any work, not after a fit
+            require(flag)
     if cmd == "calibration" and getattr(args, "action", None) == "merge":
         output_file(args.output, "-o")
     if cmd == "gap" and args.report:

@@ -126,12 +126,8 @@ def summary(figs, span: str, conf: float) -> str:
 
 
 def _plot(figs, directory: str, name: str) -> None:
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise UserError("--plot needs matplotlib: pip install 'imucald[plots]'") from None
+    from ..plots._mpl import pyplot
+    plt = pyplot("--plot")
     import numpy as np
     os.makedirs(directory, exist_ok=True)
     for s, axes in figs.items():

@@ -251,9 +251,9 @@ def cmd_watch(args) -> int:
         s.connect(p)
     except OSError as e:
         from ..errors import DeviceUnavailable
-        raise DeviceUnavailable(f"{p}: cannot connect: {e.strerror}: is imucald running? (one started "
-                                f"with --runtime-dir DIR, as make run does, takes the same --runtime-dir "
-                                f"here)") from None
+        from ..daemon.control import RUNTIME_DIR_HINT
+        raise DeviceUnavailable(f"{p}: cannot connect: {e.strerror}: is imucald running? "
+                                f"({RUNTIME_DIR_HINT})") from None
     f = s.makefile("rb")
     count = 0
     for line in f:

@@ -33,6 +33,9 @@ PER_POLL = 4              #: requests answered per poll, all clients together
 RATE_PER_S = 20.0         #: requests per second per client, sustained
 BURST = 20.0              #: ... and at once
 
+#: the other place a running daemon's sockets may be (status, watch, recalibrate say it)
+RUNTIME_DIR_HINT = "one started with --runtime-dir DIR, as make run does, takes the same --runtime-dir here"
+
 
 def _reply(d: Dict) -> bytes:
     return (json.dumps(d, separators=(",", ":")) + "\n").encode()
@@ -178,8 +181,7 @@ def request(path: str, cmd: str, timeout: float = 5.0) -> Dict:
         s.connect(path)
     except FileNotFoundError:
         raise UserError(f"{path}: no control socket: is imucald running? (systemctl status imucald; "
-                        f"one started with --runtime-dir DIR, as make run does, takes the same "
-                        f"--runtime-dir here)") from None
+                        f"{RUNTIME_DIR_HINT})") from None
     except PermissionError:
         raise UserError(f"{path}: permission denied: join the socket's group, or use sudo") from None
     except OSError as e:

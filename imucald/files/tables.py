@@ -44,11 +44,16 @@ def warn(msg: str) -> None:
     print(f"imucald: warning: {msg}", file=sys.stderr, flush=True)
 
 
+#: a raw table's time column by name: its unit, and seconds per unit (loggers often write an
+#: Arduino's millis() or micros(); Android stamps sensor events in ns)
+TIME_UNITS = {"t": ("s", 1.0), "t_ms": ("ms", 1e-3), "t_us": ("us", 1e-6), "t_ns": ("ns", 1e-9)}
+
+
 def _backwards(name: str, t: float, prev_t: float) -> str:
     """The message for a time column ``name`` (t in s; a raw table's t_ms, t_us, t_ns) that steps
     back from ``prev_t`` to ``t``, in its unit: an Arduino's 32-bit micros() wraps every
     2**32 us (71.6 min), which a long recording in t_us meets."""
-    unit = {"t_ms": "ms", "t_us": "us", "t_ns": "ns"}.get(name, "s")
+    unit = TIME_UNITS.get(name, ("s",))[0]
     if name == "t_us" and prev_t - t > 2 ** 31:
         return (f"time goes backwards ({t:.12g} us after {prev_t:.12g} us): a 32-bit micros() "
                 f"counter wraps every 71.6 min; split the file there, or log a wider counter")

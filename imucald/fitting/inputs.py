@@ -29,7 +29,7 @@ from ..errors import UserError
 from ..files.recording import (BOM, COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, open_binary,
                                 read_recording)
 from ..numerics.npstats import median
-from ..files.tables import TableSpec, collect, decode_line, iter_blocks, warn
+from ..files.tables import TIME_UNITS, TableSpec, collect, decode_line, iter_blocks, warn
 from .stillness.poses import POSES_MAGIC, read_poses
 
 __all__ = ["input_kind", "load_input", "read_table", "stuck_columns", "stuck_message"]
@@ -38,17 +38,16 @@ _GROUP_COLUMNS = {"acc": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": 
 _NAMES = {"acc": "accel", "gyro": "gyro", "mag": "mag"}        # as --nominal-scale names them
 #: a nominal scale or offset: one number for every sensor, or one per sensor by name
 PerSensor = Union[float, Dict[str, float]]
-#: a raw table's time column by its unit, in seconds per unit (loggers often write an Arduino's
-#: millis() or micros(); Android's sensor events are stamped in ns)
-TIME_COLUMNS_S_PER_UNIT = {"t": 1.0, "t_ms": 1e-3, "t_us": 1e-6, "t_ns": 1e-9}
-_UNIT = {"t": "s", "t_ms": "ms", "t_us": "us", "t_ns": "ns"}
+#: seconds per unit of a raw table's time column, by name (files/tables.TIME_UNITS)
+TIME_COLUMNS_S_PER_UNIT = {k: s for k, (_, s) in TIME_UNITS.items()}
+_UNIT = {k: u for k, (u, _) in TIME_UNITS.items()}
 #: the step of a raw table's time column, s: an IMU read at 1 Hz to 10 kHz (the supported chips'
 #: rates, LIMITS["rate"] of the CLI).  Outside, the column is refused (:func:`_table_rate`): a
 #: column in ms read as s steps 1000x too far (the freeimu warm-up: 17 "s")
 STEP_RANGE_S = (1e-4, 1.0)
 
 
-_AXES = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
+_AXES = {_NAMES[g]: cols for g, cols in _GROUP_COLUMNS.items()}      # by sensor name
 #: fewer samples than this: no claim that an axis is stuck (see :func:`stuck_columns`)
 STUCK_MIN_SAMPLES = 50
 
@@ -138,7 +137,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         lineno, offset = _first_row(fh, path, cols)
         idx = {name: i for i, name in enumerate(cols) if name != "-"}
         groups = [(k, [idx[k]]) for k in (t_name, "temp") if k in idx]
-        for g, ks in (("acc", ["ax", "ay", "az"]), ("gyro", ["gx", "gy", "gz"]), ("mag", ["mx", "my", "mz"])):
+        for g, ks in _GROUP_COLUMNS.items():
             if all(k in idx for k in ks):
                 groups.append((g, [idx[k] for k in ks]))
         n, c = collect(iter_blocks(fh, spec, lineno, offset), groups, fh, offset)
@@ -215,6 +214,10 @@ ACC_MEDIAN_COUNTS_G, ACC_MEDIAN_SI_G, ACC_MEDIAN_TINY_G = 20.0, (8.8, 10.8), 0.1
 MAG_MEDIAN_COUNTS_GAUSS, MAG_MEDIAN_UT_GAUSS = 200.0, 10.0
 
 
+def _median_norm(x: np.ndarray) -> float:
+    return float(median(np.sqrt(np.einsum("ij,ij->i", x, x))))
+
+
 def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
     """Warnings for a raw table's accelerometer and magnetometer in units other than those the
     fit takes (g, gauss), by the median magnitude of their rows: counts without
@@ -226,7 +229,7 @@ def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
     out = []
     acc, mag = c.get("acc"), c.get("mag")
     if acc is not None and len(acc):
-        a = float(median(np.sqrt(np.einsum("ij,ij->i", acc, acc))))
+        a = _median_norm(acc)
         say = f"{path}: the accelerometer reads a median |a| of {a:.4g} g after --nominal-scale{given}"
         if a >= ACC_MEDIAN_COUNTS_G:
             out.append(f"{say}: raw counts (or mg)? give --nominal-scale, its counts per g, e.g. 16384 "
@@ -237,7 +240,7 @@ def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
         elif a < ACC_MEDIAN_TINY_G and not given:
             out.append(f"{say}: already in g? then leave --nominal-scale out")
     if mag is not None and len(mag):
-        m = float(median(np.sqrt(np.einsum("ij,ij->i", mag, mag))))
+        m = _median_norm(mag)
         say = f"{path}: the magnetometer reads a median |m| of {m:.4g} gauss after --nominal-scale{given}"
         if m >= MAG_MEDIAN_COUNTS_GAUSS:
             out.append(f"{say}: raw counts or milligauss? give --nominal-scale mag=N, its counts per "

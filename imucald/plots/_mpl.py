@@ -4,13 +4,25 @@ from __future__ import annotations
 from ..errors import UserError
 
 
+def missing(flag: str) -> UserError:
+    """The one-line error of a ``flag`` that needs the plots extra."""
+    return UserError(f"{flag} needs matplotlib: pip install 'imucald[plots]'")
+
+
+def require(flag: str) -> None:
+    """The plots extra present (found, not imported: the CLI checks it before any work)."""
+    import importlib.util
+    if importlib.util.find_spec("matplotlib") is None:
+        raise missing(flag)
+
+
 def pyplot(flag: str):
     try:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        raise UserError(f"{flag} needs matplotlib: pip install 'imucald[plots]'") from None
+        raise missing(flag) from None
     return plt
 
 

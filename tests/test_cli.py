@@ -153,7 +153,8 @@ def test_every_numeric_option_refuses_nan_and_inf_up_front(capsys):
     one argparse line naming the option (exit 2), before any command runs: before this,
     `--seed -1` gave a numpy traceback in every command, `noise --rate-hz nan` a traceback,
     and `simulate --magnitude nan` wrote a recording of NaN that nothing reads.  A seed is
-    an integer >= 0, a bus number 0..99."""
+    an integer >= 0, a bus number 0..99.  Broken once each: calibrate's --seed back to type=int,
+    noise's --rate-hz back to type=float: each fails."""
     from imucald.cli import main
     from imucald.cli.parser import build_parser
     sub = next(a for a in build_parser()._actions if a.dest == "cmd").choices
@@ -175,7 +176,7 @@ def test_every_numeric_option_refuses_nan_and_inf_up_front(capsys):
 
 def test_the_bus_number_limit_is_the_configurations():
     """--bus and sensor.bus take the same range (two declarations, one of them numpy- and
-    YAML-free for --help: this keeps them one)."""
+    YAML-free for --help: this keeps them one).  Broken once: BUS_NUMBER_MAX 127 (fails)."""
     from imucald.cli.checks import BUS_NUMBER_MAX
     from imucald.daemon.config import SCHEMA
     assert SCHEMA["sensor.bus"][2] == (0, BUS_NUMBER_MAX)
@@ -185,7 +186,8 @@ def test_the_bus_number_limit_is_the_configurations():
                                   ["noise", "REC", "--plot", "DIR"], ["status", "--plot", "DIR/c.png"]])
 def test_a_missing_plots_extra_is_said_before_any_work(argv, tmp_path, monkeypatch, capsys):
     """Without matplotlib, --plot (--report) said so only after the fit had printed its
-    report: now one line before anything runs, naming the extra."""
+    report: now one line before anything runs, naming the extra.  Broken once: the check in
+    check_args removed (4 of 4 fail: the commands' own errors come instead)."""
     import importlib.util
     from imucald.cli import main
     real = importlib.util.find_spec
@@ -203,7 +205,7 @@ def test_a_missing_plots_extra_is_said_before_any_work(argv, tmp_path, monkeypat
 def test_an_unknown_option_names_the_nearest_and_the_commands_help(capsys):
     """A typo in an option ('--colums') was 'unrecognized arguments ... (see imucald --help)':
     the top-level help, and no hint.  Now the command's parser says it, with the nearest of
-    its options when one is close, in one line."""
+    its options when one is close, in one line.  Broken once: parse_args as before (fails)."""
     from imucald.cli import main
     with pytest.raises(SystemExit) as e:
         main(["calibrate", "x.csv", "--colums", "t,ax,ay,az"])
@@ -224,7 +226,8 @@ def test_echo_prints_every_event_and_one_sample_a_second(capsys, tmp_path):
     """make run's --echo printed the last line of a batch once a second, so 4 of the demo's 5
     CAL events never showed (newcomer walk-through); with --format binary it decoded record
     bytes as text.  Now every event line (a JSON object other than a sample, a CSV '# '
-    comment) and one sample a second; binary refused up front."""
+    comment) and one sample a second; binary refused up front.  Broken once: the event lines
+    dropped (fails)."""
     from types import SimpleNamespace
     from imucald.cli import main
     from imucald.daemon.run import Daemon

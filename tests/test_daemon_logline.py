@@ -52,7 +52,8 @@ def test_the_line_head_says_which_parts_were_applied_and_which_kept():
     """'calibration #5 applied: accel ... (kept the current one); gyro bias applied' read as
     the accelerometer applied (a newcomer's walk-through): the head now names the parts taken
     and those not applied when the gate split them ('not applied', not 'kept': with nothing
-    in force there is nothing to keep), and says nothing more when it took them all."""
+    in force there is nothing to keep), and says nothing more when it took them all.  Broken
+    once: _partly always naming the parts (the whole-outcome cases fail)."""
     from imucald.daemon.pipeline import _partly
     acc = SensorCal.accel("triangular9", Triangular9().nominal)
     gyro = SensorCal("gyro", "bias", {"bias_dps": np.zeros(3)})

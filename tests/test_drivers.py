@@ -342,7 +342,9 @@ def test_adxl345_overrun_counts_the_samples_lost_up_to_the_read(stall_s, at_read
     waits, the second was 3 over.  The newest sample's lag after the overrun is what it was
     before (within one sample period: the poll's phase).  If the count of what waits cannot
     be read after the data (a NACK), it is taken as what the chip made during the read (3
-    here): taken as none, the loss was 3 over and the fault uncounted."""
+    here): taken as none, the loss was 3 over and the fault uncounted.  Broken once each: the
+    count to the time before the read (case 2 fails), the 'waiting' term dropped (case 3),
+    the NACK fallback as 0 (case 4)."""
     from imucald.drivers.bus import BusError
     eb, bus, clk = rig("9dof")
     b = make_board("9dof", bus, clk, rate_hz=100)

@@ -448,7 +448,8 @@ def test_a_gyro_in_other_units_or_flipped_is_warned_of(tmp_path, capsys, gain):
     sunsided logs' X is) was calibrated in silence: 'K and G not used' and a bias in the wrong
     units written, exit 0.  Now a warning when the rotations between poses miss the gravity
     directions by more than ROTATION_DISAGREE_DEG held out; none for a gyro as read, nor for
-    one 7 % off (within what K takes up: 6 deg before K, under 1 after)."""
+    one 7 % off (within what K takes up: 6 deg before K, under 1 after).  Broken once: the
+    warning never given (the 2x and flipped cases fail)."""
     from imucald.cli import main
     from imucald.files.recording import read_recording, write_recording
     rec = tmp_path / "r.csv"

@@ -184,7 +184,8 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     same recording as seconds in t.  The same column named t (seconds) would make a 10-ms
     logger a 0.1 Hz one, whose poses hold a few samples each (the freeimu warm-up, logged in
     ms: 'no still moment ... 3 distinct samples'): refused, naming t_ms, unless --rate-hz
-    confirms so low a rate."""
+    confirms so low a rate.  Broken once each: without the ms/us scaling (the times differ),
+    without the slow-step check (no error), with --rate-hz checked against the median step."""
     from imucald.fitting.inputs import read_table
     rng = np.random.default_rng(3)
     t_ms = 17139 + np.cumsum(rng.integers(9, 12, 200))              # 10 +- 1 ms steps
@@ -229,7 +230,8 @@ def test_a_raw_table_in_other_units_is_warned_of(tmp_path, capsys, cols, scale, 
     apply wrote out in silence.  Judged on the median magnitude (about 1 g at rest and in a
     hand's motion; Earth's field 0.25-0.65 gauss): one warning line naming the scale to give.
     A warning, not a refusal: a centrifuge, free fall or a sensor the command does not use
-    is no error.  1 g and 0.5 gauss say nothing."""
+    is no error.  1 g and 0.5 gauss say nothing.  Broken once: _unit_warnings returning none
+    (5 of 5 fail)."""
     from imucald.fitting.inputs import read_table
     rng = np.random.default_rng(0)
     base = np.array([float(x) for x in rows.split(",")])
@@ -252,7 +254,8 @@ def test_a_raw_table_in_other_units_is_warned_of(tmp_path, capsys, cols, scale, 
 def test_a_phone_log_in_si_units_with_nanosecond_stamps(tmp_path):
     """A phone's sensor log (Android: event times in ns since boot, m/s^2 and rad/s) is read
     with t_ns and a scale per sensor: the same samples as the recording it was made from
-    (times within the 256 ns a double keeps of a 1.7e18 ns stamp)."""
+    (times within the 256 ns a double keeps of a 1.7e18 ns stamp).  Broken once: t_ns taken out
+    of files/tables.TIME_UNITS (an unknown column: fails)."""
     from imucald.fitting.inputs import read_table
     from imucald.cli import main
     rec_path, tab = tmp_path / "r.csv", tmp_path / "phone.csv"
@@ -277,7 +280,9 @@ def test_table_rate_of_whole_millisecond_steps_bursts_and_coarse_clocks(tmp_path
     judged by their rows a second: one that stamps each row of a FIFO burst as it prints it (4
     rows 15 us apart every 40 ms: 100 rows a second) is not refused as too fast, and its
     --rate-hz 100 is taken; one with a whole-second clock at 200 Hz is refused without
-    --rate-hz, the message giving the rate its rows have, and read with it."""
+    --rate-hz, the message giving the rate its rows have, and read with it.  Broken once each:
+    the median alone for whole-unit steps, --rate-hz checked against the median step, the fast
+    check on the median step, the coarse-clock branch removed: each fails."""
     from imucald.fitting.inputs import read_table
     i = np.arange(4000)
     cases = ((np.floor(i * 2.5), "t_ms", None, 400.0), ((i // 4) * 40000 + (i % 4) * 15, "t_us", 100.0, 100.0),
@@ -296,7 +301,8 @@ def test_table_rate_of_whole_millisecond_steps_bursts_and_coarse_clocks(tmp_path
 
 def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
     """A time column that steps back is named in its own unit; in t_us a step back by more
-    than 2**31 us is an Arduino's 32-bit micros() wrapping (every 71.6 min), said as such."""
+    than 2**31 us is an Arduino's 32-bit micros() wrapping (every 71.6 min), said as such.
+    Broken once: the wrap threshold at 2**40 (the generic message: fails)."""
     from imucald.fitting.inputs import read_table
     p = tmp_path / "us.csv"
     t = [2 ** 32 - 30000 + 10000 * i for i in range(3)] + [(10000 * i) % 2 ** 32 for i in range(1, 4)]
@@ -313,7 +319,8 @@ def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
 def test_table_with_semicolons_and_decimal_commas_says_so(tmp_path, rows, where):
     """A spreadsheet's export in a locale whose decimal mark is the comma (0,01;0;0;16384):
     no row parses, and the one-line error says why and how to export it, whether the file
-    ends before 1000 lines or not.  A file that is not a table at all gets no such hint."""
+    ends before 1000 lines or not.  A file that is not a table at all gets no such hint.
+    Broken once: the hint never set (both cases fail)."""
     from imucald.fitting.inputs import read_table
     p = tmp_path / "semi.csv"
     p.write_text("time;ax;ay;az\n" + "".join(f"0,{i:02d};0;0;16384\n" for i in range(rows)))
@@ -328,7 +335,8 @@ def test_table_nominal_scale_and_offset_per_sensor(tmp_path):
     """An MPU-6050 logged in counts has 16384 counts per g and 131 per deg/s: one scale for
     both read the gyro 125x too small (the freeimu warm-up's gyro in gap: thermal terms of
     1e-6 deg/s/degC).  Per sensor, each is converted with its own; a per-sensor value that
-    leaves out a sensor whose columns the table has is refused, naming it."""
+    leaves out a sensor whose columns the table has is refused, naming it.  Broken once: the
+    accelerometer's value used for every sensor (the gyro reads 131x off: fails)."""
     from imucald.cli.checks import per_sensor
     from imucald.fitting.inputs import read_table
     p = tmp_path / "raw.csv"

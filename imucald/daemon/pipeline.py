@@ -474,7 +474,16 @@ class Pipeline:
         take = {k: v for k, v in res.accept.items() if v}
         gates = res.notes.get("gate", {})
         undet = _undetermined(cand.accel) if "accel" in take else None
+        blind = undet is not None and len(undet) == len(cand.accel.theta)
+        if blind:
+            # no parameter determined by the poses (one orientation, its means drifting with
+            # the temperature: the real FreeIMU warm-up counted 25 'poses'): the gate's
+            # held-out poses lie where the fit was made, so 'better' there says nothing
+            del take["accel"]
         parts = self._outcome_texts(res, take, gates, undet)
+        if blind:
+            parts.insert(0, "accel not applied: the poses determine none of its parameters (too few "
+                            "orientations): turn the board as the log says")
         # the gate's figures and reasons (fitting/gate.py Decision), in the CAL event too
         gate_ev = {k: d.to_dict() for k, d in gates.items()} or None
         if not take:

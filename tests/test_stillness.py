@@ -424,7 +424,7 @@ def test_streaming_finds_the_poses_of_the_whole_file_in_a_held_stream(batch_n):
     s = _bench_session(15, n_poses=5, hold=6.0)
     h = hold_samples(s.recording, 3 * s.recording.rate_hz)
     ivs, _, det = detect(h.t, h.acc, h.gyro, h.rate_hz)
-    whole = merge_cut(ivs, det.repeats.keep)
+    whole = merge_cut(ivs)
     det2 = StillnessDetector(h.rate_hz)
     got = []
     for i in range(0, len(h.t), batch_n):
@@ -433,7 +433,7 @@ def test_streaming_finds_the_poses_of_the_whole_file_in_a_held_stream(batch_n):
         assert len(q) == len(h.t[sl])
         got += iv
     got += det2.flush()
-    assert merge_cut(got, det.repeats.keep) == whole and len(whole) == 5
+    assert merge_cut(got) == whole and len(whole) == 5
     assert det2.repeats.held and abs(det2.rate - 100.0) < 1.0
 
 

@@ -1,8 +1,11 @@
 """Pose accumulator: keeps the still poses well spread on the sphere.
 
 A new pose within ``merge_angle_deg`` of an existing one and within the pose noise of
-it is the same pose: the two are averaged (refined).  Any other pose is kept, even a
-few degrees of tilt away (it carries its own information); past ``max_poses`` the
+it is the same pose: the two are averaged (refined).  So is a piece that continues the
+interval before it (one still run cut at the detector's ``max_pose_s``: the same placement,
+its mean drifting with the temperature through a warm-up), which refines the pose that
+interval went to, as calibrate joins such pieces into one pose.  Any other pose is kept,
+even a few degrees of tilt away (it carries its own information); past ``max_poses`` the
 oldest pose in the most crowded region gives way.  Coverage
 is measured against the 26 directions of a cube's faces, edges and corners
 (fitting/judging/coverage.py); the accumulator says which ones still lack a pose, and what
@@ -37,29 +40,40 @@ class PoseAccumulator:
         self.poses: List[StaticInterval] = []
         self.added = 0            #: poses accepted since start (incl. replacements)
         self.rejected = 0
+        self._last: Optional[int] = None    #: the pose the last interval went to
 
     def __len__(self):
         return len(self.poses)
 
     def add(self, iv: StaticInterval) -> str:
         """Add an interval; returns 'new', 'refined', 'replaced' or 'rejected'."""
+        what, self._last = self._add(iv)
+        return what
+
+    def _add(self, iv: StaticInterval):
+        """('new' | 'refined' | 'replaced' | 'rejected', index of the pose it went to)."""
         norm = float(np.linalg.norm(iv.acc))
         if not 0.5 < norm < 1.5:            # not a still pose under 1 g (raw, uncalibrated)
             self.rejected += 1
-            return "rejected"
+            return "rejected", None
         u = iv.acc / norm
         if self.poses:
             U = self.directions()
             c = U @ u
             j = int(np.argmax(c))
-            if c[j] >= self.merge_cos:
+            # the same still run as the interval before (cut at max_pose_s): the same
+            # placement, however far its mean drifted with the temperature
+            same_run = iv.continues and self._last is not None and c[self._last] >= self.merge_cos
+            if same_run:
+                j = self._last
+            if same_run or c[j] >= self.merge_cos:
                 old = self.poses[j]
                 sep = np.linalg.norm(iv.acc - old.acc)
                 noise = np.sqrt(np.trace(iv.acc_cov) + np.trace(old.acc_cov))
-                if sep < 4 * noise:         # same pose within its noise: refine
+                if same_run or sep < 4 * noise:     # the same run, or the same pose within its noise
                     self.poses[j] = _merge(old, iv)
                     self.added += 1
-                    return "refined"
+                    return "refined", j
                 # a nearby but distinct pose (a few degrees of tilt away) carries its own
                 # information, as calibrate uses it: kept, up to max_poses
         if len(self.poses) >= self.max_poses:
@@ -69,10 +83,10 @@ class PoseAccumulator:
             j = int(np.argmax(crowd))
             self.poses[j] = iv
             self.added += 1
-            return "replaced"
+            return "replaced", j
         self.poses.append(iv)
         self.added += 1
-        return "new"
+        return "new", len(self.poses) - 1
 
     def directions(self) -> np.ndarray:
         a = np.array([p.acc for p in self.poses]) if self.poses else np.zeros((0, 3))
@@ -99,7 +113,7 @@ class PoseAccumulator:
                        temp=np.array([p.temp for p in P]))
 
     def load(self, ps: PoseSet) -> None:
-        self.poses = []
+        self.poses, self._last = [], None
         for i in range(len(ps)):
             sc = ps.acc_sample_cov[i] if ps.acc_sample_cov is not None else ps.acc_cov[i] * ps.n[i]
             self.poses.append(StaticInterval(

@@ -139,6 +139,10 @@ class StaticInterval:
     acc_sf: Optional[list] = None
     #: the same of the radial series (the samples projected on the hold's mean direction)
     acc_radial_sf: Optional[list] = None
+    #: this interval continues the one before it without a break: the same still run, cut at
+    #: ``max_pose_s`` (so the same placement: calibrate joins them into one pose, the daemon's
+    #: accumulator refines the pose the piece before went to)
+    continues: bool = False
 
 
 class _Core:
@@ -193,6 +197,7 @@ class _Core:
         self._run_n = 0
         self._run_i0 = 0
         self._run_cut = False                # run continues a piece cut at max_pose_s
+        self._cut_emitted = False            # and that piece was emitted (not rejected)
         self._prev_am = None                 # trailing accelerometer mean at the last decided sample
         self._prev_q = False                 # and whether its window was quiet
 
@@ -494,6 +499,16 @@ class _Core:
         return out
 
     def _close(self, trim: bool) -> Optional[StaticInterval]:
+        """The run so far as an interval (None: rejected), marked ``continues`` when it
+        follows an emitted piece of the same run cut at ``max_pose_s``."""
+        cont = self._run_cut and self._cut_emitted
+        iv = self._piece(trim)
+        if iv is not None:
+            iv.continues = cont
+        self._cut_emitted = not trim and iv is not None
+        return iv
+
+    def _piece(self, trim: bool) -> Optional[StaticInterval]:
         run, self._run, self._run_n = self._run, [], 0
         start = 0 if self._run_cut else self.trim_n
         if trim:

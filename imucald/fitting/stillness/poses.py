@@ -77,17 +77,17 @@ def detect_static(t: np.ndarray, acc: np.ndarray, gyro: Optional[np.ndarray] = N
     chip).  The pieces the streaming detector cuts from one long still run (every
     ``max_pose_s``, so that a daemon reports a resting board) are joined again here.
     A slice covers the repeated rows inside it too (:mod:`imucald.fitting.stillness.repeats`)."""
-    ivs, _, det = detect(t, acc, gyro, rate_hz, **params)
-    return merge_cut(ivs, None if det is None else det.repeats.keep)
+    ivs, _, _ = detect(t, acc, gyro, rate_hz, **params)
+    return merge_cut(ivs)
 
 
-def merge_cut(intervals, keep: Optional[np.ndarray] = None) -> List[slice]:
-    """Slices of intervals, contiguous pieces (cut at max_pose_s) joined; with ``keep``
-    (the distinct rows), pieces separated only by repeated rows are contiguous."""
+def merge_cut(intervals) -> List[slice]:
+    """Slices of intervals, the pieces of one still run (cut at max_pose_s: an interval that
+    ``continues`` the one before it) joined; a joined slice covers any repeated rows between
+    its pieces."""
     out: List[slice] = []
     for iv in intervals:
-        if out and (out[-1].stop == iv.i0 or (keep is not None and out[-1].stop < iv.i0
-                                               and not keep[out[-1].stop:iv.i0].any())):
+        if out and iv.continues:
             out[-1] = slice(out[-1].start, iv.i1)
         else:
             out.append(slice(iv.i0, iv.i1))
@@ -152,7 +152,7 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
     keep = None if det is None else det.repeats.keep
     cuts = [slice(iv.i0, iv.i1) for iv in ivs]
     pieces, _, centred = _averaged(rec, cuts, keep)
-    joined = merge_cut(ivs, keep)
+    joined = merge_cut(ivs)
     ps = _joined(rec, joined, cuts, pieces, keep, centred)
     ps.slices, pieces.slices = joined, cuts
     if dropped:

@@ -221,3 +221,34 @@ def test_leave_one_pose_out_without_refits_gives_the_refits_residuals(nine_dof):
             loo.heldout_by_update = orig
         np.testing.assert_allclose(quick[0], slow[0], rtol=0, atol=1e-9)
         np.testing.assert_allclose(quick[1], slow[1], rtol=1e-6)
+
+
+def _unknowns(o, at=""):
+    """Paths of the object fields whose value is null (JSON parsed with NaN refused)."""
+    if isinstance(o, dict):
+        return [p for k, v in o.items() for p in ([f"{at}.{k}"] if v is None else _unknowns(v, f"{at}.{k}"))]
+    if isinstance(o, list):
+        return [p for i, v in enumerate(o) for p in _unknowns(v, f"{at}[{i}]")]
+    return []
+
+
+def _strict(text):
+    def refuse(c):
+        raise AssertionError(f"{c} in a --json answer")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_json_answers_omit_unknown_fields_never_null_or_nan(nine_dof):
+    """gpsd's habit, as the stream keeps it (docs/reference/stream.md): a --json answer's
+    unknown field is omitted, never null or NaN.  calibrate --sensor all printed
+    ``"output": null`` without -o, the gyro's ``"heldout_rms_dps": null``, and the
+    magnetometer's ``"prior_std": null`` for each of its 9 unbounded terms; gap and noise are
+    held to the same.  A null inside a list keeps its place (one per axis or parameter).
+    Broken once: print_json without its omission (the three nulls above: fails)."""
+    for argv in (("calibrate", nine_dof, "--sensor", "all", "--json"),
+                 ("calibrate", nine_dof, "--sensor", "gyro", "--json"),
+                 ("gap", nine_dof, "--json"), ("noise", nine_dof, "--json")):
+        d = _strict(cli(*argv).stdout)
+        assert d and _unknowns(d) == [], (argv[0], argv[2:], _unknowns(d)[:5])
+    d = _strict(cli("calibrate", nine_dof, "--sensor", "all", "--json").stdout)
+    assert "output" not in d and "prior_std" not in d["mag"]["determination"]["hard_iron_x_gauss"]

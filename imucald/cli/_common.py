@@ -1,11 +1,41 @@
 """Shared by the command modules: messages go to stderr, data to stdout."""
 from __future__ import annotations
 
+import math
+import numbers
 import sys
 
 
 def eprint(*a) -> None:
     print(*a, file=sys.stderr, flush=True)
+
+
+def print_json(doc) -> None:
+    """A command's ``--json`` answer, one object on stdout, as the stream's objects are
+    (docs/reference/stream.md): a field whose value is unknown (None, or a number that is
+    not finite) is omitted, never null or NaN; in a list, where places count (one per axis
+    or parameter), such a value is null."""
+    import json
+    print(json.dumps(_present(doc), default=float, allow_nan=False))
+
+
+def _present(v):
+    """``v`` with unknown values dropped from objects and null in lists (print_json)."""
+    if isinstance(v, dict):
+        out = {}
+        for k, x in v.items():
+            x = _present(x)
+            if x is not None:
+                out[k] = x
+        return out
+    if isinstance(v, (list, tuple)):
+        return [_present(x) for x in v]
+    if isinstance(v, numbers.Real) and not isinstance(v, numbers.Integral):
+        v = float(v)
+        return v if math.isfinite(v) else None
+    if hasattr(v, "tolist"):            # a numpy array or integer
+        return _present(v.tolist())
+    return v
 
 
 class TableReader:

@@ -13,11 +13,10 @@ A part the recording cannot give is skipped with the reason (the others are stil
 """
 from __future__ import annotations
 
-import json
 from typing import Any, Dict, List, Optional
 
 from ..errors import UserError, write_failure
-from ._common import eprint as _eprint
+from ._common import eprint as _eprint, print_json
 
 #: the order parts are fitted in: the gyro uses the other two
 ORDER = ("accel", "mag", "gyro")
@@ -45,7 +44,7 @@ def cmd_calibrate_all(args, kind: str, rec) -> int:
                              "skipped": {s: r["skipped"] for s, r in res.items() if "skipped" in r},
                              "output": args.output}
         d.update({s: r["json"] for s, r in res.items() if "json" in r})
-        print(json.dumps(d))
+        print_json(d)
         return 0
     for s in ("accel", "gyro", "mag"):
         r = res[s]

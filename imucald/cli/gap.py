@@ -6,6 +6,7 @@ import json
 import numpy as np
 
 from ..errors import CannotCreate, UserError
+from ._common import print_json
 
 
 def _values(pv, se=None) -> str:
@@ -130,7 +131,7 @@ def cmd_gap(args) -> int:
     for r in res["sensors"].values():
         r.pop("_plot", None)
     if args.json:
-        print(json.dumps(res, default=float))
+        print_json(res)
     else:
         print(gap_summary(res))
     return 0

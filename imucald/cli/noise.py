@@ -1,11 +1,10 @@
 """``imucald noise RECORDING``: Allan deviation and noise figures of a still stretch."""
 from __future__ import annotations
 
-import json
 import os
 
 from ..errors import UserError
-from ._common import eprint
+from ._common import eprint, print_json
 
 __all__ = ["cmd_noise", "still_stretch"]
 
@@ -90,7 +89,7 @@ def cmd_noise(args) -> int:
     if args.plot:
         _plot(figs, args.plot, args.recording)
     if args.json:
-        print(json.dumps({**doc, "allan": figs}))
+        print_json({**doc, "allan": figs})
         return 0
     print(summary(figs, span, args.confidence))
     if args.output or args.kalibr:

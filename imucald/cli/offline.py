@@ -9,7 +9,7 @@ import math
 import os
 
 from ..errors import UserError, write_failure
-from ._common import eprint as _eprint
+from ._common import eprint as _eprint, print_json
 
 SENSORS = ("accel", "gyro", "mag")
 DEFAULT_MODEL = {"accel": "triangular9", "mag": "mag_sym", "gyro": "mean"}
@@ -246,8 +246,7 @@ def _calibrate(args) -> int:
         from .plotcmd import calibrate_plots
         calibrate_plots(args.plot, poses, part, os.path.basename(args.input))
     if args.json:
-        import json
-        print(json.dumps(_calibrate_json(sensor, cal, det, rec, rot, why, part, tf)))
+        print_json(_calibrate_json(sensor, cal, det, rec, rot, why, part, tf))
     else:
         _print_report(sensor, cal, rec, rot, why, part, tf)
     return 0
@@ -423,12 +422,11 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     if args.output and res["determined"]:
         _write_calibration(args.output, rec.meta, res["calibration"], tf)
     if args.json:
-        import json
         d = rotation_json(res)
         if tf is not None:
             from .thermal import thermal_json
             d["thermal"] = thermal_json("mag", tf)
-        print(json.dumps(d))
+        print_json(d)
         return 0 if res["determined"] else 3
     if not res["determined"]:
         _eprint(f"imucald: {args.input}: {flat_message(res)}")

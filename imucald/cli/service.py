@@ -6,6 +6,7 @@ import os
 import sys
 
 from ..errors import UserError
+from ._common import print_json
 
 DEFAULT_CONFIG = "/etc/imucald/imucald.yaml"
 
@@ -192,7 +193,7 @@ def cmd_status(args) -> int:
         from .plotcmd import status_plot
         status_plot(args.plot, r, request(_control_path(args), "poses"))
     if args.json:
-        print(json.dumps(r))
+        print_json(r)
         return 0
     if r.get("class") == "ERROR":
         raise UserError(r.get("message", "error"))

@@ -10,10 +10,10 @@ from typing import Optional
 
 import numpy as np
 
-from .bus import Bus, ChipMismatch, Clock, RealClock
+from .bus import Bus, BusError, ChipMismatch, Clock, RealClock
 from .regmap import Field, Register, RegisterMap
 
-__all__ = ["REGMAP", "ADXL345", "DEVID", "ADDRS", "rate_code"]
+__all__ = ["REGMAP", "ADXL345", "DEVID", "ADDRS", "rate_code", "FifoCut"]
 
 ADDRS = (0x53, 0x1D)                                                      # A: ALT ADDRESS low/high
 DEVID = 0xE5                                                              # K
@@ -55,6 +55,17 @@ def rate_code(rate_hz: float) -> int:
     return code
 
 
+class FifoCut(BusError):
+    """A bus fault part-way through draining the FIFO.  The entries read before it are popped
+    from the chip and held here (``acc_g``, (k, 3)) for the caller to keep; whether the
+    failed burst popped its own entry is not known (the FIFO advances at the end of a
+    data-register read, D), so the caller counts what is missing by time."""
+
+    def __init__(self, cause: BusError, acc_g: np.ndarray):
+        super().__init__(str(cause), cause.addr, cause.errno)
+        self.acc_g = acc_g
+
+
 class ADXL345:
     def __init__(self, bus: Bus, addr: int = 0x53, clock: Optional[Clock] = None):
         self.bus, self.addr = bus, addr
@@ -94,9 +105,13 @@ class ADXL345:
 
     def read_fifo(self) -> tuple:
         """(acc g (k, 3), overrun).  Each 6-byte burst of DATAX0..DATAZ1 pops one entry (D);
-        a full FIFO (32 entries) in stream mode means older samples were overwritten."""
+        a full FIFO (32 entries) in stream mode means older samples were overwritten.  A bus
+        fault after some entries were popped raises :class:`FifoCut` holding them."""
         n = self.entries()
         out = np.zeros((n, 3))
         for i in range(n):
-            out[i] = np.frombuffer(self.bus.read_block(self.addr, REGMAP.DATAX0.addr, 6), "<i2")
+            try:
+                out[i] = np.frombuffer(self.bus.read_block(self.addr, REGMAP.DATAX0.addr, 6), "<i2")
+            except BusError as e:
+                raise FifoCut(e, out[:i] * G_PER_LSB_FULL_RES) from None
         return out * G_PER_LSB_FULL_RES, n >= FIFO_DEPTH

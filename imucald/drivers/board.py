@@ -18,7 +18,7 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
-from .adxl345 import ADXL345
+from .adxl345 import ADXL345, FifoCut
 from .adxl345 import FIFO_DEPTH as ADXL_FIFO_DEPTH
 from .ak8963 import AK8963
 from .bus import Bus, BusError, Clock, RealClock
@@ -275,6 +275,9 @@ class NineDofBoard(Board):
         self.mag = None
         self.accel_range_g, self.mag_rate_hz = accel_range_g, mag_rate_hz
         self._mag_next = 0.0
+        #: the entries a bus fault cut a FIFO read short after (adxl345.FifoCut): emitted
+        #: with the next read, whose loss is then counted by time
+        self._carry: Optional[np.ndarray] = None
 
     def chips(self):
         return {"accel": "adxl345", "gyro": "itg3200",
@@ -302,14 +305,25 @@ class NineDofBoard(Board):
             self.mag.still_configured()
 
     def _flush(self):
+        self._carry = None          # a re-initialisation counts them lost by time (_recover)
         self.acc.read_fifo()
 
     def _read(self, now):
-        acc, overrun = self.acc.read_fifo()
+        try:
+            acc, overrun = self.acc.read_fifo()
+        except FifoCut as e:
+            # the entries popped before the fault are kept for the next read (read_batch
+            # counts the fault); the loss is counted then, by time
+            self._carry = e.acc_g if self._carry is None else np.concatenate([self._carry, e.acc_g])
+            raise
+        cut, self._carry = self._carry, None
+        if cut is not None:
+            acc = np.concatenate([cut, acc])
         lost = 0
         if overrun:
             self.stats.fifo_resets += 1
-            lost = self._overrun_loss(len(acc), now)
+        if overrun or cut is not None:
+            lost = self._loss_by_time(len(acc), now)
         n = len(acc)
         g, temp = self.gyr.read() if n else (np.zeros(3), np.nan)
         mag, fresh = None, False
@@ -319,13 +333,17 @@ class NineDofBoard(Board):
             self._mag_next = now + 1.0 / self.mag_rate_hz
         return self._emit(acc, np.broadcast_to(g, (n, 3)).copy(), np.full(n, temp), mag, fresh, lost)
 
-    def _overrun_loss(self, n_read: int, before: float) -> int:
-        """Samples the ADXL345 overwrote (stream mode, full FIFO) since the last good read:
-        the ones the chip made up to now, less the ``n_read`` just read and what already
-        waits in the FIFO again (what came during the reads).  Counted to the end of the
-        read, not to the time ``before`` the entry count: a host stalled between the count
-        and the data reads loses more than the count says (each new sample overwrites the
-        oldest), and counted short every later sample's time stays behind by the stall."""
+    def _loss_by_time(self, n_read: int, before: float) -> int:
+        """Samples lost since the last good read, when the entry counts cannot tell: the
+        ADXL345 overwrote some (stream mode, full FIFO), or a bus fault cut a read short
+        after popping entries (FifoCut: those read are in ``n_read``; the failed burst's own
+        entry may be gone).  The ones the chip made up to now, less the ``n_read`` read and
+        what already waits in the FIFO again (what came during the reads).  Counted to the
+        end of the read, not to the time ``before`` the entry count: a host stalled between
+        the count and the data reads loses more than the count says (each new sample
+        overwrites the oldest), and counted short every later sample's time stays behind by
+        the stall.  The gap is placed before the batch's rows (a cut's carried rows
+        included: their times may be late by the one entry the failed burst took)."""
         after = self.clock.now()
         try:
             waiting = self.acc.entries()

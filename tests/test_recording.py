@@ -362,6 +362,48 @@ def test_table_nominal_scale_and_offset_per_sensor(tmp_path):
     assert per_sensor("4069.76") == 4069.76
 
 
+def test_join_holds_a_slower_chips_file_beside_the_first_tables_rows(tmp_path, capsys):
+    """A logger that writes each chip to its own file (the sunsided MPU-6050 and HMC5883L
+    files; IMU-TK's accelerometer and gyro): ``--join`` gives each row of the first table
+    the latest row of the second at or before its time (the same stamps: row for row).
+    Here a magnetometer file at a quarter of the rate, starting 0.25 s later: each row gets
+    the mag row whose time is the last not after its own, exactly; the two rows before the
+    magnetometer's first are dropped, with a warning.  Refused in one line each: a sensor in
+    both tables, times that do not overlap, a table without a time column, --join without
+    --join-columns (and the reverse), a joined imucald recording.  Broken once: the row
+    before (searchsorted side='left': the exact-stamp rows take the previous reading: fails)."""
+    from imucald.cli import main
+    from imucald.fitting.inputs import load_input
+    t = np.arange(40) * 0.125                       # 8 Hz (times exact in binary)
+    a = tmp_path / "mpu.csv"
+    a.write_text("".join(f"{x:.17g},0,0,1,{i},0,0\n" for i, x in enumerate(t)))
+    tm = t[2::4]                                    # 2 Hz, its first at 0.25 s
+    m = tmp_path / "hmc.csv"
+    m.write_text("".join(f"{x:.17g},{k},0.2,-0.4\n" for k, x in enumerate(tm)))
+    cols, mcols = "t,ax,ay,az,gx,gy,gz".split(","), "t,mx,my,mz".split(",")
+    _, rec = load_input(str(a), cols, join=(str(m), mcols))
+    assert np.array_equal(rec.t, t[2:]) and np.array_equal(rec.gyro[:, 0], np.arange(2, 40))
+    assert np.array_equal(rec.mag[:, 0], (np.arange(2, 40) - 2) // 4)      # held, exactly
+    assert "2 of 40 rows outside the times of --join" in capsys.readouterr().err
+    msg = _one_line_error(load_input, str(a), cols, 1.0, 0.0, None, (str(a), cols), cls=UserError)
+    assert "accelerometer columns in both tables" in msg
+    late = tmp_path / "late.csv"
+    late.write_text("".join(f"{x + 100:.17g},{k},0.2,-0.4\n" for k, x in enumerate(tm)))
+    msg = _one_line_error(load_input, str(a), cols, 1.0, 0.0, None, (str(late), mcols), cls=UserError)
+    assert "do not overlap" in msg and "must share a clock" in msg
+    msg = _one_line_error(load_input, str(a), cols, 1.0, 0.0, None, (str(m), ["-", "mx", "my", "mz"]),
+                          cls=UserError)
+    assert msg.startswith("--join-columns: no time column")
+    for argv, what in ((["--join", str(m)], "name its columns with --join-columns"),
+                       (["--join-columns", "t,mx,my,mz"], "give the table it names with --join FILE")):
+        assert main(["calibrate", str(a), "--columns", ",".join(cols), *argv]) == 2
+        assert what in capsys.readouterr().err
+    rec_file = tmp_path / "rec.csv"
+    write_recording(rec, str(rec_file))
+    msg = _one_line_error(load_input, str(a), cols, 1.0, 0.0, None, (str(rec_file), mcols), cls=UserError)
+    assert "an imucald file; --join takes a raw table" in msg
+
+
 @pytest.mark.parametrize("make,expect", [
     (lambda d: d / "nope.csv", "No such file"),
     (lambda d: d, "is a directory"),

@@ -60,18 +60,19 @@ class TableReader:
 def input_recording(args, path: str, whole: bool = True):
     """The recording a command reads: an imucald recording (whatever ``--columns`` says: its
     header names its board, which apply checks), or with ``--columns`` a raw table
-    (``--nominal-scale``, ``--nominal-offset``, ``--rate-hz``).  ``whole``: the Recording;
+    (``--nominal-scale``, ``--nominal-offset``, ``--rate-hz``; ``--join``: a second one joined).  ``whole``: the Recording;
     else a reader (a recording streamed block by block, a table read whole)."""
     if getattr(args, "columns", None):
         from ..errors import UserError
-        from ..fitting.inputs import input_kind, read_table
+        from ..fitting.inputs import input_kind, load_input
+        from .checks import join_arg
         kind = input_kind(path)
         if kind == "poses":
             raise UserError(f"{path}: a pose file (still-pose averages): this command needs the "
                             f"samples, a recording or a raw table")
-        if kind == "table":
-            rec = read_table(path, args.columns.split(","), args.nominal_scale, args.nominal_offset,
-                             args.rate_hz)
+        if kind == "table" or join_arg(args):
+            _, rec = load_input(path, args.columns.split(","), args.nominal_scale, args.nominal_offset,
+                                args.rate_hz, join_arg(args))
             return rec if whole else TableReader(rec)
     from ..files.recording import open_recording, read_recording
     return read_recording(path) if whole else open_recording(path)

@@ -13,7 +13,7 @@ from ..errors import CannotCreate, UserError
 
 __all__ = ["positive_float", "non_negative_float", "per_sensor", "finite_float", "fraction", "seed",
            "bus_number", "at_least", "check_args", "output_file", "output_dir", "LIMITS", "number_in",
-           "count_in", "SIM_MAX_SAMPLES"]
+           "count_in", "SIM_MAX_SAMPLES", "join_arg"]
 
 #: The stated limits of the arguments that imply memory or time (docs/changes/issue-21.md):
 #: a value beyond is refused in one line before anything runs.  (low, high, unit)
@@ -204,6 +204,22 @@ def output_dir(path: str, flag: str) -> None:
         raise CannotCreate(f"{flag} {path}: {top} is not writable by this user")
 
 
+def _check_join(args) -> None:
+    """--join and --join-columns come together, beside --columns (a raw table's)."""
+    if args.join and not args.join_columns:
+        raise UserError(f"--join {args.join}: name its columns with --join-columns, e.g. t,gx,gy,gz")
+    if args.join_columns and not args.join:
+        raise UserError("--join-columns: give the table it names with --join FILE")
+    if args.join and not args.columns:
+        raise UserError(f"--join {args.join}: joins two raw tables: name the first one's columns "
+                        f"with --columns too")
+
+
+def join_arg(args):
+    """(path, columns) of --join, or None."""
+    return (args.join, args.join_columns.split(",")) if getattr(args, "join", None) else None
+
+
 def check_args(args) -> None:
     """Per command: output paths, and the rate against the board (record; run checks it
     with its configuration)."""
@@ -238,6 +254,8 @@ def check_args(args) -> None:
         output_dir(args.state_dir, "--state-dir")
     if cmd == "simulate":
         _check_simulation_size(args)
+    if hasattr(args, "join"):
+        _check_join(args)
     if cmd in ("calibrate", "noise") and "-" in (getattr(args, "output", None), getattr(args, "kalibr", None)):
         import sys
         from ..files import atomic

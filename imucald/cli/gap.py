@@ -104,8 +104,10 @@ def gap_summary(res) -> str:
 def cmd_gap(args) -> int:
     from ..gap.diagnose import diagnose
     from ..fitting.inputs import load_input
+    from .checks import join_arg
     columns = args.columns.split(",") if args.columns else None
-    kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
+    kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz,
+                           join_arg(args))
     if kind != "recording":
         raise UserError(f"{args.recording}: gap needs samples (a recording), not pose averages")
     if args.report:         # created before the diagnosis, so a bad place fails at once

@@ -190,8 +190,10 @@ def _calibrate(args) -> int:
     allocator.tune()
     from ..fitting.inputs import load_input
     from ..fitting.stillness.poses import poses_and_pieces
+    from .checks import join_arg
     columns = args.columns.split(",") if args.columns else None
-    kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
+    kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz,
+                           join_arg(args))
     if args.sensor == "all":    # every part the recording supports, into one file (cli/calall.py)
         from .calall import cmd_calibrate_all
         return cmd_calibrate_all(args, kind, obj)

@@ -113,6 +113,11 @@ def _raw_table_options(p, example: str) -> None:
     p.add_argument("--rate-hz", type=positive_float,
                    help="raw table: the sample rate (needed without a time column; with one, within "
                         "100x of its steps)")
+    p.add_argument("--join", metavar="FILE",
+                   help="raw table: a second table of the same session (its columns by --join-columns), "
+                        "its sensors joined to the first's by time, e.g. IMU-TK's xsens_gyro.mat beside "
+                        "xsens_acc.mat, or a magnetometer logged to its own file")
+    p.add_argument("--join-columns", metavar="COLUMNS", help="--join's columns, e.g. t,gx,gy,gz")
 
 
 def _add_calibrate(c) -> None:

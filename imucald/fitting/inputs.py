@@ -32,7 +32,7 @@ from ..numerics.npstats import median
 from ..files.tables import TIME_UNITS, TableSpec, collect, decode_line, iter_blocks, warn
 from .stillness.poses import POSES_MAGIC, read_poses
 
-__all__ = ["input_kind", "load_input", "read_table", "stuck_columns", "stuck_message"]
+__all__ = ["input_kind", "load_input", "read_table", "join_tables", "stuck_columns", "stuck_message"]
 
 _GROUP_COLUMNS = {"acc": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
 _NAMES = {"acc": "accel", "gyro": "gyro", "mag": "mag"}        # as --nominal-scale names them
@@ -310,10 +310,17 @@ def input_kind(path: str) -> str:
 
 
 def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: PerSensor = 1.0,
-               nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None):
+               nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None,
+               join: Optional[tuple] = None):
     """Return (kind, obj): ('recording', Recording) or ('poses', PoseSet).  An imucald file is
-    read as what it is, whatever ``columns`` say."""
+    read as what it is, whatever ``columns`` say.  ``join``: (path, columns) of a second raw
+    table of the same session whose sensors are joined to the first's (:func:`join_tables`;
+    the same nominal scale and offset, per sensor)."""
     kind = input_kind(path)
+    if join is not None and (kind != "table" or columns is None):
+        raise UserError(f"--join {join[0]}: joins two raw tables, and {path} is "
+                        f"{'an imucald ' + kind if kind != 'table' else 'read without --columns'}: "
+                        f"name its columns with --columns")
     if kind == "recording":
         return "recording", read_recording(path)
     if kind == "poses":
@@ -321,4 +328,51 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
     if columns is None:
         raise UserError(f"{path}: not an imucald recording or pose file; for a raw numeric "
                         f"table name its columns, e.g. --columns t,ax,ay,az")
-    return "recording", read_table(path, columns, nominal_scale, nominal_offset, rate_hz)
+    rec = read_table(path, columns, nominal_scale, nominal_offset, rate_hz)
+    if join is not None:
+        if input_kind(join[0]) != "table":
+            raise UserError(f"--join {join[0]}: an imucald file; --join takes a raw table (its "
+                            f"columns named by --join-columns)")
+        for option, cols in (("--columns", columns), ("--join-columns", join[1])):
+            if not any(c in TIME_COLUMNS_S_PER_UNIT for c in cols):
+                raise UserError(f"{option}: no time column: the two tables are joined by their "
+                                f"time stamps (t, t_ms, t_us or t_ns in --columns and --join-columns)")
+        rec = join_tables(rec, path, read_table(join[0], join[1], nominal_scale, nominal_offset), join[0])
+    return "recording", rec
+
+
+#: a joined table's row is held for the first table's rows up to this many of its own sample
+#: periods after it, past its last row (beyond: the first table's rows are dropped)
+JOIN_HOLD_PERIODS = 1.5
+
+
+def join_tables(rec: Recording, path: str, other: Recording, other_path: str) -> Recording:
+    """``rec`` (the table at ``path``) with the sensors of ``other`` (the table at
+    ``other_path``) added: each row takes ``other``'s latest row at or before its time (row for
+    row when the two share time stamps, as IMU-TK's xsens_acc.mat and xsens_gyro.mat do; the
+    slower chip's reading held otherwise, as a logger writing each chip to its own file gives
+    it).  Rows outside ``other``'s span are dropped, with a warning.  Both tables need a time
+    column on the same clock (load_input checks); a sensor (or the temperature) in both is
+    refused."""
+    both = [g for g in ("acc", "gyro", "mag", "temp") if getattr(rec, g) is not None and getattr(other, g) is not None]
+    if both:
+        raise UserError(f"--join {other_path}: {_JOIN_NAMES[both[0]]} columns in both tables: "
+                        f"- in --columns or --join-columns leaves one out")
+    hold = JOIN_HOLD_PERIODS / other.rate_hz
+    j = np.searchsorted(other.t, rec.t, side="right") - 1
+    keep = (j >= 0) & (rec.t <= other.t[-1] + hold)
+    if not keep.any():
+        raise UserError(f"--join {other_path}: its times ({other.t[0]:.6g}..{other.t[-1]:.6g} s) "
+                        f"do not overlap {path}'s ({rec.t[0]:.6g}..{rec.t[-1]:.6g} s): the two "
+                        f"tables must share a clock")
+    if not keep.all():
+        warn(f"{path}: {int((~keep).sum())} of {len(keep)} rows outside the times of --join "
+             f"{other_path} dropped")
+    j = j[keep]
+    pick = lambda a, b: a[keep] if a is not None else (b[j] if b is not None else None)
+    meta = dict(rec.meta, source=f"{rec.meta.get('source', '')}+{other.meta.get('source', '')}")
+    return Recording(t=rec.t[keep], acc=pick(rec.acc, other.acc), gyro=pick(rec.gyro, other.gyro),
+                     mag=pick(rec.mag, other.mag), temp=pick(rec.temp, other.temp), meta=meta)
+
+
+_JOIN_NAMES = {"acc": "accelerometer", "gyro": "gyro", "mag": "magnetometer", "temp": "temperature"}

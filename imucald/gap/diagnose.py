@@ -101,7 +101,7 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
         raise GapError(f"{name}: {N} still poses found in {n_orient} orientation(s); the diagnosis needs at "
                        f"least {MIN_POSES} in {MIN_ORIENTATIONS} or more orientations (25-30 recommended): "
                        f"{max(MIN_POSES - N, 1)} more, e.g. {', '.join(miss)}; or one still stretch of "
-                       f"several minutes for the time-series diagnosis ({why})")
+                       f"several minutes for the time-series diagnosis" + (f" ({why})" if why else ""))
     notes = [f"{N} still pose(s) in {n_orient} orientation(s): diagnosed from still stretches split in time "
              f"(the pose diagnosis needs {MIN_POSES} poses in {MIN_ORIENTATIONS}+ orientations)"]
     if why:

@@ -88,7 +88,7 @@ def main():
             not_held += not find_repeats(h.t, h.acc, h.rate_hz).held
             ivs, _, det = detect(h.t, h.acc, h.gyro, h.rate_hz, chip=chip)
             from imucald.fitting.stillness.poses import merge_cut
-            sl = merge_cut(ivs, det.repeats.keep)
+            sl = merge_cut(ivs)
             for h0, h1 in ss.hold:
                 tot += 1
                 got = [x for x in sl if h.t[x.start] < h1 and h.t[x.stop - 1] > h0]

@@ -254,6 +254,31 @@ def test_the_daemon_keeps_nearby_but_distinct_poses():
     assert len(acc) == 2
 
 
+def test_pieces_of_one_rest_refine_one_pose_with_the_scatter_of_all_their_rows():
+    """A rest cut into pieces (max_pose_s) whose means drift apart far beyond their noise (a
+    warm-up): each piece that ``continues`` the one before refines the pose it went to, and
+    the pose's sample covariance is that of all the pieces' rows, the spread between their
+    means included (as calibrate's joined pose has it); a piece that does not continue, with
+    the same drift, is a pose of its own.  Broken once each: the same-run rule removed (4
+    poses: fails), the pooled covariance without the between-means term (z scatter 2.9x
+    small: fails)."""
+    from imucald.fitting.stillness.detector import StaticInterval
+    from imucald.daemon.accumulator import PoseAccumulator
+    rng = np.random.default_rng(3)
+    rows = [np.array([0.0, 0.0, 1.0]) + [0, 0, 0.004 * k] + rng.normal(0, 1e-3, (1000, 3)) for k in range(4)]
+
+    def piece(x, k, continues):
+        m = x.mean(0)
+        sc = np.cov(x.T)
+        return StaticInterval(m, sc / len(x), sc, len(x), 20.0 * k, 20.0 * k + 19.9, 20 + k,
+                              continues=continues)
+    acc = PoseAccumulator()
+    assert [acc.add(piece(x, k, k > 0)) for k, x in enumerate(rows)] == ["new"] + ["refined"] * 3
+    np.testing.assert_allclose(acc.poses[0].acc_sample_cov, np.cov(np.concatenate(rows).T), rtol=0.01, atol=1e-8)
+    np.testing.assert_allclose(acc.poses[0].acc, np.concatenate(rows).mean(0), rtol=0, atol=1e-12)
+    assert acc.add(piece(rows[3] + [0, 0, 0.004], 4, False)) == "new"
+
+
 def test_replaying_the_real_xsens_file_keeps_every_pose_calibrate_finds():
     rec = _xsens()
     from imucald.daemon.config import load_config
@@ -411,6 +436,37 @@ def test_repeat_detection_does_not_fire_on_quantised_noise():
     h = hold_samples(rec, 2 * rec.rate_hz)
     r2 = find_repeats(h.t, h.acc, h.rate_hz)
     assert r2.held and abs(r2.rate_hz / rec.rate_hz - 1) < 0.05
+
+
+def test_a_run_ending_exactly_at_a_cut_is_not_continued_by_the_next_placement():
+    """Pieces of one still run cut at max_pose_s are joined into one pose (``continues``);
+    a run that ends exactly at a cut left nothing to close, and the mark stayed set: the next
+    placement, after a 3-s turn from z-up to x-up, was taken for its continuation, joined
+    into one pose across the turn (|mean| 0.72 g) and its start left untrimmed (a cold
+    review).  Now two poses, each on its own face, and the second trimmed at its start.
+    Broken once: the reset on a run's end without rows removed (one pose: fails)."""
+    from imucald.files.recording import Recording
+    from imucald.fitting.stillness.poses import detect, poses_and_pieces
+    rng = np.random.default_rng(1)
+    rate = 100.0
+
+    def seg(v, s):
+        return np.tile(v, (int(s * rate), 1)) + rng.normal(0, 0.002, (int(s * rate), 3))
+    ang = np.linspace(0, np.pi / 2, int(3 * rate))
+    turn = np.c_[np.sin(ang), np.zeros_like(ang), np.cos(ang)] + rng.normal(0, 0.002, (len(ang), 3))
+    acc = np.r_[seg([0, 0, 1], 30), turn, seg([1, 0, 0], 30)]
+    gyro = rng.normal(0, 0.05, acc.shape)
+    gyro[3000:3300, 1] += 30
+    t = np.arange(len(acc)) / rate
+    ivs, _, _ = detect(t, acc, gyro, rate, max_pose_s=1e5)
+    trim = round(0.25 * rate)                          # trim_s at each end of an uncut run
+    first = ivs[0].i1 - ivs[0].i0 + 2 * trim           # the first still run's length
+    ivs, _, _ = detect(t, acc, gyro, rate, max_pose_s=first / rate)
+    assert ivs[0].i1 == first                          # cut (not trimmed) where the run ends
+    ps, _ = poses_and_pieces(Recording(t=t, acc=acc, gyro=gyro), max_pose_s=first / rate)
+    assert len(ps) == 2
+    np.testing.assert_allclose(ps.acc, [[0, 0, 1], [1, 0, 0]], atol=0.01)
+    assert ps.slices[1].start > 3300
 
 
 @pytest.mark.parametrize("batch_n", [9, 50])

@@ -45,6 +45,10 @@ class PoseAccumulator:
     def __len__(self):
         return len(self.poses)
 
+    def clear(self) -> None:
+        """Forget every pose (the control socket's reset)."""
+        self.poses, self.added, self._last = [], 0, None
+
     def add(self, iv: StaticInterval) -> str:
         """Add an interval; returns 'new', 'refined', 'replaced' or 'rejected'."""
         what, self._last = self._add(iv)
@@ -137,7 +141,10 @@ def _merge(a: StaticInterval, b: StaticInterval) -> StaticInterval:
     n = a.n + b.n
     wa, wb = a.n / n, b.n / n
     m = wa * a.acc + wb * b.acc
-    sc = wa * a.acc_sample_cov + wb * b.acc_sample_cov
+    # the pooled sample covariance of both holds' rows, the spread between their means included
+    # (pieces of one rest through a warm-up drift apart: calibrate's joined pose has it)
+    d = a.acc - b.acc
+    sc = wa * a.acc_sample_cov + wb * b.acc_sample_cov + wa * wb * np.outer(d, d)
     mix = lambda x, y: None if x is None or y is None else wa * x + wb * y
     return StaticInterval(m, sc / n, sc, n, min(a.t0, b.t0), max(a.t1, b.t1),
                           _mean_temp(a.temp, b.temp, wa, wb),

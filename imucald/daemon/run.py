@@ -316,8 +316,7 @@ class Daemon:
                 return {"class": "RECALIBRATE", "started": False}
             return {"class": "RECALIBRATE", "started": p.request_calibration()}
         if cmd == "reset":
-            p.acc.poses = []
-            p.acc.added = 0
+            p.acc.clear()
             p.next_cal_added = 0
             self._persist("poses", p.acc.pose_set())
             return {"class": "RESET", "poses": 0}

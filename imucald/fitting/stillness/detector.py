@@ -474,10 +474,16 @@ class _Core:
         cut = np.flatnonzero((still[1:] != still[:-1]) | (still[1:] & brk[1:])) + 1
         cut = cut.tolist()
         for i, j in zip([0] + cut, cut + [n]):
-            if still[i] and brk[i] and self._run:
-                iv = self._close(trim=True)
-                if iv is not None:
-                    out.append(iv)
+            if not still[i] or brk[i]:
+                # the still run so far ends (motion, or a step between quiet stretches); one
+                # that ended exactly at a max_pose_s cut has nothing left to close, and the
+                # next run neither continues it nor skips its start trim
+                if self._run:
+                    iv = self._close(trim=True)
+                    if iv is not None:
+                        out.append(iv)
+                else:
+                    self._run_cut = self._cut_emitted = False
             if still[i]:
                 s = i
                 while s < j:
@@ -492,10 +498,6 @@ class _Core:
                         if iv is not None:
                             out.append(iv)
                         self._run_cut = True
-            elif self._run:
-                iv = self._close(trim=True)
-                if iv is not None:
-                    out.append(iv)
         return out
 
     def _close(self, trim: bool) -> Optional[StaticInterval]:

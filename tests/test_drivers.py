@@ -416,17 +416,19 @@ def test_mpu_gyro_scaling_per_range_and_temperature_per_variant(grange, variant,
     assert np.all(np.abs(fr.temp_c - 18.0) <= 0.5 / div + 1e-9)
 
 
-@pytest.mark.parametrize("popped", [False, True])
-def test_adxl345_bus_fault_mid_read_keeps_the_entries_read_and_counts_the_loss(popped):
+@pytest.mark.parametrize("popped,gyro_fails", [(False, False), (True, False), (True, True)])
+def test_adxl345_bus_fault_mid_read_keeps_the_entries_read_and_counts_the_loss(popped, gyro_fails):
     """A host that stalled 0.25 s finds 25 entries in the ADXL345 FIFO; a bus fault (retries
     exhausted) on the 11th data read cuts the drain short after 10 entries were popped.  Those
     10 were dropped with the exception and nothing said so: every later sample's sequence
     number, and so its time, stayed 10 samples (0.1 s) behind the clock, with no gap.  Now the
     10 come with the next read, and what the cut lost (the failed burst's own entry, when it
-    was popped: ``popped``) is counted by time.  Checked: the newest sample's lag is what it was
-    before (within one sample period: the poll's phase), the gaps sum to the entries lost
-    (within one), the samples delivered are those made less that.  Broken once: the FifoCut
-    carry dropped (the lag 0.1 s behind: fails)."""
+    was popped: ``popped``) is counted by time.  With ``gyro_fails`` the gyro read after the
+    next drain fails too: the entries drained then are kept the same way (they were dropped:
+    25 samples and 0.26 s, a cold review).  The emulated clock is exact, so exactly that entry
+    is lost, the gaps say so, the samples delivered are those made less it, and the newest
+    sample's lag behind the clock is what it was before.  Broken once: the FifoCut carry
+    dropped (the lag 0.1 s behind: fails); the gyro's fault not keeping the drain (fails)."""
     from imucald.drivers.bus import BusError
     eb, bus, clk = rig("9dof")
     b = make_board("9dof", bus, clk, rate_hz=100)
@@ -434,7 +436,7 @@ def test_adxl345_bus_fault_mid_read_keeps_the_entries_read_and_counts_the_loss(p
     for _ in range(10):
         b.read_batch(batch_s=0.05)
     lag0, seq0 = _adxl_lag_s(b, clk), b.seq
-    real, reads = b.acc.bus.read_block, [0]
+    real, reads, gyro_fault = b.acc.bus.read_block, [0], [0]
 
     def faulty_block(addr, reg, n, fifo=False):     # the 11th data read fails, once
         if reg == adxl345.REGMAP.DATAX0.addr:
@@ -442,17 +444,26 @@ def test_adxl345_bus_fault_mid_read_keeps_the_entries_read_and_counts_the_loss(p
             if reads[0] == 11:
                 if popped:
                     real(addr, reg, n, fifo)
+                gyro_fault[0] = int(gyro_fails)
                 raise BusError("a NACK on DATAX0 (retries exhausted)", addr, 121)
         return real(addr, reg, n, fifo)
     b.acc.bus = type("B", (), {"read_block": staticmethod(faulty_block),
                                "read_byte": bus.read_byte, "write_byte": bus.write_byte})()
+    gyro_read = b.gyr.read
+
+    def faulty_gyro():                              # the next gyro read fails, once
+        if gyro_fault[0]:
+            gyro_fault[0] = 0
+            raise BusError("a NACK on the ITG3200", b.gyr.addr, 121)
+        return gyro_read()
+    b.gyr.read = faulty_gyro
     clk.advance(0.25)
     batches = [b.read_batch(batch_s=0.05) for _ in range(10)]
-    assert reads[0] > 11 and b.stats.bus_faults == 1 and b.stats.fifo_resets == 0
+    assert reads[0] > 11 and b.stats.bus_faults == 1 + int(gyro_fails) and b.stats.fifo_resets == 0
     lost = sum(k for x in batches for _, k in x.gaps)
-    assert abs(lost - int(popped)) <= 1
+    assert lost == int(popped)
     assert sum(len(x.acc) for x in batches) + lost == b.seq - seq0
-    assert abs(_adxl_lag_s(b, clk) - lag0) <= 1 / b.rate_hz
+    assert abs(_adxl_lag_s(b, clk) - lag0) < 1e-9
 
 
 @pytest.mark.parametrize("rng_g", [2, 4, 8, 16])

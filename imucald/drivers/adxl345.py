@@ -63,6 +63,7 @@ class FifoCut(BusError):
 
     def __init__(self, cause: BusError, acc_g: np.ndarray):
         super().__init__(str(cause), cause.addr, cause.errno)
+        self.cause = cause              #: the bus layer's error (NoAcknowledge, BusIOError...)
         self.acc_g = acc_g
 
 

@@ -314,24 +314,33 @@ class NineDofBoard(Board):
         except FifoCut as e:
             # the entries popped before the fault are kept for the next read (read_batch
             # counts the fault); the loss is counted then, by time
-            self._carry = e.acc_g if self._carry is None else np.concatenate([self._carry, e.acc_g])
+            self._keep(e.acc_g)
+            raise
+        if overrun:
+            self.stats.fifo_resets += 1
+        try:
+            g, temp = self.gyr.read() if len(acc) or self._carry is not None else (np.zeros(3), np.nan)
+            mag, fresh = None, False
+            if now >= self._mag_next:
+                mag, _ = self.mag.read()
+                fresh = mag is not None
+                self._mag_next = now + 1.0 / self.mag_rate_hz
+        except BusError:
+            # the entries drained are popped from the chip: kept, as after a cut (an overrun's
+            # loss is then counted by time too, at the next read)
+            self._keep(acc)
             raise
         cut, self._carry = self._carry, None
         if cut is not None:
             acc = np.concatenate([cut, acc])
-        lost = 0
-        if overrun:
-            self.stats.fifo_resets += 1
-        if overrun or cut is not None:
-            lost = self._loss_by_time(len(acc), now)
+        lost = self._loss_by_time(len(acc), now) if overrun or cut is not None else 0
         n = len(acc)
-        g, temp = self.gyr.read() if n else (np.zeros(3), np.nan)
-        mag, fresh = None, False
-        if now >= self._mag_next:
-            mag, _ = self.mag.read()
-            fresh = mag is not None
-            self._mag_next = now + 1.0 / self.mag_rate_hz
         return self._emit(acc, np.broadcast_to(g, (n, 3)).copy(), np.full(n, temp), mag, fresh, lost)
+
+    def _keep(self, acc: np.ndarray) -> None:
+        """Hold entries popped from the ADXL345 for the next read (a bus fault came before
+        they could be emitted); that read counts the loss by time."""
+        self._carry = acc if self._carry is None else np.concatenate([self._carry, acc])
 
     def _loss_by_time(self, n_read: int, before: float) -> int:
         """Samples lost since the last good read, when the entry counts cannot tell: the

@@ -368,10 +368,14 @@ def test_join_holds_a_slower_chips_file_beside_the_first_tables_rows(tmp_path, c
     the latest row of the second at or before its time (the same stamps: row for row).
     Here a magnetometer file at a quarter of the rate, starting 0.25 s later: each row gets
     the mag row whose time is the last not after its own, exactly; the two rows before the
-    magnetometer's first are dropped, with a warning.  Refused in one line each: a sensor in
-    both tables, times that do not overlap, a table without a time column, --join without
-    --join-columns (and the reverse), a joined imucald recording.  Broken once: the row
-    before (searchsorted side='left': the exact-stamp rows take the previous reading: fails)."""
+    magnetometer's first are dropped, with a warning; so are the rows in a 2-s hole in its file
+    (its last reading is held for 1.5 of its periods, not across the hole); two tables with
+    the same stamps, one repeated, pair row for row.  Refused in one line each: a sensor in
+    both tables, times that do not overlap, a table without a time column, a joined table
+    naming no sensor or an unknown column (named as --join-columns'), --join without
+    --join-columns (and the reverse), a joined imucald recording.  Broken once each: the row
+    before (searchsorted side='left': the exact-stamp rows take the previous reading), the
+    hold not limited within the file (fail)."""
     from imucald.cli import main
     from imucald.fitting.inputs import load_input
     t = np.arange(40) * 0.125                       # 8 Hz (times exact in binary)
@@ -384,7 +388,20 @@ def test_join_holds_a_slower_chips_file_beside_the_first_tables_rows(tmp_path, c
     _, rec = load_input(str(a), cols, join=(str(m), mcols))
     assert np.array_equal(rec.t, t[2:]) and np.array_equal(rec.gyro[:, 0], np.arange(2, 40))
     assert np.array_equal(rec.mag[:, 0], (np.arange(2, 40) - 2) // 4)      # held, exactly
-    assert "2 of 40 rows outside the times of --join" in capsys.readouterr().err
+    assert "2 of 40 rows dropped: no row of --join" in capsys.readouterr().err
+    # a 2-s hole in the magnetometer's file: its last reading is not held across it
+    hole = tmp_path / "hole.csv"
+    hole.write_text("".join(f"{x:.17g},{k},0.2,-0.4\n" for k, x in enumerate(tm) if not 1.5 < x < 3.5))
+    _, rec = load_input(str(a), cols, join=(str(hole), mcols))
+    assert not np.any((rec.t > 1.5 + 0.75) & (rec.t < 3.5))              # 1.5 periods of 0.5 s
+    assert "rows dropped" in capsys.readouterr().err
+    # the same stamps, one of them repeated: row for row
+    dup = np.r_[t[:10], t[9:39]]
+    a2, g2 = tmp_path / "a2.csv", tmp_path / "g2.csv"
+    a2.write_text("".join(f"{x:.17g},0,0,1\n" for x in dup))
+    g2.write_text("".join(f"{x:.17g},{i},0,0\n" for i, x in enumerate(dup)))
+    _, rec = load_input(str(a2), ["t", "ax", "ay", "az"], join=(str(g2), ["t", "gx", "gy", "gz"]))
+    assert np.array_equal(rec.gyro[:, 0], np.arange(40))
     msg = _one_line_error(load_input, str(a), cols, 1.0, 0.0, None, (str(a), cols), cls=UserError)
     assert "accelerometer columns in both tables" in msg
     late = tmp_path / "late.csv"
@@ -394,6 +411,10 @@ def test_join_holds_a_slower_chips_file_beside_the_first_tables_rows(tmp_path, c
     msg = _one_line_error(load_input, str(a), cols, 1.0, 0.0, None, (str(m), ["-", "mx", "my", "mz"]),
                           cls=UserError)
     assert msg.startswith("--join-columns: no time column")
+    msg = _one_line_error(load_input, str(a), cols, 1.0, 0.0, None, (str(m), ["t", "-", "-", "-"]), cls=UserError)
+    assert "names no sensor column to join" in msg
+    msg = _one_line_error(load_input, str(a), cols, 1.0, 0.0, None, (str(m), ["t", "mx", "my", "mq"]), cls=UserError)
+    assert msg.startswith("--join-columns: unknown column 'mq'")
     for argv, what in ((["--join", str(m)], "name its columns with --join-columns"),
                        (["--join-columns", "t,mx,my,mz"], "give the table it names with --join FILE")):
         assert main(["calibrate", str(a), "--columns", ",".join(cols), *argv]) == 2

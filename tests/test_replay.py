@@ -282,3 +282,4 @@ def test_a_warm_up_set_down_again_in_one_orientation_applies_no_accelerometer_pa
     heads = [l for l in err.splitlines() if l.startswith("imucald: calibration #") and " applied" in l]
     assert heads, err[-500:]
     assert all("(gyro part; accel not applied)" in h for h in heads), heads[:2]
+    assert "accel not applied: the poses determine none of its parameters" in err

@@ -57,22 +57,31 @@ class TableReader:
             yield self.rec.slice(i, i + self.rows)
 
 
+def read_input(args, path: str):
+    """(kind, obj) of the file a command reads (fitting.inputs.load_input), with the raw-table
+    options it was given: --columns, --nominal-scale, --nominal-offset, --rate-hz and --join
+    with --join-columns."""
+    from ..fitting.inputs import load_input
+    columns = args.columns.split(",") if getattr(args, "columns", None) else None
+    join = (args.join, args.join_columns.split(",")) if getattr(args, "join", None) else None
+    return load_input(path, columns, args.nominal_scale, args.nominal_offset, args.rate_hz, join)
+
+
 def input_recording(args, path: str, whole: bool = True):
     """The recording a command reads: an imucald recording (whatever ``--columns`` says: its
     header names its board, which apply checks), or with ``--columns`` a raw table
-    (``--nominal-scale``, ``--nominal-offset``, ``--rate-hz``; ``--join``: a second one joined).  ``whole``: the Recording;
-    else a reader (a recording streamed block by block, a table read whole)."""
+    (``--nominal-scale``, ``--nominal-offset``, ``--rate-hz``; ``--join``: a second one joined).
+    ``whole``: the Recording; else a reader (a recording streamed block by block, a table read
+    whole)."""
     if getattr(args, "columns", None):
         from ..errors import UserError
-        from ..fitting.inputs import input_kind, load_input
-        from .checks import join_arg
+        from ..fitting.inputs import input_kind
         kind = input_kind(path)
         if kind == "poses":
             raise UserError(f"{path}: a pose file (still-pose averages): this command needs the "
                             f"samples, a recording or a raw table")
-        if kind == "table" or join_arg(args):
-            _, rec = load_input(path, args.columns.split(","), args.nominal_scale, args.nominal_offset,
-                                args.rate_hz, join_arg(args))
+        if kind == "table" or getattr(args, "join", None):
+            _, rec = read_input(args, path)
             return rec if whole else TableReader(rec)
     from ..files.recording import open_recording, read_recording
     return read_recording(path) if whole else open_recording(path)

@@ -13,7 +13,7 @@ from ..errors import CannotCreate, UserError
 
 __all__ = ["positive_float", "non_negative_float", "per_sensor", "finite_float", "fraction", "seed",
            "bus_number", "at_least", "check_args", "output_file", "output_dir", "LIMITS", "number_in",
-           "count_in", "SIM_MAX_SAMPLES", "join_arg"]
+           "count_in", "SIM_MAX_SAMPLES"]
 
 #: The stated limits of the arguments that imply memory or time (docs/changes/issue-21.md):
 #: a value beyond is refused in one line before anything runs.  (low, high, unit)
@@ -212,12 +212,7 @@ def _check_join(args) -> None:
         raise UserError("--join-columns: give the table it names with --join FILE")
     if args.join and not args.columns:
         raise UserError(f"--join {args.join}: joins two raw tables: name the first one's columns "
-                        f"with --columns too")
-
-
-def join_arg(args):
-    """(path, columns) of --join, or None."""
-    return (args.join, args.join_columns.split(",")) if getattr(args, "join", None) else None
+                        f"with --columns too (an imucald recording holds its sensors together already)")
 
 
 def check_args(args) -> None:

@@ -103,11 +103,8 @@ def gap_summary(res) -> str:
 
 def cmd_gap(args) -> int:
     from ..gap.diagnose import diagnose
-    from ..fitting.inputs import load_input
-    from .checks import join_arg
-    columns = args.columns.split(",") if args.columns else None
-    kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz,
-                           join_arg(args))
+    from ._common import read_input
+    kind, rec = read_input(args, args.recording)
     if kind != "recording":
         raise UserError(f"{args.recording}: gap needs samples (a recording), not pose averages")
     if args.report:         # created before the diagnosis, so a bad place fails at once

@@ -35,9 +35,9 @@ def cmd_noise(args) -> int:
     import yaml
     from ..files.atomic import atomic_write_text
     from ..fitting.noise.allan import characterise, figures_document, kalibr_text
-    from ..fitting.inputs import load_input, stuck_columns, stuck_message
-    columns = args.columns.split(",") if args.columns else None
-    kind, rec = load_input(args.recording, columns, args.nominal_scale, args.nominal_offset, args.rate_hz)
+    from ..fitting.inputs import stuck_columns, stuck_message
+    from ._common import read_input
+    kind, rec = read_input(args, args.recording)
     if kind != "recording":
         raise UserError(f"{args.recording}: noise needs samples (a recording), not pose averages")
     i0, i1, rate = still_stretch(rec.t, args.start_s, args.end_s, args.max_gap_s)

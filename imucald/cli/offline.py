@@ -188,12 +188,9 @@ def _calibrate(args) -> int:
     # and the detector's MB-sized temporaries are reused from the heap, not page-faulted
     # afresh each time (measured: 3.5 ms of reading, 1.5 ms of detection on the Xsens file)
     allocator.tune()
-    from ..fitting.inputs import load_input
     from ..fitting.stillness.poses import poses_and_pieces
-    from .checks import join_arg
-    columns = args.columns.split(",") if args.columns else None
-    kind, obj = load_input(args.input, columns, args.nominal_scale, args.nominal_offset, args.rate_hz,
-                           join_arg(args))
+    from ._common import read_input
+    kind, obj = read_input(args, args.input)
     if args.sensor == "all":    # every part the recording supports, into one file (cli/calall.py)
         from .calall import cmd_calibrate_all
         return cmd_calibrate_all(args, kind, obj)

@@ -113,6 +113,11 @@ def _raw_table_options(p, example: str) -> None:
     p.add_argument("--rate-hz", type=positive_float,
                    help="raw table: the sample rate (needed without a time column; with one, within "
                         "100x of its steps)")
+    _join_options(p)
+
+
+def _join_options(p) -> None:
+    """--join and --join-columns: a second raw table of the same session (fitting.inputs.join_tables)."""
     p.add_argument("--join", metavar="FILE",
                    help="raw table: a second table of the same session (its columns by --join-columns), "
                         "its sensors joined to the first's by time, e.g. IMU-TK's xsens_gyro.mat beside "
@@ -292,6 +297,7 @@ def _add_noise(nz) -> None:
     nz.add_argument("--nominal-offset", type=per_sensor, default=0.0,
                     help="raw table: counts at zero input (or accel=N,gyro=N)")
     nz.add_argument("--rate-hz", type=positive_float, help="sample rate (default: the stretch's mean rate)")
+    _join_options(nz)
     nz.set_defaults(func=_command("noise", "cmd_noise"))
 
 

@@ -98,20 +98,23 @@ def _numeric(parts) -> bool:
 
 
 def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0,
-               nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None) -> Recording:
-    """A headerless numeric table as a Recording (units after nominal scaling)."""
+               nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None,
+               flag: str = "--columns") -> Recording:
+    """A headerless numeric table as a Recording (units after nominal scaling).  ``flag``:
+    the option that named its columns, in messages (``--join-columns`` for a table joined to
+    another: it takes no --rate-hz, so its time stamps must place its rows)."""
     cols = list(columns)
     allowed = COLUMNS + [k for k in TIME_COLUMNS_S_PER_UNIT if k not in COLUMNS]
     bad = [c for c in cols if c not in allowed and c != "-"]
     if bad:
-        raise UserError(f"--columns: unknown column {bad[0]!r}; allowed {', '.join(allowed)} "
+        raise UserError(f"{flag}: unknown column {bad[0]!r}; allowed {', '.join(allowed)} "
                         f"(or - to skip one)")
     named = [c for c in cols if c != "-"]
     if len(set(named)) != len(named):
-        raise UserError(f"--columns: a column is repeated in {','.join(cols)}")
+        raise UserError(f"{flag}: a column is repeated in {','.join(cols)}")
     times = [c for c in cols if c in TIME_COLUMNS_S_PER_UNIT]
     if len(times) > 1:
-        raise UserError(f"--columns: two time columns ({', '.join(times)}): name one, and - for the other")
+        raise UserError(f"{flag}: two time columns ({', '.join(times)}): name one, and - for the other")
     t_name = times[0] if times else None
     present = [g for g, ks in _GROUP_COLUMNS.items() if any(k in cols for k in ks)]
     scales = _per_sensor(nominal_scale, "--nominal-scale", present, cols)
@@ -152,7 +155,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         warn(msg)
     if t_name:
         t = c.pop(t_name) * TIME_COLUMNS_S_PER_UNIT[t_name] if t_name != "t" else c.pop("t")
-        rate = _table_rate(path, t, t_name, rate_hz)
+        rate = _table_rate(path, t, t_name, rate_hz, joined=flag != "--columns")
     else:
         if not rate_hz:
             raise UserError(f"{path}: no time column (t, t_ms, t_us or t_ns): give --rate-hz")
@@ -251,7 +254,7 @@ def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
     return out
 
 
-def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float]) -> float:
+def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float], joined: bool = False) -> float:
     """The sample rate of a raw table (``rate_hz`` when given) from its time column ``t`` (s;
     named ``t_name``): one over the median interval between rows that advance; for a column in
     whole ms, us or ns (t_ms, t_us, t_ns) the mean of the intervals within a factor 2 of the median (a
@@ -260,13 +263,16 @@ def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float])
     on the rows a second over the column's span (a logger that stamps a FIFO's burst as it
     prints it, or a coarse clock, has steps far from its rate but rows at it): more than 1/
     STEP_RANGE_S[0], or a ``rate_hz`` more than 100x away; and on a median step of
-    STEP_RANGE_S[1] or more while the rows come no faster (a pause does not move either)."""
+    STEP_RANGE_S[1] or more while the rows come no faster (a pause does not move either).
+    ``joined``: a table joined to another by time (no --rate-hz to fall back on: its stamps
+    must place its rows)."""
     dt = np.diff(t)
     dt = dt[dt > 0]
     if not len(dt):
         if rate_hz:
             return rate_hz
-        raise UserError(f"{path}: {t_name} never advances, so the sample rate is unknown: give --rate-hz")
+        raise UserError(f"{path}: {t_name} never advances, so " + (
+            "its rows cannot be placed beside the first table's" if joined else "the sample rate is unknown: give --rate-hz"))
     step = float(median(dt))
     how = "a median"
     if t_name != "t":
@@ -285,12 +291,16 @@ def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float])
         raise UserError(f"{path}: {said}, faster than an IMU is read at: {names}")
     if step >= hi:
         if rows_per_s * step >= 2:      # many rows a tick: a coarse clock, not a slow one
+            if joined:
+                raise UserError(f"{path}: {t_name} advances by {how} {step / unit:.4g} {_UNIT[t_name]} a "
+                                f"row but {said}: a clock coarser than the samples cannot place them "
+                                f"beside the first table's rows, or {names}")
             raise UserError(f"{path}: {t_name} advances by {how} {step / unit:.4g} {_UNIT[t_name]} a "
                             f"row but {said}: a clock coarser than the samples; give --rate-hz, the rate "
                             f"it was logged at (about {rows_per_s:.4g} by its span), or {names}")
         raise UserError(f"{path}: {t_name} advances by {how} {step / unit:.4g} {_UNIT[t_name]} a "
-                        f"row ({1 / step:.4g} Hz), slower than an IMU is read at: {names}; for so "
-                        f"low a rate give --rate-hz {1 / step:.4g}")
+                        f"row ({1 / step:.4g} Hz), slower than an IMU is read at: {names}" +
+                        ("" if joined else f"; for so low a rate give --rate-hz {1 / step:.4g}"))
     return 1.0 / step
 
 
@@ -317,10 +327,8 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
     table of the same session whose sensors are joined to the first's (:func:`join_tables`;
     the same nominal scale and offset, per sensor)."""
     kind = input_kind(path)
-    if join is not None and (kind != "table" or columns is None):
-        raise UserError(f"--join {join[0]}: joins two raw tables, and {path} is "
-                        f"{'an imucald ' + kind if kind != 'table' else 'read without --columns'}: "
-                        f"name its columns with --columns")
+    if join is not None:
+        _check_join(path, kind, columns, join)
     if kind == "recording":
         return "recording", read_recording(path)
     if kind == "poses":
@@ -330,44 +338,61 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
                         f"table name its columns, e.g. --columns t,ax,ay,az")
     rec = read_table(path, columns, nominal_scale, nominal_offset, rate_hz)
     if join is not None:
-        if input_kind(join[0]) != "table":
-            raise UserError(f"--join {join[0]}: an imucald file; --join takes a raw table (its "
-                            f"columns named by --join-columns)")
-        for option, cols in (("--columns", columns), ("--join-columns", join[1])):
-            if not any(c in TIME_COLUMNS_S_PER_UNIT for c in cols):
-                raise UserError(f"{option}: no time column: the two tables are joined by their "
-                                f"time stamps (t, t_ms, t_us or t_ns in --columns and --join-columns)")
-        rec = join_tables(rec, path, read_table(join[0], join[1], nominal_scale, nominal_offset), join[0])
+        other = read_table(join[0], join[1], nominal_scale, nominal_offset, flag="--join-columns")
+        rec = join_tables(rec, path, other, join[0])
     return "recording", rec
 
 
+def _check_join(path: str, kind: str, columns, join) -> None:
+    """What --join needs, said before either table is read: two raw tables, each with a time
+    column on the same clock, the second naming a sensor."""
+    if kind != "table":
+        raise UserError(f"{path}: an imucald {kind}: --join joins two raw tables (a recording holds "
+                        f"its sensors together already)")
+    if input_kind(join[0]) != "table":
+        raise UserError(f"--join {join[0]}: an imucald file; --join takes a raw table (its columns "
+                        f"named by --join-columns)")
+    for option, cols in (("--columns", columns or ()), ("--join-columns", join[1])):
+        if not any(c in TIME_COLUMNS_S_PER_UNIT for c in cols):
+            raise UserError(f"{option}: no time column: the two tables are joined by their time "
+                            f"stamps (t, t_ms, t_us or t_ns in --columns and --join-columns)")
+    if not any(c in COLUMNS and c != "t" for c in join[1]):
+        raise UserError(f"--join-columns {','.join(join[1])}: names no sensor column to join "
+                        f"(ax,ay,az, gx,gy,gz, mx,my,mz or temp)")
+
+
 #: a joined table's row is held for the first table's rows up to this many of its own sample
-#: periods after it, past its last row (beyond: the first table's rows are dropped)
+#: periods after it (past its last row, or across a gap in it: beyond, those rows are dropped)
 JOIN_HOLD_PERIODS = 1.5
 
 
 def join_tables(rec: Recording, path: str, other: Recording, other_path: str) -> Recording:
     """``rec`` (the table at ``path``) with the sensors of ``other`` (the table at
-    ``other_path``) added: each row takes ``other``'s latest row at or before its time (row for
-    row when the two share time stamps, as IMU-TK's xsens_acc.mat and xsens_gyro.mat do; the
-    slower chip's reading held otherwise, as a logger writing each chip to its own file gives
-    it).  Rows outside ``other``'s span are dropped, with a warning.  Both tables need a time
-    column on the same clock (load_input checks); a sensor (or the temperature) in both is
-    refused."""
+    ``other_path``) added: row for row when the two have the same time stamps (IMU-TK's
+    xsens_acc.mat and xsens_gyro.mat); otherwise each row takes ``other``'s latest row at or
+    before its time, held for at most JOIN_HOLD_PERIODS of ``other``'s sample periods (a
+    slower chip logged to its own file).  Rows with no such row (outside ``other``'s times, or
+    in a gap in them) are dropped, with a warning.  Both tables have time columns on the same
+    clock (load_input checks); a sensor (or the temperature) in both is refused."""
     both = [g for g in ("acc", "gyro", "mag", "temp") if getattr(rec, g) is not None and getattr(other, g) is not None]
     if both:
         raise UserError(f"--join {other_path}: {_JOIN_NAMES[both[0]]} columns in both tables: "
                         f"- in --columns or --join-columns leaves one out")
-    hold = JOIN_HOLD_PERIODS / other.rate_hz
-    j = np.searchsorted(other.t, rec.t, side="right") - 1
-    keep = (j >= 0) & (rec.t <= other.t[-1] + hold)
+    if np.array_equal(rec.t, other.t):
+        keep, j = np.ones(len(rec.t), bool), np.arange(len(rec.t))
+    else:
+        hold_s = JOIN_HOLD_PERIODS / other.rate_hz
+        j = np.searchsorted(other.t, rec.t, side="right") - 1
+        keep = j >= 0
+        keep[keep] = rec.t[keep] - other.t[j[keep]] <= hold_s
     if not keep.any():
         raise UserError(f"--join {other_path}: its times ({other.t[0]:.6g}..{other.t[-1]:.6g} s) "
                         f"do not overlap {path}'s ({rec.t[0]:.6g}..{rec.t[-1]:.6g} s): the two "
                         f"tables must share a clock")
     if not keep.all():
-        warn(f"{path}: {int((~keep).sum())} of {len(keep)} rows outside the times of --join "
-             f"{other_path} dropped")
+        warn(f"{path}: {int((~keep).sum())} of {len(keep)} rows dropped: no row of --join {other_path} "
+             f"at their time or up to {JOIN_HOLD_PERIODS:g} of its sample periods before (outside its "
+             f"times, or in a gap in them)")
     j = j[keep]
     pick = lambda a, b: a[keep] if a is not None else (b[j] if b is not None else None)
     meta = dict(rec.meta, source=f"{rec.meta.get('source', '')}+{other.meta.get('source', '')}")

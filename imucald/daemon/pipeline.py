@@ -300,6 +300,12 @@ class Pipeline:
             return
         if np.isfinite(iv.temp):
             self.temp_range = [min(self.temp_range[0], iv.temp), max(self.temp_range[1], iv.temp)]
+        if iv.continues and what == "refined":
+            # the next piece of a rest already reported (cut at max_pose_s): its pose is refined
+            # without a line (and a new hint) every max_pose_s while the board rests
+            log.debug("the rest goes on: its pose refined by %.1f s more", iv.t1 - iv.t0)
+            self.persist("poses", self.acc.pose_set())
+            return
         cov = self.acc.coverage()
         need = self.cfg["calibration"]["min_poses"]
         # the hint moves through the missing orientations (fitting/judging/coverage.py)

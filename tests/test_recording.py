@@ -368,8 +368,9 @@ def test_join_holds_a_slower_chips_file_beside_the_first_tables_rows(tmp_path, c
     the latest row of the second at or before its time (the same stamps: row for row).
     Here a magnetometer file at a quarter of the rate, starting 0.25 s later: each row gets
     the mag row whose time is the last not after its own, exactly; the two rows before the
-    magnetometer's first are dropped, with a warning; so are the rows in a 2-s hole in its file
-    (its last reading is held for 1.5 of its periods, not across the hole); two tables with
+    magnetometer's first are dropped, with a warning; so are the rows in a 5-s hole in its file
+    (its last reading is held for 1.5x its usual longest step, not across the hole), but not
+    those between a logger's bursts (4 rows in 3 ms every 2 s: the usual step); two tables with
     the same stamps, one repeated, pair row for row.  Refused in one line each: a sensor in
     both tables, times that do not overlap, a table without a time column, a joined table
     naming no sensor or an unknown column (named as --join-columns'), --join without
@@ -389,12 +390,21 @@ def test_join_holds_a_slower_chips_file_beside_the_first_tables_rows(tmp_path, c
     assert np.array_equal(rec.t, t[2:]) and np.array_equal(rec.gyro[:, 0], np.arange(2, 40))
     assert np.array_equal(rec.mag[:, 0], (np.arange(2, 40) - 2) // 4)      # held, exactly
     assert "2 of 40 rows dropped: no row of --join" in capsys.readouterr().err
-    # a 2-s hole in the magnetometer's file: its last reading is not held across it
-    hole = tmp_path / "hole.csv"
-    hole.write_text("".join(f"{x:.17g},{k},0.2,-0.4\n" for k, x in enumerate(tm) if not 1.5 < x < 3.5))
-    _, rec = load_input(str(a), cols, join=(str(hole), mcols))
-    assert not np.any((rec.t > 1.5 + 0.75) & (rec.t < 3.5))              # 1.5 periods of 0.5 s
+    # a 5-s hole in a minute of the magnetometer's file: its last reading is not held across it
+    # (held 1.5x its usual longest step, 0.5 s); a logger's bursts are usual steps, not holes
+    t8 = np.arange(480) * 0.125
+    a8, hole, burst = tmp_path / "a8.csv", tmp_path / "hole.csv", tmp_path / "burst.csv"
+    a8.write_text("".join(f"{x:.17g},0,0,1,{i},0,0\n" for i, x in enumerate(t8)))
+    t2 = t8[::4]
+    hole.write_text("".join(f"{x:.17g},{k},0.2,-0.4\n" for k, x in enumerate(t2) if not 20 < x < 25))
+    _, rec = load_input(str(a8), cols, join=(str(hole), mcols))
+    assert not np.any((rec.t > 20.0 + 0.75) & (rec.t < 25)) and np.sum(rec.t <= 20.75) == 167
     assert "rows dropped" in capsys.readouterr().err
+    tb = np.repeat(t8[::16], 4) + np.tile([0, 0.001, 0.002, 0.003], 30)   # 4 rows in 3 ms, every 2 s
+    burst.write_text("".join(f"{x:.17g},{k},0.2,-0.4\n" for k, x in enumerate(tb)))
+    _, rec = load_input(str(a8), cols, join=(str(burst), mcols))
+    i = np.arange(480)          # a row at a burst's first stamp takes that row, the others its last
+    assert len(rec.t) == 480 and np.array_equal(rec.mag[:, 0], (i // 16) * 4 + np.where(i % 16, 3, 0))
     # the same stamps, one of them repeated: row for row
     dup = np.r_[t[:10], t[9:39]]
     a2, g2 = tmp_path / "a2.csv", tmp_path / "g2.csv"

@@ -404,6 +404,9 @@ class Calibration:
         """Why this calibration does not belong to the running board (None: it does)."""
         if self.sensor and sensor and self.sensor != sensor:
             return f"made on sensor {self.sensor}, this is sensor {sensor}"
+        if self.board == "unknown" and board != "unknown":
+            return (f"made from a raw table that named no board; this is {board!r}: calibrate it again "
+                    f"with --board {board}")
         if self.board != board:
             return f"made for board {self.board!r}, this is {board!r}"
         for k, v in (chips or {}).items():

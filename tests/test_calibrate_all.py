@@ -59,6 +59,8 @@ def test_all_gives_the_separate_commands_results_on_the_real_xsens(xsens_merged,
     acc = json.loads(cli("calibrate", xsens_merged, "--sensor", "accel", "--json").stdout)
     gyr = json.loads(cli("calibrate", xsens_merged, "--sensor", "gyro", "--json").stdout)
     assert all_["parts"] == ["accel", "gyro"] and "mag" in all_["skipped"]
+    # each part is the object --sensor accel|gyro --json prints: the detection too (it was missing)
+    assert all_["accel"]["stillness"] == acc["stillness"] and all_["gyro"]["stillness"] == gyr["stillness"]
     for g in acc["params"]:
         assert _over_se(all_["accel"]["params"][g], acc["params"][g], acc["stderr"][g]) < 0.1, g
     ra, rg = all_["gyro"]["rotations"], gyr["rotations"]
@@ -276,3 +278,48 @@ def test_imutk_two_files_joined_give_the_merged_recordings_calibration(xsens_mer
     ra, rm = joined["gyro"]["rotations"], merged["gyro"]["rotations"]
     assert _over_se(ra["matrix"], rm["matrix"], rm["matrix_stderr"]) < 0.01
     assert _over_se(ra["g_sens_dps_per_g"], rm["g_sens_dps_per_g"], rm["g_sens_stderr"]) < 0.01
+
+
+def test_a_raw_tables_calibration_names_its_board_for_the_daemon(tmp_path):
+    """A calibration made from a logger's file said board 'unknown', and a daemon on the
+    board it came from set it aside as 'calibration of another sensor (made for board
+    'unknown', this is 'mpu6050')' with no way out (a new user's walk-through).  ``--board``
+    names a raw table's board: the file then carries it and its chips, and the daemon's
+    identity check passes; without it, the check says to calibrate again with --board.  A
+    recording's header names its own board, so --board without --columns is refused.
+    Broken once: --board not passed to the table (the file says 'unknown': fails)."""
+    from imucald.calibration import load
+    from imucald.files.recording import read_recording
+    rec = tmp_path / "sim.csv"
+    cli("simulate", "-o", rec, "--poses", "14", "--hold", "3", "--move", "1", "--seed", 5)
+    r = read_recording(str(rec))
+    table = tmp_path / "log.csv"
+    np.savetxt(table, np.column_stack([r.t, r.acc, r.gyro]), delimiter=",", fmt="%.9g")
+    raw = ["--columns", "t,ax,ay,az,gx,gy,gz"]
+    cli("calibrate", table, *raw, "--sensor", "all", "--board", "mpu6050", "-o", tmp_path / "named.yaml")
+    cli("calibrate", table, *raw, "--sensor", "all", "-o", tmp_path / "unnamed.yaml")
+    named, unnamed = load(tmp_path / "named.yaml"), load(tmp_path / "unnamed.yaml")
+    chips = {"accel": "mpu6050", "gyro": "mpu6050"}
+    assert named.board == "mpu6050" and named.chips == chips and named.mismatch("mpu6050", chips) is None
+    assert unnamed.board == "unknown" and "calibrate it again with --board mpu6050" in unnamed.mismatch("mpu6050", chips)
+    p = cli("calibrate", rec, "--board", "mpu6050", check=False)
+    assert p.returncode == 2 and "--board mpu6050: names the board of a raw table" in p.stderr
+
+
+def test_all_says_why_no_still_pose_was_found(tmp_path):
+    """``--sensor all`` on a recording without a still moment said only 'only 0 still poses
+    found', where ``--sensor accel`` says why (the quietest windows' scatter against what a
+    still chip can show, or the quiet stretches rejected and why): a new user's walk-through
+    on the sunsided full-sphere file.  Now the same reason.  Broken once: the old short
+    reason back (fails)."""
+    rng = np.random.default_rng(2)
+    t = np.arange(3000) / 100.0
+    acc = np.array([0, 0, 1.0]) + rng.normal(0, 0.05, (3000, 3))          # 50 mg: never still
+    table = tmp_path / "shaken.csv"
+    np.savetxt(table, np.column_stack([t, acc, rng.normal(0, 5, (3000, 3))]), delimiter=",", fmt="%.6g")
+    raw = ["--columns", "t,ax,ay,az,gx,gy,gz"]
+    one = cli("calibrate", table, *raw, check=False)
+    every = cli("calibrate", table, *raw, "--sensor", "all", check=False)
+    assert one.returncode == every.returncode == 2
+    why = one.stderr.strip().split("no still moment: ")[1]
+    assert "the quietest 1 s windows scatter" in why and why in every.stderr

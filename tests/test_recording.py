@@ -222,7 +222,8 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     ("ax,ay,az", 1.0, "0,0,9.81", "g after --nominal-scale (none given): m/s^2? give --nominal-scale accel=9.80665"),
     ("ax,ay,az", 16384.0, "0,0,1.0", "g after --nominal-scale: already in g? then leave --nominal-scale out"),
     ("mx,my,mz", 1.0, "20,-5,-40", "gauss after --nominal-scale (none given): microtesla (--nominal-scale mag=100)"),
-    ("mx,my,mz", 1.0, "218,-55,-436", "gauss after --nominal-scale (none given): raw counts or milligauss?")])
+    ("mx,my,mz", 1.0, "218,-55,-436", "gauss after --nominal-scale (none given): raw counts or milligauss?"),
+    ("mx,my,mz", 1090.0, "0.2,-0.05,-0.4", "gauss after --nominal-scale: already in gauss? then leave its")])
 def test_a_raw_table_in_other_units_is_warned_of(tmp_path, capsys, cols, scale, rows, why):
     """Counts read without --nominal-scale (a newcomer's first try), m/s^2, a scale given to
     a file already in g, microtesla: each read as plausible-looking numbers that the fit then
@@ -230,8 +231,9 @@ def test_a_raw_table_in_other_units_is_warned_of(tmp_path, capsys, cols, scale, 
     apply wrote out in silence.  Judged on the median magnitude (about 1 g at rest and in a
     hand's motion; Earth's field 0.25-0.65 gauss): one warning line naming the scale to give.
     A warning, not a refusal: a centrifuge, free fall or a sensor the command does not use
-    is no error.  1 g and 0.5 gauss say nothing.  Broken once: _unit_warnings returning none
-    (5 of 5 fail)."""
+    is no error.  1 g and 0.5 gauss say nothing.  A magnetometer file already in gauss given
+    the HMC5883L's 1090 failed as 'only 0 direction cells: rotate the sensor' (a new user's
+    walk-through).  Broken once: _unit_warnings returning none (6 of 6 fail)."""
     from imucald.fitting.inputs import read_table
     rng = np.random.default_rng(0)
     base = np.array([float(x) for x in rows.split(",")])
@@ -352,7 +354,7 @@ def test_table_nominal_scale_and_offset_per_sensor(tmp_path):
     msg = _one_line_error(read_table, str(p), cols, {"accel": 16384.0, "gyro": 0.0}, 0.0, cls=UserError)
     assert "--nominal-scale 0 (gyro): must be a finite, non-zero number" in msg
     import argparse
-    for bad, what in (("accel=16384,gyr=131", "expected accel=N, gyro=N and mag=N"),
+    for bad, what in (("accel=16384,gyr=131", "expected accel=N, gyro=N, mag=N and temp=N"),
                       ("accel=1,accel=2", "each at most once"),
                       ("accel=x,gyro=131", "'accel=x' in 'accel=x,gyro=131': 'x' is not a number"),
                       ("inf", "inf is not a finite number \\(one for every sensor, or accel=N"),
@@ -360,6 +362,31 @@ def test_table_nominal_scale_and_offset_per_sensor(tmp_path):
         with pytest.raises(argparse.ArgumentTypeError, match=what):
             per_sensor(bad)
     assert per_sensor("4069.76") == 4069.76
+
+
+def test_table_temperature_in_counts_is_converted_when_named_and_warned_of_otherwise(tmp_path, capsys):
+    """An MPU-6050 logger's temperature column is its TEMP_OUT register (the FreeIMU file's
+    dTemp): read as degC it gave 'thermal (-7822.8..-2595.8 degC ...)' with exit 0, and no
+    option converted it (a new user's walk-through).  ``temp=N`` in --nominal-scale and
+    --nominal-offset converts it (temp=340 and temp=-12420.2: the datasheet's T = counts /
+    340 + 36.53), a mapping naming only temp leaves the sensors at 1 and 0, one number leaves
+    the temperature as it is, and a median outside any die's range (-60..150 degC) is warned
+    of, naming the conversion.  Broken once each: the conversion skipped, the warning removed
+    (fail)."""
+    from imucald.cli.checks import per_sensor
+    from imucald.fitting.inputs import read_table
+    counts = np.linspace(-8000, -2600, 50)                 # 13.0 .. 28.9 degC
+    p = tmp_path / "t.csv"
+    p.write_text("".join(f"{i * 10},0,0,16384,{c:.0f}\n" for i, c in enumerate(counts)))
+    cols = ["t_ms", "ax", "ay", "az", "temp"]
+    rec = read_table(str(p), cols, per_sensor("accel=16384,temp=340"), per_sensor("temp=-12420.2"))
+    np.testing.assert_allclose(rec.temp, np.round(counts) / 340 + 36.53, rtol=0, atol=1e-9)
+    assert np.allclose(rec.acc, [0, 0, 1]) and capsys.readouterr().err == ""
+    rec = read_table(str(p), cols, 16384.0, 0.0)
+    assert np.array_equal(rec.temp, np.round(counts))
+    err = capsys.readouterr().err
+    assert "the temperature reads a median of -5300 degC, outside any die's: raw counts? give " \
+           "--nominal-scale temp=N and --nominal-offset temp=N" in err
 
 
 def test_join_holds_a_slower_chips_file_beside_the_first_tables_rows(tmp_path, capsys):

@@ -59,18 +59,20 @@ class TableReader:
 
 def read_input(args, path: str):
     """(kind, obj) of the file a command reads (fitting.inputs.load_input), with the raw-table
-    options it was given: --columns, --nominal-scale, --nominal-offset, --rate-hz and --join
-    with --join-columns."""
+    options it was given: --columns, --nominal-scale, --nominal-offset, --rate-hz, --join
+    with --join-columns, and --board."""
     from ..fitting.inputs import load_input
     columns = args.columns.split(",") if getattr(args, "columns", None) else None
     join = (args.join, args.join_columns.split(",")) if getattr(args, "join", None) else None
-    return load_input(path, columns, args.nominal_scale, args.nominal_offset, args.rate_hz, join)
+    return load_input(path, columns, args.nominal_scale, args.nominal_offset, args.rate_hz, join,
+                      getattr(args, "board", None))
 
 
 def input_recording(args, path: str, whole: bool = True):
     """The recording a command reads: an imucald recording (whatever ``--columns`` says: its
     header names its board, which apply checks), or with ``--columns`` a raw table
-    (``--nominal-scale``, ``--nominal-offset``, ``--rate-hz``; ``--join``: a second one joined).
+    (``--nominal-scale``, ``--nominal-offset``, ``--rate-hz``, ``--board``; ``--join``: a second
+    one joined).
     ``whole``: the Recording; else a reader (a recording streamed block by block, a table read
     whole)."""
     if getattr(args, "columns", None):

@@ -76,6 +76,12 @@ def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
     out["accel"], acc_fit = _accel(args, rec, poses, pieces, progress)
     out["mag"], mag_fit = _mag(args, rec, progress)
     out["gyro"] = _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress)
+    if poses is not None and poses.detector is not None:
+        # each pose-based part's object is --sensor accel|gyro --json's, the detection included
+        from .offline import stillness_json
+        for s in ("accel", "gyro"):
+            if "json" in out[s]:
+                out[s]["json"]["stillness"] = stillness_json(poses.detector)
     return out
 
 
@@ -98,6 +104,10 @@ def _accel(args, rec, poses, pieces, progress):
     why = _unusable(rec.acc, "accel", "no accelerometer columns (ax, ay, az)")
     if why:
         return {"skipped": why}, None
+    if not len(poses):
+        # why none (the quiet windows' scatter, the quiet stretches rejected), as --sensor accel says
+        from ..fitting.stillness.poses import no_still_message
+        return {"skipped": no_still_message(args.input, poses.detector, 0)}, None
     if len(poses) < 10:
         return {"skipped": f"only {len(poses)} still poses found; the 9-parameter model needs at least "
                            f"10 (about 25 recommended), well spread over the sphere"}, None

@@ -51,7 +51,8 @@ def positive_float(text: str) -> float:
 
 def per_sensor(text: str) -> "float | dict[str, float]":
     """argparse type of --nominal-scale / --nominal-offset: one finite number for every sensor
-    column, or one per sensor as ``accel=16384,gyro=131`` (accel, gyro, mag), a dict."""
+    column, or one per sensor as ``accel=16384,gyro=131`` (accel, gyro, mag; and temp, a
+    temperature column in counts, which one number leaves as it is), a dict."""
     if "=" not in text:
         try:
             return finite_float(text)
@@ -61,9 +62,9 @@ def per_sensor(text: str) -> "float | dict[str, float]":
     for part in text.split(","):
         key, _, val = part.partition("=")
         key = key.strip()
-        if key not in ("accel", "gyro", "mag") or key in out:
+        if key not in ("accel", "gyro", "mag", "temp") or key in out:
             raise argparse.ArgumentTypeError(
-                f"{part!r} in {text!r}: expected accel=N, gyro=N and mag=N, each at most once")
+                f"{part!r} in {text!r}: expected accel=N, gyro=N, mag=N and temp=N, each at most once")
         try:
             out[key] = finite_float(val)
         except argparse.ArgumentTypeError as e:
@@ -204,8 +205,12 @@ def output_dir(path: str, flag: str) -> None:
         raise CannotCreate(f"{flag} {path}: {top} is not writable by this user")
 
 
-def _check_join(args) -> None:
-    """--join and --join-columns come together, beside --columns (a raw table's)."""
+def _check_raw_table(args) -> None:
+    """--join and --join-columns come together, beside --columns (a raw table's); so does
+    --board (a recording's header names its board)."""
+    if args.board and not args.columns:
+        raise UserError(f"--board {args.board}: names the board of a raw table: give its --columns too "
+                        f"(an imucald recording's header names its board)")
     if args.join and not args.join_columns:
         raise UserError(f"--join {args.join}: name its columns with --join-columns, e.g. t,gx,gy,gz")
     if args.join_columns and not args.join:
@@ -250,7 +255,7 @@ def check_args(args) -> None:
     if cmd == "simulate":
         _check_simulation_size(args)
     if hasattr(args, "join"):
-        _check_join(args)
+        _check_raw_table(args)
     if cmd in ("calibrate", "noise") and "-" in (getattr(args, "output", None), getattr(args, "kalibr", None)):
         import sys
         from ..files import atomic

@@ -330,10 +330,7 @@ def _calibrate_json(sensor, cal, det, rec, rot, why, part, tf) -> dict:
     file holds and the thermal terms."""
     d = cal.to_json()
     if det is not None:     # the still-pose detection behind the fit (issue 20)
-        rp = det.repeats
-        d["stillness"] = {"effective_rate_hz": round(float(det.rate), 4), "repeated_rows": int(rp.repeated),
-                          "held": bool(rp.held), "duplicated_timestamps": int(rp.duplicated_t),
-                          "rejected": dict(det.rejected_counts)}
+        d["stillness"] = stillness_json(det)
     if rec is not None and sensor == "gyro":
         from .gyrorot import rotation_json
         d["rotations"] = rotation_json(rot, why)
@@ -344,6 +341,14 @@ def _calibrate_json(sensor, cal, det, rec, rot, why, part, tf) -> dict:
         from .thermal import thermal_json
         d["thermal"] = thermal_json(sensor, tf)
     return d
+
+
+def stillness_json(det) -> dict:
+    """calibrate --json's ``stillness``: the still-pose detection behind a fit (issue 20)."""
+    rp = det.repeats
+    return {"effective_rate_hz": round(float(det.rate), 4), "repeated_rows": int(rp.repeated),
+            "held": bool(rp.held), "duplicated_timestamps": int(rp.duplicated_t),
+            "rejected": dict(det.rejected_counts)}
 
 
 def _print_report(sensor, cal, rec, rot, why, part, tf) -> None:

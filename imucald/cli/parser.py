@@ -117,7 +117,11 @@ def _raw_table_options(p, example: str) -> None:
 
 
 def _join_options(p) -> None:
-    """--join and --join-columns: a second raw table of the same session (fitting.inputs.join_tables)."""
+    """--join and --join-columns: a second raw table of the same session (fitting.inputs.join_tables);
+    --board: the board a raw table was logged from."""
+    p.add_argument("--board", choices=_choices("sensor.board"),
+                   help="raw table: the board it was logged from, written into the calibration file "
+                        "(a daemon on that board loads it; without it the file says board 'unknown')")
     p.add_argument("--join", metavar="FILE",
                    help="raw table: a second table of the same session (its columns by --join-columns), "
                         "its sensors joined to the first's by time, e.g. IMU-TK's xsens_gyro.mat beside "

@@ -99,10 +99,11 @@ def _numeric(parts) -> bool:
 
 def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0,
                nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None,
-               flag: str = "--columns") -> Recording:
+               flag: str = "--columns", board: Optional[str] = None) -> Recording:
     """A headerless numeric table as a Recording (units after nominal scaling).  ``flag``:
     the option that named its columns, in messages (``--join-columns`` for a table joined to
-    another: it takes no --rate-hz, so its time stamps must place its rows)."""
+    another: it takes no --rate-hz, so its time stamps must place its rows).  ``board``: the
+    board it was logged from (--board), else 'unknown'."""
     cols = list(columns)
     allowed = COLUMNS + [k for k in TIME_COLUMNS_S_PER_UNIT if k not in COLUMNS]
     bad = [c for c in cols if c not in allowed and c != "-"]
@@ -117,8 +118,8 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         raise UserError(f"{flag}: two time columns ({', '.join(times)}): name one, and - for the other")
     t_name = times[0] if times else None
     present = [g for g, ks in _GROUP_COLUMNS.items() if any(k in cols for k in ks)]
-    scales = _per_sensor(nominal_scale, "--nominal-scale", present, cols)
-    offsets = _per_sensor(nominal_offset, "--nominal-offset", present, cols)
+    scales = _per_sensor(nominal_scale, "--nominal-scale", present, cols, 1.0)
+    offsets = _per_sensor(nominal_offset, "--nominal-offset", present, cols, 0.0)
     for g in present:
         if not math.isfinite(scales[g]) or scales[g] == 0:
             raise UserError(f"--nominal-scale {scales[g]:g} ({_NAMES[g]}): must be a finite, non-zero "
@@ -151,6 +152,8 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         if g in c:
             c[g] -= offsets[g]
             c[g] /= scales[g]
+    if "temp" in c:     # counts only when named (temp=N): one number is for the sensors' columns
+        c["temp"] = _temp_units(c["temp"], nominal_scale, nominal_offset)
     for msg in _unit_warnings(path, c, nominal_scale):
         warn(msg)
     if t_name:
@@ -161,7 +164,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
             raise UserError(f"{path}: no time column (t, t_ms, t_us or t_ns): give --rate-hz")
         rate = rate_hz
         t = np.arange(n) / rate
-    meta = {"board": "unknown", "rate_hz": f"{rate:g}", "source": os.path.basename(path)}
+    meta = {"board": board or "unknown", "rate_hz": f"{rate:g}", "source": os.path.basename(path)}
     return Recording(t=t, acc=c.get("acc"), gyro=c.get("gyro"), mag=c.get("mag"),
                      temp=c.get("temp"), meta=meta)
 
@@ -193,13 +196,27 @@ def _first_row(fh, path: str, cols: Sequence[str]):
         lineno, offset = lineno + 1, offset + len(raw)
 
 
-def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str]) -> dict:
-    """``value`` of ``option`` (one number for every sensor, or a mapping accel/gyro/mag ->
+def _temp_units(temp: np.ndarray, nominal_scale: PerSensor, nominal_offset: PerSensor) -> np.ndarray:
+    """A temperature column in degC: (counts - temp offset) / temp scale when --nominal-scale or
+    --nominal-offset names ``temp`` (an MPU-6050's TEMP_OUT: temp=340 and temp=-12420.2, its
+    datasheet's T = counts / 340 + 36.53), else as it is."""
+    scale = nominal_scale.get("temp", 1.0) if isinstance(nominal_scale, dict) else 1.0
+    offset = nominal_offset.get("temp", 0.0) if isinstance(nominal_offset, dict) else 0.0
+    if scale == 0:
+        raise UserError("--nominal-scale temp=0: must be a finite, non-zero number (counts per degC)")
+    return (temp - offset) / scale if (scale, offset) != (1.0, 0.0) else temp
+
+
+def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str], default: float) -> dict:
+    """``value`` of ``option`` (one number for every sensor, or a mapping accel/gyro/mag/temp ->
     number) for each sensor group in ``present``: a mapping must name every sensor whose
     columns the table has (one accelerometer scale left on a gyro's counts reads 131 counts
-    per deg/s as 1 deg/s a count, a plausible but wrong number)."""
+    per deg/s as 1 deg/s a count, a plausible but wrong number), unless it names none of them
+    (temp alone: the sensors take ``default``)."""
     if not isinstance(value, dict):
         return {g: float(value) for g in present}
+    if not any(k in value for k in _NAMES.values()):
+        return {g: default for g in present}
     for g in present:
         if _NAMES[g] not in value:
             have = ",".join(k for k in _GROUP_COLUMNS[g] if k in cols)
@@ -212,9 +229,13 @@ def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str])
 #: hand's motion; at or above the first, counts (or mg) read as g; between the next two, m/s^2;
 #: below the last, with a scale given, a file already in g divided by it
 ACC_MEDIAN_COUNTS_G, ACC_MEDIAN_SI_G, ACC_MEDIAN_TINY_G = 20.0, (8.8, 10.8), 0.1
+#: a die temperature's plausible median, degC (every supported chip's operating range, -40..85,
+#: with margin): outside it, counts (an MPU-6050's TEMP_OUT) read as degC
+TEMP_MEDIAN_RANGE_C = (-60.0, 150.0)
 #: the same of the magnetometer, gauss (Earth's field 0.25-0.65): at or above the first, counts
-#: or milligauss; from the second, microtesla or counts at a low gain (230-390 per gauss)
-MAG_MEDIAN_COUNTS_GAUSS, MAG_MEDIAN_UT_GAUSS = 200.0, 10.0
+#: or milligauss; from the second, microtesla or counts at a low gain (230-390 per gauss);
+#: below the last, with a scale given, a file already in gauss divided by it
+MAG_MEDIAN_COUNTS_GAUSS, MAG_MEDIAN_UT_GAUSS, MAG_MEDIAN_TINY_GAUSS = 200.0, 10.0, 0.05
 
 
 def _median_norm(x: np.ndarray) -> float:
@@ -224,7 +245,8 @@ def _median_norm(x: np.ndarray) -> float:
 def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
     """Warnings for a raw table's accelerometer and magnetometer in units other than those the
     fit takes (g, gauss), by the median magnitude of their rows: counts without
-    --nominal-scale, m/s^2, microtesla, a scale given to a file already in g.  Each reads as
+    --nominal-scale, m/s^2, microtesla, a scale given to a file already in g or gauss; and a
+    temperature column in counts (its median outside any die's range).  Each reads as
     plausible numbers that a fit then fails on ('no still moment: hold the board still') or
     that apply writes out; a warning, not a refusal, since a centrifuge, free fall or a table
     whose other sensors the command does not use is no error (a cold review)."""
@@ -251,6 +273,15 @@ def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
         elif m >= MAG_MEDIAN_UT_GAUSS:
             out.append(f"{say}: microtesla (--nominal-scale mag=100) or counts at a low gain (mag=N, "
                        f"its counts per gauss: 230-390 for an HMC5883L's lower gains)?")
+        elif m < MAG_MEDIAN_TINY_GAUSS and not given:
+            out.append(f"{say}: already in gauss? then leave its --nominal-scale out (mag=1)")
+    temp = c.get("temp")
+    if temp is not None and np.isfinite(temp).any():
+        m = float(np.nanmedian(temp))
+        if not TEMP_MEDIAN_RANGE_C[0] <= m <= TEMP_MEDIAN_RANGE_C[1]:
+            out.append(f"{path}: the temperature reads a median of {m:.5g} degC, outside any die's: "
+                       f"raw counts? give --nominal-scale temp=N and --nominal-offset temp=N (an "
+                       f"MPU-6050: temp=340 and temp=-12420.2, from T = counts / 340 + 36.53)")
     return out
 
 
@@ -321,14 +352,18 @@ def input_kind(path: str) -> str:
 
 def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: PerSensor = 1.0,
                nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None,
-               join: Optional[tuple] = None):
+               join: Optional[tuple] = None, board: Optional[str] = None):
     """Return (kind, obj): ('recording', Recording) or ('poses', PoseSet).  An imucald file is
     read as what it is, whatever ``columns`` say.  ``join``: (path, columns) of a second raw
     table of the same session whose sensors are joined to the first's (:func:`join_tables`;
-    the same nominal scale and offset, per sensor)."""
+    the same nominal scale and offset, per sensor).  ``board``: a raw table's board."""
     kind = input_kind(path)
     if join is not None:
         _check_join(path, kind, columns, join)
+    if board is not None and (kind != "table" or columns is None):
+        raise UserError(f"--board {board}: names the board of a raw table (read with --columns); "
+                        f"{path} is " + (f"an imucald {kind}, whose header names its board"
+                                         if kind != "table" else "read without --columns"))
     if kind == "recording":
         return "recording", read_recording(path)
     if kind == "poses":
@@ -336,7 +371,7 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
     if columns is None:
         raise UserError(f"{path}: not an imucald recording or pose file; for a raw numeric "
                         f"table name its columns, e.g. --columns t,ax,ay,az")
-    rec = read_table(path, columns, nominal_scale, nominal_offset, rate_hz)
+    rec = read_table(path, columns, nominal_scale, nominal_offset, rate_hz, board=board)
     if join is not None:
         other = read_table(join[0], join[1], nominal_scale, nominal_offset, flag="--join-columns")
         rec = join_tables(rec, path, other, join[0])

@@ -153,8 +153,9 @@ def test_recalibrate_refuses_up_front_with_the_poses_needed_and_status_says_prov
 def test_replay_starts_from_the_calibration_in_the_state_dir(tmp_path, capsys):
     """replay --state-dir D starts from D/calibration.yaml, as the daemon does: a gyro file
     from calibrate --sensor gyro keeps its K and G through the replay's calibrations (it was
-    overwritten by a bias-only id 1); a file for another board is refused in one line and
-    left as it is."""
+    overwritten by a bias-only id 1), and the file it started from goes to D/history, not
+    lost; a file for another board is refused in one line and left as it is.  Broken once:
+    the start's copy to history removed (fails)."""
     from imucald.calibration import load
     rec, d = tmp_path / "r.csv", tmp_path / "st"
     d.mkdir()
@@ -169,6 +170,9 @@ def test_replay_starts_from_the_calibration_in_the_state_dir(tmp_path, capsys):
     assert after.id > before.id and after.accel is not None
     for k in ("matrix", "g_sens_dps_per_g"):
         assert np.array_equal(after.gyro.params[k], before.gyro.params[k]), k
+    # the file it started from is not lost: it was overwritten (a new user's walk-through)
+    kept = [load(f) for f in sorted((d / "history").iterdir())]
+    assert [c.id for c in kept] == [before.id, after.id] and kept[0].to_dict() == before.to_dict()
     text = (d / "calibration.yaml").read_text().replace("board: mpu6050", "board: 9dof")
     (d / "calibration.yaml").write_text(text)
     capsys.readouterr()

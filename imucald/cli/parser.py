@@ -236,7 +236,8 @@ def _add_run(rn) -> None:
 def _add_replay(rp) -> None:
     rp.add_argument("recording", help="recording, or raw table (with --columns)")
     _raw_table_options(rp, "t,ax,ay,az,gx,gy,gz,temp")
-    rp.add_argument("--state-dir", help="save the calibration reached as DIR/calibration.yaml")
+    rp.add_argument("--state-dir", help="start from DIR/calibration.yaml when there is one, and save the "
+                                        "calibration reached there (one it replaces is kept in DIR/history)")
     rp.add_argument("--config")
     rp.add_argument("--format", choices=_choices("output.format"))
     rp.add_argument("--orientation", choices=_choices("output.orientation"),

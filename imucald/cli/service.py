@@ -79,7 +79,6 @@ def cmd_replay(args) -> int:
     import numpy as np
 
     from ..daemon.pipeline import Pipeline
-    from ..daemon.state import save_calibration
     from ..drivers.board import SampleBatch
     from ._common import input_recording
     cfg, _ = daemon_config(args)
@@ -98,11 +97,10 @@ def cmd_replay(args) -> int:
                         has_acc=has_acc)
         pipe.use_noise_file(cfg["noise"]["file"])
         pipe.use_orientation(cfg["output"]["orientation"], has_gyro="gx" in cols)
-        if args.state_dir:      # as the daemon at start: from the calibration saved there
-            cal = _replay_start(args.state_dir, pipe.board, chips)
-            if cal is not None:
-                pipe.applied = cal
-                logging.getLogger("imucald").info("starting from calibration #%d (%s)", cal.id, cal.created)
+        start = _replay_start(args.state_dir, pipe.board, chips) if args.state_dir else None
+        if start is not None:   # as the daemon at start: from the calibration saved there
+            pipe.applied = start
+            logging.getLogger("imucald").info("starting from calibration #%d (%s)", start.id, start.created)
         out = sys.stdout.buffer
         from ..daemon.outputs import banner
         out.write(banner(cfg["output"]["format"], pipe.board, chips or None, pipe.orientation_off))
@@ -133,23 +131,38 @@ def cmd_replay(args) -> int:
             out.write(pipe.process(SampleBatch(*rows)))
         out.write(pipe.end_of_stream())
     out.flush()
-    if args.state_dir and pipe.applied.id:
-        os.makedirs(args.state_dir, exist_ok=True)
-        p = save_calibration(args.state_dir, pipe.applied, history=0)
-        logging.getLogger("imucald").info("calibration #%d saved to %s", pipe.applied.id, p)
-    elif args.state_dir and not pipe.has_acc:
-        logging.getLogger("imucald").info(
-            "no calibration was reached (magnetometer rotation coverage %.0f%%, %.0f%% needed, "
-            "turned in all three dimensions)", 100 * pipe.reservoir.coverage(),
-            100 * cfg["calibration"]["mag_min_coverage"])
-    elif args.state_dir:
+    if args.state_dir:
+        _replay_save(args.state_dir, pipe, start, cfg)
+    return 0
+
+
+def _replay_save(state_dir: str, pipe, start, cfg) -> None:
+    """The end of a replay with --state-dir: the calibration reached saved there (the one it
+    started from, if replaced, kept in DIR/history first: a calibrate -o copied in is not
+    lost), or why none was reached."""
+    import logging
+
+    from ..daemon.state import save_calibration
+    log = logging.getLogger("imucald")
+    if pipe.applied.id:
+        os.makedirs(state_dir, exist_ok=True)
+        kept = ""
+        if start is not None and pipe.applied.id != start.id:
+            save_calibration(state_dir, start)
+            kept = f" (the one it started from, #{start.id}, kept in {os.path.join(state_dir, 'history')})"
+        p = save_calibration(state_dir, pipe.applied, history=10 if kept else 0)
+        log.info("calibration #%d saved to %s%s", pipe.applied.id, p, kept)
+    elif not pipe.has_acc:
+        log.info("no calibration was reached (magnetometer rotation coverage %.0f%%, %.0f%% needed, "
+                 "turned in all three dimensions)", 100 * pipe.reservoir.coverage(),
+                 100 * cfg["calibration"]["mag_min_coverage"])
+    else:
         from ..daemon.pipeline import MIN_FIT_POSES
         n = len(pipe.acc)
         why = (f"{n} still pose{'' if n == 1 else 's'}; a first calibration needs {MIN_FIT_POSES} in different orientations"
                if n < MIN_FIT_POSES else f"{n} still poses, none of the fits beat the raw readings "
                f"significantly")
-        logging.getLogger("imucald").info("no calibration was reached (%s)", why)
-    return 0
+        log.info("no calibration was reached (%s)", why)
 
 
 def _replay_start(state_dir: str, board: str, chips):

@@ -92,3 +92,18 @@ def test_sunsided_ten_minutes_unmoved_accel_drifts_gyro_none_mag_not_diagnosable
     assert c[0] / se[0] < -4 and -6e-5 < c[0] < -1.5e-5
     # the board never turned: the magnetometer cannot be fitted, and the output says why
     assert "mag" not in res["sensors"] and any("mag: not diagnosed" in n for n in res["notes"])
+
+
+def test_tempsweep_summary_says_which_fits_were_made_beside_the_first_effect(tempsweep_result):
+    """The time-series path fits its candidates alone, then beside the first effect chosen:
+    the summary listed 'thermal_bias' twice for the gyro with different slopes and nothing
+    saying which was which (a new user's walk-through).  The second step's lines now say what
+    they were fitted beside, and within a sensor no line repeats another's label.  Broken
+    once: the label removed (fails)."""
+    from imucald.cli.gap import gap_summary
+    text = gap_summary(tempsweep_result)
+    assert "  wandering_bias (beside thermal_bias): ratio after" in text
+    assert "  thermal_bias (beside wandering_bias): ratio after" in text
+    for block in text.split("\ngyro: ")[0], text.split("\ngyro: ")[1]:
+        labels = [line.split(": ratio after")[0] for line in block.splitlines() if ": ratio after" in line]
+        assert len(labels) == len(set(labels)), labels

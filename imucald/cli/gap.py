@@ -44,6 +44,8 @@ def _effect_lines(r) -> list:
     alone = [ef for ef in r["effects"] if ef.get("significant") and ef["name"] not in named]
     for ef in alone:        # without members (the time-series path), the fits as they were made
         what = " (also significant alone)" if members else ""
+        if ef.get("step", 1) > 1:   # the time-series path's second step: beside the first's effect
+            what += f" (beside {'+'.join(r.get('chosen', [])[:ef['step'] - 1])})"
         lines.append(f"  {ef['name']}{what}: ratio after {ef['ratio_after']:.2f}, "
                      f"{_param_text(ef['params'], ef.get('stderr'))}")
     return lines

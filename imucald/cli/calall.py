@@ -107,7 +107,8 @@ def _accel(args, rec, poses, pieces, progress):
     if not len(poses):
         # why none (the quiet windows' scatter, the quiet stretches rejected), as --sensor accel says
         from ..fitting.stillness.poses import no_still_message
-        return {"skipped": no_still_message(args.input, poses.detector, 0)}, None
+        why = no_still_message(args.input, poses.detector, 0)
+        return {"skipped": why[len(args.input) + 2:] if why.startswith(f"{args.input}: ") else why}, None
     if len(poses) < 10:
         return {"skipped": f"only {len(poses)} still poses found; the 9-parameter model needs at least "
                            f"10 (about 25 recommended), well spread over the sphere"}, None

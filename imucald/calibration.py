@@ -405,8 +405,11 @@ class Calibration:
         if self.sensor and sensor and self.sensor != sensor:
             return f"made on sensor {self.sensor}, this is sensor {sensor}"
         if self.board == "unknown" and board != "unknown":
-            return (f"made from a raw table that named no board; this is {board!r}: calibrate it again "
-                    f"with --board {board}")
+            return (f"its file names no board ('unknown': from a raw table read without --board); this "
+                    f"is {board!r}: calibrate it again with --board {board}")
+        if board == "unknown" and self.board != "unknown":
+            return (f"made for board {self.board!r}, and this input names none (a raw table: give "
+                    f"--board {self.board} if it was logged from one)")
         if self.board != board:
             return f"made for board {self.board!r}, this is {board!r}"
         for k, v in (chips or {}).items():

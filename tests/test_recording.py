@@ -369,10 +369,11 @@ def test_table_temperature_in_counts_is_converted_when_named_and_warned_of_other
     dTemp): read as degC it gave 'thermal (-7822.8..-2595.8 degC ...)' with exit 0, and no
     option converted it (a new user's walk-through).  ``temp=N`` in --nominal-scale and
     --nominal-offset converts it (temp=340 and temp=-12420.2: the datasheet's T = counts /
-    340 + 36.53), a mapping naming only temp leaves the sensors at 1 and 0, one number leaves
-    the temperature as it is, and a median outside any die's range (-60..150 degC) is warned
-    of, naming the conversion.  Broken once each: the conversion skipped, the warning removed
-    (fail)."""
+    340 + 36.53), an offset naming only temp leaves the sensors at 0, one number leaves the
+    temperature as it is, and a median outside any die's range (-60..150 degC) is warned of,
+    naming the conversion.  Refused: one of the two without the other, a scale naming temp
+    alone beside a sensor's columns, a scale <= 0.  Broken once each: the conversion skipped,
+    the warning removed, the scale-without-offset check removed (fail)."""
     from imucald.cli.checks import per_sensor
     from imucald.fitting.inputs import read_table
     counts = np.linspace(-8000, -2600, 50)                 # 13.0 .. 28.9 degC
@@ -387,6 +388,19 @@ def test_table_temperature_in_counts_is_converted_when_named_and_warned_of_other
     err = capsys.readouterr().err
     assert "the temperature reads a median of -5300 degC, outside any die's: raw counts? give " \
            "--nominal-scale temp=N and --nominal-offset temp=N" in err
+    # a cold review: the scale without its offset read the FreeIMU warm-up as -23..-8 degC
+    # (inside any die's range: no warning) and wrote thermal terms that never act on a board
+    # reading degC; a scale naming temp alone read the gyro's counts as deg/s
+    msg = _one_line_error(read_table, str(p), cols, per_sensor("accel=16384,temp=340"), 0.0, cls=UserError)
+    assert msg.startswith("--nominal-scale temp=N without --nominal-offset temp=N")
+    g = tmp_path / "g.csv"
+    g.write_text("".join(f"{i * 10},0,0,131,{c:.0f}\n" for i, c in enumerate(counts)))
+    msg = _one_line_error(read_table, str(g), ["t_ms", "gx", "gy", "gz", "temp"], per_sensor("temp=340"),
+                          per_sensor("temp=-12420.2"), cls=UserError)
+    assert "--nominal-scale: no value for the gyro columns (gx,gy,gz): add gyro=N" in msg
+    msg = _one_line_error(read_table, str(p), cols, per_sensor("accel=16384,temp=-340"), per_sensor("temp=0"),
+                          cls=UserError)
+    assert "--nominal-scale temp=-340: must be the counts per degC, a number > 0" in msg
 
 
 def test_join_holds_a_slower_chips_file_beside_the_first_tables_rows(tmp_path, capsys):
@@ -427,6 +441,13 @@ def test_join_holds_a_slower_chips_file_beside_the_first_tables_rows(tmp_path, c
     _, rec = load_input(str(a8), cols, join=(str(hole), mcols))
     assert not np.any((rec.t > 20.0 + 0.75) & (rec.t < 25)) and np.sum(rec.t <= 20.75) == 167
     assert "rows dropped" in capsys.readouterr().err
+    # a short file (40 rows) with one 3-s hole: its 99th percentile would be the hole itself
+    short = tmp_path / "short.csv"
+    ts = np.r_[np.arange(20) * 0.5, 12.5 + np.arange(20) * 0.5]
+    short.write_text("".join(f"{x:.17g},{k},0.2,-0.4\n" for k, x in enumerate(ts)))
+    _, rec = load_input(str(a8), cols, join=(str(short), mcols))
+    assert not np.any((rec.t > 9.5 + 0.75) & (rec.t < 12.5))
+    capsys.readouterr()
     tb = np.repeat(t8[::16], 4) + np.tile([0, 0.001, 0.002, 0.003], 30)   # 4 rows in 3 ms, every 2 s
     burst.write_text("".join(f"{x:.17g},{k},0.2,-0.4\n" for k, x in enumerate(tb)))
     _, rec = load_input(str(a8), cols, join=(str(burst), mcols))

@@ -82,8 +82,8 @@ def input_recording(args, path: str, whole: bool = True):
         if kind == "poses":
             raise UserError(f"{path}: a pose file (still-pose averages): this command needs the "
                             f"samples, a recording or a raw table")
-        if kind == "table" or getattr(args, "join", None):
-            _, rec = read_input(args, path)
+        if kind == "table" or getattr(args, "join", None) or getattr(args, "board", None):
+            _, rec = read_input(args, path)       # (load_input refuses --join/--board on a recording)
             return rec if whole else TableReader(rec)
     from ..files.recording import open_recording, read_recording
     return read_recording(path) if whole else open_recording(path)

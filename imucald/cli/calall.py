@@ -33,6 +33,7 @@ def cmd_calibrate_all(args, kind: str, rec) -> int:
                         f"for another model run --sensor accel, gyro or mag")
     progress = None if args.json else _eprint
     res = fit_all(args, rec, progress)
+    still = res.pop("stillness", None)
     parts = {s: r["part"] for s, r in res.items() if r.get("part") is not None}
     if not parts:
         raise UserError(f"{args.input}: no part could be calibrated: "
@@ -42,7 +43,7 @@ def cmd_calibrate_all(args, kind: str, rec) -> int:
     if args.json:
         d: Dict[str, Any] = {"sensor": "all", "parts": [s for s in ORDER if s in parts],
                              "skipped": {s: r["skipped"] for s, r in res.items() if "skipped" in r},
-                             "output": args.output}
+                             "output": args.output, "stillness": still}
         d.update({s: r["json"] for s, r in res.items() if "json" in r})
         print_json(d)
         return 0
@@ -64,7 +65,8 @@ def _part_name(sensor: str, part) -> str:
 
 
 def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
-    """sensor -> {part (SensorCal for the file), json, lines, thermal} or {skipped: why}."""
+    """sensor -> {part (SensorCal for the file), json, lines, thermal} or {skipped: why}; and
+    under "stillness" the still-pose detection the parts share (calibrate --json's object)."""
     from ..fitting.stillness.poses import poses_and_pieces
     out: Dict[str, Dict[str, Any]] = {}
     poses = pieces = None
@@ -77,11 +79,9 @@ def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
     out["mag"], mag_fit = _mag(args, rec, progress)
     out["gyro"] = _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress)
     if poses is not None and poses.detector is not None:
-        # each pose-based part's object is --sensor accel|gyro --json's, the detection included
+        # the still-pose detection the parts share, once (said too when no part could use it)
         from .offline import stillness_json
-        for s in ("accel", "gyro"):
-            if "json" in out[s]:
-                out[s]["json"]["stillness"] = stillness_json(poses.detector)
+        out["stillness"] = stillness_json(poses.detector)
     return out
 
 

@@ -208,7 +208,7 @@ def output_dir(path: str, flag: str) -> None:
 def _check_raw_table(args) -> None:
     """--join and --join-columns come together, beside --columns (a raw table's); so does
     --board (a recording's header names its board)."""
-    if args.board and not args.columns:
+    if getattr(args, "board", None) and not args.columns:
         raise UserError(f"--board {args.board}: names the board of a raw table: give its --columns too "
                         f"(an imucald recording's header names its board)")
     if args.join and not args.join_columns:

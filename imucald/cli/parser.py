@@ -113,15 +113,15 @@ def _raw_table_options(p, example: str) -> None:
     p.add_argument("--rate-hz", type=positive_float,
                    help="raw table: the sample rate (needed without a time column; with one, within "
                         "100x of its steps)")
+    p.add_argument("--board", choices=_choices("sensor.board"),
+                   help="raw table: the board it was logged from; its chips' datasheet figures are "
+                        "used (stillness limits, priors), and calibrate -o writes it into the file, "
+                        "which a daemon on that board loads (without it: board 'unknown', set aside)")
     _join_options(p)
 
 
 def _join_options(p) -> None:
-    """--join and --join-columns: a second raw table of the same session (fitting.inputs.join_tables);
-    --board: the board a raw table was logged from."""
-    p.add_argument("--board", choices=_choices("sensor.board"),
-                   help="raw table: the board it was logged from, written into the calibration file "
-                        "(a daemon on that board loads it; without it the file says board 'unknown')")
+    """--join and --join-columns: a second raw table of the same session (fitting.inputs.join_tables)."""
     p.add_argument("--join", metavar="FILE",
                    help="raw table: a second table of the same session (its columns by --join-columns), "
                         "its sensors joined to the first's by time, e.g. IMU-TK's xsens_gyro.mat beside "
@@ -237,7 +237,7 @@ def _add_replay(rp) -> None:
     rp.add_argument("recording", help="recording, or raw table (with --columns)")
     _raw_table_options(rp, "t,ax,ay,az,gx,gy,gz,temp")
     rp.add_argument("--state-dir", help="start from DIR/calibration.yaml when there is one, and save the "
-                                        "calibration reached there (one it replaces is kept in DIR/history)")
+                                        "calibration reached there (one it replaces is kept as DIR/history/replaced-TIME.yaml)")
     rp.add_argument("--config")
     rp.add_argument("--format", choices=_choices("output.format"))
     rp.add_argument("--orientation", choices=_choices("output.orientation"),

@@ -147,10 +147,9 @@ def _replay_save(state_dir: str, pipe, start, cfg) -> None:
     if pipe.applied.id:
         os.makedirs(state_dir, exist_ok=True)
         kept = ""
-        if start is not None and pipe.applied.id != start.id:
-            save_calibration(state_dir, start)
-            kept = f" (the one it started from, #{start.id}, kept in {os.path.join(state_dir, 'history')})"
-        p = save_calibration(state_dir, pipe.applied, history=10 if kept else 0)
+        if start is not None and pipe.applied is not start:
+            kept = f" (the one it started from, #{start.id}, kept as {_keep_replaced(state_dir)})"
+        p = save_calibration(state_dir, pipe.applied, history=0)
         log.info("calibration #%d saved to %s%s", pipe.applied.id, p, kept)
     elif not pipe.has_acc:
         log.info("no calibration was reached (magnetometer rotation coverage %.0f%%, %.0f%% needed, "
@@ -163,6 +162,25 @@ def _replay_save(state_dir: str, pipe, start, cfg) -> None:
                if n < MIN_FIT_POSES else f"{n} still poses, none of the fits beat the raw readings "
                f"significantly")
         log.info("no calibration was reached (%s)", why)
+
+
+def _keep_replaced(state_dir: str) -> str:
+    """DIR/calibration.yaml copied, byte for byte, to DIR/history/replaced-<UTC time>.yaml
+    before a replay replaces it (a name no calibration's history file has, so none of the
+    daemon's trimming by id removes it); returns the copy's path."""
+    import time
+
+    from ..files.atomic import atomic_write_bytes
+    hd = os.path.join(state_dir, "history")
+    os.makedirs(hd, exist_ok=True)
+    stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+    path, k = os.path.join(hd, f"replaced-{stamp}.yaml"), 1
+    while os.path.exists(path):
+        k += 1
+        path = os.path.join(hd, f"replaced-{stamp}-{k}.yaml")
+    with open(os.path.join(state_dir, "calibration.yaml"), "rb") as fh:
+        atomic_write_bytes(path, fh.read(), flag="--state-dir")
+    return path
 
 
 def _replay_start(state_dir: str, board: str, chips):

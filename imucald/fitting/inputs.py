@@ -118,8 +118,9 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         raise UserError(f"{flag}: two time columns ({', '.join(times)}): name one, and - for the other")
     t_name = times[0] if times else None
     present = [g for g, ks in _GROUP_COLUMNS.items() if any(k in cols for k in ks)]
-    scales = _per_sensor(nominal_scale, "--nominal-scale", present, cols, 1.0)
+    scales = _per_sensor(nominal_scale, "--nominal-scale", present, cols)
     offsets = _per_sensor(nominal_offset, "--nominal-offset", present, cols, 0.0)
+    t_scale, t_offset = _temp_conversion(nominal_scale, nominal_offset, cols)
     for g in present:
         if not math.isfinite(scales[g]) or scales[g] == 0:
             raise UserError(f"--nominal-scale {scales[g]:g} ({_NAMES[g]}): must be a finite, non-zero "
@@ -130,9 +131,9 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
     if rate_hz is not None and not (0 < rate_hz < math.inf):
         raise UserError(f"--rate-hz {rate_hz}: must be a number of samples per second > 0")
     group = {k: g for g, ks in _GROUP_COLUMNS.items() for k in ks}
-    centre = [offsets[group[c]] if c in group else 0.0 for c in cols]
+    centre = [offsets[group[c]] if c in group else (t_offset if c == "temp" else 0.0) for c in cols]
     half = [PLAUSIBLE_LIMIT * abs(scales[group[c]]) if c in group else
-            (PLAUSIBLE_LIMIT if c == "temp" else np.inf) for c in cols]
+            (PLAUSIBLE_LIMIT * t_scale if c == "temp" else np.inf) for c in cols]
     spec = TableSpec(path, cols, UserError, comma_only=False, skip="#%", centre=centre,
                      halfwidth=half, tcol=cols.index(t_name) if t_name else None,
                      checked=[c != "-" for c in cols],
@@ -152,8 +153,8 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         if g in c:
             c[g] -= offsets[g]
             c[g] /= scales[g]
-    if "temp" in c:     # counts only when named (temp=N): one number is for the sensors' columns
-        c["temp"] = _temp_units(c["temp"], nominal_scale, nominal_offset)
+    if "temp" in c and (t_scale, t_offset) != (1.0, 0.0):   # counts, converted when named (temp=N)
+        c["temp"] = (c["temp"] - t_offset) / t_scale
     for msg in _unit_warnings(path, c, nominal_scale):
         warn(msg)
     if t_name:
@@ -196,32 +197,46 @@ def _first_row(fh, path: str, cols: Sequence[str]):
         lineno, offset = lineno + 1, offset + len(raw)
 
 
-def _temp_units(temp: np.ndarray, nominal_scale: PerSensor, nominal_offset: PerSensor) -> np.ndarray:
-    """A temperature column in degC: (counts - temp offset) / temp scale when --nominal-scale or
-    --nominal-offset names ``temp`` (an MPU-6050's TEMP_OUT: temp=340 and temp=-12420.2, its
-    datasheet's T = counts / 340 + 36.53), else as it is."""
-    scale = nominal_scale.get("temp", 1.0) if isinstance(nominal_scale, dict) else 1.0
-    offset = nominal_offset.get("temp", 0.0) if isinstance(nominal_offset, dict) else 0.0
-    if scale == 0:
-        raise UserError("--nominal-scale temp=0: must be a finite, non-zero number (counts per degC)")
-    return (temp - offset) / scale if (scale, offset) != (1.0, 0.0) else temp
+def _temp_conversion(nominal_scale: PerSensor, nominal_offset: PerSensor, cols: Sequence[str]):
+    """(counts per degC, counts at 0 degC) of a temperature column: (1, 0), degC as it is,
+    unless --nominal-scale and --nominal-offset both name ``temp`` (one number is for the
+    sensors' columns).  An MPU-6050's TEMP_OUT is temp=340 and temp=-12420.2 (its datasheet's
+    T = counts / 340 + 36.53).  One without the other is refused: a scale without its offset
+    reads a warm-up as -23..-8 degC, inside any die's range, so nothing would say so, and the
+    file's thermal terms would never act on a board reading degC."""
+    named = [o for o, v in (("--nominal-scale", nominal_scale), ("--nominal-offset", nominal_offset))
+             if isinstance(v, dict) and "temp" in v]
+    if not named:
+        return 1.0, 0.0
+    if len(named) == 1:
+        raise UserError(f"{named[0]} temp=N without {'--nominal-offset' if named[0] == '--nominal-scale' else '--nominal-scale'} "
+                        f"temp=N: a temperature in counts needs both (an MPU-6050: --nominal-scale temp=340 "
+                        f"and --nominal-offset temp=-12420.2, from T = counts / 340 + 36.53)")
+    if "temp" not in cols:
+        raise UserError("--nominal-scale temp=N: no temp column in --columns to convert")
+    scale, offset = float(nominal_scale["temp"]), float(nominal_offset["temp"])
+    if not scale > 0:
+        raise UserError(f"--nominal-scale temp={scale:g}: must be the counts per degC, a number > 0 "
+                        f"(an MPU-6050: 340)")
+    return scale, offset
 
 
-def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str], default: float) -> dict:
+def _per_sensor(value, option: str, present: Sequence[str], cols: Sequence[str],
+                temp_only: Optional[float] = None) -> dict:
     """``value`` of ``option`` (one number for every sensor, or a mapping accel/gyro/mag/temp ->
     number) for each sensor group in ``present``: a mapping must name every sensor whose
     columns the table has (one accelerometer scale left on a gyro's counts reads 131 counts
-    per deg/s as 1 deg/s a count, a plausible but wrong number), unless it names none of them
-    (temp alone: the sensors take ``default``)."""
+    per deg/s as 1 deg/s a count, a plausible but wrong number); an offset naming temp alone
+    (``temp_only``: the sensors' value then, 0) is the one exception."""
     if not isinstance(value, dict):
         return {g: float(value) for g in present}
-    if not any(k in value for k in _NAMES.values()):
-        return {g: default for g in present}
+    if temp_only is not None and not any(k in value for k in _NAMES.values()):
+        return {g: temp_only for g in present}
     for g in present:
         if _NAMES[g] not in value:
             have = ",".join(k for k in _GROUP_COLUMNS[g] if k in cols)
             raise UserError(f"{option}: no value for the {_NAMES[g]} columns ({have}): add "
-                            f"{_NAMES[g]}=N to it (or give one number for every sensor)")
+                            f"{_NAMES[g]}=N to it ({_NAMES[g]}=1 when they are in its units already)")
     return {g: float(value[_NAMES[g]]) for g in present}
 
 
@@ -419,9 +434,7 @@ def join_tables(rec: Recording, path: str, other: Recording, other_path: str) ->
     if np.array_equal(rec.t, other.t):
         keep, j = np.ones(len(rec.t), bool), np.arange(len(rec.t))
     else:
-        steps = np.diff(other.t)
-        steps = steps[steps > 0]
-        hold_s = JOIN_HOLD_STEPS * (float(np.percentile(steps, 99)) if len(steps) else 0.0)
+        hold_s = JOIN_HOLD_STEPS * _usual_longest_step(other.t)
         j = np.searchsorted(other.t, rec.t, side="right") - 1
         keep = j >= 0
         keep[keep] = rec.t[keep] - other.t[j[keep]] <= hold_s
@@ -438,6 +451,24 @@ def join_tables(rec: Recording, path: str, other: Recording, other_path: str) ->
     meta = dict(rec.meta, source=f"{rec.meta.get('source', '')}+{other.meta.get('source', '')}")
     return Recording(t=rec.t[keep], acc=pick(rec.acc, other.acc), gyro=pick(rec.gyro, other.gyro),
                      mag=pick(rec.mag, other.mag), temp=pick(rec.temp, other.temp), meta=meta)
+
+
+#: steps a joined table needs for its 99th percentile to be a usual step (with fewer, one hole
+#: is the percentile itself)
+JOIN_PERCENTILE_MIN_STEPS = 100
+
+
+def _usual_longest_step(t: np.ndarray) -> float:
+    """A joined table's usual longest step, s: the 99th percentile of its steps (a logger's
+    bursts are usual steps); with fewer than JOIN_PERCENTILE_MIN_STEPS, the longest step
+    within 5x the median (a hole of a short table is not taken for a usual step)."""
+    steps = np.diff(t)
+    steps = steps[steps > 0]
+    if not len(steps):
+        return 0.0
+    if len(steps) >= JOIN_PERCENTILE_MIN_STEPS:
+        return float(np.percentile(steps, 99))
+    return float(steps[steps <= 5 * median(steps)].max())
 
 
 _JOIN_NAMES = {"acc": "accelerometer", "gyro": "gyro", "mag": "magnetometer", "temp": "temperature"}

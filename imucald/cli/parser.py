@@ -106,10 +106,11 @@ def _raw_table_options(p, example: str) -> None:
                                      f"t_ms, t_us or t_ns when in ms, us or ns)")
     p.add_argument("--nominal-scale", type=per_sensor, default=1.0,
                    help="raw table: counts per unit (g, deg/s, gauss), e.g. 16384, or one per "
-                        "sensor, e.g. accel=16384,gyro=131")
+                        "sensor, e.g. accel=16384,gyro=131 (temp=N with --nominal-offset temp=N: a "
+                        "temperature in counts, e.g. 340 and -12420.2 for an MPU-6050)")
     p.add_argument("--nominal-offset", type=per_sensor, default=0.0,
                    help="raw table: counts at zero input, e.g. 32768 for unsigned 16-bit (or "
-                        "accel=N,gyro=N)")
+                        "accel=N,gyro=N,temp=N)")
     p.add_argument("--rate-hz", type=positive_float,
                    help="raw table: the sample rate (needed without a time column; with one, within "
                         "100x of its steps)")

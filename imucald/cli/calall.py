@@ -107,8 +107,7 @@ def _accel(args, rec, poses, pieces, progress):
     if not len(poses):
         # why none (the quiet windows' scatter, the quiet stretches rejected), as --sensor accel says
         from ..fitting.stillness.poses import no_still_message
-        why = no_still_message(args.input, poses.detector, 0)
-        return {"skipped": why[len(args.input) + 2:] if why.startswith(f"{args.input}: ") else why}, None
+        return {"skipped": no_still_message("", poses.detector, 0)}, None   # the error names the file
     if len(poses) < 10:
         return {"skipped": f"only {len(poses)} still poses found; the 9-parameter model needs at least "
                            f"10 (about 25 recommended), well spread over the sphere"}, None

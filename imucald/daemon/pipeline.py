@@ -304,8 +304,12 @@ class Pipeline:
             # the next piece of a rest already reported (cut at max_pose_s): its pose is refined
             # without a line (and a new hint) every max_pose_s while the board rests
             log.debug("the rest goes on: its pose refined by %.1f s more", iv.t1 - iv.t0)
-            self.persist("poses", self.acc.pose_set())
-            return
+        else:
+            self._pose_line(iv, what)
+        self.persist("poses", self.acc.pose_set())
+
+    def _pose_line(self, iv, what: str) -> None:
+        """The log line (and event) of a pose: its count, coverage and the next hint."""
         cov = self.acc.coverage()
         need = self.cfg["calibration"]["min_poses"]
         # the hint moves through the missing orientations (fitting/judging/coverage.py)
@@ -319,7 +323,6 @@ class Pipeline:
                f"{cov['covered']}/{cov['targets']}{nxt}")
         log.info(msg)
         self.events.append(msg)
-        self.persist("poses", self.acc.pose_set())
 
     # -- calibration ----------------------------------------------------------------------
     def ready_to_calibrate(self) -> Dict[str, Any]:

@@ -290,9 +290,9 @@ def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
                        f"its counts per gauss: 230-390 for an HMC5883L's lower gains)?")
         elif m < MAG_MEDIAN_TINY_GAUSS and not given:
             out.append(f"{say}: already in gauss? then leave its --nominal-scale out (mag=1)")
-    temp = c.get("temp")
-    if temp is not None and np.isfinite(temp).any():
-        m = float(np.nanmedian(temp))
+    temp = c.get("temp")          # finite: the reader refuses a NaN with its file:line
+    if temp is not None and len(temp):
+        m = float(median(temp))
         if not TEMP_MEDIAN_RANGE_C[0] <= m <= TEMP_MEDIAN_RANGE_C[1]:
             out.append(f"{path}: the temperature reads a median of {m:.5g} degC, outside any die's: "
                        f"raw counts? give --nominal-scale temp=N and --nominal-offset temp=N (an "
@@ -337,13 +337,11 @@ def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float],
         raise UserError(f"{path}: {said}, faster than an IMU is read at: {names}")
     if step >= hi:
         if rows_per_s * step >= 2:      # many rows a tick: a coarse clock, not a slow one
-            if joined:
-                raise UserError(f"{path}: {t_name} advances by {how} {step / unit:.4g} {_UNIT[t_name]} a "
-                                f"row but {said}: a clock coarser than the samples cannot place them "
-                                f"beside the first table's rows, or {names}")
+            fix = ("cannot place them beside the first table's rows" if joined else
+                   f"; give --rate-hz, the rate it was logged at (about {rows_per_s:.4g} by its span)")
             raise UserError(f"{path}: {t_name} advances by {how} {step / unit:.4g} {_UNIT[t_name]} a "
-                            f"row but {said}: a clock coarser than the samples; give --rate-hz, the rate "
-                            f"it was logged at (about {rows_per_s:.4g} by its span), or {names}")
+                            f"row but {said}: a clock coarser than the samples{' ' if joined else ''}{fix}, "
+                            f"or {names}")
         raise UserError(f"{path}: {t_name} advances by {how} {step / unit:.4g} {_UNIT[t_name]} a "
                         f"row ({1 / step:.4g} Hz), slower than an IMU is read at: {names}" +
                         ("" if joined else f"; for so low a rate give --rate-hz {1 / step:.4g}"))

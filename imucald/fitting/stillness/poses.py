@@ -216,9 +216,11 @@ def still_report(det) -> List[str]:
 
 
 def no_still_message(path: str, det, n_found: int = 0) -> str:
-    """One line: the recording has no still moment (or too few), and why."""
+    """One line: the recording has no still moment (or too few), and why (``path`` heads it;
+    '' for a line that names the file already)."""
+    head = f"{path}: " if path else ""
     if det is None:
-        return f"{path}: no still moment: only 0 still poses found (too few samples)"
+        return f"{head}no still moment: only 0 still poses found (too few samples)"
     cap = det.floor_cap
     fl = det._core.floor_a if det._core is not None else None
     what = "no still moment: only 0 still poses" if n_found == 0 else f"only {n_found} still poses"
@@ -236,7 +238,7 @@ def no_still_message(path: str, det, n_found: int = 0) -> str:
         why = (f"; the quietest 1 s windows scatter {np.sqrt(q / 3) * 1e3:.3g} mg per axis, "
                f"{np.sqrt(q / kc):.3g}x the most a still {det.chip or 'accelerometer'} can "
                f"({np.sqrt(kc / 3) * 1e3:.3g} mg at {det.rate:.3g} Hz)")
-    return (f"{path}: {what} found{why}: hold the board still for a few seconds in each "
+    return (f"{head}{what} found{why}: hold the board still for a few seconds in each "
             f"orientation")
 
 

@@ -1,6 +1,4 @@
 """``python -m imucald.cli``: the same as the ``imucald`` console script."""
-import sys
+from . import entry
 
-from . import main
-
-sys.exit(main())
+entry()

@@ -8,6 +8,10 @@ of wall time over the rounds, and of the child's CPU time):
 * ``accel (Xsens file)``: ``calibrate xsens_acc.mat --columns t,ax,ay,az --nominal-offset 32768
   --nominal-scale 4069.76 --json`` (the README's command on the raw IMU-TK file); ``accel
   (Xsens file, -o)``: the same with its text report and ``-o`` (the calibration file written);
+* ``whole (2 files, -o)``: the whole calibration from IMU-TK's own two files, what its app
+  does: ``calibrate xsens_acc.mat --columns t,ax,ay,az --join xsens_gyro.mat --join-columns
+  t,gx,gy,gz --nominal-offset 32768 --nominal-scale accel=4069.76,gyro=83.39 --sensor all -o
+  FILE`` (for a ``--before`` tree only when it has ``--join``);
 * ``accel``, ``gyro``, ``all``: ``calibrate REC --sensor ...`` on the merged recording
   (accelerometer and gyro on their common timestamps, built as bench/real_gap.py builds it,
   written to a temporary imucald recording);
@@ -15,13 +19,15 @@ of wall time over the rounds, and of the child's CPU time):
   -C /tmp/base``): the same commands with that tree's imucald, in the same rounds; its
   ``all`` is ``--sensor accel`` then ``--sensor gyro`` (two commands: ``--sensor all`` did
   not exist);
-* with ``IMUTK_CALIB=/path/to/test_imu_calib`` set: IMU-TK's own app on the two files.
-  IMU-TK is not installed here and is never vendored.  To build it (Ubuntu/Debian):
-  ``apt-get install libeigen3-dev libceres-dev libqt5opengl5-dev freeglut3-dev libboost-dev``,
-  ``git clone https://github.com/Kyle-ak/imu_tk`` (BSD; needs Eigen 3, Ceres Solver, and Qt,
-  OpenGL and GLUT for its visualisation library), then ``mkdir build && cd build && cmake
-  -DCMAKE_BUILD_TYPE=Release .. && make``; the app is ``bin/test_imu_calib ACC GYRO`` (it
-  writes test_imu_acc.calib and test_imu_gyro.calib in its working directory: a temporary one here).
+* with ``IMUTK_CALIB=/path/to/test_imu_calib`` set: IMU-TK's own app on the two files, and
+  a line comparing it with ``whole``.  IMU-TK is never vendored and has no package.  Built
+  here (2026-11-27) from the repository Kyle-ak/imu_tk at commit 1fd1e1ab (BSD), Release,
+  against Debian's ``libeigen3-dev libceres-dev libboost-dev`` (Ceres 2.1, Eigen 3.4): that
+  commit's visualisation needs PCL and gnuplot, so its CMakeLists was built without PCL and
+  visualization.cpp, and the three lines of calibration.cpp that plot the static intervals
+  and wait for a key (no terminal here) were removed; the calibration itself is unchanged.
+  The app is ``bin/test_imu_calib ACC GYRO`` (it writes test_imu_acc.calib and
+  test_imu_gyro.calib in its working directory: a temporary one here).
 
 With ``--before``, the Xsens commands' answers are compared with that tree's byte for byte
 (the JSON without the fit's own ``wall_s``, the text report, the calibration file without
@@ -51,6 +57,9 @@ REAL = os.path.join(ROOT, "..", "shared", "data", "real", "imutk_xsens_mti")
 ACC = os.path.join(REAL, "xsens_acc.mat")
 GYRO = os.path.join(REAL, "xsens_gyro.mat")
 RAW = ["--columns", "t,ax,ay,az", "--nominal-offset", "32768", "--nominal-scale", "4069.76"]
+#: the whole calibration from IMU-TK's own two files, what its app does (docs/guide/calibrating.md)
+WHOLE = ["--columns", "t,ax,ay,az", "--join", GYRO, "--join-columns", "t,gx,gy,gz",
+         "--nominal-offset", "32768", "--nominal-scale", "accel=4069.76,gyro=83.39", "--sensor", "all"]
 
 
 def run(argv, tree=None, cwd=None, env_extra=None):
@@ -69,6 +78,12 @@ def run(argv, tree=None, cwd=None, env_extra=None):
     return wall, (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime), p.stdout
 
 
+def _has_join(tree) -> bool:
+    """Whether that tree's calibrate reads a second table (``--join``, from 4ddb46d on)."""
+    with open(os.path.join(tree, "imucald", "cli", "parser.py")) as f:
+        return '"--join"' in f.read()
+
+
 def commands(merged, before):
     py = sys.executable
     cal = [py, "-m", "imucald.cli", "calibrate"]
@@ -77,6 +92,9 @@ def commands(merged, before):
         out.append((f"{label}accel (Xsens file)", [cal + [ACC, *RAW, "--json"]], tree))
         out.append((f"{label}accel (Xsens file, -o)",
                     [cal + [ACC, *RAW, "-o", f"xsens_{'before' if label else 'after'}.yaml"]], tree))
+        if _has_join(tree):
+            out.append((f"{label}whole (2 files, -o)",
+                        [cal + [ACC, *WHOLE, "-o", f"xsens_whole_{'before' if label else 'after'}.yaml"]], tree))
         for s in ("accel", "gyro"):
             out.append((f"{label}{s}", [cal + [merged, "--sensor", s, "--json"]], tree))
         if label:
@@ -183,6 +201,11 @@ def main():
         w = statistics.median(t[0] for t in times[name])
         c = statistics.median(t[1] for t in times[name])
         print(f"{name:<28} {w * 1e3:>8.0f} {w / base:>8.2f} {c * 1e3:>7.0f} {c / base_cpu:>8.2f}")
+    med = {n: statistics.median(t[0] for t in times[n]) for n, _, _ in cmds}
+    if "IMU-TK test_imu_calib" in med and "whole (2 files, -o)" in med:
+        print(f"the whole calibration from IMU-TK's two files: imucald {med['whole (2 files, -o)'] * 1e3:.0f} ms, "
+              f"IMU-TK's app {med['IMU-TK test_imu_calib'] * 1e3:.0f} ms wall "
+              f"({med['IMU-TK test_imu_calib'] / med['whole (2 files, -o)']:.1f}x imucald's)")
     if a.before:
         same_as_before(outs)
     print("--sensor all against the separate commands (|difference| / reported standard error):")

@@ -129,10 +129,11 @@ def _accel(args, rec, poses, pieces, progress):
                          args.thermal_min_span, args.seed)
     d = cal.to_json()
     lines = _print_lines("accel", cal)
+    part = file_part(cal, tf)
     if tf is not None:
-        d["thermal"] = thermal_json("accel", tf)
-        lines += thermal_lines("accel", tf)
-    return {"part": file_part(cal, tf), "json": d, "lines": lines, "thermal": tf}, cal
+        d["thermal"] = thermal_json("accel", tf, part)
+        lines += thermal_lines("accel", tf, part)
+    return {"part": part, "json": d, "lines": lines, "thermal": tf}, cal
 
 
 def _mag(args, rec, progress):
@@ -153,11 +154,11 @@ def _mag(args, rec, progress):
         return {"skipped": flat_message(res), "json": d}, None
     tf = res.get("thermal")
     lines = _print_lines("mag", res["calibration"]) + rotation_lines(res)
+    part = file_part(res["calibration"], tf)
     if tf is not None:
-        d["thermal"] = thermal_json("mag", tf)
-        lines += thermal_lines("mag", tf)
-    return ({"part": file_part(res["calibration"], tf), "json": d, "lines": lines, "thermal": tf},
-            res["calibration"])
+        d["thermal"] = thermal_json("mag", tf, part)
+        lines += thermal_lines("mag", tf, part)
+    return {"part": part, "json": d, "lines": lines, "thermal": tf}, res["calibration"]
 
 
 def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any]:

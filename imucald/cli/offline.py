@@ -234,11 +234,15 @@ def _calibrate(args) -> int:
         # the thermal terms: the order the held-out test supports (docs: thermal terms)
         from .thermal import fit_thermal
         tf = fit_thermal(sensor, pieces, cal, chip, infl_pieces, args.thermal_min_span, args.seed)
-    # what -o writes (and the file's bias for the gyro, the accelerometer's plots); nothing
-    # else reads it, so an accelerometer or magnetometer answer without -o skips it (and the
-    # calibration module's import: ~2 ms)
+    # what -o writes (and the file's bias for the gyro, the accelerometer's plots, the
+    # parameters thermal terms moved: the report shows them); nothing else reads it, so an
+    # accelerometer answer without -o or thermal terms skips it (and the calibration
+    # module's import: ~2 ms)
     plot = getattr(args, "plot", None) and sensor == "accel"
-    part = file_part(cal, tf, rot) if args.output or sensor == "gyro" or plot else None
+    if args.output or sensor == "gyro" or plot or (tf is not None and _thermal_moves(tf)):
+        part = file_part(cal, tf, rot)
+    else:
+        part = None
     if args.output:
         _write_calibration(args.output, poses.meta, part, tf)
     if plot:                                   # coverage sphere, residuals (plots extra)
@@ -325,6 +329,11 @@ def _fit_gyro_poses(args, rec, poses, det, model):
     return fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov, model, samples, rng=args.seed)
 
 
+def _thermal_moves(tf) -> bool:
+    from .thermal import moves_params
+    return moves_params(tf)
+
+
 def _calibrate_json(sensor, cal, det, rec, rot, why, part, tf) -> dict:
     """calibrate --json: the fit, the still-pose detection behind it, the rotations, what the
     file holds and the thermal terms."""
@@ -339,7 +348,7 @@ def _calibrate_json(sensor, cal, det, rec, rot, why, part, tf) -> dict:
                      "matrix": "matrix" in part.params, "g_sens_dps_per_g": "g_sens_dps_per_g" in part.params}
     if tf is not None:
         from .thermal import thermal_json
-        d["thermal"] = thermal_json(sensor, tf)
+        d["thermal"] = thermal_json(sensor, tf, part)
     return d
 
 
@@ -362,7 +371,7 @@ def _print_report(sensor, cal, rec, rot, why, part, tf) -> None:
         print(file_line(part))
     if tf is not None:
         from .thermal import thermal_lines
-        print("\n".join(thermal_lines(sensor, tf)))
+        print("\n".join(thermal_lines(sensor, tf, part)))
 
 
 def print_cal(sensor: str, cal) -> None:
@@ -423,13 +432,14 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed, temp_c=rec.temp,
                              thermal_min_span_c=args.thermal_min_span)
     tf = res.get("thermal")
+    part = file_part(res["calibration"], tf) if res["determined"] else None
     if args.output and res["determined"]:
-        _write_calibration(args.output, rec.meta, res["calibration"], tf)
+        _write_calibration(args.output, rec.meta, part, tf)
     if args.json:
         d = rotation_json(res)
         if tf is not None:
             from .thermal import thermal_json
-            d["thermal"] = thermal_json("mag", tf)
+            d["thermal"] = thermal_json("mag", tf, part)
         print_json(d)
         return 0 if res["determined"] else 3
     if not res["determined"]:
@@ -439,7 +449,7 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     print("\n".join(rotation_lines(res)))
     if tf is not None:
         from .thermal import thermal_lines
-        print("\n".join(thermal_lines("mag", tf)))
+        print("\n".join(thermal_lines("mag", tf, part)))
     return 0
 
 

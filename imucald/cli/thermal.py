@@ -56,8 +56,17 @@ def pieces_colour_inflation(rec, poses, pieces):
     return colour_inflation_per_pose(rec.acc[i0:i1], rec.rate_hz, pieces.n / rec.rate_hz)[0]
 
 
-def thermal_lines(sensor: str, tf) -> List[str]:
-    """What was chosen and why, for ``calibrate``'s text output."""
+def moves_params(tf) -> bool:
+    """Whether the thermal terms change the parameters the file holds (:func:`thermal_part`:
+    refitted with the terms, at ``t_ref_c``) from the constant fit's, which averages over the
+    temperatures the poses were held at."""
+    return tf is not None and (tf.order > 0 or tf.scale_poly is not None)
+
+
+def thermal_lines(sensor: str, tf, part=None) -> List[str]:
+    """What was chosen and why, for ``calibrate``'s text output; with ``part`` (the file's,
+    :func:`thermal_part`) of an accelerometer or magnetometer whose parameters the terms
+    moved, those parameters too (the gyro's file line says its bias: gyrorot.file_line)."""
     u, shown, k = UNIT[sensor]
     out = [f"  thermal ({tf.t_min_c:.1f}..{tf.t_max_c:.1f} degC, about {tf.t_ref_c:.1f} degC): {tf.note}"]
     for j in range(tf.order):
@@ -68,14 +77,25 @@ def thermal_lines(sensor: str, tf) -> List[str]:
         out.append(f"    scale (T - {tf.t_ref_c:.1f}): [{row}] ppm/degC")
     if tf.inflation > 1.05:
         out.append(f"    (variances inflated x{tf.inflation:.2f}: scatter the smoothest curve leaves)")
+    if part is not None and sensor != "gyro" and moves_params(tf):
+        out.append(f"  in the calibration file (-o), fitted with these terms, at {tf.t_ref_c:.1f} degC "
+                   f"(the fit above is constant over the temperatures):")
+        for g, v in part.params.items():
+            row = lambda a, f: "[" + ", ".join(f.format(float(x)) for x in np.ravel(a)) + "]"
+            out.append(f"    {g:<16} {row(v, '{:+.6f}')}  +- {row(part.stderr[g], '{:.2e}')}")
     return out
 
 
-def thermal_json(sensor: str, tf):
+def thermal_json(sensor: str, tf, part=None):
+    """calibrate --json's ``thermal``; with ``part`` as in :func:`thermal_lines`, the file's
+    parameters and standard errors under ``file_params`` and ``file_stderr``."""
     d = tf.to_thermal(UNIT[sensor][0])
     d = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
     d["variants"] = tf.variants
     d["inflation"] = tf.inflation
+    if part is not None and sensor != "gyro" and moves_params(tf):
+        d["file_params"] = {g: np.asarray(v, float).tolist() for g, v in part.params.items()}
+        d["file_stderr"] = {g: np.asarray(v, float).tolist() for g, v in part.stderr.items()}
     return d
 
 

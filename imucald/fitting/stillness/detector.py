@@ -5,8 +5,11 @@ Defaults (``DEFAULTS``) and what they mean, documented once here and in the READ
 * ``window_s`` = 1.0 s: trailing window of the moving statistics.
 * ``k`` = 6: a window is quiet when the summed variance of the three accelerometer
   axes is at most ``k`` x the learnt floor.  Hand-held poses sit at 1.3-3.2x the floor
-  (tremor), and the floor itself is a low percentile of window variances (for 100
-  samples per window it is ~0.85x the mean still variance), so 6 leaves margin.
+  (tremor) of a noisy chip (an MPU-6050's), and the floor itself is a low percentile of
+  window variances (for 100 samples per window it is ~0.85x the mean still variance), so
+  6 leaves margin.  A quiet chip's hand-held windows read 5-13x a floor learnt on a table:
+  with a gyro a second track allows a hand's tremor on top (HAND_VAR_G2, :class:`_Track`,
+  :meth:`_Core._resolve`).
 * ``max_turn_deg`` = 3 deg: the most the board may turn within a pose (about gravity, see
   below).  A hand sways the
   board by 0.05-0.4 deg RMS per axis at 0.2-2 Hz as well as trembling (6-12 Hz, 1-3 deg/s
@@ -104,6 +107,16 @@ _CH = ("t", "acc", "gyro", "temp", "mag", "fresh", "oi", "bz")
 #: slower than the gate could join the bias, but at under 0.5 deg/s it turns a 3-s pose by
 #: under 1.5 deg; a brief faster one stays out of it
 BIAS_WINDOWS, BIAS_GATE_DPS = 8, 0.5
+#: what a steady hand adds to a still window's summed accelerometer variance, g^2: a window is
+#: quiet when its variance is at most k x floor + HAND_VAR_G2.  Physiological tremor (6-12 Hz,
+#: 0.5-2 deg/s RMS) seen 2.5 cm from the wrist's pivot is up to ~5 mg RMS on the two axes
+#: across the lever (2 deg/s x 2 pi x ~9 Hz x 2.5 cm), 2 x (5 mg)^2.  Without it the
+#: threshold was the floor's alone, and a floor learnt while the board lay on a table (the
+#: noise alone) made a hand's holds motion on a quiet chip: at 50 Hz an LSM6DSO's or BMI160's
+#: noise is ~1 mg and its hand-held windows read 5-13x the floor (an independent probe: after
+#: a 60-s rest, 96 of ~300 hand-held holds lost).  On an MPU-6050 at 100 Hz (floor ~3.5e-5 g^2)
+#: it raises the threshold by a quarter
+HAND_VAR_G2 = 5e-5
 #: a bias is trusted (the turn test allows a hand's sway: TURN_SIGMAS) when the
 #: windows it is the median of scatter by at most this per axis: a hand's sway (0.4 deg RMS
 #: at 0.2-2 Hz) scatters the 1-s mean rates by ~0.6 deg/s; a session that never stops
@@ -143,6 +156,24 @@ class StaticInterval:
     #: ``max_pose_s`` (so the same placement: calibrate joins them into one pose, the daemon's
     #: accumulator refines the pose the piece before went to)
     continues: bool = False
+
+
+class _Track:
+    """One pass that builds runs from the decided samples: its run so far and what its step
+    test remembers.  The core keeps two (HAND_VAR_G2): the noise floor's, which makes every
+    pose it always made, and with a gyro the hand's, whose poses count only where the first
+    found no still stretch of a pose's length."""
+    __slots__ = ("hand", "run", "run_n", "run_i0", "run_cut", "cut_emitted", "prev_am", "prev_q")
+
+    def __init__(self, hand: bool):
+        self.hand = hand
+        self.run: List[dict] = []
+        self.run_n = 0
+        self.run_i0 = 0
+        self.run_cut = False                # the run continues a piece cut at max_pose_s
+        self.cut_emitted = False            # and that piece was emitted (not rejected)
+        self.prev_am = None                 # trailing accelerometer mean at the last decided sample
+        self.prev_q = False                 # and whether its window was quiet
 
 
 class _Core:
@@ -193,13 +224,10 @@ class _Core:
         self._pend_n = 0
         self._pend_i0 = 0                    # stream index of the first pending row
         self._q_done = 0                     # quiet flags known for stream index < this
-        self._run: List[dict] = []
-        self._run_n = 0
-        self._run_i0 = 0
-        self._run_cut = False                # run continues a piece cut at max_pose_s
-        self._cut_emitted = False            # and that piece was emitted (not rejected)
-        self._prev_am = None                 # trailing accelerometer mean at the last decided sample
-        self._prev_q = False                 # and whether its window was quiet
+        self._tracks = [_Track(False)]        # the floor's; the hand's joins with a gyro
+        self._strict: List[tuple] = []       # the floor track's still stretches: (first, end)
+        self._strict_open = False            # stream rows; the last one open at the batch end
+        self._held: List[StaticInterval] = []    # floor poses within the hand's open run
 
     # -- statistics -------------------------------------------------------------------
     def _blocks(self, x: np.ndarray, gy: bool) -> None:
@@ -340,13 +368,16 @@ class _Core:
                "gyro": None if gyro is None else np.asarray(gyro, float),
                "temp": None if temp is None else np.asarray(temp, float), "mag": mag,
                "fresh": mag_fresh, "oi": np.asarray(oi), "good": good & full, "ok": good, "va": va, "gm": gm, "am": am}
+        if gyro is not None and len(self._tracks) == 1:
+            self._tracks.append(_Track(True))
         if not self._pend:
             self._pend_i0 = self._seen
         self._seen += n
         self._pend.append(new)
         self._pend_n += n
-        # the live flag: this batch against the floor known now (it does not wait)
-        q_batch = self._quiet(new, *self._F[self._nblk]) if self._nblk else np.zeros(n, bool)
+        # the live flag: this batch against the floor known now (it does not wait), the
+        # hand's allowance included
+        q_batch = self._quiet(new, *self._F[self._nblk], hand=True) if self._nblk else np.zeros(n, bool)
         if self._nblk < WARMUP_WINDOWS or self._pend_n < max(1, self.w // 4):
             # poses are decided in chunks of a quarter window (the decisions do not depend
             # on the chunking; the per-batch cost at 1-2 samples a batch does)
@@ -361,16 +392,18 @@ class _Core:
         new = pend[0] if len(pend) == 1 else {
             k: (None if pend[0][k] is None else np.concatenate([p[k] for p in pend]))
             for k in pend[0]}
-        new.update(i=np.arange(self._pend_i0, self._pend_i0 + m), q=np.zeros(m, bool),
+        new.update(i=np.arange(self._pend_i0, self._pend_i0 + m), q=np.zeros(m, bool), qh=np.zeros(m, bool),
                    known=np.zeros(m, bool), fa=np.zeros(m),
                    bz=None if new["gyro"] is None else np.zeros((m, 3)))
         b = self._buf
         self._buf = new if b is None else {
             k: (None if b[k] is None else np.concatenate([b[k], new[k]])) for k in b}
 
-    def _quiet(self, b, fa, bias, lim) -> np.ndarray:
-        """Quiet trailing windows: accelerometer variance <= k floor, turn <= lim (deg)."""
-        q = b["good"] & (b["va"] <= self.k * fa)
+    def _quiet(self, b, fa, bias, lim, hand: bool = False) -> np.ndarray:
+        """Quiet trailing windows: accelerometer variance <= k floor (``hand``: + HAND_VAR_G2,
+        only where the gyro's turn test runs), turn <= lim (deg)."""
+        allow = HAND_VAR_G2 if hand and bias is not None else 0.0
+        q = b["good"] & (b["va"] <= self.k * fa + allow)
         if bias is not None:
             d = b["gm"] - bias
             q &= np.sqrt(row_sum(d * d)) * self.window_s <= lim
@@ -384,11 +417,11 @@ class _Core:
             return []
         self._judge(final=True)
         out = self._advance(final=True)
-        if self._run:
-            iv = self._close(trim=True)
-            if iv is not None:
-                out.append(iv)
-        return out
+        last = [self._close(tr, trim=True) if tr.run else None for tr in self._tracks]
+        if len(self._tracks) == 1:
+            return out + [iv for iv in last if iv is not None]
+        return out + self._resolve([last[0]] if last[0] is not None else [],
+                                   [last[1]] if last[1] is not None else [])
 
     def _judge(self, final: bool = False) -> None:
         b = self._buf
@@ -408,7 +441,9 @@ class _Core:
             fa = np.array([f[0] for f in F])[pos]
             bias = None if F[0][1] is None else np.array([f[1] for f in F])[pos]
             lim = np.array([f[2] for f in F])[pos]
-            b["q"][idx] = self._quiet({k: b[k][idx] for k in ("good", "va", "gm")}, fa, bias, lim)
+            sub = {k: b[k][idx] for k in ("good", "va", "gm")}
+            b["q"][idx] = self._quiet(sub, fa, bias, lim)
+            b["qh"][idx] = self._quiet(sub, fa, bias, lim, hand=True) if bias is not None else b["q"][idx]
             b["fa"][idx] = fa
             if bias is not None:
                 b["bz"][idx] = bias
@@ -422,11 +457,22 @@ class _Core:
         b = self._buf
         known = b["known"]
         nk = int(np.argmin(known)) if not known.all() else len(known)
-        # sample i is still if any window ending in [i, i+w-1] is quiet (and it is good)
-        q = b["q"][:nk]
         nd = nk if final else max(0, nk - (self.w - 1))
         if nd == 0:
             return []
+        ch = {k: (None if b[k] is None else b[k][:nd]) for k in _CH + ("i",)}
+        found = []
+        for tr in self._tracks:
+            still, brk = self._still_flags(tr, b, b["qh" if tr.hand else "q"][:nk], nk, nd)
+            if not tr.hand and len(self._tracks) > 1:
+                self._note_strict(still, ch["oi"])
+            found.append(self._runs(tr, still, ch, brk))
+        self._buf = {k: (None if v is None else v[nd:]) for k, v in b.items()}
+        return found[0] if len(found) == 1 else self._resolve(*found)
+
+    def _still_flags(self, tr: _Track, b, q, nk, nd):
+        """(still, brk) of the first ``nd`` buffered samples for one track's quiet flags ``q``."""
+        # sample i is still if any window ending in [i, i+w-1] is quiet (and it is good)
         c = np.concatenate([[0], np.cumsum(q)])
         ar = np.arange(nd)
         hi = np.minimum(ar + self.w, nk)
@@ -437,13 +483,56 @@ class _Core:
         # two poses, not one pose with the mean of both.  A time gap alone does not break a
         # run (loggers pause with the board unmoved); a turn during it shows as a step.
         brk = c[np.minimum(ar + self.w - 1, nk)] - c[ar] == 0
-        if nd:
-            brk |= self._steps(b, q, nk, nd, ar)
-        out = self._runs(still, {k: (None if b[k] is None else b[k][:nd]) for k in _CH + ("i",)}, brk)
-        self._buf = {k: (None if v is None else v[nd:]) for k, v in b.items()}
-        return out
+        brk |= self._steps(tr, b, q, nk, nd, ar)
+        return still, brk
 
-    def _steps(self, b, q, nk, nd, ar) -> np.ndarray:
+    def _note_strict(self, still, oi) -> None:
+        """Keep the floor track's still stretches (stream rows, first and end) for the hand's
+        poses to be checked against (:meth:`_resolve`); a stretch open at the end of the batch
+        is extended by the next."""
+        if not len(still):
+            return
+        e = np.flatnonzero(np.diff(np.concatenate([[0], still.view(np.int8), [0]])))
+        for a, z in zip(e[::2].tolist(), e[1::2].tolist()):
+            lo, hi = int(oi[a]), int(oi[z - 1]) + 1
+            if a == 0 and self._strict_open and self._strict:
+                lo = self._strict.pop()[0]
+            self._strict.append((lo, hi))
+        self._strict_open = bool(still[-1])
+
+    def _resolve(self, floor: List[StaticInterval], hand: List[StaticInterval]) -> List[StaticInterval]:
+        """The poses to emit from the two tracks' (HAND_VAR_G2).  A floor pose within the hand
+        track's open run waits for that run's piece.  The floor's poses are kept, and the hand
+        piece dropped, when the floor track's still stretches of a pose's length
+        (``min_still_s``) within the piece are one, covering at least half of it (a board set
+        down on a table: the hand's settling at its edges left out, as before the hand track);
+        else the hand piece is the pose and the floor poses within it are dropped (a hand's
+        hold on a quiet chip: no floor pose, or fragments of one where the tremor dipped).
+        A floor pose waits at most until the hand's run ends or is cut at ``max_pose_s``."""
+        held, out = self._held + floor, []
+        for h in hand:
+            # the floor track's still stretches of a pose's length within the hand piece
+            inside = [f for f in held if f.i0 < h.i1 and f.i1 > h.i0]
+            held = [f for f in held if not (f.i0 < h.i1 and f.i1 > h.i0)]
+            over = [min(z, h.i1) - max(a, h.i0) for a, z in self._strict]
+            over = [o for o in over if o >= self.min_n]
+            if len(over) == 1 and over[0] >= (h.i1 - h.i0) / 2:
+                out += inside
+            else:
+                out.append(h)
+        hr = self._tracks[1].run
+        lo = int(hr[0]["oi"][0]) if hr else None
+        self._held = [f for f in held if lo is not None and f.i1 > lo]
+        out += [f for f in held if not (lo is not None and f.i1 > lo)]
+        # the stretches a later hand piece can meet: from its open run's start (the open
+        # stretch is extended by the next batch)
+        if lo is None:
+            self._strict = self._strict[-1:] if self._strict_open else []
+        else:
+            self._strict = [st for st in self._strict if st[1] > lo]
+        return sorted(out, key=lambda iv: iv.i0)
+
+    def _steps(self, tr: _Track, b, q, nk, nd, ar) -> np.ndarray:
         """Where a run breaks because the mean of the window before i and of the window from i
         differ by more than a still board's can (a step too small for the variance test to
         see when a window holds only a few samples of the other side: two quiet stretches
@@ -454,18 +543,18 @@ class _Core:
         hand-held hold's adjacent 1-s means differ by up to ~1.5 deg: bench/stillness_holds.py).
         Only two quiet windows are compared."""
         am = b["am"][:nk]
-        before = np.concatenate([[self._prev_am if self._prev_am is not None else am[0]], am[:nd - 1]])
-        q_before = np.concatenate([[self._prev_q], q[:nd - 1]])
+        before = np.concatenate([[tr.prev_am if tr.prev_am is not None else am[0]], am[:nd - 1]])
+        q_before = np.concatenate([[tr.prev_q], q[:nd - 1]])
         ia = np.minimum(ar + self.w - 1, nk - 1)
         after, q_after = am[ia], q[ia]
-        self._prev_am, self._prev_q = am[nd - 1].copy(), bool(q[nd - 1])
+        tr.prev_am, tr.prev_q = am[nd - 1].copy(), bool(q[nd - 1])
         d = after - before
         lim2 = 25.0 * 2.0 * self.k * b["fa"][:nd] / self.w
         allow2 = self._turn2 * row_sum(before * before)
         return q_before & q_after & (row_sum(d * d) > lim2 + allow2)
 
     # -- intervals --------------------------------------------------------------------
-    def _runs(self, still, ch, brk) -> List[StaticInterval]:
+    def _runs(self, tr: _Track, still, ch, brk) -> List[StaticInterval]:
         out: List[StaticInterval] = []
         n = len(still)
         if n == 0:
@@ -478,43 +567,45 @@ class _Core:
                 # the still run so far ends (motion, or a step between quiet stretches); one
                 # that ended exactly at a max_pose_s cut has nothing left to close, and the
                 # next run neither continues it nor skips its start trim
-                if self._run:
-                    iv = self._close(trim=True)
+                if tr.run:
+                    iv = self._close(tr, trim=True)
                     if iv is not None:
                         out.append(iv)
                 else:
-                    self._run_cut = self._cut_emitted = False
+                    tr.run_cut = tr.cut_emitted = False
             if still[i]:
                 s = i
                 while s < j:
-                    take = min(j - s, self.max_n - self._run_n)
-                    if not self._run:
-                        self._run_i0 = int(ch["i"][s])
-                    self._run.append({k: (None if ch[k] is None else ch[k][s:s + take]) for k in _CH})
-                    self._run_n += take
+                    take = min(j - s, self.max_n - tr.run_n)
+                    if not tr.run:
+                        tr.run_i0 = int(ch["i"][s])
+                    tr.run.append({k: (None if ch[k] is None else ch[k][s:s + take]) for k in _CH})
+                    tr.run_n += take
                     s += take
-                    if self._run_n >= self.max_n:
-                        iv = self._close(trim=False)
+                    if tr.run_n >= self.max_n:
+                        iv = self._close(tr, trim=False)
                         if iv is not None:
                             out.append(iv)
-                        self._run_cut = True
+                        tr.run_cut = True
         return out
 
-    def _close(self, trim: bool) -> Optional[StaticInterval]:
-        """The run so far as an interval (None: rejected), marked ``continues`` when it
-        follows an emitted piece of the same run cut at ``max_pose_s``."""
-        cont = self._run_cut and self._cut_emitted
-        iv = self._piece(trim)
+    def _close(self, tr: _Track, trim: bool) -> Optional[StaticInterval]:
+        """The track's run so far as an interval (None: rejected), marked ``continues`` when
+        it follows an emitted piece of the same run cut at ``max_pose_s``."""
+        cont = tr.run_cut and tr.cut_emitted
+        iv = self._piece(tr, trim)
         if iv is not None:
             iv.continues = cont
-        self._cut_emitted = not trim and iv is not None
+        tr.cut_emitted = not trim and iv is not None
         return iv
 
-    def _piece(self, trim: bool) -> Optional[StaticInterval]:
-        run, self._run, self._run_n = self._run, [], 0
-        start = 0 if self._run_cut else self.trim_n
+    def _piece(self, tr: _Track, trim: bool) -> Optional[StaticInterval]:
+        """The run (or its ``max_pose_s`` piece) as a pose, or None (the floor track's why kept)."""
+        run, tr.run, tr.run_n = tr.run, [], 0
+        start = 0 if tr.run_cut else self.trim_n
         if trim:
-            self._run_cut = False
+            tr.run_cut = False
+        reject = self._reject if not tr.hand else (lambda *a: None)
         # one piece (most runs): its rows as they are (C order, as a concatenation makes them)
         cat = lambda k: None if run[0][k] is None else np.ascontiguousarray(run[0][k]) \
             if len(run) == 1 else np.concatenate([r[k] for r in run])
@@ -527,7 +618,7 @@ class _Core:
             end = max(0, _onset(acc, allow=np.sin(np.radians(self.max_turn_deg / 2))) - self.trim_n)
         if end - start < self.min_n:
             if end > start:
-                self._reject(t[start], t[end - 1], end - start, "short",
+                reject(t[start], t[end - 1], end - start, "short",
                              f"still {(t[end - 1] - t[start]) + 1 / self.rate:.2f} s, under the "
                              f"{self.min_still_s:g} s minimum")
             return None
@@ -541,30 +632,30 @@ class _Core:
         dur = float(t[-1] - t[0]) + 1.0 / self.rate
         norm = float(np.sqrt(m @ m))
         if dur < self.min_still_s * (1 - 1e-9):
-            self._reject(t[0], t[-1], n, "short", f"still {dur:.2f} s, under the {self.min_still_s:g} s minimum")
+            reject(t[0], t[-1], n, "short", f"still {dur:.2f} s, under the {self.min_still_s:g} s minimum")
             return None
         if n < MIN_EFFECTIVE:
-            self._reject(t[0], t[-1], n, "few", f"{n} distinct samples, under the {MIN_EFFECTIVE} a pose needs")
+            reject(t[0], t[-1], n, "few", f"{n} distinct samples, under the {MIN_EFFECTIVE} a pose needs")
             return None
         if np.trace(sc) > self.k * self.floor_cap:
-            self._reject(t[0], t[-1], n, "noise",
+            reject(t[0], t[-1], n, "noise",
                          f"scatter {np.sqrt(np.trace(sc) / 3) * 1e3:.3g} mg per axis, above the chip's bound "
                          f"{np.sqrt(self.k * self.floor_cap / 3) * 1e3:.3g} mg")
             return None
         if not self.rest_norm_g[0] <= norm <= self.rest_norm_g[1]:
-            self._reject(t[0], t[-1], n, "norm",
+            reject(t[0], t[-1], n, "norm",
                          f"|mean| {norm:.3g} g, not {self.rest_norm_g[0]:.3g}..{self.rest_norm_g[1]:.3g} g "
                          f"(a sensor at rest reads ~1 g)")
             return None
         why = _turned(acc, None if gyro is None else gyro[sl] - cat("bz")[sl], self.rate, self.w,
                       self.max_turn_deg / 2)
         if why:
-            self._reject(t[0], t[-1], n, "turn", why)
+            reject(t[0], t[-1], n, "turn", why)
             return None
         if mag is not None:
             why = _mag_turn(np.asarray(mag, float)[sl], None if fresh is None else np.asarray(fresh, bool)[sl])
             if why:
-                self._reject(t[0], t[-1], n, "turn", why)
+                reject(t[0], t[-1], n, "turn", why)
                 return None
         tmp = float("nan")
         if temp is not None and np.isfinite(temp[sl]).any():

@@ -158,6 +158,14 @@ class StaticInterval:
     continues: bool = False
 
 
+class _Span:
+    """A hand piece over stream rows i0..i1 whose floor-track poses stand (_Core._resolve)."""
+    __slots__ = ("i0", "i1", "continues")
+
+    def __init__(self, i0: int, i1: int):
+        self.i0, self.i1, self.continues = i0, i1, False
+
+
 class _Track:
     """One pass that builds runs from the decided samples: its run so far and what its step
     test remembers.  The core keeps two (HAND_VAR_G2): the noise floor's, which makes every
@@ -486,6 +494,13 @@ class _Core:
         brk |= self._steps(tr, b, q, nk, nd, ar)
         return still, brk
 
+    def _floor_wins(self, i0: int, i1: int) -> bool:
+        """Whether the floor track's poses stand over a hand run of stream rows i0..i1: its
+        still stretches of a pose's length within the run are one, covering half of it."""
+        over = [min(z, i1) - max(a, i0) for a, z in self._strict]
+        over = [o for o in over if o >= self.min_n]
+        return len(over) == 1 and over[0] >= (i1 - i0) / 2
+
     def _note_strict(self, still, oi) -> None:
         """Keep the floor track's still stretches (stream rows, first and end) for the hand's
         poses to be checked against (:meth:`_resolve`); a stretch open at the end of the batch
@@ -503,20 +518,19 @@ class _Core:
     def _resolve(self, floor: List[StaticInterval], hand: List[StaticInterval]) -> List[StaticInterval]:
         """The poses to emit from the two tracks' (HAND_VAR_G2).  A floor pose within the hand
         track's open run waits for that run's piece.  The floor's poses are kept, and the hand
-        piece dropped, when the floor track's still stretches of a pose's length
-        (``min_still_s``) within the piece are one, covering at least half of it (a board set
-        down on a table: the hand's settling at its edges left out, as before the hand track);
-        else the hand piece is the pose and the floor poses within it are dropped (a hand's
-        hold on a quiet chip: no floor pose, or fragments of one where the tremor dipped).
+        piece dropped (a :class:`_Span`), when the floor track's still stretches of a pose's
+        length (``min_still_s``) within the hand run are one, covering at least half of it (a
+        board set down on a table: the hand's settling at its edges left out, as before the
+        hand track); else the hand piece is the pose and the floor poses within it are
+        dropped (a hand's hold on a quiet chip: no floor pose, or fragments of one where the
+        tremor dipped).
         A floor pose waits at most until the hand's run ends or is cut at ``max_pose_s``."""
         held, out = self._held + floor, []
         for h in hand:
             # the floor track's still stretches of a pose's length within the hand piece
             inside = [f for f in held if f.i0 < h.i1 and f.i1 > h.i0]
             held = [f for f in held if not (f.i0 < h.i1 and f.i1 > h.i0)]
-            over = [min(z, h.i1) - max(a, h.i0) for a, z in self._strict]
-            over = [o for o in over if o >= self.min_n]
-            if len(over) == 1 and over[0] >= (h.i1 - h.i0) / 2:
+            if isinstance(h, _Span):
                 out += inside
             else:
                 out.append(h)
@@ -596,11 +610,13 @@ class _Core:
         iv = self._piece(tr, trim)
         if iv is not None:
             iv.continues = cont
-        tr.cut_emitted = not trim and iv is not None
+        tr.cut_emitted = not trim and isinstance(iv, StaticInterval)
         return iv
 
-    def _piece(self, tr: _Track, trim: bool) -> Optional[StaticInterval]:
-        """The run (or its ``max_pose_s`` piece) as a pose, or None (the floor track's why kept)."""
+    def _piece(self, tr: _Track, trim: bool):
+        """The run (or its ``max_pose_s`` piece) as a pose, or None (the floor track's why
+        kept); a hand run (after its start trim) over which the floor track's poses stand
+        (:meth:`_floor_wins`) as a :class:`_Span` only, not averaged."""
         run, tr.run, tr.run_n = tr.run, [], 0
         start = 0 if tr.run_cut else self.trim_n
         if trim:
@@ -609,8 +625,10 @@ class _Core:
         # one piece (most runs): its rows as they are (C order, as a concatenation makes them)
         cat = lambda k: None if run[0][k] is None else np.ascontiguousarray(run[0][k]) \
             if len(run) == 1 else np.concatenate([r[k] for r in run])
-        t, acc = cat("t"), cat("acc")
+        t, acc, oi = cat("t"), cat("acc"), cat("oi")
         end = len(t)
+        if tr.hand and end > start and self._floor_wins(int(oi[start]), int(oi[-1]) + 1):
+            return _Span(int(oi[start]), int(oi[-1]) + 1)
         if trim:
             # a slow motion onset shows in the means before the variance: cut where a
             # short moving average first leaves the first half's mean by 5 sigma (on an
@@ -619,12 +637,15 @@ class _Core:
         if end - start < self.min_n:
             if end > start:
                 reject(t[start], t[end - 1], end - start, "short",
-                             f"still {(t[end - 1] - t[start]) + 1 / self.rate:.2f} s, under the "
-                             f"{self.min_still_s:g} s minimum")
+                       f"still {(t[end - 1] - t[start]) + 1 / self.rate:.2f} s, under the "
+                       f"{self.min_still_s:g} s minimum")
             return None
-        sl = slice(start, end)
-        t, acc = t[sl], acc[sl]
-        gyro, temp, mag, fresh, oi = cat("gyro"), cat("temp"), cat("mag"), cat("fresh"), cat("oi")
+        return self._pose(cat, slice(start, end), t[start:end], acc[start:end], oi, reject)
+
+    def _pose(self, cat, sl, t, acc, oi, reject) -> Optional[StaticInterval]:
+        """A run's rows ``sl`` (``t``, ``acc``: those rows) as a pose, or None with ``reject``
+        told why: its length, distinct samples, scatter, |mean| and turn are checked."""
+        gyro, temp, mag, fresh = cat("gyro"), cat("temp"), cat("mag"), cat("fresh")
         m = acc.mean(0)
         d = acc - m
         sc = d.T @ d / (len(acc) - 1)

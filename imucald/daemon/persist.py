@@ -29,6 +29,7 @@ class StateWriter:
         self.save, self.where, self.retry_s = save, where, tuple(retry_s)
         self._cond = threading.Condition()
         self._pending: Dict[str, Any] = {}
+        self._writing: Optional[str] = None      # the kind being written: unsaved until it is
         self._stop = False
         self.error: Optional[str] = None         #: the last failure, None once writes succeed
         self.failing_since: Optional[float] = None
@@ -44,7 +45,8 @@ class StateWriter:
 
     def status(self) -> Dict[str, Any]:
         with self._cond:
-            d: Dict[str, Any] = {"ok": self.error is None, "unsaved": sorted(self._pending),
+            unsaved = set(self._pending) | ({self._writing} if self._writing else set())
+            d: Dict[str, Any] = {"ok": self.error is None, "unsaved": sorted(unsaved),
                                  "written": self.written}
             if self.error is not None:
                 d.update(error=self.error, failing_s=round(time.monotonic() - self.failing_since, 1),
@@ -87,7 +89,11 @@ class StateWriter:
                 if self._stop:
                     return
                 kind, obj = self._take()
-            if not self._attempt(kind, obj):
+                self._writing = kind
+            ok = self._attempt(kind, obj)
+            with self._cond:
+                self._writing = None
+            if not ok:
                 delay = self.retry_s[min(self.failures - 1, len(self.retry_s) - 1)]
                 with self._cond:
                     self._cond.wait_for(lambda: self._stop, timeout=delay)

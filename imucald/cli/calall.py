@@ -99,7 +99,7 @@ def _accel(args, rec, poses, pieces, progress):
     from ..fitting.fit import fit_norm
     from ..fitting.noise.colour import pose_colour_inflation
     from ..specs import BOARDS
-    from .offline import DEFAULT_MODEL, check_rest_norms, file_part
+    from .offline import DEFAULT_MODEL, check_rest_norms, file_part, one_orientation
     from .thermal import fit_thermal, pieces_colour_inflation, thermal_json, thermal_lines
     why = _unusable(rec.acc, "accel", "no accelerometer columns (ax, ay, az)")
     if why:
@@ -108,6 +108,9 @@ def _accel(args, rec, poses, pieces, progress):
         # why none (the quiet windows' scatter, the quiet stretches rejected), as --sensor accel says
         from ..fitting.stillness.poses import no_still_message
         return {"skipped": no_still_message("", poses.detector, 0)}, None   # the error names the file
+    why = one_orientation(poses)
+    if why:
+        return {"skipped": why}, None
     if len(poses) < 10:
         return {"skipped": f"only {len(poses)} still poses found; the 9-parameter model needs at least "
                            f"10 (about 25 recommended), well spread over the sphere"}, None

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+from typing import Optional
 
 from ..errors import UserError, write_failure
 from ._common import eprint as _eprint, print_json
@@ -118,6 +119,28 @@ def check_rest_norms(path: str, poses) -> None:
         raise UserError(f"{path}: pose {i + 1} (t0 {poses.t0[i]:g} s) reads |a| = {norm[i]:.3g} g, not ~1 g "
                         f"({REST_NORM_G[0]:g}..{REST_NORM_G[1]:g}): a still pose reads gravity in g; "
                         f"remove that pose or convert the file to g")
+
+
+#: poses whose gravity directions all lie within this of the first pose's are one orientation
+#: (the gap diagnosis's grouping, gap/series.py orientation_groups)
+ONE_ORIENTATION_DEG = 20.0
+
+
+def one_orientation(poses) -> Optional[str]:
+    """Why the accelerometer's still poses determine no calibration when they all hold the
+    board in one orientation (None otherwise): a norm fit then sees one direction of gravity,
+    and 7 of the 9 parameters rest on the prior alone (an independent probe's board turned
+    flat on a table: calibrate accepted it with exit 0, where replay and gap refuse it)."""
+    import numpy as np
+    if len(poses) < 2:
+        return None
+    u = poses.acc / np.linalg.norm(poses.acc, axis=1, keepdims=True)
+    spread = float(np.degrees(np.arccos(np.clip((u @ u[0]).min(), -1.0, 1.0))))
+    if spread > ONE_ORIENTATION_DEG:
+        return None
+    return (f"all {len(poses)} still poses hold the board in one orientation (gravity directions within "
+            f"{spread:.1f} deg of each other), which determines no calibration: turn it over between "
+            f"holds, about 25 orientations spread over the sphere (turning it flat on a table keeps one)")
 
 
 #: smallest ratio of the magnetometer pose means' least to greatest spread (principal axes)
@@ -279,6 +302,9 @@ def _fit_accel(args, rec, poses, pieces, det, model, progress):
     chip, the pieces' inflation for the thermal fit)."""
     from ..fitting.fit import fit_norm
     from ..specs import BOARDS
+    why = one_orientation(poses)
+    if why:
+        raise UserError(f"{args.input}: {why}")
     need, model = _accel_model_order(args.input, model, len(poses), args.model is None, det, progress)
     check_rest_norms(args.input, poses)
     if progress:

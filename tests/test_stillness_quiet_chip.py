@@ -109,3 +109,24 @@ def test_table_poses_keep_the_floor_tracks_extent(seed, monkeypatch):
     per, stray = _covered(ivs, truth)
     assert [len(p) for p in per] == [1] * len(truth) and not stray
     assert got == [(iv.i0, iv.i1) for iv in ivs]
+
+
+def test_a_fifo_logger_stamping_each_burst_with_its_read_time_keeps_its_rate_and_poses():
+    """A logger that reads a FIFO every 40 samples and stamps the whole burst with the read
+    time: the effective rate is the samples' (104 Hz), not one over the burst period (2.6 Hz,
+    when every burst's step counted as a pause among the zero steps: an independent probe's
+    400-Hz files were "no still moment" in 3 of 4), and the holds are found as with exact
+    stamps; a regular stream's rate is what it was (samples / span, to the bit).
+    Broken once (pauses judged among all steps, zero ones included): the rate assertions fail."""
+    from imucald.fitting.stillness.repeats import effective_rate, find_repeats
+    rng = np.random.default_rng(5)
+    t, acc, gyro, truth = _session(rng, rng.uniform(3, 8, 12), 2.0, 0.0, 0.0, rest_s=10.0)
+    burst = (np.arange(len(t)) // 40 + 1) * 40 / RATE          # each row stamped at its burst's end
+    assert effective_rate(t) == (len(t) - 1) / float(np.diff(t).sum())
+    assert abs(effective_rate(burst) / RATE - 1) < 0.01
+    rep = find_repeats(burst, acc)
+    assert abs(rep.rate_hz / RATE - 1) < 0.01
+    exact = detect(t, acc, gyro, RATE)[0]
+    got = detect(burst, acc, gyro)[0]
+    per, stray = _covered(got, [(a - 0.1, b + 0.1) for a, b in truth])
+    assert len(exact) == len(got) and [len(p) for p in per] == [1] * len(truth) and not stray

@@ -211,15 +211,22 @@ def effective_rate(t: np.ndarray, keep: Optional[np.ndarray] = None) -> float:
     d = np.diff(t)
     if not len(d) or not (d > 0).any():
         return 0.0
-    ok = np.ones(len(d), bool)
+    # pauses are judged among the steps between distinct timestamps, each counting the rows
+    # stamped at its end: a logger that stamps a FIFO's burst of 40 samples with one read
+    # time has 39 zero steps a burst, and against their mean every burst's step was a pause
+    # (none counted: 0 Hz, so 1 / the burst period, 10 Hz for 400 Hz of samples, was used)
+    adv = np.flatnonzero(d > 0)
+    dd = d[adv]
+    rows = np.diff(np.concatenate([adv, [len(d)]]))     # rows stamped at each step's end
+    ok = np.ones(len(dd), bool)
     for _ in range(5):
-        m = float(d[ok].mean())
-        ok2 = d <= PAUSE_FACTOR * m
+        m = float(dd[ok].sum()) / int(rows[ok].sum())
+        ok2 = dd <= PAUSE_FACTOR * m * rows
         if (ok2 == ok).all():
             break
         ok = ok2
-    span = float(d[ok].sum())
-    return int(ok.sum()) / span if span > 0 else 0.0
+    span = float(dd[ok].sum())
+    return int(rows[ok].sum()) / span if span > 0 else 0.0
 
 
 def find_repeats(t: np.ndarray, x: np.ndarray, rate_hz: Optional[float] = None) -> Repeats:

@@ -100,7 +100,7 @@ def entry() -> None:
     """The ``imucald`` console script and ``python -m imucald.cli``: :func:`main`, then exit
     with its code.  The objects alive at exit are first moved out of the cyclic garbage
     collector's reach (``gc.freeze``), so the interpreter's last full collection does not walk
-    the ~10^5 objects numpy's import made: 12 ms of a 0.18-s ``calibrate`` here
+    the ~10^5 objects numpy's import made: 15-20 ms of a 0.19-s ``calibrate`` here
     (bench/imutk.py).  They are still freed by reference counting as the modules are torn
     down; only reference cycles left at exit go uncollected (the OS takes the memory back),
     so nothing may rely on a finalizer run by that collection: imucald closes its files with

@@ -80,8 +80,8 @@ def thermal_lines(sensor: str, tf, part=None) -> List[str]:
     if part is not None and sensor != "gyro" and moves_params(tf):
         out.append(f"  in the calibration file (-o), fitted with these terms, at {tf.t_ref_c:.1f} degC "
                    f"(the fit above is constant over the temperatures):")
+        row = lambda a, f: "[" + ", ".join(f.format(float(x)) for x in np.ravel(a)) + "]"
         for g, v in part.params.items():
-            row = lambda a, f: "[" + ", ".join(f.format(float(x)) for x in np.ravel(a)) + "]"
             out.append(f"    {g:<16} {row(v, '{:+.6f}')}  +- {row(part.stderr[g], '{:.2e}')}")
     return out
 

@@ -169,8 +169,8 @@ class _Span:
 class _Track:
     """One pass that builds runs from the decided samples: its run so far and what its step
     test remembers.  The core keeps two (HAND_VAR_G2): the noise floor's, which makes every
-    pose it always made, and with a gyro the hand's, whose poses count only where the first
-    found no still stretch of a pose's length."""
+    pose it always made, and with a gyro the hand's, whose poses replace the floor's within
+    them unless one floor stretch covers half of the hand's run (:meth:`_Core._resolve`)."""
     __slots__ = ("hand", "run", "run_n", "run_i0", "run_cut", "cut_emitted", "prev_am", "prev_q")
 
     def __init__(self, hand: bool):
@@ -523,12 +523,11 @@ class _Core:
         board set down on a table: the hand's settling at its edges left out, as before the
         hand track); else the hand piece is the pose and the floor poses within it are
         dropped (a hand's hold on a quiet chip: no floor pose, or fragments of one where the
-        tremor dipped).
-        A floor pose waits at most until the hand's run ends or is cut at ``max_pose_s``."""
+        tremor dipped).  A floor pose waits at most until the hand's run ends or is cut at
+        ``max_pose_s``."""
         held, out = self._held + floor, []
         for h in hand:
-            # the floor track's still stretches of a pose's length within the hand piece
-            inside = [f for f in held if f.i0 < h.i1 and f.i1 > h.i0]
+            inside = [f for f in held if f.i0 < h.i1 and f.i1 > h.i0]      # floor poses within it
             held = [f for f in held if not (f.i0 < h.i1 and f.i1 > h.i0)]
             if isinstance(h, _Span):
                 out += inside
@@ -660,13 +659,13 @@ class _Core:
             return None
         if np.trace(sc) > self.k * self.floor_cap:
             reject(t[0], t[-1], n, "noise",
-                         f"scatter {np.sqrt(np.trace(sc) / 3) * 1e3:.3g} mg per axis, above the chip's bound "
-                         f"{np.sqrt(self.k * self.floor_cap / 3) * 1e3:.3g} mg")
+                   f"scatter {np.sqrt(np.trace(sc) / 3) * 1e3:.3g} mg per axis, above the chip's bound "
+                   f"{np.sqrt(self.k * self.floor_cap / 3) * 1e3:.3g} mg")
             return None
         if not self.rest_norm_g[0] <= norm <= self.rest_norm_g[1]:
             reject(t[0], t[-1], n, "norm",
-                         f"|mean| {norm:.3g} g, not {self.rest_norm_g[0]:.3g}..{self.rest_norm_g[1]:.3g} g "
-                         f"(a sensor at rest reads ~1 g)")
+                   f"|mean| {norm:.3g} g, not {self.rest_norm_g[0]:.3g}..{self.rest_norm_g[1]:.3g} g "
+                   f"(a sensor at rest reads ~1 g)")
             return None
         why = _turned(acc, None if gyro is None else gyro[sl] - cat("bz")[sl], self.rate, self.w,
                       self.max_turn_deg / 2)

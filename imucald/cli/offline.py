@@ -132,9 +132,10 @@ def one_orientation(poses) -> Optional[str]:
     and 7 of the 9 parameters rest on the prior alone (an independent probe's board turned
     flat on a table: calibrate accepted it with exit 0, where replay and gap refuse it)."""
     import numpy as np
-    if len(poses) < 2:
+    norm = np.linalg.norm(poses.acc, axis=1, keepdims=True)
+    if len(poses) < 2 or not np.all(norm > 0):
         return None
-    u = poses.acc / np.linalg.norm(poses.acc, axis=1, keepdims=True)
+    u = poses.acc / norm
     spread = float(np.degrees(np.arccos(np.clip((u @ u[0]).min(), -1.0, 1.0))))
     if spread > ONE_ORIENTATION_DEG:
         return None
@@ -302,11 +303,12 @@ def _fit_accel(args, rec, poses, pieces, det, model, progress):
     chip, the pieces' inflation for the thermal fit)."""
     from ..fitting.fit import fit_norm
     from ..specs import BOARDS
+    if len(poses):
+        check_rest_norms(args.input, poses)     # each pose reads ~1 g (a zero pose: no direction)
     why = one_orientation(poses)
     if why:
         raise UserError(f"{args.input}: {why}")
     need, model = _accel_model_order(args.input, model, len(poses), args.model is None, det, progress)
-    check_rest_norms(args.input, poses)
     if progress:
         from ..fitting.stillness.poses import still_report
         for line in still_report(det)[1:]:

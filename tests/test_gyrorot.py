@@ -466,3 +466,22 @@ def test_a_gyro_in_other_units_or_flipped_is_warned_of(tmp_path, capsys, gain):
     err = capsys.readouterr().err
     warned = "the gyro's rotations between poses miss the accelerometer's gravity directions" in err
     assert warned == (gain in (2.0, -1.0)), err
+
+
+def test_duplicated_rows_are_not_lost_samples_and_a_hole_still_is():
+    """A logger that writes every row twice (same stamp, same values): the rotation windows'
+    lost-sample test takes its period between distinct stamps (the median step was 0, every
+    step read as a loss: an independent probe's 8 of 8 such files fitted no K or G; its copy
+    with the duplicates removed fitted 34 rotations); a hole of two samples is still one.
+    Broken once (the median step as the period): no window found."""
+    import numpy as np
+    from imucald.fitting.gyro.integration import rotation_windows
+    t = np.repeat(np.arange(3000) / 100.0, 2)
+    g = np.zeros((len(t), 3))
+    sl = [slice(i, i + 200) for i in range(0, len(t) - 400, 600)]
+    wins, left = rotation_windows(t, g, sl)
+    assert len(wins) == len(sl) - 1 and left["gap"] == 0
+    t2 = t.copy()
+    t2[1000:] += 0.02                       # two samples' worth lost between rows 999 and 1000
+    wins, left = rotation_windows(t2, g, sl)
+    assert left["gap"] == 1 and len(wins) == len(sl) - 2

@@ -9,11 +9,15 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ...numerics.npstats import median
+from ..stillness.repeats import effective_rate
 
 #: a sample within 4 LSB of a 16-bit converter's full scale is at the rail
 RAIL_FRACTION = 1.0 - 4.0 / 32768.0
-#: a time step longer than this many median steps means samples were lost
+#: a time step longer than this many sample periods means samples were lost (the period:
+#: the mean step between distinct timestamps, pauses out, stillness/repeats.py
+#: effective_rate: the median step was 0 in a file of duplicated rows, where every step then
+#: read as a loss, and a whole-ms clock's steps of 2 and 3 ms at 416 Hz have a median of
+#: 2 ms, where 3 ms read as one)
 GAP_FACTOR = 1.5
 D2R = np.pi / 180.0
 
@@ -24,7 +28,8 @@ def rotation_windows(t_s, gyro_dps, slices: Sequence[slice], range_dps: Optional
     p+1's first and last; left_out counts the pairs dropped as ``saturated`` or ``gap``."""
     t = np.asarray(t_s, float)
     g = np.asarray(gyro_dps, float)
-    step = float(median(np.diff(t))) if len(t) > 1 else 0.0
+    rate = effective_rate(t[np.concatenate([[True], np.diff(t) > 0])]) if len(t) > 1 else 0.0
+    step = 1.0 / rate if rate > 0 else 0.0
     rail = None if not range_dps else RAIL_FRACTION * float(range_dps)
     out, left = [], {"saturated": 0, "gap": 0}
     for p in range(len(slices) - 1):

@@ -80,6 +80,9 @@ _NL_TERMS = max(c.q for c in ACCEL_CANDIDATES if c.name == "nonlinearity")
 _TB_TERMS = min(c.q for c in ACCEL_CANDIDATES if c.name == "thermal_bias")
 PAIR_POSES = Triangular9().k + _NL_TERMS + _TB_TERMS + PAIR_ENTRY_MIN_DOF
 MIN_ORIENTATIONS = 6    #: distinct gravity directions (20 deg apart) the 9-parameter fit needs
+#: a temperature span below this (degC) is flat: no thermal candidate is tested over it, and a
+#: still stretch that flat gives the noise's colour (noise_stretch)
+FLAT_TEMP_C = 0.5
 
 
 class GapError(UserError):
@@ -306,7 +309,7 @@ def pose_setup(rec: Recording, sl: List[slice], ps: PoseSet) -> PoseSetup:
     if temp is None or not np.all(np.isfinite(temp)):
         skip = {"thermal_bias": "no temperature", "thermal_scale": "no temperature"}
         notes.append("no temperature column: temperature effects were skipped")
-    elif np.ptp(temp) < 0.5:
+    elif np.ptp(temp) < FLAT_TEMP_C:
         skip = {"thermal_bias": "flat temperature", "thermal_scale": "flat temperature"}
         notes.append(f"temperature varied by only {np.ptp(temp):.2f} C: temperature effects were skipped")
     tmid = 0.5 * (ps.t0 + ps.t1)
@@ -316,8 +319,25 @@ def pose_setup(rec: Recording, sl: List[slice], ps: PoseSet) -> PoseSetup:
         ctx_all["temp"] = temp
         ctx_all["dT"] = temp - temp.mean()
     T_pose = float(np.median(ps.n[keep]) / rate)
-    longest = max(sl, key=lambda s: s.stop - s.start) if sl else None
-    return PoseSetup(sl, ps, keep, bad, sat, skip, ctx_all, T_pose, longest, notes)
+    return PoseSetup(sl, ps, keep, bad, sat, skip, ctx_all, T_pose, noise_stretch(rec, sl), notes)
+
+
+def noise_stretch(rec: Recording, sl: List[slice]) -> Optional[slice]:
+    """The still stretch the noise's colour (Allan deviation) is read from: the longest over
+    which the temperature held within FLAT_TEMP_C, else the longest.  A warm-up's stretch
+    drifts with the temperature, the effect under diagnosis: 10 minutes warming on the table
+    before a tour made every hold's gyro variance 4-9x and hid the gyro's thermal drift (an
+    independent probe's warm-up tours: "none" in 6 of 8, ratio 0.09-0.16)."""
+    if not sl:
+        return None
+    span = lambda s: s.stop - s.start
+    if rec.temp is not None:
+        held = lambda s: np.isfinite(rec.temp[s]).any() and \
+            np.nanmax(rec.temp[s]) - np.nanmin(rec.temp[s]) < FLAT_TEMP_C
+        flat = [s for s in sl if held(s)]
+        if flat:
+            return max(flat, key=span)
+    return max(sl, key=span)
 
 
 def _quant_floor(x: np.ndarray, slices) -> tuple:

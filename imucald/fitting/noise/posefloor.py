@@ -232,6 +232,10 @@ def _wander_decision(lr) -> Dict[str, object]:
     return {"wander": bool(mean > 2 * se), "log_tangential_over_radial": round(mean, 4), "stderr": round(se, 4)}
 
 
+#: poses longer than this many times the median pose are rests, left out of the sway estimate
+HOLD_SPAN = 3.0
+
+
 def sway_rotation_variance(acc_g: np.ndarray, gyro_dps: np.ndarray, slices: Sequence[slice],
                            rate_hz: float, min_samples: int = 16) -> Tuple[np.ndarray, Dict[str, object]]:
     """Extra variance (N,) dps^2, per axis, of each gyro pose mean over ``slices`` from the
@@ -243,6 +247,13 @@ def sway_rotation_variance(acc_g: np.ndarray, gyro_dps: np.ndarray, slices: Sequ
     N = len(slices)
     T = np.array([(s.stop - s.start) / rate_hz for s in slices], float)
     use = np.array([s.stop - s.start >= min_samples for s in slices])
+    # holds, not rests: a stretch over HOLD_SPAN x the median pose's length (a warm-up on the
+    # table, 10 minutes among 6-s holds) tilts and drifts with the temperature, and its T^2
+    # weighs it 10^4 times a hold's: alone it made a "sway" of 5.9 deg RMS, and every hold's
+    # gyro variance ~20x (an independent probe's warm-up tours: gap named no gyro thermal
+    # drift in 6 of 8, ratio 0.09-0.16)
+    if use.any():
+        use &= T <= HOLD_SPAN * float(np.median(T[use]))
     info: Dict[str, object] = {"method": "accelerometer tilt change x gyro pose mean"}
     if use.sum() < 5:
         info["note"] = "fewer than 5 poses of 16 samples: sway not estimated"

@@ -45,12 +45,12 @@ import numpy as np
 
 from ...numerics.npstats import median
 from ..judging.metrics import rms
-from .integration import (D2R, GAP_FACTOR, RAIL_FRACTION, RotationWindows, angle_deg,
-                          predict_directions, rotation_windows, tangent_basis)
+from .integration import (D2R, HOLE_FACTOR, MISSING_MIN, RAIL_FRACTION, RotationWindows,
+                          angle_deg, predict_directions, rotation_windows, tangent_basis)
 from ..judging.uncertainty import UNDETERMINED_RATIO
 
 __all__ = ["GyroRotFit", "fit_gyro_rotations", "rotation_windows", "predict_directions",
-           "gyro_prior", "fit_g_sensitivity", "RAIL_FRACTION", "GAP_FACTOR"]
+           "gyro_prior", "fit_g_sensitivity", "RAIL_FRACTION", "HOLE_FACTOR", "MISSING_MIN"]
 
 
 

@@ -171,13 +171,15 @@ class _Track:
     test remembers.  The core keeps two (HAND_VAR_G2): the noise floor's, which makes every
     pose it always made, and with a gyro the hand's, whose poses replace the floor's within
     them unless one floor stretch covers half of the hand's run (:meth:`_Core._resolve`)."""
-    __slots__ = ("hand", "run", "run_n", "run_i0", "run_cut", "cut_emitted", "prev_am", "prev_q")
+    __slots__ = ("hand", "run", "run_n", "run_i0", "run_start", "run_cut", "cut_emitted", "prev_am",
+                 "prev_q")
 
     def __init__(self, hand: bool):
         self.hand = hand
         self.run: List[dict] = []
         self.run_n = 0
         self.run_i0 = 0
+        self.run_start = 0                  # stream row of the run's first sample, across cuts
         self.run_cut = False                # the run continues a piece cut at max_pose_s
         self.cut_emitted = False            # and that piece was emitted (not rejected)
         self.prev_am = None                 # trailing accelerometer mean at the last decided sample
@@ -236,6 +238,8 @@ class _Core:
         self._strict: List[tuple] = []       # the floor track's still stretches: (first, end)
         self._strict_open = False            # stream rows; the last one open at the batch end
         self._held: List[StaticInterval] = []    # floor poses within the hand's open run
+        self._real: List[tuple] = []         # (first, end) rows of the hand pieces emitted from it
+        self._queue: List[StaticInterval] = []   # poses after a waiting floor pose, in order
 
     # -- statistics -------------------------------------------------------------------
     def _blocks(self, x: np.ndarray, gy: bool) -> None:
@@ -516,34 +520,36 @@ class _Core:
         self._strict_open = bool(still[-1])
 
     def _resolve(self, floor: List[StaticInterval], hand: List[StaticInterval]) -> List[StaticInterval]:
-        """The poses to emit from the two tracks' (HAND_VAR_G2).  A floor pose within the hand
-        track's open run waits for that run's piece.  The floor's poses are kept, and the hand
-        piece dropped (a :class:`_Span`), when the floor track's still stretches of a pose's
-        length (``min_still_s``) within the hand run are one, covering at least half of it (a
-        board set down on a table: the hand's settling at its edges left out, as before the
-        hand track); else the hand piece is the pose and the floor poses within it are
-        dropped (a hand's hold on a quiet chip: no floor pose, or fragments of one where the
-        tremor dipped).  A floor pose waits at most until the hand's run ends or is cut at
-        ``max_pose_s``."""
-        held, out = self._held + floor, []
-        for h in hand:
-            inside = [f for f in held if f.i0 < h.i1 and f.i1 > h.i0]      # floor poses within it
-            held = [f for f in held if not (f.i0 < h.i1 and f.i1 > h.i0)]
-            if isinstance(h, _Span):
-                out += inside
-            else:
-                out.append(h)
-        hr = self._tracks[1].run
-        lo = int(hr[0]["oi"][0]) if hr else None
-        self._held = [f for f in held if lo is not None and f.i1 > lo]
-        out += [f for f in held if not (lo is not None and f.i1 > lo)]
-        # the stretches a later hand piece can meet: from its open run's start (the open
-        # stretch is extended by the next batch)
+        """The poses to emit from the two tracks' (HAND_VAR_G2).  A hand piece is the pose
+        unless the floor track's still stretches of a pose's length (``min_still_s``) within
+        its run are one, covering at least half of it: then it is a :class:`_Span`, dropped
+        (a board set down on a table: the hand's settling at its edges left out, as before
+        the hand track).  A floor pose within the hand track's open run waits for the whole
+        run (across its ``max_pose_s`` cuts); it is emitted unless it overlaps a hand piece
+        emitted from that run (a hand's hold on a quiet chip: fragments of a floor pose where
+        the tremor dipped), so no two emitted poses overlap, and poses are emitted in the
+        stream's order, however the stream is cut."""
+        out = [h for h in hand if not isinstance(h, _Span)]
+        self._real += [(h.i0, h.i1) for h in out]
+        tr = self._tracks[1]
+        lo = tr.run_start if (tr.run or tr.run_cut) else None
+        wait = lambda f: lo is not None and f.i1 > lo
+        held = self._held + floor
+        self._held = [f for f in held if wait(f)]
+        out += [f for f in held if not wait(f) and not any(a < f.i1 and f.i0 < z for a, z in self._real)]
+        # what a later piece or floor pose can still meet: from the open run's start (the
+        # open floor stretch is extended by the next batch)
         if lo is None:
+            self._real = []
             self._strict = self._strict[-1:] if self._strict_open else []
         else:
+            self._real = [r for r in self._real if r[1] > lo]
             self._strict = [st for st in self._strict if st[1] > lo]
-        return sorted(out, key=lambda iv: iv.i0)
+        # in the stream's order: what starts after a waiting floor pose waits with it
+        out = sorted(self._queue + out, key=lambda iv: iv.i0)
+        first = min((f.i0 for f in self._held), default=None)
+        self._queue = [iv for iv in out if first is not None and iv.i0 > first]
+        return [iv for iv in out if not (first is not None and iv.i0 > first)]
 
     def _steps(self, tr: _Track, b, q, nk, nd, ar) -> np.ndarray:
         """Where a run breaks because the mean of the window before i and of the window from i
@@ -592,6 +598,8 @@ class _Core:
                     take = min(j - s, self.max_n - tr.run_n)
                     if not tr.run:
                         tr.run_i0 = int(ch["i"][s])
+                        if not tr.run_cut:
+                            tr.run_start = int(ch["oi"][s])
                     tr.run.append({k: (None if ch[k] is None else ch[k][s:s + take]) for k in _CH})
                     tr.run_n += take
                     s += take

@@ -430,6 +430,8 @@ class _Core:
         self._judge(final=True)
         out = self._advance(final=True)
         last = [self._close(tr, trim=True) if tr.run else None for tr in self._tracks]
+        for tr in self._tracks:
+            tr.run_cut = False               # the stream has ended: no run goes on
         if len(self._tracks) == 1:
             return out + [iv for iv in last if iv is not None]
         return out + self._resolve([last[0]] if last[0] is not None else [],

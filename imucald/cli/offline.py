@@ -121,27 +121,20 @@ def check_rest_norms(path: str, poses) -> None:
                         f"remove that pose or convert the file to g")
 
 
-#: poses whose gravity directions all lie within this of the first pose's are one orientation
-#: (the gap diagnosis's grouping, gap/series.py orientation_groups)
-ONE_ORIENTATION_DEG = 20.0
-
-
 def one_orientation(poses) -> Optional[str]:
     """Why the accelerometer's still poses determine no calibration when they all hold the
-    board in one orientation (None otherwise): a norm fit then sees one direction of gravity,
-    and 7 of the 9 parameters rest on the prior alone (an independent probe's board turned
-    flat on a table: calibrate accepted it with exit 0, where replay and gap refuse it)."""
+    board in one orientation (the gap diagnosis's grouping, 20 deg: None otherwise): a norm
+    fit then sees one direction of gravity, and 7 of the 9 parameters rest on the prior alone
+    (an independent probe's board turned flat on a table: calibrate accepted it with exit 0,
+    where replay and gap refuse it)."""
     import numpy as np
-    norm = np.linalg.norm(poses.acc, axis=1, keepdims=True)
-    if len(poses) < 2 or not np.all(norm > 0):
-        return None
-    u = poses.acc / norm
-    spread = float(np.degrees(np.arccos(np.clip((u @ u[0]).min(), -1.0, 1.0))))
-    if spread > ONE_ORIENTATION_DEG:
-        return None
+    from ..fitting.judging.coverage import orientation_groups
+    if len(poses) < 2 or not np.all(np.linalg.norm(poses.acc, axis=1) > 0) \
+            or orientation_groups(poses.acc).max() > 0:
+        return None         # (a zero pose has no direction: check_rest_norms says so)
     return (f"all {len(poses)} still poses hold the board in one orientation (gravity directions within "
-            f"{spread:.1f} deg of each other), which determines no calibration: turn it over between "
-            f"holds, about 25 orientations spread over the sphere (turning it flat on a table keeps one)")
+            f"20 deg of the first's), which determines no calibration: turn it over between holds, "
+            f"about 25 orientations spread over the sphere (turning it flat on a table keeps one)")
 
 
 #: smallest ratio of the magnetometer pose means' least to greatest spread (principal axes)

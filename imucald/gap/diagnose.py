@@ -66,7 +66,8 @@ from ..fitting.noise.posefloor import (
 )
 from .saturation import saturated
 from .search import PAIR_ENTRY_MIN_DOF
-from .series import orientation_groups, within_pose_inflation
+from ..fitting.judging.coverage import orientation_groups
+from .series import within_pose_inflation
 from .single import diagnose_single
 
 __all__ = ["diagnose", "GapError", "ACCEL_CANDIDATES", "GYRO_CANDIDATES", "MAG_CANDIDATES"]

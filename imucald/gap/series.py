@@ -37,26 +37,9 @@ from ..numerics.tails import chi2_logsf
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_REMAINING_LEVEL, GAP_TEST_LEVEL
 from .verdict import verdict
 
-__all__ = ["make_blocks", "block_noise_var", "series_diagnose", "orientation_groups",
+__all__ = ["make_blocks", "block_noise_var", "series_diagnose",
            "within_pose_inflation"]
 
-
-
-def orientation_groups(acc_mean_g: np.ndarray, tol_deg: float = 20.0) -> np.ndarray:
-    """Label poses whose gravity directions lie within ``tol_deg`` of a group's first pose."""
-    u = acc_mean_g / np.linalg.norm(acc_mean_g, axis=1, keepdims=True)
-    lab = -np.ones(len(u), int)
-    heads: List[np.ndarray] = []
-    c = math.cos(math.radians(tol_deg))
-    for i, v in enumerate(u):
-        for k, h in enumerate(heads):
-            if v @ h >= c:
-                lab[i] = k
-                break
-        else:
-            heads.append(v)
-            lab[i] = len(heads) - 1
-    return lab
 
 
 def make_blocks(t_s: np.ndarray, x: np.ndarray, temp_c: Optional[np.ndarray], slices: Sequence[slice],

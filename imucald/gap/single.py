@@ -6,7 +6,8 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from .series import between_block_var, block_noise_var, make_blocks, orientation_groups, series_diagnose
+from ..fitting.judging.coverage import orientation_groups
+from .series import between_block_var, block_noise_var, make_blocks, series_diagnose
 
 __all__ = ["diagnose_single", "MIN_BLOCKS"]
 

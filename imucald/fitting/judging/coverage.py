@@ -85,3 +85,21 @@ def next_orientation(missing, hinted: Dict[str, int], up=None):
         return (hinted.get(name, 0), name.count("+") + name.count("-"), turn, i)
 
     return min(enumerate(missing), key=key)[1]
+
+
+def orientation_groups(acc_mean_g: np.ndarray, tol_deg: float = 20.0) -> np.ndarray:
+    """Label poses whose gravity directions lie within ``tol_deg`` of a group's first pose
+    (the gap diagnosis's orientations; calibrate refuses poses all in one)."""
+    u = acc_mean_g / np.linalg.norm(acc_mean_g, axis=1, keepdims=True)
+    lab = -np.ones(len(u), int)
+    heads = []
+    c = np.cos(np.radians(tol_deg))
+    for i, v in enumerate(u):
+        for k, h in enumerate(heads):
+            if v @ h >= c:
+                lab[i] = k
+                break
+        else:
+            heads.append(v)
+            lab[i] = len(heads) - 1
+    return lab

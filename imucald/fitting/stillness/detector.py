@@ -171,14 +171,12 @@ class _Track:
     test remembers.  The core keeps two (HAND_VAR_G2): the noise floor's, which makes every
     pose it always made, and with a gyro the hand's, whose poses replace the floor's within
     them unless one floor stretch covers half of the hand's run (:meth:`_Core._resolve`)."""
-    __slots__ = ("hand", "run", "run_n", "run_i0", "run_start", "run_cut", "cut_emitted", "prev_am",
-                 "prev_q")
+    __slots__ = ("hand", "run", "run_n", "run_start", "run_cut", "cut_emitted", "prev_am", "prev_q")
 
     def __init__(self, hand: bool):
         self.hand = hand
         self.run: List[dict] = []
         self.run_n = 0
-        self.run_i0 = 0
         self.run_start = 0                  # stream row of the run's first sample, across cuts
         self.run_cut = False                # the run continues a piece cut at max_pose_s
         self.cut_emitted = False            # and that piece was emitted (not rejected)
@@ -598,10 +596,8 @@ class _Core:
                 s = i
                 while s < j:
                     take = min(j - s, self.max_n - tr.run_n)
-                    if not tr.run:
-                        tr.run_i0 = int(ch["i"][s])
-                        if not tr.run_cut:
-                            tr.run_start = int(ch["oi"][s])
+                    if not tr.run and not tr.run_cut:
+                        tr.run_start = int(ch["oi"][s])
                     tr.run.append({k: (None if ch[k] is None else ch[k][s:s + take]) for k in _CH})
                     tr.run_n += take
                     s += take

@@ -14,9 +14,10 @@ temperature and time.  Pure functions over arrays:
    log-log slope, which is clamped to [-1/2, 0]: white (-1/2) and flicker /
    bias instability (0) are noise; anything steeper, i.e. variation that
    grows with the time scale beyond the block, is left for the effects.
-3. **Baseline.**  One constant per orientation group and axis (the deployed
-   calibration's bias; per group because a fixed orientation's gravity share
-   and g-sensitivity are constants too).
+3. **Baseline.**  One constant per group (gap/single.py ``run_groups``: each still
+   run its own) and axis (the deployed calibration's bias; per run because a fixed
+   orientation's gravity share and g-sensitivity are constants too, and a board set
+   down again is never in quite the same orientation).
 4. **Candidates** (shared by all groups, per axis): ``thermal_bias`` (linear in
    temperature), ``bias_drift`` (linear in time), ``wandering_bias`` (a smooth
    function of time: cubic spline with interior knots chosen by held-out error).
@@ -225,7 +226,7 @@ class SeriesProblem:
     """Block means of one sensor, their noise and the candidates' design columns."""
     Y: np.ndarray                  #: block means (K, C), unit
     V: np.ndarray                  #: their noise variance (K, C), unit^2
-    G: np.ndarray                  #: the baseline: a constant per orientation group
+    G: np.ndarray                  #: the baseline: a constant per group (still run)
     t: np.ndarray                  #: block mid times, s
     s: np.ndarray                  #: time scaled to [0, 1]
     cands: Dict[str, np.ndarray]   #: parametric candidates' columns, by name

@@ -243,3 +243,21 @@ def test_echo_prints_every_event_and_one_sample_a_second(capsys, tmp_path):
     assert main(["run", "--emulate", "--echo", "--format", "binary", "--duration", "1",
                  "--state-dir", str(tmp_path / "s"), "--runtime-dir", str(tmp_path / "r")]) == 2
     assert "output.format binary has none" in capsys.readouterr().err
+
+
+def test_a_column_list_starting_with_a_skipped_column_needs_no_equals_sign(tmp_path, capsys):
+    """``--columns -,t,ax,...`` (a logger's index column first, skipped) was argparse's bare
+    "expected one argument": the value starts with "-".  It now reads as ``--columns=-,t,...``.
+    Broken once: without ``_glue_column_lists`` in cli.main (exit 2, that message)."""
+    raw = tmp_path / "indexed.csv"
+    t = np.arange(200) / 100.0
+    rows = np.column_stack([np.arange(200), t, np.tile([0.0, 0.0, 1.0], (200, 1))])
+    np.savetxt(raw, rows, delimiter=",", fmt="%.6f")
+    rc = main(["calibrate", str(raw), "--columns", "-,t,ax,ay,az"])
+    err = capsys.readouterr().err
+    # the reader took the columns (the index skipped, t the time): constant axes, by name
+    assert rc == 2 and "ax (always 0), ay (always 0), az (always 1)" in err, err
+    # nothing after '--' is glued (it is a positional there)
+    from imucald.cli import _glue_column_lists
+    assert _glue_column_lists(["x", "--columns", "-,t", "--", "--columns", "-,t"]) == \
+        ["x", "--columns=-,t", "--", "--columns", "-,t"]

@@ -53,8 +53,33 @@ def _unrecognized(parser, cmd: Optional[str], extra: List[str], positional: List
     sub.error(f"unrecognized arguments: {' '.join(extra)}{hint}")
 
 
+#: options whose value is a column list, which may start with "-" (a skipped column)
+_COLUMN_LISTS = ("--columns", "--join-columns")
+
+
+def _glue_column_lists(words: List[str]) -> List[str]:
+    """``--columns -,t,ax,ay,az`` as ``--columns=-,t,ax,ay,az``: argparse takes a value that
+    starts with "-" for an option and said only "expected one argument" (a logger's first
+    column skipped is common: an index, a date).  Only a comma list is glued, and nothing
+    after ``--``."""
+    out: List[str] = []
+    i = 0
+    while i < len(words):
+        w = words[i]
+        if w == "--":
+            return out + words[i:]
+        nxt = words[i + 1] if i + 1 < len(words) else ""
+        if w in _COLUMN_LISTS and nxt.startswith("-") and "," in nxt:
+            out.append(f"{w}={nxt}")
+            i += 2
+            continue
+        out.append(w)
+        i += 1
+    return out
+
+
 def main(argv: Optional[List[str]] = None) -> int:
-    words = sys.argv[1:] if argv is None else list(argv)
+    words = _glue_column_lists(sys.argv[1:] if argv is None else list(argv))
     # only the subcommand given gets its arguments built (--help and a typo: none)
     cmd = next((w for w in words if not w.startswith("-")), "")
     parser = build_parser(cmd if cmd in COMMAND_NAMES else "")

@@ -317,20 +317,35 @@ def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
     assert msg.startswith(f"{p}:4: time goes backwards (25 ms after 30 ms); sort the rows")
 
 
-@pytest.mark.parametrize("rows,where", [(300, ": no numeric rows"), (1500, ":1001: no row of 4 numbers")])
-def test_table_with_semicolons_and_decimal_commas_says_so(tmp_path, rows, where):
-    """A spreadsheet's export in a locale whose decimal mark is the comma (0,01;0;0;16384):
-    no row parses, and the one-line error says why and how to export it, whether the file
-    ends before 1000 lines or not.  A file that is not a table at all gets no such hint.
-    Broken once: the hint never set (both cases fail)."""
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
+    """A spreadsheet's or phyphox's export in a locale whose decimal mark is the comma
+    (0,01;0,5;-0,25;16384, or tabs between values) was refused ("a decimal comma? export it
+    with ','"; tabs gave "expected 4 values, found 8").  It is read, the same numbers as the
+    '.' table, with a warning naming the line, and an error later in it names its own line.
+    A plain CSV whose rows split into as many values as columns stays a CSV.  Broken once:
+    _first_row without the decimal-comma test (tabs: "expected 4 values, found 6"; ";": no rows)."""
     from imucald.fitting.inputs import read_table
     p = tmp_path / "semi.csv"
-    p.write_text("time;ax;ay;az\n" + "".join(f"0,{i:02d};0;0;16384\n" for i in range(rows)))
+    rows = [(i / 100, 0.5, -0.25, 16384 - i) for i in range(300)]
+    body = "".join(sep.join(f"{v:g}".replace(".", ",") for v in r) + "\n" for r in rows)
+    p.write_text(f"time{sep}ax{sep}ay{sep}az\n" + body)
+    rec = read_table(str(p), ["t", "ax", "ay", "az"], 16384.0)
+    ref = np.array(rows)
+    assert np.array_equal(rec.t, ref[:, 0]) and np.array_equal(rec.acc, ref[:, 1:] / 16384.0)
+    err = capsys.readouterr().err
+    assert f"{p}:2: read as a spreadsheet's export" in err and err.count("\n") == 1
+    lines = body.splitlines(True)
+    lines[40] = sep.join(["0,41", "zz", "0", "1"]) + "\n"            # the file's line 42
+    p.write_text(f"time{sep}ax{sep}ay{sep}az\n" + "".join(lines))
     msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
-    assert msg.startswith(f"{p}{where}") and "separated by ';' (a decimal comma?)" in msg
-    p.write_text("time ax ay az\n" + "no numbers here\n" * rows)
-    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
-    assert msg.startswith(f"{p}{where}") and "';'" not in msg
+    assert msg.startswith(f"{p}:42: column ax: 'zz' is not a number"), msg
+    capsys.readouterr()
+    # a CSV with ", " between integers reads as 4 numbers either way: it stays a CSV
+    p.write_text("".join(f"{10 * i}, 0, 0, {16384 + i % 7}\n" for i in range(300)))
+    rec = read_table(str(p), ["t_ms", "ax", "ay", "az"], 16384.0)
+    assert np.allclose(rec.t, np.arange(300) / 100) and rec.acc[6, 2] == (16384 + 6) / 16384
+    assert "spreadsheet" not in capsys.readouterr().err
 
 
 def test_table_nominal_scale_and_offset_per_sensor(tmp_path):

@@ -139,7 +139,11 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
                      checked=[c != "-" for c in cols],
                      limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
     with open_binary(path, UserError) as fh:
-        lineno, offset = _first_row(fh, path, cols)
+        lineno, offset, comma = _first_row(fh, path, cols)
+        if comma:
+            warn(f"{path}:{lineno}: read as a spreadsheet's export: ';' or whitespace between "
+                 f"values, ',' as the decimal mark")
+            fh = _Translated(fh, _DECIMAL_COMMA)
         idx = {name: i for i, name in enumerate(cols) if name != "-"}
         groups = [(k, [idx[k]]) for k in (t_name, "temp") if k in idx]
         for g, ks in _GROUP_COLUMNS.items():
@@ -170,30 +174,62 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
                      temp=c.get("temp"), meta=meta)
 
 
+#: a decimal-comma table read as an ordinary one: ',' -> '.', ';' -> ' ' (byte for byte, so
+#: every line number and byte offset of an error stays the file's own)
+_DECIMAL_COMMA = bytes.maketrans(b",;", b". ")
+
+
+class _Translated:
+    """A binary file whose bytes are read through ``bytes.translate(table)``; seeking, the
+    position and the descriptor are the file's own (the translation keeps every length)."""
+
+    def __init__(self, fh, table: bytes):
+        self._fh, self._table = fh, table
+
+    def read(self, n: int = -1) -> bytes:
+        return self._fh.read(n).translate(self._table)
+
+    def readline(self, n: int = -1) -> bytes:
+        return self._fh.readline(n).translate(self._table)
+
+    def __getattr__(self, name):
+        return getattr(self._fh, name)
+
+
+def _decimal_comma(s: str, ncols: int) -> bool:
+    """A row of ``ncols`` numbers only when ';' separates values and ',' is the decimal mark
+    (a spreadsheet's or phyphox's export in many locales: ``0,01;0;9,81``, ``0,01<TAB>9,81``,
+    ``12;-40;16384``); read with ',' as a separator it is no row of ``ncols`` numbers."""
+    if "," not in s and ";" not in s:
+        return False
+    alt = s.replace(",", ".").replace(";", " ").split()
+    plain = s.replace(",", " ").split()
+    return len(alt) == ncols and _numeric(alt) and not (len(plain) == ncols and _numeric(plain))
+
+
 def _first_row(fh, path: str, cols: Sequence[str]):
-    """(line number, byte offset) of a raw table's first row of numbers, ``fh`` left there:
-    blank, comment (#, %) and header lines before it skipped, and a UTF-8 byte-order mark."""
+    """(line number, byte offset, decimal comma) of a raw table's first row of numbers,
+    ``fh`` left there: blank, comment (#, %) and header lines before it skipped, and a UTF-8
+    byte-order mark.  Decimal comma: the row is ``len(cols)`` numbers only with ';' between
+    values and ',' as the decimal mark (:func:`_decimal_comma`)."""
     lineno, offset = 1, 0
     if fh.read(len(BOM)) == BOM:
         offset = len(BOM)
     fh.seek(offset)
-    hint = ""
     while True:
         raw = fh.readline(1 << 16)
         if lineno > 1000 or (len(raw) >= 1 << 16 and not raw.endswith(b"\n")):
             raise UserError(f"{path}:{lineno}: no row of {len(cols)} numbers in the first "
-                            f"{lineno} lines: not a numeric table ({','.join(cols)}){hint}")
+                            f"{lineno} lines: not a numeric table ({','.join(cols)})")
         if not raw:
             raise UserError(f"{path}: no numeric rows (expected {len(cols)} numbers per line: "
-                            f"{','.join(cols)}){hint}")
+                            f"{','.join(cols)})")
         s = decode_line(path, raw, lineno, offset).strip()
-        if s and s[0] not in "#%" and _numeric(s.replace(",", " ").split()):
-            fh.seek(offset)
-            return lineno, offset
-        if not hint and ";" in s and _numeric(s.replace(",", ".").replace(";", " ").split()):
-            # a spreadsheet's export where the comma is the decimal mark: 0,01;0;16384
-            hint = ("; its values are separated by ';' (a decimal comma?): export it with ',' or "
-                    "tabs between values and '.' as the decimal point")
+        if s and s[0] not in "#%":
+            comma = _decimal_comma(s, len(cols))
+            if comma or _numeric(s.replace(",", " ").split()):
+                fh.seek(offset)
+                return lineno, offset, comma
         lineno, offset = lineno + 1, offset + len(raw)
 
 

@@ -31,6 +31,7 @@ from ..files.recording import (BOM, COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, 
 from ..numerics.npstats import median
 from ..files.tables import TIME_UNITS, TableSpec, collect, decode_line, iter_blocks, warn
 from .stillness.poses import POSES_MAGIC, read_poses
+from .stillness.repeats import effective_rate
 
 __all__ = ["input_kind", "load_input", "read_table", "join_tables", "stuck_columns", "stuck_message"]
 
@@ -164,6 +165,8 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
     if t_name:
         t = c.pop(t_name) * TIME_COLUMNS_S_PER_UNIT[t_name] if t_name != "t" else c.pop("t")
         rate = _table_rate(path, t, t_name, rate_hz, joined=flag != "--columns")
+        if not rate_hz:
+            rate = _burst_rate(t, c) or rate
     else:
         if not rate_hz:
             raise UserError(f"{path}: no time column (t, t_ms, t_us or t_ns): give --rate-hz")
@@ -334,6 +337,25 @@ def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
                        f"raw counts? give --nominal-scale temp=N and --nominal-offset temp=N (an "
                        f"MPU-6050: temp=340 and temp=-12420.2, from T = counts / 340 + 36.53)")
     return out
+
+
+def _burst_rate(t: np.ndarray, c: Dict[str, np.ndarray]) -> Optional[float]:
+    """Rows a second (pauses out: stillness/repeats.py effective_rate) when most rows share
+    their stamp with the row before and differ from it: a logger that stamps each FIFO burst
+    with its read time (40 rows at 400 Hz under one stamp every 0.1 s), whose steps alone
+    gave 10 Hz, and the gap diagnosis, noise and the gyro's windows then took each pose as
+    40 times longer than it was.  None otherwise: a row repeated with its stamp and values
+    (a logger writing a sample twice) is one sample, and the distinct stamps give the rate."""
+    same = np.diff(t) == 0
+    x = [v for k, v in c.items() if k in ("acc", "gyro", "mag")]
+    if not len(same) or same.mean() <= 0.5 or not x:
+        return None
+    x = np.column_stack(x)
+    differ = np.any(x[1:] != x[:-1], axis=1)
+    if differ[same].mean() <= 0.5:
+        return None
+    rate = effective_rate(t)
+    return rate if rate > 0 else None
 
 
 def _table_rate(path: str, t: np.ndarray, t_name: str, rate_hz: Optional[float], joined: bool = False) -> float:

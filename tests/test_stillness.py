@@ -362,6 +362,31 @@ def test_duplicated_rows_are_dropped_with_one_warning(tmp_path, capsys):
     assert abs(rates[1] / rates[0] - 1) < 0.01, rates
 
 
+def test_fifo_bursts_stamped_with_their_read_time_change_no_decision(tmp_path, capsys):
+    """A logger that drains the FIFO every 0.1 s and stamps the burst's 40 rows with its read
+    time (simulate --fifo-burst): the same poses and the same calibration as the rows at
+    their own times.  The file was refused before ("header rate_hz=400 but the t column steps
+    by 0.1 s": the header was checked against the stamps' steps, not the rows a second).
+    Broken once: files/recording.py _check_rate without the rows-a-second test (exit 2)."""
+    import json
+    from imucald.cli import main
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    common = ["--rate", "400", "--poses", "12", "--hold", "4", "--seed", "6"]
+    assert main(["simulate", "-o", str(a), *common]) == 0
+    assert main(["simulate", "-o", str(b), *common, "--fifo-burst", "0.1"]) == 0
+    capsys.readouterr()
+    t = np.loadtxt(b, delimiter=",", comments="#", skiprows=8, usecols=0)
+    assert np.unique(t).size == pytest.approx(t.size / 40, abs=2)
+    out = {}
+    for p in (a, b):
+        assert main(["calibrate", str(p), "--json", "--method", "lm"]) == 0
+        out[p] = json.loads(capsys.readouterr().out)
+    assert out[a]["poses"] == out[b]["poses"] == 12
+    for g in ("alpha", "scale", "bias_g"):
+        assert np.allclose(out[a]["params"][g], out[b]["params"][g], rtol=0, atol=1e-9), g
+        assert np.allclose(out[a]["stderr"][g], out[b]["stderr"][g], rtol=1e-6), g
+
+
 @pytest.mark.parametrize("rate,board", [(3.0, "mpu6050"), (5.0, "9dof"), (10.0, "mpu6050")])
 def test_a_slow_tumble_without_a_still_moment_is_refused_in_one_line(tmp_path, capsys, rate, board):
     """A board turned by hand without stopping, logged at 3-10 Hz: `calibrate` exits 2 with

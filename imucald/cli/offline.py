@@ -71,6 +71,9 @@ def cmd_simulate(args) -> int:
     if getattr(args, "duplicate_rows", False):
         from ..sim.sensor import duplicate_rows
         out = duplicate_rows(out)
+    if getattr(args, "fifo_burst", None):
+        from ..sim.sensor import burst_stamps
+        out = burst_stamps(out, args.fifo_burst)
     try:
         write_recording(out, args.output, "-o")
     except OSError as e:

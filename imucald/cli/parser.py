@@ -97,6 +97,9 @@ def _add_simulate(s) -> None:
                         "sample (e.g. --rate 100 --logger-rate 385: each value 3-4 times)")
     s.add_argument("--duplicate-rows", action="store_true",
                    help="write every row twice, timestamp included (a logger fault seen in the wild)")
+    s.add_argument("--fifo-burst", type=positive_float, metavar="S",
+                   help="a logger that drains the chip's FIFO every S seconds and stamps each burst's rows "
+                        "with its read time (e.g. --rate 400 --fifo-burst 0.1: 40 rows a stamp)")
     s.set_defaults(func=_command("offline", "cmd_simulate"))
 
 

@@ -277,6 +277,16 @@ def hold_samples(rec: Recording, logger_rate_hz: float, phase: float = 0.0) -> R
 
 
 
+def burst_stamps(rec: Recording, burst_s: float) -> Recording:
+    """The rows as a logger writes them that drains the chip's FIFO every ``burst_s`` seconds
+    and stamps each burst's rows with its read time (the end of the burst): ``burst_s`` x rate
+    rows under one stamp, the values untouched (what an Arduino sketch reading a FIFO and
+    printing ``millis()`` beside each row does)."""
+    t0 = float(rec.t[0])
+    t = t0 + (np.floor((rec.t - t0) / burst_s + 1e-9) + 1.0) * burst_s
+    return Recording(t=t, acc=rec.acc, gyro=rec.gyro, mag=rec.mag, temp=rec.temp, meta=dict(rec.meta))
+
+
 def duplicate_rows(rec: Recording, times: int = 2) -> Recording:
     """Every row written ``times`` times, timestamps included (a logger bug seen in the wild)."""
     idx = np.repeat(np.arange(len(rec.t)), times)

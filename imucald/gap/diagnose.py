@@ -98,6 +98,22 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
                           rec.temp, sims, rng) if N else {}
     ok = {k: v for k, v in res.items() if v.get("verdict") is not None}
     why = "; ".join(f"{k}: {v['error']}" for k, v in res.items() if v.get("verdict") is None)
+    notes = [f"{N} still pose(s) in {n_orient} orientation(s): diagnosed from still stretches split in time "
+             f"(the pose diagnosis needs {MIN_POSES} poses in {MIN_ORIENTATIONS}+ orientations)"]
+    if why:
+        notes.append(why)
+    # the magnetometer from its rotation points needs no still pose: diagnosed before the
+    # error for too few poses (gap --sensor mag on a hand tumble logged with the
+    # accelerometer was refused for its "0 still poses")
+    if "mag" in sensors and rec.mag is not None:
+        use_temp = rec.temp is not None and np.all(np.isfinite(rec.temp)) and np.ptp(rec.temp) >= 0.5
+        skip = {} if use_temp else {"thermal_bias": "no temperature", "thermal_scale": "no temperature"}
+        m = _mag(rec, sl, None, None, [], None, skip, sims, rng, _chip_mag_noise(rec))
+        if m.get("verdict") is None:
+            notes.append(f"mag: not diagnosed: {m['error']}")
+            why = "; ".join(w for w in (why, f"mag: {m['error']}") if w)
+        else:
+            ok["mag"] = m
     if not ok:
         norm = np.linalg.norm(ps.acc, axis=1)
         up = ps.acc[(norm > 0.5) & (norm < 1.5)]             # poses under 1 g (raw)
@@ -106,18 +122,6 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
                        f"least {MIN_POSES} in {MIN_ORIENTATIONS} or more orientations (25-30 recommended): "
                        f"{max(MIN_POSES - N, 1)} more, e.g. {', '.join(miss)}; or one still stretch of "
                        f"several minutes for the time-series diagnosis" + (f" ({why})" if why else ""))
-    notes = [f"{N} still pose(s) in {n_orient} orientation(s): diagnosed from still stretches split in time "
-             f"(the pose diagnosis needs {MIN_POSES} poses in {MIN_ORIENTATIONS}+ orientations)"]
-    if why:
-        notes.append(why)
-    if "mag" in sensors and rec.mag is not None:
-        use_temp = rec.temp is not None and np.all(np.isfinite(rec.temp)) and np.ptp(rec.temp) >= 0.5
-        skip = {} if use_temp else {"thermal_bias": "no temperature", "thermal_scale": "no temperature"}
-        m = _mag(rec, sl, None, None, [], None, skip, sims, rng, _chip_mag_noise(rec))
-        if m.get("verdict") is None:
-            notes.append(f"mag: not diagnosed: {m['error']}")
-        else:
-            ok["mag"] = m
     return {"sensors": ok, "poses_found": N, "orientations": n_orient, "mode": "time_series",
             "poses_left_out": [], "notes": notes}
 

@@ -2,6 +2,7 @@
 is, so that rule 1 applying a fit whose figure is higher on a few poses does not read as a
 worse calibration applied (imucald/fitting/gate.py Decision.text, daemon/pipeline.py)."""
 import json
+from dataclasses import replace
 
 import numpy as np
 
@@ -62,3 +63,18 @@ def test_the_line_head_says_which_parts_were_applied_and_which_kept():
     assert _partly(cand, {"accel"}) == " (accel part; gyro not applied)"
     assert _partly(cand, {"accel", "gyro"}) == ""
     assert _partly(Calibration("mpu6050", {}, accel=acc), {"accel"}) == ""
+
+
+def test_the_cal_event_carries_the_held_out_figures_of_the_parts_applied_only():
+    """A gyro-only application's CAL event reported the refused accelerometer candidate's
+    held-out RMS (an independent probe's replays: 10 events in 9 recordings; table_4's said
+    0.096 mg while the part in force was at 0.479 mg): the figures of a part not applied are
+    now absent (None: the event omits them).  Broken once: _cal_figures reading the
+    candidate's accel quality whatever was taken (fails)."""
+    from imucald.daemon.pipeline import _cal_figures
+    acc = replace(SensorCal.accel("triangular9", Triangular9().nominal),
+                  quality={"heldout_rms_g": 1e-4, "heldout_rms_before_g": 5e-4, "predicted_heldout_rms_g": 9e-5})
+    gyro = SensorCal("gyro", "bias", {"bias_dps": np.zeros(3)})
+    cand = Calibration("mpu6050", {}, accel=acc, gyro=gyro)
+    assert _cal_figures(cand, {"accel", "gyro"})["accel_heldout_rms_g"] == 1e-4
+    assert all(v is None for v in _cal_figures(cand, {"gyro"}).values())

@@ -44,7 +44,8 @@ class JobResult(NamedTuple):
     #: notes: "gate": sensor -> fitting.gate.Decision (p-value, alpha, cross-validated RMS...)
     wall_s: float
     #: mag_flat: the plane of a one-plane swing; mag_undetermined: the terms a partial
-    #: rotation leaves undetermined (no magnetometer part in either case)
+    #: rotation leaves undetermined, or the field's inconsistency (fitting/magcal.py
+    #: field_consistency) (no magnetometer part in either case)
     notes: Dict[str, Any]
 
 
@@ -204,7 +205,7 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
 
     A cloud from a one-plane swing is reported (notes["mag_flat"]: the undetermined
     axis) and never applied; so is one whose terms the determination rule of
-    fitting/magcal.py does not accept (notes["mag_undetermined"])."""
+    fitting/magcal.py does not accept, or whose field is not one field (notes["mag_undetermined"])."""
     noise = job.get("mag_noise")
     if noise is None or not (np.all(np.isfinite(noise)) and np.all(np.asarray(noise) > 0)):
         noise = None            # unknown: the fits use their residuals, no one-plane test
@@ -218,6 +219,9 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
     fc = fit_cloud(_MAG, mp, noise, "lm", rng=job.get("seed"), heldout=False)
     if "flat" in fc:
         notes["mag_flat"] = fc["flat"]
+        return
+    if "inconsistent" in fc:    # the field changed, a magnet, clipping: never applied
+        notes["mag_undetermined"] = {k: fc[k] for k in ("inconsistent", "coverage", "field_gauss")}
         return
     if not fc["determined"]:    # a cap, a wobbly planar turn, no turning at all: never applied
         notes["mag_undetermined"] = {k: fc[k] for k in ("undetermined", "coverage", "field_gauss",

@@ -38,6 +38,14 @@ What the cloud can determine is said, not assumed:
   rule's error rates on simulated partial rotations and its decisions on the real
   BROAD trials: bench/mag_determination.py, docs/guide/magnetometer.md.
 
+Before that rule, two checks for a recording whose field is not one field, which its
+standard errors do not see (an independent probe: clipped tumbles, a board carried to another
+room, a passing magnet, all calibrated before with the hard iron off by up to 31 % of the field):
+samples on a rail (:func:`rails`: clipping, an overflow code) are left out of the fit, and a
+cloud whose corrected magnitude varies beyond the noise by more than ``FIELD_EXCESS_MAX`` of
+the field (and over ``FIELD_RATIO_MIN`` times the noise's spread) determines nothing
+(:func:`field_consistency`).  Error rates: docs/guide/magnetometer.md.
+
 Noise per sample comes from second differences of the time series (robust: a
 smooth hand rotation contributes little to them at 10-200 Hz).
 """
@@ -73,6 +81,21 @@ SOFT_IRON_SE_MAX = 0.02
 #: smallest eigenvalue of the corrected unit directions' scatter for the standard errors
 #: to be trusted at all (module doc)
 MIN_DIRECTION_EIG = 0.02
+#: the corrected field's magnitude may vary beyond the noise by at most this fraction of
+#: the field (RMS): the determination limit (2 %, about a degree of heading), since a
+#: field that changes during the recording (the board carried to another room, a magnet
+#: passing, the sensor clipping) bends the fitted ellipsoid by about as much, however small
+#: the standard errors the fit's own scatter gives (module doc)
+FIELD_EXCESS_MAX = 0.02
+#: ... and only when the corrected magnitude's spread is over this multiple of what the
+#: noise gives: the noise estimate (second differences) is itself uncertain, e.g. 1.25x short
+#: on the real filtered GY-273 log (a smoothing filter hides noise from second differences)
+FIELD_RATIO_MIN = 1.5
+#: a rail (clipping, an overflow code) is an axis's extreme value met in at least this
+#: many distinct samples and this fraction of them, and in more than lie near it inside
+#: (within 1 % of the axis's span or 3 counts): :func:`rails`
+RAIL_MIN_COUNT = 5
+RAIL_MIN_FRACTION = 0.005
 SOFT_NAMES = ("soft_iron_xx", "soft_iron_yy", "soft_iron_zz", "soft_iron_xy", "soft_iron_xz",
               "soft_iron_yz")
 HARD_NAMES = ("hard_iron_x", "hard_iron_y", "hard_iron_z")
@@ -329,6 +352,52 @@ def fit_points(model, points, noise, method, rng, heldout=True) -> FitResult:
     return fit_norm(points, model, method, pose_cov=cov, rng=rng, heldout=heldout)
 
 
+def rails(mag: np.ndarray) -> List[Tuple[int, float, int]]:
+    """(axis, value, count) of each rail in ``mag`` (N, 3): an axis's largest or smallest
+    reading when it recurs in at least RAIL_MIN_COUNT samples and RAIL_MIN_FRACTION of
+    them, and in more than lie near it inside (within 1 % of the axis's span, or 3 counts
+    of its quantisation step).  A sensor that clips (its range) or writes an overflow code
+    (an HMC5883L's -4096, datasheet data output registers 0x03-0x08) piles its readings on
+    one value; a rotation through an axis's extreme spreads them over the counts next to
+    it (noise, and the turn's dwell): the independent probe's clipped tumbles had 10-42 % of
+    their samples on the rail, its clean ones none, the simulator's quantised caps and
+    translations up to 7 samples (0.15 %) at an extreme."""
+    out: List[Tuple[int, float, int]] = []
+    m = np.asarray(mag, float)
+    need = max(RAIL_MIN_COUNT, RAIL_MIN_FRACTION * len(m))
+    for j in range(m.shape[1]):
+        x = m[:, j]
+        span = float(x.max() - x.min())
+        if not span > 0:
+            continue
+        steps = np.diff(np.unique(x))
+        band = max(0.01 * span, 3.0 * float(np.min(steps))) if len(steps) else 0.01 * span
+        for v in (float(x.max()), float(x.min())):
+            at = int(np.count_nonzero(x == v))
+            near = int(np.count_nonzero((x != v) & (np.abs(x - v) <= band)))
+            if at >= need and at > near:
+                out.append((j, v, at))
+    return out
+
+
+def field_consistency(model: MagModel, theta: np.ndarray, points: np.ndarray,
+                      noise: Optional[np.ndarray]) -> Optional[Dict[str, Any]]:
+    """The corrected field magnitude's relative spread over ``points`` against what the
+    per-sample ``noise`` (3,) gives: {"rel_std", "predicted_rel_std", "excess_rel_std"
+    (the spread beyond the noise, as a fraction of the field), "consistent"} (module doc:
+    FIELD_EXCESS_MAX, FIELD_RATIO_MIN).  None without a noise figure."""
+    if noise is None:
+        return None
+    pts = np.asarray(points, float)
+    rel = rel_std(np.linalg.norm(model.forward(theta, pts), axis=1))
+    var = residual_variance(model, theta, pts, np.broadcast_to(np.diag(np.asarray(noise, float) ** 2),
+                                                              (len(pts), 3, 3)))
+    pred = float(np.sqrt(np.mean(var)))
+    excess = float(np.sqrt(max(rel * rel - pred * pred, 0.0)))
+    return {"rel_std": rel, "predicted_rel_std": pred, "excess_rel_std": excess,
+            "consistent": not (excess > FIELD_EXCESS_MAX and rel > FIELD_RATIO_MIN * pred)}
+
+
 def fit_cloud(model: MagModel, points: np.ndarray, noise: Optional[np.ndarray], method: str = "lm",
               rng=None, cells: int = 200, heldout: bool = True) -> Dict[str, Any]:
     """What a thinned rotation cloud ``points`` (M, 3) determines (module doc), for
@@ -345,12 +414,21 @@ def fit_cloud(model: MagModel, points: np.ndarray, noise: Optional[np.ndarray], 
     cal = fit_points(model, points, noise, method, rng, heldout)
     cv = coverage(model, cal.theta, points, cells)
     und = undetermined_terms(cal, cv["direction_eigenvalues"][-1])
+    # a field that is not one field comes before the standard errors, which its scatter
+    # inflates (their message would ask for more orientations, not for another place);
+    # a cloud that does not spread, or a fit pinned on a search bound, comes first (an
+    # ellipsoid fits a cap or a blob closely; a pinned fit cannot fit the field it has)
+    first = und and any(u["reason"] in ("coverage", "at_bound") for u in und)
+    fc = None if first else field_consistency(model, cal.theta, points, noise)
+    if fc is not None and not fc["consistent"]:
+        return {"determined": False, "coverage": cv, "inconsistent": fc, "rejected_fit": cal,
+                "field_gauss": float(cal.params["field_gauss"])}
     if und:
         # the fit is kept for the report only ("rejected_fit"): a file from it would be wrong
         return {"determined": False, "coverage": cv, "undetermined": und, "rejected_fit": cal,
                 "field_gauss": float(cal.params["field_gauss"]),
                 "missing_axes": missing_axes(model, cal.theta, points)}
-    return {"determined": True, "coverage": cv, "calibration": cal}
+    return {"determined": True, "coverage": cv, "calibration": cal, "consistency": fc}
 
 
 def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "lm",
@@ -378,6 +456,17 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
         keep[ix[1:]] &= np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
     mag = mag[keep]
     temp = None if temp_c is None else np.asarray(temp_c, float)[keep]
+    rl = rails(mag) if len(mag) else []
+    if rl:
+        off = np.zeros(len(mag), bool)
+        for j, v, _ in rl:
+            off |= mag[:, j] == v
+        from ..files.tables import warn
+        where = ", ".join(f"{'xyz'[j]} at {v:+.6g} ({n})" for j, v, n in rl)
+        warn(f"{int(off.sum())} magnetometer samples sit on a rail ({where}): the sensor clipped "
+             f"at its range or wrote an overflow code; they are left out of the fit")
+        mag = mag[~off]
+        temp = None if temp is None else temp[~off]
     mdl = get_model(model)
     if not isinstance(mdl, MagModel):
         raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")
@@ -387,6 +476,8 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     pts = res.points()
     out: Dict[str, Any] = {"samples": int(len(mag)), "points": int(len(pts)),
                            "noise": sigma.tolist()}
+    if rl:
+        out["rails"] = [{"axis": "xyz"[j], "value": v, "samples": n} for j, v, n in rl]
     if len(pts) <= int(mdl.free_mask.sum()):
         from ..errors import UserError
         raise UserError(f"{len(mag)} magnetometer samples reach only {len(pts)} direction cells: "
@@ -425,6 +516,14 @@ def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:
     """The JSON object ``imucald calibrate --sensor mag`` prints for a rotation fit."""
     d: Dict[str, Any] = {"sensor": "mag", "input": "rotation", "determined": bool(res["determined"]),
                          "samples": res["samples"], "points": res["points"], "noise_gauss": res["noise"]}
+    if "rails" in res:
+        d["rails"] = res["rails"]
+    if not res["determined"] and "inconsistent" in res:
+        cal = res["rejected_fit"]
+        d["inconsistent"] = res["inconsistent"]
+        d["coverage"] = res["coverage"]
+        d["rejected_fit"] = {"params": cal.params, "stderr": cal.stderr, "model": cal.model}
+        return d
     if not res["determined"] and "undetermined" in res:
         cal = res["rejected_fit"]
         d["undetermined"] = res["undetermined"]
@@ -444,6 +543,8 @@ def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:
     d["coverage"] = res["coverage"]
     d["norm_rel_std"] = res["norm_rel_std"]
     d["predicted_rel_std"] = res["predicted_rel_std"]
+    if res.get("consistency") is not None:
+        d["field_excess_rel_std"] = res["consistency"]["excess_rel_std"]
     if "heldout" in res:
         d["heldout_time_split"] = res["heldout"]
     return d
@@ -453,6 +554,13 @@ def flat_message(res: Dict[str, Any]) -> str:
     """One line: why the rotation determines no calibration and what to record."""
     if "undetermined" in res:
         return undetermined_message(res)
+    if "inconsistent" in res:
+        c = res["inconsistent"]
+        return (f"the corrected field's magnitude varies by {c['excess_rel_std']:.1%} of the field beyond "
+                f"the noise (spread {c['rel_std']:.2%}, the noise alone {c['predicted_rel_std']:.2%}); a "
+                f"calibration is determined to {FIELD_EXCESS_MAX:.0%}: the field changed during the "
+                f"recording (the board carried elsewhere, a magnet, a motor or iron nearby) or the sensor "
+                f"clipped; no calibration is given: record again away from iron and magnets, in one place")
     f = res["flat"]
     if f.get("rank", 2) < 2:
         return ("the magnetometer was hardly turned (its readings spread no more than its noise "
@@ -508,6 +616,10 @@ def rotation_lines(res: Dict[str, Any]) -> List[str]:
            f"eigenvalues [{ev}] (1/3 each for the whole sphere)",
            f"  corrected |h| relative std {res['norm_rel_std']:.4f} over {res['samples']} samples "
            f"(noise alone would give {res['predicted_rel_std']:.4f})"]
+    c = res.get("consistency")
+    if c is not None:
+        out.append(f"  field magnitude beyond the noise: {c['excess_rel_std']:.2%} of the field over the "
+                   f"thinned cloud (a calibration is given up to {FIELD_EXCESS_MAX:.0%})")
     h = res.get("heldout")
     if h and "norm_rel_std" in h:
         out.append(f"  held out in time: fitted on the first {h['train_samples']} samples, "

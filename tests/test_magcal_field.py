@@ -69,3 +69,21 @@ def test_a_field_that_changes_halfway_is_refused_and_one_field_is_not(seed, tmp_
     last = capsys.readouterr().err.splitlines()[-1]     # after the progress line
     assert last.startswith(f"imucald: {p}: the corrected field's magnitude varies by"), last
     assert "Traceback" not in last and not out.exists()
+
+
+def test_repeated_readings_are_fitted_once_and_said(capsys):
+    """A logger writing each magnetometer reading twice: the readings were fitted once, in
+    silence (the probe: its text said 2400 samples for 1200 readings).  Now one warning
+    with the count; a handful of chance repeats (a still, quantised sensor) says nothing.
+    Broken once: the warning's 1 % floor at 100 % (no line: fails)."""
+    rec, _ = _tumble(4)
+    n = len(rec.mag)
+    distinct = 1 + int(np.any(np.diff(rec.mag, axis=0) != 0, axis=1).sum())    # a few chance repeats
+    res = calibrate_rotation(np.repeat(rec.mag, 2, axis=0), rng=0)
+    err = capsys.readouterr().err
+    assert res["samples"] == distinct and n - distinct < 0.01 * n and err.count("\n") == 1
+    assert f"{2 * n - distinct} of {2 * n} magnetometer rows repeat the reading before" in err
+    m = rec.mag.copy()
+    m[1:4] = m[0]                                    # three chance repeats
+    calibrate_rotation(m, rng=0)
+    assert "repeat" not in capsys.readouterr().err

@@ -453,7 +453,13 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     # each reading once (repeats would fake a zero noise and weigh one direction more)
     if keep.sum() > 1:
         ix = np.flatnonzero(keep)
-        keep[ix[1:]] &= np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
+        held = ~np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
+        keep[ix[1:]] &= ~held
+        if held.sum() > 0.01 * len(ix):     # a handful is chance (a still, quantised sensor)
+            from ..files.tables import warn
+            warn(f"{int(held.sum())} of {len(ix)} magnetometer rows repeat the reading before (a "
+                 f"logger faster than the magnetometer, or rows written twice): each reading is "
+                 f"fitted once")
     mag = mag[keep]
     temp = None if temp_c is None else np.asarray(temp_c, float)[keep]
     rl = rails(mag) if len(mag) else []

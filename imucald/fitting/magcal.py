@@ -431,6 +431,37 @@ def fit_cloud(model: MagModel, points: np.ndarray, noise: Optional[np.ndarray], 
     return {"determined": True, "coverage": cv, "calibration": cal, "consistency": fc}
 
 
+def _readings(mag: np.ndarray, temp_c: Optional[np.ndarray]):
+    """(readings, their temperatures, rails) of a magnetometer series (N, 3): finite rows,
+    each reading once (a board that samples faster than its magnetometer holds the last
+    reading: repeats would fake a zero noise and weigh one direction more), the samples on a
+    rail (:func:`rails`) left out; a warning line for each kind of row left out."""
+    from ..files.tables import warn
+    mag = np.asarray(mag, float)
+    keep = np.all(np.isfinite(mag), axis=1)
+    if keep.sum() > 1:
+        ix = np.flatnonzero(keep)
+        held = ~np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
+        keep[ix[1:]] &= ~held
+        if held.sum() > 0.01 * len(ix):     # a handful is chance (a still, quantised sensor)
+            warn(f"{int(held.sum())} of {len(ix)} magnetometer rows repeat the reading before (a "
+                 f"logger faster than the magnetometer, or rows written twice): each reading is "
+                 f"fitted once")
+    mag = mag[keep]
+    temp = None if temp_c is None else np.asarray(temp_c, float)[keep]
+    rl = rails(mag) if len(mag) else []
+    if rl:
+        off = np.zeros(len(mag), bool)
+        for j, v, _ in rl:
+            off |= mag[:, j] == v
+        where = ", ".join(f"{'xyz'[j]} at {v:+.6g} ({n})" for j, v, n in rl)
+        warn(f"{int(off.sum())} magnetometer samples sit on a rail ({where}): the sensor clipped "
+             f"at its range or wrote an overflow code; they are left out of the fit")
+        mag = mag[~off]
+        temp = None if temp is None else temp[~off]
+    return mag, temp, rl
+
+
 def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "lm",
                        holdout_fraction: float = 0.3, rng=None, noise: Optional[np.ndarray] = None,
                        cells: int = 200, per_cell: int = 5, temp_c: Optional[np.ndarray] = None,
@@ -447,32 +478,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     ``thermal``, the hard iron's temperature polynomial (fitting/thermal/terms.py) on the thinned
     cloud, each point at its own temperature (order 0 below ``thermal_min_span_c``).
     """
-    mag = np.asarray(mag, float)
-    keep = np.all(np.isfinite(mag), axis=1)
-    # a board that samples faster than its magnetometer holds the last reading: keep
-    # each reading once (repeats would fake a zero noise and weigh one direction more)
-    if keep.sum() > 1:
-        ix = np.flatnonzero(keep)
-        held = ~np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
-        keep[ix[1:]] &= ~held
-        if held.sum() > 0.01 * len(ix):     # a handful is chance (a still, quantised sensor)
-            from ..files.tables import warn
-            warn(f"{int(held.sum())} of {len(ix)} magnetometer rows repeat the reading before (a "
-                 f"logger faster than the magnetometer, or rows written twice): each reading is "
-                 f"fitted once")
-    mag = mag[keep]
-    temp = None if temp_c is None else np.asarray(temp_c, float)[keep]
-    rl = rails(mag) if len(mag) else []
-    if rl:
-        off = np.zeros(len(mag), bool)
-        for j, v, _ in rl:
-            off |= mag[:, j] == v
-        from ..files.tables import warn
-        where = ", ".join(f"{'xyz'[j]} at {v:+.6g} ({n})" for j, v, n in rl)
-        warn(f"{int(off.sum())} magnetometer samples sit on a rail ({where}): the sensor clipped "
-             f"at its range or wrote an overflow code; they are left out of the fit")
-        mag = mag[~off]
-        temp = None if temp is None else temp[~off]
+    mag, temp, rl = _readings(mag, temp_c)
     mdl = get_model(model)
     if not isinstance(mdl, MagModel):
         raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")

@@ -58,3 +58,17 @@ def test_holds_back_near_an_earlier_orientation_are_not_a_wandering_bias(tremor_
     # nothing is injected: at the gap's designed false-alarm level (~1 % per sensor) two or
     # more alarms in three recordings have a probability of 3e-4
     assert sum(v != "none" for v in verdicts) <= 1, verdicts
+
+
+def test_holds_of_one_block_each_are_refused_in_one_line_not_a_traceback():
+    """14 holds of 5-6 s in two orientations: 4-s blocks, one a hold, each spent on its own
+    constant, left nothing to compare, and the twin's median 0 divided the ratio (a cold
+    review: ZeroDivisionError).  Now the blocks left after the constants are counted.
+    Broken once: the check on K alone (the traceback)."""
+    from imucald.gap.diagnose import GapError
+    rng = np.random.default_rng(11)
+    ups = [np.array([0, 0, 1.0]), np.array([1.0, 0, 0])] * 7
+    R = np.array([rotation_from_up(u, rng.uniform(0, 2 * np.pi)) for u in ups])
+    rec = simulate_session("mpu6050", R, rng, rate_hz=100.0, hold_s=(5.0, 6.0), move_s=2.0).recording
+    with pytest.raises(GapError, match=r"14 still blocks of 4 s in 14 still stretches leave 0 to compare"):
+        diagnose(rec, sims=50)

@@ -97,9 +97,12 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
     res = diagnose_single(rec.t, sl, ps.acc, {s: have[s] for s in sensors if s in have and have[s] is not None},
                           rec.temp, sims, rng) if N else {}
     ok = {k: v for k, v in res.items() if v.get("verdict") is not None}
-    why = "; ".join(f"{k}: {v['error']}" for k, v in res.items() if v.get("verdict") is None)
+    why = "; ".join([f"{k}: {v['error']}" for k, v in res.items() if v.get("verdict") is None]
+                    + [f"{k}: not diagnosed: no still stretch" for k in sensors
+                       if k in have and have[k] is not None and k not in res])
     notes = [f"{N} still pose(s) in {n_orient} orientation(s): diagnosed from still stretches split in time "
-             f"(the pose diagnosis needs {MIN_POSES} poses in {MIN_ORIENTATIONS}+ orientations)"]
+             f"(the pose diagnosis needs {MIN_POSES} poses in {MIN_ORIENTATIONS}+ orientations)" if N else
+             "no still pose: only what needs none (the magnetometer's rotation) is diagnosed"]
     if why:
         notes.append(why)
     # the magnetometer from its rotation points needs no still pose: diagnosed before the
@@ -118,9 +121,11 @@ def _series_path(rec, sl, ps, sensors, sims, rng, name, n_orient) -> Dict[str, o
         norm = np.linalg.norm(ps.acc, axis=1)
         up = ps.acc[(norm > 0.5) & (norm < 1.5)]             # poses under 1 g (raw)
         miss = cube_coverage(up / np.linalg.norm(up, axis=1, keepdims=True))["missing"][:6]
+        more = (f"{MIN_POSES - N} more" if N < MIN_POSES else
+                f"{max(MIN_ORIENTATIONS - n_orient, 1)} more orientation(s)")
         raise GapError(f"{name}: {N} still poses found in {n_orient} orientation(s); the diagnosis needs at "
                        f"least {MIN_POSES} in {MIN_ORIENTATIONS} or more orientations (25-30 recommended): "
-                       f"{max(MIN_POSES - N, 1)} more, e.g. {', '.join(miss)}; or one still stretch of "
+                       f"{more}, e.g. {', '.join(miss)}; or one still stretch of "
                        f"several minutes for the time-series diagnosis" + (f" ({why})" if why else ""))
     return {"sensors": ok, "poses_found": N, "orientations": n_orient, "mode": "time_series",
             "poses_left_out": [], "notes": notes}

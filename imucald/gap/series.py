@@ -286,7 +286,7 @@ def series_baseline(p: SeriesProblem, noise: Dict[str, object], sims: int, rng) 
     X0, V = p.G, p.V
     _, R0, E0, chi0, _ = _fit(X0, p.Y, V)
     tw0 = _twin(X0, V, sims, rng)
-    twin0 = float(np.median(tw0))
+    twin0 = max(float(np.median(tw0)), 1e-300)      # no freedom left: single.py refuses first
     ratio0 = _norm_heldout(E0, V) / twin0
     dof0 = p.dof(X0)
     lp0 = _log10p(float(chi0.sum()), dof0)

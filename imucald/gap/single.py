@@ -15,13 +15,14 @@ MIN_BLOCKS = 12
 
 
 def run_groups(slices: Sequence[slice]) -> np.ndarray:
-    """The baseline's constant for each still slice: its own.  Two still runs share no
-    constant even in one orientation (20 deg apart at most, :func:`orientation_groups`):
-    a board set down again, or held again, rests a fraction of a degree to degrees away
-    (1 deg moves 17 mg across gravity), and one constant for both made that step a
-    "wandering bias" (an independent probe's null with 8 holds in 6 orientations: ratio 17,
-    wandering_bias named).  A sensor's drift is still seen inside each run; what it does
-    between two runs only is not (the cost: power on recordings of short rests)."""
+    """The baseline's constant for each still slice: its own.  Two still runs shared one
+    constant when their orientations were within 20 deg: a board set down again, or held
+    again, rests a fraction of a degree to degrees away (1 deg moves 17 mg across gravity),
+    and that step read as a "wandering bias" (an independent probe's null with 8 holds in 6
+    orientations: ratio 17, wandering_bias named).  A sensor's drift is still seen inside
+    each run; what it does between two runs only is not, nor across a run split by a bump or
+    a logger's gap with a move in it (the cost: power on recordings of short rests; and each
+    run spends one block on its constant, so runs of one block leave nothing to compare)."""
     return np.arange(len(slices))
 
 
@@ -46,9 +47,13 @@ def diagnose_single(t_s: np.ndarray, slices: Sequence[slice], acc_means_g: np.nd
     for name, x in sensors.items():
         blk = make_blocks(t_s, x, temp_c if use_temp else None, slices, group, block_s)
         K = len(blk["n"])
-        if K < MIN_BLOCKS:
-            res[name] = {"verdict": None, "error": f"{K} still blocks of {block_s:.0f} s; the time-series "
-                                                     f"diagnosis needs {MIN_BLOCKS}: record longer still stretches"}
+        G = len(np.unique(blk["group"])) if K else 0
+        if K - G < MIN_BLOCKS - 1:
+            # each still stretch spends one block on its constant: what is left is compared
+            res[name] = {"verdict": None, "error": f"{K} still blocks of {block_s:.0f} s in {G} still "
+                                                     f"stretches leave {K - G} to compare; the time-series "
+                                                     f"diagnosis needs {MIN_BLOCKS - 1}: record longer still "
+                                                     f"stretches"}
             continue
         ut = use_temp and np.ptp(blk["temp"]) >= 0.5
         noise = block_noise_var(blk)

@@ -367,7 +367,8 @@ def test_fifo_bursts_stamped_with_their_read_time_change_no_decision(tmp_path, c
     time (simulate --fifo-burst): the same poses and the same calibration as the rows at
     their own times.  The file was refused before ("header rate_hz=400 but the t column steps
     by 0.1 s": the header was checked against the stamps' steps, not the rows a second).
-    Broken once: files/recording.py _check_rate without the rows-a-second test (exit 2)."""
+    Broken once: files/recording.py _check_rate without the rows-a-second test (exit 2); and
+    fitting/gyro/rotations.py's rate as 1 / the median step (ZeroDivisionError)."""
     import json
     from imucald.cli import main
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
@@ -385,6 +386,17 @@ def test_fifo_bursts_stamped_with_their_read_time_change_no_decision(tmp_path, c
     for g in ("alpha", "scale", "bias_g"):
         assert np.allclose(out[a]["params"][g], out[b]["params"][g], rtol=0, atol=1e-9), g
         assert np.allclose(out[a]["stderr"][g], out[b]["stderr"][g], rtol=1e-6), g
+    # the gyro's scale and misalignment from the rotations: the burst file's white-noise rate
+    # was 1 / its median step, 0 (a cold review: ZeroDivisionError in --sensor all); now
+    # fitted, within the errors of the rows at their own times (its standard errors are
+    # ~4x larger: the integration steps by the stamps)
+    rot = {}
+    for p in (a, b):
+        assert main(["calibrate", str(p), "--json", "--sensor", "all"]) == 0
+        rot[p] = json.loads(capsys.readouterr().out)["gyro"]["rotations"]
+    K = {p: np.array(rot[p]["matrix"]) for p in (a, b)}
+    se = np.hypot(np.array(rot[a]["matrix_stderr"]), np.array(rot[b]["matrix_stderr"]))
+    assert rot[b]["rotations"] == rot[a]["rotations"] and np.all(np.abs(K[a] - K[b]) < 3 * se)
 
 
 @pytest.mark.parametrize("rate,board", [(3.0, "mpu6050"), (5.0, "9dof"), (10.0, "mpu6050")])

@@ -45,6 +45,7 @@ import numpy as np
 
 from ...numerics.npstats import median
 from ..judging.metrics import rms
+from ..stillness.repeats import effective_rate
 from .integration import (D2R, HOLE_FACTOR, MISSING_MIN, RAIL_FRACTION, RotationWindows,
                           angle_deg, predict_directions, rotation_windows, tangent_basis)
 from ..judging.uncertainty import UNDETERMINED_RATIO
@@ -105,7 +106,7 @@ def _wobble(t, gyro, slices, white_var):
     end-to-start angle / T, and the ramp-weighted in-pose part half of it; so each pose adds
     2 x this x (1/2 + T_motion / (2 T_pose))^2 to a rotation's angle noise.  White noise
     alone gives the Brownian bridge's white_var dt^2 n / 6, which is taken off."""
-    dt = float(median(np.diff(t)))
+    dt = 1.0 / max(effective_rate(t), 1e-300)      # rows a second: FIFO bursts share stamps
     out = np.zeros(len(slices))
     for i, s in enumerate(slices):
         g = gyro[s]
@@ -287,7 +288,7 @@ def fit_gyro_rotations(t_s, gyro_dps, acc_g, slices: Sequence[slice], mag=None, 
     # density over the Nyquist band when the chip is known (hand tremor is a real rotation:
     # it integrates exactly and the ramp weighting takes it out; it is not angle noise)
     var_n = np.einsum("nii->n", gsc) / 3
-    spec = _white_var(chip, 1.0 / float(median(np.diff(t))))
+    spec = _white_var(chip, effective_rate(t))
     if spec is not None:
         var_n = np.minimum(var_n, spec)
     sample_var = float(median(var_n))

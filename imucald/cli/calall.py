@@ -148,7 +148,7 @@ def _mag(args, rec, progress):
         return {"skipped": why}, None
     model = DEFAULT_MODEL["mag"]
     if progress:
-        progress(f"imucald: mag: {len(rec)} samples; thinning over the sphere and fitting {model} "
+        progress(f"imucald: mag: {len(rec)} rows; thinning over the sphere and fitting {model} "
                  f"with {args.method}")
     res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed, temp_c=rec.temp,
                              thermal_min_span_c=args.thermal_min_span)

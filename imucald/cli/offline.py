@@ -451,7 +451,7 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     Exit 3 when the cloud does not determine a calibration (a one-plane swing)."""
     from ..fitting.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
     if progress:
-        progress(f"imucald: {len(rec)} magnetometer samples; thinning over the sphere and fitting "
+        progress(f"imucald: {len(rec)} magnetometer rows; thinning over the sphere and fitting "
                  f"{model} with {args.method}")
     res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed, temp_c=rec.temp,
                              thermal_min_span_c=args.thermal_min_span)

@@ -25,7 +25,7 @@ from ..fitting.gate import Decision, fitted_poses, gate_accel, gate_gyro_bias, p
 from ..fitting.inputs import stuck_columns
 from ..fitting.judging.levels import GATE_FALSE_ACCEPT_RATE
 from ..fitting.magcal import SphereReservoir as MagReservoir
-from ..fitting.magcal import fit_cloud, fit_points
+from ..fitting.magcal import fit_cloud, fit_points, on_rails
 from ..fitting.models.mag import MagModel
 from ..fitting.models.accel import Triangular9
 from ..calibration import Calibration, SensorCal, build_calibration
@@ -212,6 +212,10 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
     else:
         noise = np.asarray(noise, float)
     mt = job.get("mag_temp")
+    off, rl = on_rails(mp)              # clipping or an overflow code: left out, as calibrate does
+    if rl:
+        mp, mt = mp[~off], (None if mt is None else np.asarray(mt)[~off])
+        notes["mag_rails"] = [{"axis": "xyz"[j], "value": v, "points": n} for j, v, n in rl]
     tm = cur.mag.thermal if cur.mag is not None and mt is not None else None
     raw = mp
     if tm:      # thermal terms in force: the constant part is refitted without them, and keeps them

@@ -65,7 +65,8 @@ from ..numerics.npstats import median
 
 __all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage", "undetermined_terms",
            "missing_axes", "fit_cloud", "fit_points", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
-           "SOFT_IRON_SE_MAX", "MIN_DIRECTION_EIG"]
+           "SOFT_IRON_SE_MAX", "MIN_DIRECTION_EIG", "rails", "on_rails", "field_consistency",
+           "FIELD_EXCESS_MAX", "FIELD_RATIO_MIN"]
 
 #: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
 #: along the plane normal is flat: the normal axis is not determined (3 sigma)
@@ -380,6 +381,17 @@ def rails(mag: np.ndarray) -> List[Tuple[int, float, int]]:
     return out
 
 
+def on_rails(mag: np.ndarray) -> Tuple[np.ndarray, List[Tuple[int, float, int]]]:
+    """(mask of the rows with any axis on a rail, the rails) of ``mag`` (N, 3) (:func:`rails`);
+    the CLI, the daemon's reservoir and the gap diagnosis leave those rows out alike."""
+    m = np.asarray(mag, float)
+    rl = rails(m) if len(m) else []
+    off = np.zeros(len(m), bool)
+    for j, v, _ in rl:
+        off |= m[:, j] == v
+    return off, rl
+
+
 def field_consistency(model: MagModel, theta: np.ndarray, points: np.ndarray,
                       noise: Optional[np.ndarray]) -> Optional[Dict[str, Any]]:
     """The corrected field magnitude's relative spread over ``points`` against what the
@@ -434,26 +446,20 @@ def fit_cloud(model: MagModel, points: np.ndarray, noise: Optional[np.ndarray], 
 def _readings(mag: np.ndarray, temp_c: Optional[np.ndarray]):
     """(readings, their temperatures, rails) of a magnetometer series (N, 3): finite rows,
     each reading once (a board that samples faster than its magnetometer holds the last
-    reading: repeats would fake a zero noise and weigh one direction more), the samples on a
-    rail (:func:`rails`) left out; a warning line for each kind of row left out."""
+    reading: repeats would fake a zero noise and weigh one direction more; imucald's own
+    9-DoF recordings repeat the slower magnetometer's reading by design, so the report says
+    how many readings the rows held, without a warning), the samples on a rail
+    (:func:`rails`) left out with a warning line."""
     from ..files.tables import warn
     mag = np.asarray(mag, float)
     keep = np.all(np.isfinite(mag), axis=1)
     if keep.sum() > 1:
         ix = np.flatnonzero(keep)
-        held = ~np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
-        keep[ix[1:]] &= ~held
-        if held.sum() > 0.01 * len(ix):     # a handful is chance (a still, quantised sensor)
-            warn(f"{int(held.sum())} of {len(ix)} magnetometer rows repeat the reading before (a "
-                 f"logger faster than the magnetometer, or rows written twice): each reading is "
-                 f"fitted once")
+        keep[ix[1:]] &= np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
     mag = mag[keep]
     temp = None if temp_c is None else np.asarray(temp_c, float)[keep]
-    rl = rails(mag) if len(mag) else []
+    off, rl = on_rails(mag)
     if rl:
-        off = np.zeros(len(mag), bool)
-        for j, v, _ in rl:
-            off |= mag[:, j] == v
         where = ", ".join(f"{'xyz'[j]} at {v:+.6g} ({n})" for j, v, n in rl)
         warn(f"{int(off.sum())} magnetometer samples sit on a rail ({where}): the sensor clipped "
              f"at its range or wrote an overflow code; they are left out of the fit")
@@ -478,6 +484,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     ``thermal``, the hard iron's temperature polynomial (fitting/thermal/terms.py) on the thinned
     cloud, each point at its own temperature (order 0 below ``thermal_min_span_c``).
     """
+    mag_rows = mag
     mag, temp, rl = _readings(mag, temp_c)
     mdl = get_model(model)
     if not isinstance(mdl, MagModel):
@@ -486,8 +493,8 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     res = SphereReservoir(cells, per_cell)
     res.add(mag, np.arange(len(mag)))
     pts = res.points()
-    out: Dict[str, Any] = {"samples": int(len(mag)), "points": int(len(pts)),
-                           "noise": sigma.tolist()}
+    out: Dict[str, Any] = {"samples": int(len(mag)), "rows": int(len(np.asarray(mag_rows))),
+                           "points": int(len(pts)), "noise": sigma.tolist()}
     if rl:
         out["rails"] = [{"axis": "xyz"[j], "value": v, "samples": n} for j, v, n in rl]
     if len(pts) <= int(mdl.free_mask.sum()):
@@ -527,7 +534,8 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
 def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:
     """The JSON object ``imucald calibrate --sensor mag`` prints for a rotation fit."""
     d: Dict[str, Any] = {"sensor": "mag", "input": "rotation", "determined": bool(res["determined"]),
-                         "samples": res["samples"], "points": res["points"], "noise_gauss": res["noise"]}
+                         "samples": res["samples"], "rows": res.get("rows", res["samples"]),
+                         "points": res["points"], "noise_gauss": res["noise"]}
     if "rails" in res:
         d["rails"] = res["rails"]
     if not res["determined"] and "inconsistent" in res:
@@ -626,8 +634,9 @@ def rotation_lines(res: Dict[str, Any]) -> List[str]:
     ev = ", ".join(f"{x:.3f}" for x in c["direction_eigenvalues"])
     out = [f"  coverage: {c['fraction']:.0%} of {c['cells']} direction cells; direction scatter "
            f"eigenvalues [{ev}] (1/3 each for the whole sphere)",
-           f"  corrected |h| relative std {res['norm_rel_std']:.4f} over {res['samples']} samples "
-           f"(noise alone would give {res['predicted_rel_std']:.4f})"]
+           f"  corrected |h| relative std {res['norm_rel_std']:.4f} over {res['samples']} readings"
+           + (f" (of {res['rows']} rows: each reading once)" if res.get("rows") != res["samples"] else "")
+           + f" (noise alone would give {res['predicted_rel_std']:.4f})"]
     c = res.get("consistency")
     if c is not None:
         out.append(f"  field magnitude beyond the noise: {c['excess_rel_std']:.2%} of the field over the "

@@ -195,6 +195,10 @@ def _mag(rec, sl, pose_mag, pose_var, pose_idx, acc_theta, skip, sims, rng,
         return {"verdict": None, "error": why, **info}
     r = norm_diag(x, ctx, var, mag_model(), MAG_CANDIDATES, sims, rng, skip, "gauss", scale=info["field_gauss"])
     r["points"] = info
+    if info.get("rails_left_out"):
+        r["note"] = "; ".join(x for x in (r.get("note"), "samples on a rail left out (clipping or an overflow "
+                                          "code: " + ", ".join(f"{x['axis']} at {x['value']:+.6g} ({x['samples']})"
+                                                               for x in info["rails_left_out"]) + ")") if x)
     r["baseline"] = ("the deployed hard + soft iron model (mag_sym, as the daemon and calibrate fit it) on "
                      "the still poses' means and the rotation thinned over the sphere")
     return r

@@ -324,7 +324,8 @@ def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
     with ','"; tabs gave "expected 4 values, found 8").  It is read, the same numbers as the
     '.' table, with a warning naming the line, and an error later in it names its own line.
     A plain CSV whose rows split into as many values as columns stays a CSV.  Broken once:
-    _first_row without the decimal-comma test (tabs: "expected 4 values, found 6"; ";": no rows)."""
+    _first_row without the decimal-comma test (tabs: "expected 4 values, found 6"; ";": no rows),
+    and without the look past a row of whole numbers (the tab case: "found 7")."""
     from imucald.fitting.inputs import read_table
     p = tmp_path / "semi.csv"
     rows = [(i / 100, 0.5, -0.25, 16384 - i) for i in range(300)]
@@ -340,6 +341,13 @@ def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
     p.write_text(f"time{sep}ax{sep}ay{sep}az\n" + "".join(lines))
     msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
     assert msg.startswith(f"{p}:42: column ax: 'zz' is not a number"), msg
+    capsys.readouterr()
+    # a first row of whole numbers (t = 0, counts) says nothing of the mark: the first row
+    # with a ',' decides (a cold review: "expected 4 values, found 5" on the second row)
+    p.write_text("".join(sep.join(f"{v:g}".replace(".", ",") for v in r) + "\n"
+                         for r in [(0, 1, 2, 16384)] + rows[1:]))
+    rec = read_table(str(p), ["t", "ax", "ay", "az"], 16384.0)
+    assert np.array_equal(rec.t, ref[:, 0]) and rec.acc[0, 0] == 1 / 16384.0
     capsys.readouterr()
     # a CSV with ", " between integers reads as 4 numbers either way: it stays a CSV
     p.write_text("".join(f"{10 * i}, 0, 0, {16384 + i % 7}\n" for i in range(300)))

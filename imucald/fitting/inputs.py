@@ -143,7 +143,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         lineno, offset, comma = _first_row(fh, path, cols)
         if comma:
             warn(f"{path}:{lineno}: read as a spreadsheet's export: ';' or whitespace between "
-                 f"values, ',' as the decimal mark")
+                 f"values, ',' (if any) as the decimal mark")
             fh = _Translated(fh, _DECIMAL_COMMA)
         idx = {name: i for i, name in enumerate(cols) if name != "-"}
         groups = [(k, [idx[k]]) for k in (t_name, "temp") if k in idx]
@@ -231,9 +231,26 @@ def _first_row(fh, path: str, cols: Sequence[str]):
         if s and s[0] not in "#%":
             comma = _decimal_comma(s, len(cols))
             if comma or _numeric(s.replace(",", " ").split()):
+                if not comma and "," not in s and ";" not in s:
+                    # a row of whole numbers (t = 0, counts) says nothing of the decimal mark
+                    comma = _decimal_comma_ahead(fh, path, lineno + 1, offset + len(raw), len(cols))
                 fh.seek(offset)
                 return lineno, offset, comma
         lineno, offset = lineno + 1, offset + len(raw)
+
+
+def _decimal_comma_ahead(fh, path: str, lineno: int, offset: int, ncols: int, rows: int = 50) -> bool:
+    """:func:`_decimal_comma` on the first of the next ``rows`` lines that holds a ',' or a
+    ';' (False when none does)."""
+    for _ in range(rows):
+        raw = fh.readline(1 << 16)
+        if not raw:
+            return False
+        s = decode_line(path, raw, lineno, offset).strip()
+        if "," in s or ";" in s:
+            return _decimal_comma(s, ncols)
+        lineno, offset = lineno + 1, offset + len(raw)
+    return False
 
 
 def _temp_conversion(nominal_scale: PerSensor, nominal_offset: PerSensor, cols: Sequence[str]):

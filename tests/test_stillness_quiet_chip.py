@@ -118,7 +118,8 @@ def test_a_fifo_logger_stamping_each_burst_with_its_read_time_keeps_its_rate_and
     400-Hz files were "no still moment" in 3 of 4), and the holds are found as with exact
     stamps; a regular stream's rate is what it was (samples / span, to the bit).
     Broken once (pauses judged among all steps, zero ones included): the rate assertions fail."""
-    from imucald.fitting.stillness.repeats import effective_rate, find_repeats
+    from imucald.fitting.stillness.repeats import find_repeats
+    from imucald.numerics.rates import effective_rate
     rng = np.random.default_rng(5)
     t, acc, gyro, truth = _session(rng, rng.uniform(3, 8, 12), 2.0, 0.0, 0.0, rest_s=10.0)
     burst = (np.arange(len(t)) // 40 + 1) * 40 / RATE          # each row stamped at its burst's end

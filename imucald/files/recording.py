@@ -43,6 +43,7 @@ from ..errors import UserError, snippet
 from . import tables
 from .tables import TableSpec, collect, decode_line, iter_blocks
 from ..numerics.npstats import median
+from ..numerics.rates import effective_rate
 
 __all__ = ["Recording", "RecordingError", "RecordingReader", "open_recording", "iter_recording",
            "read_recording", "write_recording", "RecordingWriter", "read_small", "BOM", "MAGIC", "COLUMNS", "PLAUSIBLE_LIMIT"]
@@ -418,13 +419,13 @@ class RecordingReader:
             return
         step = float(median(dt))
         rate = float(self.meta["rate_hz"])
-        rows = (len(t) - 1) / float(t[-1] - t[0])
+        rows = effective_rate(t)            # rows a second between stamps, pauses out
         if not (1 / RATE_TOLERANCE <= rate * step <= RATE_TOLERANCE
                 or 1 / RATE_TOLERANCE <= rate / rows <= RATE_TOLERANCE):
             raise RecordingError(
                 f"{self.path}:{self._where['rate_hz']}: header rate_hz={self.meta['rate_hz']} but the t "
-                f"column steps by {step:.6g} s (median of the first rows: {1 / step:.4g} Hz): correct the "
-                f"header ('# rate_hz: {1 / step:.4g}') or the t column")
+                f"column steps by {step:.6g} s (median of the first rows: {1 / step:.4g} Hz) and holds "
+                f"{rows:.4g} rows a second: correct the header ('# rate_hz: {rows:.4g}') or the t column")
 
     def _empty(self):
         return RecordingError(f"{self.path}:{self._hl}: no samples after the column header")

@@ -31,7 +31,7 @@ from ..files.recording import (BOM, COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, 
 from ..numerics.npstats import median
 from ..files.tables import TIME_UNITS, TableSpec, collect, decode_line, iter_blocks, warn
 from .stillness.poses import POSES_MAGIC, read_poses
-from .stillness.repeats import effective_rate
+from ..numerics.rates import effective_rate
 
 __all__ = ["input_kind", "load_input", "read_table", "join_tables", "stuck_columns", "stuck_message"]
 

@@ -9,7 +9,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..stillness.repeats import PAUSE_FACTOR, effective_rate
+from ...numerics.rates import PAUSE_FACTOR, effective_rate
 
 #: a sample within 4 LSB of a 16-bit converter's full scale is at the rail
 RAIL_FRACTION = 1.0 - 4.0 / 32768.0

@@ -45,7 +45,7 @@ import numpy as np
 
 from ...numerics.npstats import median
 from ..judging.metrics import rms
-from ..stillness.repeats import effective_rate
+from ...numerics.rates import effective_rate
 from .integration import (D2R, HOLE_FACTOR, MISSING_MIN, RAIL_FRACTION, RotationWindows,
                           angle_deg, predict_directions, rotation_windows, tangent_basis)
 from ..judging.uncertainty import UNDETERMINED_RATIO

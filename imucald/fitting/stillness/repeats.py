@@ -26,7 +26,7 @@ Which rows are repeats (:func:`find_repeats`):
 * duplicated timestamps are counted (a one-line warning names the count); a row with a
   repeated timestamp but new values is kept.
 
-Effective rate (:func:`effective_rate`): the distinct samples per second of recording,
+Effective rate (imucald.numerics.rates ``effective_rate``): the distinct samples per second of recording,
 pauses excluded (an interval longer than 20 x the mean interval is a pause: the logger
 stopped, nothing was sampled); 74 % held rows at 400 Hz give ~104 Hz.  It replaces the
 nominal rate when rows are dropped, or when the nominal rate (a file's ``rate_hz`` or
@@ -40,17 +40,17 @@ from typing import Optional
 
 import numpy as np
 
+from ...numerics.rates import effective_rate
+
 from ...numerics.npstats import median, row_all, row_prod
 
-__all__ = ["Repeats", "find_repeats", "chance_repeats", "effective_rate", "repeat_flags",
+__all__ = ["Repeats", "find_repeats", "chance_repeats", "repeat_flags",
            "HOLD_RATIO", "RATE_MISMATCH"]
 
 HOLD_RATIO = 2.0
 RATE_MISMATCH = 0.25
 #: rows over which the axes' chance repeat rates are measured (chance_repeats)
 CHANCE_WINDOW = 64
-#: an interval longer than this many mean intervals is a pause (nothing sampled in it)
-PAUSE_FACTOR = 20.0
 
 
 @dataclass
@@ -198,35 +198,6 @@ def _distinct_rows(cnt: np.ndarray, num, w: int):
     inv_run = np.empty(len(ks), np.intp)
     inv_run[perm] = np.cumsum(new) - 1
     return starts[perm[new]], np.repeat(inv_run, np.diff(np.append(starts, len(key))))
-
-
-def effective_rate(t: np.ndarray, keep: Optional[np.ndarray] = None) -> float:
-    """Samples per second (of the rows ``keep`` marks, default all), pauses excluded: an
-    interval longer than PAUSE_FACTOR x the mean interval is a pause, neither its time nor
-    its sample counted.  Rows sharing a timestamp (a coarse clock) count as samples.
-    0 when the timestamps do not advance."""
-    t = np.asarray(t, float)
-    if keep is not None:
-        t = t[keep]
-    d = np.diff(t)
-    if not len(d) or not (d > 0).any():
-        return 0.0
-    # pauses are judged among the steps between distinct timestamps, each counting the rows
-    # stamped at its end: a logger that stamps a FIFO's burst of 40 samples with one read
-    # time has 39 zero steps a burst, and against their mean every burst's step was a pause
-    # (none counted: 0 Hz, so 1 / the burst period, 10 Hz for 400 Hz of samples, was used)
-    adv = np.flatnonzero(d > 0)
-    dd = d[adv]
-    rows = np.diff(np.concatenate([adv, [len(d)]]))     # rows stamped at each step's end
-    ok = np.ones(len(dd), bool)
-    for _ in range(5):
-        m = float(dd[ok].sum()) / int(rows[ok].sum())
-        ok2 = dd <= PAUSE_FACTOR * m * rows
-        if (ok2 == ok).all():
-            break
-        ok = ok2
-    span = float(dd[ok].sum())
-    return int(rows[ok].sum()) / span if span > 0 else 0.0
 
 
 def find_repeats(t: np.ndarray, x: np.ndarray, rate_hz: Optional[float] = None) -> Repeats:

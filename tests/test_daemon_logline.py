@@ -70,11 +70,16 @@ def test_the_cal_event_carries_the_held_out_figures_of_the_parts_applied_only():
     held-out RMS (an independent probe's replays: 10 events in 9 recordings; table_4's said
     0.096 mg while the part in force was at 0.479 mg): the figures of a part not applied are
     now absent (None: the event omits them).  Broken once: _cal_figures reading the
-    candidate's accel quality whatever was taken (fails)."""
+    candidate's accel quality whatever was taken (fails), and its mag quality so (fails).
+    (The pipeline's unread ``history`` deque, which kept the same refused figures under
+    "applied", is gone.)"""
     from imucald.daemon.pipeline import _cal_figures
     acc = replace(SensorCal.accel("triangular9", Triangular9().nominal),
                   quality={"heldout_rms_g": 1e-4, "heldout_rms_before_g": 5e-4, "predicted_heldout_rms_g": 9e-5})
     gyro = SensorCal("gyro", "bias", {"bias_dps": np.zeros(3)})
-    cand = Calibration("mpu6050", {}, accel=acc, gyro=gyro)
-    assert _cal_figures(cand, {"accel", "gyro"})["accel_heldout_rms_g"] == 1e-4
+    mag = SensorCal("mag", "mag_sym", {"hard_iron_gauss": np.zeros(3), "soft_iron": np.r_[1.0, 1, 1, 0, 0, 0],
+                                       "field_gauss": np.array(0.5)}, quality={"heldout_rel_rms": 0.004})
+    cand = Calibration("mpu9250", {}, accel=acc, gyro=gyro, mag=mag)
+    assert _cal_figures(cand, {"accel", "gyro", "mag"})["accel_heldout_rms_g"] == 1e-4
+    assert _cal_figures(cand, {"mag"})["mag_heldout_rel_rms"] == 0.004
     assert all(v is None for v in _cal_figures(cand, {"gyro"}).values())

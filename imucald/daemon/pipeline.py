@@ -104,7 +104,6 @@ class Pipeline:
         self.last_still = False
         self._repeats_said = None        #: the detector whose repeated-samples decision was logged
         # bounded: a daemon runs for months and adds an event per pose
-        self.history: Deque[Dict[str, Any]] = deque(maxlen=100)
         self.events: Deque[str] = deque(maxlen=100)     # human log lines for status
         self.t_last = 0.0
         self.temp_range = [np.inf, -np.inf]
@@ -547,7 +546,6 @@ class Pipeline:
                (" and is no longer provisional" if confirmed else "") + ": " + "; ".join(parts))
         log.info(msg)
         self.events.append(msg)
-        self.history.append({"applied": False, **_summary(cand)})
         return event("CAL", self.fmt, id=ap.id, applied=False, reason=msg, gate=gate_ev)
 
     def _provisional_after(self, cand: Calibration, take, gates, parts: List[str], n_poses: int):
@@ -588,7 +586,6 @@ class Pipeline:
         msg = f"calibration #{new.id} applied{_provisional_text(prov)}{_partly(cand, take)}: " + "; ".join(parts)
         log.info(msg)
         self.events.append(msg)
-        self.history.append({"applied": True, "id": new.id, **_summary(cand)})
         return event("CAL", self.fmt, id=new.id, applied=True, provisional=prov is not None,
                      missing_orientations=list(prov["missing_orientations"]) if prov else None,
                      undetermined=undet, **_cal_figures(cand, take), reason=msg, gate=gate_ev)
@@ -684,9 +681,3 @@ def _cal_figures(cand: Calibration, take) -> Dict[str, Any]:
             "accel_heldout_rms_before_g": q.get("heldout_rms_before_g"),
             "accel_predicted_heldout_rms_g": q.get("predicted_heldout_rms_g"),
             "mag_heldout_rel_rms": m.quality.get("heldout_rel_rms") if m else None}
-
-
-def _summary(cand: Calibration) -> Dict[str, Any]:
-    q = cand.accel.quality if cand.accel else {}
-    return {"accel_heldout_rms_g": q.get("heldout_rms_g"),
-            "accel_heldout_rms_before_g": q.get("heldout_rms_before_g")}

@@ -84,7 +84,8 @@ class Repeats:
         if self.duplicated_t:
             parts.append(f"{self.duplicated_t} rows repeat the previous row's timestamp"
                          + (f" ({self.duplicated_rows} of them its values too: duplicated rows, dropped)"
-                            if self.duplicated_rows else ""))
+                            if self.duplicated_rows else " with new values (a FIFO's bursts stamped with "
+                                                         "their read time?): kept"))
         if self.held:
             parts.append(f"{self.repeated - self.duplicated_rows} rows repeat the previous sample "
                          f"(sample-and-hold, {self.hold_factor:.2f} rows per distinct sample; "

@@ -261,3 +261,5 @@ def test_a_column_list_starting_with_a_skipped_column_needs_no_equals_sign(tmp_p
     from imucald.cli import _glue_column_lists
     assert _glue_column_lists(["x", "--columns", "-,t", "--", "--columns", "-,t"]) == \
         ["x", "--columns=-,t", "--", "--columns", "-,t"]
+    # an abbreviation argparse accepts (--col) is glued as typed (a cold review)
+    assert _glue_column_lists(["x", "--col", "-,t", "--join-col", "-,t"]) == ["x", "--col=-,t", "--join-col=-,t"]

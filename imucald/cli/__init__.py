@@ -69,7 +69,8 @@ def _glue_column_lists(words: List[str]) -> List[str]:
         if w == "--":
             return out + words[i:]
         nxt = words[i + 1] if i + 1 < len(words) else ""
-        if w in _COLUMN_LISTS and nxt.startswith("-") and "," in nxt:
+        if (len(w) > 2 and any(o.startswith(w) for o in _COLUMN_LISTS)   # argparse's abbreviations too
+                and nxt.startswith("-") and "," in nxt):
             out.append(f"{w}={nxt}")
             i += 2
             continue

@@ -180,7 +180,9 @@ def _gyro(args, rec, poses, pieces, acc_fit, mag_fit, progress) -> Dict[str, Any
     if progress:
         progress("imucald: gyro: bias from the still poses; scale, misalignment and g-sensitivity "
                  "from the rotations between them")
-    rot, why = fit_rotations(rec, poses, args, pieces, acc_cal=acc_fit, mag_cal=mag_fit)
+    # a magnetometer part not determined above is not fitted again (nor warned about twice)
+    rot, why = fit_rotations(rec, poses, args, pieces, acc_cal=acc_fit,
+                             mag_cal=mag_fit if mag_fit is not None else False)
     tf = None
     if args.method != "ga-paper":
         tf = fit_thermal("gyro", pieces, cal, None, None, args.thermal_min_span, args.seed)

@@ -43,7 +43,7 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
     on ``pieces`` (the detector's still pieces, each at its own temperature), then the
     rotations between the recording's still intervals (found with the same detector
     settings).  mag_cal: the magnetometer's rotation-cloud FitResult when already fitted
-    (None: fitted here, mag_sym); slices: the poses' sample ranges (None: read back from
+    (None: fitted here, mag_sym; False: tried, none: gravity alone is the reference); slices: the poses' sample ranges (None: read back from
     ``poses``, :func:`pose_slices`, else the detector is run again with the same settings)."""
     from ..fitting.fit import fit_norm
     from ..fitting.gyro.rotations import fit_gyro_rotations
@@ -130,9 +130,9 @@ def _gravity_reference(rec, poses, pieces, acc_cal, chip, seed):
 
 def _calibrated_mag(rec, seed, cal=None):
     """The recording's magnetometer corrected by its own rotation-cloud calibration
-    (``cal``, else mag_sym fitted here), or None (no magnetometer, or the cloud does not
-    determine one)."""
-    if rec.mag is None:
+    (``cal``, else mag_sym fitted here), or None (no magnetometer, ``cal`` False: tried by
+    the caller and not determined, or the cloud does not determine one)."""
+    if rec.mag is None or cal is False:
         return None
     from ..calibration import SensorCal
     if cal is None:

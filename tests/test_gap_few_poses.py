@@ -72,3 +72,23 @@ def test_holds_of_one_block_each_are_refused_in_one_line_not_a_traceback():
     rec = simulate_session("mpu6050", R, rng, rate_hz=100.0, hold_s=(5.0, 6.0), move_s=2.0).recording
     with pytest.raises(GapError, match=r"14 still blocks of 4 s in 14 still stretches leave 0 to compare"):
         diagnose(rec, sims=50)
+
+
+@pytest.mark.parametrize("seed,effect", [(1, None), (2, "thermal_bias")])
+def test_a_bench_warm_up_nudged_once_keeps_its_verdict(seed, effect):
+    """A board warming 10 degC on a bench for two 400-s rests, nudged 1.1 deg between them:
+    one constant for both runs read the nudge (19 mg across gravity) as a wandering bias,
+    ratio 82-94, on the null and in place of the injected thermal bias (the code before, seeds
+    0-3: wandering_bias 4/4).  With a constant per run: the null 'none' (ratio 0.93-0.94) and
+    the thermal bias named (8.8-9.5).  Breaking it once: run_groups returning the orientation
+    groups (both fail)."""
+    from imucald.sim.effects import make_effect
+    rng = np.random.default_rng(seed)
+    up2 = np.array([0.02, 0, 1.0]) / np.linalg.norm([0.02, 0, 1.0])
+    R = np.array([rotation_from_up(np.array([0, 0, 1.0]), 0.3), rotation_from_up(up2, 0.31)])
+    eff = [make_effect(effect, None, rng)["apply"]] if effect else []
+    rec = simulate_session("mpu6050", R, rng, rate_hz=50.0, hold_s=400.0, move_s=1.0, temp_rise_c=10.0,
+                           effects=eff).recording
+    r = diagnose(rec, sims=100, seed=seed)
+    assert r["mode"] == "time_series" and r["poses_found"] == 2
+    assert r["sensors"]["accel"]["verdict"] == (effect or "none")

@@ -342,6 +342,13 @@ def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
     msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
     assert msg.startswith(f"{p}:42: column ax: 'zz' is not a number"), msg
     capsys.readouterr()
+    # a wrong --columns (an extra column in the file) gets the count's own message, not "not a
+    # numeric table" (a newcomer's walk: phyphox's "Absolute acceleration" column)
+    p.write_text(f"time{sep}ax{sep}ay{sep}az{sep}abs\n" + "".join(
+        sep.join(f"{v:g}".replace(".", ",") for v in (*r, 1.5)) + "\n" for r in rows))
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg.startswith(f"{p}:2: expected 4 values (t,ax,ay,az), found 5"), msg
+    capsys.readouterr()
     # a first row of whole numbers (t = 0, counts) says nothing of the mark: the first row
     # with a ',' decides (a cold review: "expected 4 values, found 5" on the second row)
     p.write_text("".join(sep.join(f"{v:g}".replace(".", ",") for v in r) + "\n"

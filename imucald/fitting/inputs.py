@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
@@ -199,15 +200,24 @@ class _Translated:
         return getattr(self._fh, name)
 
 
+#: a number written with the comma as its decimal mark: digits on both sides of it, as
+#: 0,01 or -1,5E-3 (a CSV's "10," has none after it)
+_COMMA_NUMBER = re.compile(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
+
+
 def _decimal_comma(s: str, ncols: int) -> bool:
-    """A row of ``ncols`` numbers only when ';' separates values and ',' is the decimal mark
-    (a spreadsheet's or phyphox's export in many locales: ``0,01;0;9,81``, ``0,01<TAB>9,81``,
-    ``12;-40;16384``); read with ',' as a separator it is no row of ``ncols`` numbers."""
-    if "," not in s and ";" not in s:
+    """Whether a row is a spreadsheet's or phyphox's export in a locale whose decimal mark is
+    the comma: ';' or whitespace between values (``0,01;0;9,81``, ``0,01<TAB>9,81``,
+    ``12;-40;16384``).  Its format decides, not the count (a wrong --columns then gets the
+    count's own message, "expected 4 values, found 5"), except that a row which reads as
+    ``ncols`` comma-separated numbers stays a CSV (``0,5`` for two columns)."""
+    if ";" not in s and not any(_COMMA_NUMBER.match(t) for t in s.split()):
         return False
-    alt = s.replace(",", ".").replace(";", " ").split()
+    toks = s.replace(";", " ").split()
+    if not toks or not all(_COMMA_NUMBER.match(t) or _numeric([t]) for t in toks):
+        return False
     plain = s.replace(",", " ").split()
-    return len(alt) == ncols and _numeric(alt) and not (len(plain) == ncols and _numeric(plain))
+    return not (len(plain) == ncols and _numeric(plain))
 
 
 def _first_row(fh, path: str, cols: Sequence[str]):

@@ -225,21 +225,24 @@ def no_still_message(path: str, det, n_found: int = 0) -> str:
     fl = det._core.floor_a if det._core is not None else None
     what = "no still moment: only 0 still poses" if n_found == 0 else f"only {n_found} still poses"
     why = ""
+    units = False           # the numbers are not in g: the scale, not the hands, is to fix
     rc = det.rejected_counts
     if rc:
         k = max(rc, key=rc.get)
         r = next(x for x in reversed(det.rejected) if x["kind"] == k)
         why = f"; {sum(rc.values())} quiet stretches rejected, e.g. at {r['t0_s']:.1f} s: {r['reason']}"
-        if k == "norm":
-            why += " (is the file in g? --nominal-scale converts counts)"
+        units = k == "norm"
     elif cap is not None and fl is not None and det._core._hist_a.size:
         q = float(np.percentile(det._core._hist_a, 5))
         kc = det._core.k * cap
         why = (f"; the quietest 1 s windows scatter {np.sqrt(q / 3) * 1e3:.3g} mg per axis, "
                f"{np.sqrt(q / kc):.3g}x the most a still {det.chip or 'accelerometer'} can "
                f"({np.sqrt(kc / 3) * 1e3:.3g} mg at {det.rate:.3g} Hz)")
-    return (f"{head}{what} found{why}: hold the board still for a few seconds in each "
-            f"orientation")
+        units = np.sqrt(q / 3) > 0.1        # a tenth of a g in the quietest second: not in g
+    fix = ("check --nominal-scale first (is the file in g? counts or m/s^2 read as g fail every "
+           "test), then hold the board still for a few seconds in each orientation" if units else
+           "hold the board still for a few seconds in each orientation")
+    return f"{head}{what} found{why}: {fix}"
 
 
 def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.ndarray] = None,

@@ -83,7 +83,8 @@ def test_repeated_readings_are_fitted_once_and_said(capsys):
     distinct = 1 + int(np.any(np.diff(rec.mag, axis=0) != 0, axis=1).sum())    # a few chance repeats
     res = calibrate_rotation(np.repeat(rec.mag, 2, axis=0), rng=0)
     assert res["samples"] == distinct and n - distinct < 0.01 * n and res["rows"] == 2 * n
-    assert f"over {distinct} readings (of {2 * n} rows: each reading once)" in "\n".join(rotation_lines(res))
+    assert f"over {distinct} readings ({2 * n} rows; a reading repeated on the next rows counted once)" \
+        in "\n".join(rotation_lines(res))
     assert capsys.readouterr().err == ""
 
 

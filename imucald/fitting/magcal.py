@@ -635,7 +635,8 @@ def rotation_lines(res: Dict[str, Any]) -> List[str]:
     out = [f"  coverage: {c['fraction']:.0%} of {c['cells']} direction cells; direction scatter "
            f"eigenvalues [{ev}] (1/3 each for the whole sphere)",
            f"  corrected |h| relative std {res['norm_rel_std']:.4f} over {res['samples']} readings"
-           + (f" (of {res['rows']} rows: each reading once)" if res.get("rows") != res["samples"] else "")
+           + (f" ({res['rows']} rows; a reading repeated on the next rows counted once)"
+              if res.get("rows") != res["samples"] else "")
            + f" (noise alone would give {res['predicted_rel_std']:.4f})"]
     c = res.get("consistency")
     if c is not None:

@@ -111,3 +111,20 @@ def test_the_daemon_and_gap_leave_the_rails_out_as_calibrate_does(tmp_path):
     assert np.all(np.abs(z) < 3), z
     g = diagnose(Recording(t=rec.t, acc=None, gyro=None, mag=m, meta=dict(rec.meta)), sims=50)["sensors"]["mag"]
     assert g["verdict"] == "none" and g["points"]["rails_left_out"][0]["axis"] == "x"
+
+
+def test_a_magnetometer_in_counts_is_not_calibrated_as_gauss(tmp_path, capsys):
+    """HMC5883L counts given no --nominal-scale were fitted and reported as a 545-gauss field,
+    and -o would write counts labelled gauss (a newcomer's walk).  A fitted field of 10 G or
+    more is refused in one line naming the scale to give; nothing is written.  Broken once:
+    unit_problem returning None (exit 0, the file written)."""
+    rec, _ = _tumble(6)
+    p = tmp_path / "counts.csv"
+    np.savetxt(p, np.column_stack([np.arange(len(rec.t)) * 20, np.round(rec.mag * 1090)]),
+               delimiter=",", fmt="%d", header="t_ms,mx,my,mz", comments="")
+    out = tmp_path / "mag.yaml"
+    assert main(["calibrate", str(p), "--columns", "t_ms,mx,my,mz", "--sensor", "mag", "-o", str(out)]) == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "gauss, no field a board meets" in last and "--nominal-scale mag=N" in last and not out.exists()
+    assert main(["calibrate", str(p), "--columns", "t_ms,mx,my,mz", "--sensor", "mag", "--nominal-scale",
+                 "mag=1090", "-o", str(out)]) == 0 and out.exists()

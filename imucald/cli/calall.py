@@ -140,7 +140,7 @@ def _accel(args, rec, poses, pieces, progress):
 
 
 def _mag(args, rec, progress):
-    from ..fitting.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
+    from ..fitting.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines, unit_problem
     from .offline import DEFAULT_MODEL, file_part
     from .thermal import thermal_json, thermal_lines
     why = _unusable(rec.mag, "mag", "no magnetometer columns (mx, my, mz)")
@@ -152,6 +152,9 @@ def _mag(args, rec, progress):
                  f"with {args.method}")
     res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed, temp_c=rec.temp,
                              thermal_min_span_c=args.thermal_min_span)
+    why = unit_problem(res)
+    if why:
+        return {"skipped": why}, None
     d = rotation_json(res)
     if not res["determined"]:
         return {"skipped": flat_message(res), "json": d}, None

@@ -449,12 +449,15 @@ def print_cal(sensor: str, cal) -> None:
 def _calibrate_mag_rotation(args, rec, model, progress) -> int:
     """Magnetometer from the rotation cloud (any recording with mx, my, mz).
     Exit 3 when the cloud does not determine a calibration (a one-plane swing)."""
-    from ..fitting.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines
+    from ..fitting.magcal import calibrate_rotation, flat_message, rotation_json, rotation_lines, unit_problem
     if progress:
         progress(f"imucald: {len(rec)} magnetometer rows; thinning over the sphere and fitting "
                  f"{model} with {args.method}")
     res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed, temp_c=rec.temp,
                              thermal_min_span_c=args.thermal_min_span)
+    why = unit_problem(res)
+    if why:
+        raise UserError(f"{args.input}: {why}")
     tf = res.get("thermal")
     part = file_part(res["calibration"], tf) if res["determined"] else None
     if args.output and res["determined"]:

@@ -66,7 +66,7 @@ from ..numerics.npstats import median
 __all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage", "undetermined_terms",
            "missing_axes", "fit_cloud", "fit_points", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
            "SOFT_IRON_SE_MAX", "MIN_DIRECTION_EIG", "rails", "on_rails", "field_consistency",
-           "FIELD_EXCESS_MAX", "FIELD_RATIO_MIN"]
+           "FIELD_EXCESS_MAX", "FIELD_RATIO_MIN", "unit_problem"]
 
 #: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
 #: along the plane normal is flat: the normal axis is not determined (3 sigma)
@@ -529,6 +529,26 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
             out["heldout"] = {"train_samples": k, "note": "the first part of the rotation alone "
                               "does not span three dimensions: no held-out figure"}
     return out
+
+
+#: a fitted field at or above this (gauss) is no field a board meets (the Earth's is 0.25-0.65
+#: G; the chips' ranges end at 8-16 G): the file is in counts, mG or uT, not gauss
+FIELD_UNIT_MAX_GAUSS = 10.0
+
+
+def unit_problem(res: Dict[str, Any]) -> Optional[str]:
+    """Why a rotation fit (``calibrate_rotation``'s result) is in the wrong unit, or None: a
+    newcomer's HMC5883L counts without --nominal-scale were fitted and reported as a 545-gauss
+    field (a calibration file would carry counts as gauss)."""
+    cal = res.get("calibration") or res.get("rejected_fit")
+    if cal is None:
+        return None
+    F = abs(float(cal.params["field_gauss"]))
+    if F < FIELD_UNIT_MAX_GAUSS:
+        return None
+    return (f"the fitted field is {F:.4g} gauss, no field a board meets (the Earth's is 0.25-0.65 G): "
+            f"the file is not in gauss; give --nominal-scale mag=N, its counts per gauss (1090 for an "
+            f"HMC5883L at its default gain, 1000 for mG, 100 for uT); nothing is written")
 
 
 def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:

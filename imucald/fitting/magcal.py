@@ -443,7 +443,7 @@ def fit_cloud(model: MagModel, points: np.ndarray, noise: Optional[np.ndarray], 
     return {"determined": True, "coverage": cv, "calibration": cal, "consistency": fc}
 
 
-def _readings(mag: np.ndarray, temp_c: Optional[np.ndarray]):
+def _readings(mag: np.ndarray, temp_c: Optional[np.ndarray], name: str = ""):
     """(readings, their temperatures, rails) of a magnetometer series (N, 3): finite rows,
     each reading once (a board that samples faster than its magnetometer holds the last
     reading: repeats would fake a zero noise and weigh one direction more; imucald's own
@@ -461,8 +461,9 @@ def _readings(mag: np.ndarray, temp_c: Optional[np.ndarray]):
     off, rl = on_rails(mag)
     if rl:
         where = ", ".join(f"{'xyz'[j]} at {v:+.6g} ({n})" for j, v, n in rl)
-        warn(f"{int(off.sum())} magnetometer samples sit on a rail ({where}): the sensor clipped "
-             f"at its range or wrote an overflow code; they are left out of the fit")
+        head = f"{name}: " if name else ""
+        warn(f"{head}{int(off.sum())} magnetometer samples sit on a rail ({where}): the sensor "
+             f"clipped at its range or wrote an overflow code; they are left out of the fit")
         mag = mag[~off]
         temp = None if temp is None else temp[~off]
     return mag, temp, rl
@@ -471,8 +472,9 @@ def _readings(mag: np.ndarray, temp_c: Optional[np.ndarray]):
 def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "lm",
                        holdout_fraction: float = 0.3, rng=None, noise: Optional[np.ndarray] = None,
                        cells: int = 200, per_cell: int = 5, temp_c: Optional[np.ndarray] = None,
-                       thermal_min_span_c: float = 10.0) -> Dict[str, Any]:
-    """Hard + soft iron from a rotation time series ``mag`` (N, 3), in time order.
+                       thermal_min_span_c: float = 10.0, name: str = "") -> Dict[str, Any]:
+    """Hard + soft iron from a rotation time series ``mag`` (N, 3), in time order (``name``:
+    the file, heading the warning for samples on a rail).
 
     Returns a dict: ``determined`` (False for a one-plane swing, with ``flat``
     describing the plane), ``calibration`` (a :class:`FitResult` fitted on the
@@ -485,7 +487,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     cloud, each point at its own temperature (order 0 below ``thermal_min_span_c``).
     """
     mag_rows = mag
-    mag, temp, rl = _readings(mag, temp_c)
+    mag, temp, rl = _readings(mag, temp_c, name)
     mdl = get_model(model)
     if not isinstance(mdl, MagModel):
         raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")

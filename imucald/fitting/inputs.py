@@ -223,8 +223,9 @@ def _decimal_comma(s: str, ncols: int) -> bool:
 def _first_row(fh, path: str, cols: Sequence[str]):
     """(line number, byte offset, decimal comma) of a raw table's first row of numbers,
     ``fh`` left there: blank, comment (#, %) and header lines before it skipped, and a UTF-8
-    byte-order mark.  Decimal comma: the row is ``len(cols)`` numbers only with ';' between
-    values and ',' as the decimal mark (:func:`_decimal_comma`)."""
+    byte-order mark.  Decimal comma: the row is written with ';' or whitespace between values
+    and ',' as the decimal mark (:func:`_decimal_comma`; a row of whole numbers leaves it to
+    the next row holding a ',' or ';')."""
     lineno, offset = 1, 0
     if fh.read(len(BOM)) == BOM:
         offset = len(BOM)

@@ -54,8 +54,8 @@ def test_a_clipped_axis_is_left_out_and_the_fit_stays_within_its_errors(seed, ca
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_field_that_changes_halfway_is_refused_and_one_field_is_not(seed, tmp_path, capsys):
     """The second half's field 10 % weaker (the board carried to another room): exit 3, one
-    line naming the field's change.  Broken once: field_consistency always consistent
-    (exit 0, a calibration written)."""
+    line naming the field's change and when it changed.  Broken once: field_consistency
+    always consistent (exit 0, a calibration written); field_step returning None (no "when")."""
     rec, tr = _tumble(seed)
     res = calibrate_rotation(rec.mag, rng=0)
     assert res["determined"] and res["consistency"]["excess_rel_std"] < 0.005
@@ -69,6 +69,12 @@ def test_a_field_that_changes_halfway_is_refused_and_one_field_is_not(seed, tmp_
     last = capsys.readouterr().err.splitlines()[-1]     # after the progress line
     assert last.startswith(f"imucald: {p}: the corrected field's magnitude varies by"), last
     assert "Traceback" not in last and not out.exists()
+    # and when: a newcomer's walk asked where the field changed (field_step)
+    import re
+    m = re.search(r"it changes by (-?\d+)% at ([\d.]+) s", last)
+    # the step's size is read off the rejected fit, bent toward both fields: -8 % for the -10 %
+    # injected here (-29..-31 % for the probe's -30..-33 %); its time within 1-2 s of the change
+    assert m and -14 <= int(m.group(1)) <= -6 and abs(float(m.group(2)) - rec.t[n // 2]) < 2.5, last
 
 
 def test_repeated_readings_are_fitted_once_and_said(capsys):

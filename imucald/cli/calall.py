@@ -151,7 +151,7 @@ def _mag(args, rec, progress):
         progress(f"imucald: mag: {len(rec)} rows; thinning over the sphere and fitting {model} "
                  f"with {args.method}")
     res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed, temp_c=rec.temp,
-                             thermal_min_span_c=args.thermal_min_span, name=args.input)
+                             thermal_min_span_c=args.thermal_min_span, name=args.input, t_s=rec.t)
     why = unit_problem(res)
     if why:
         return {"skipped": why}, None

@@ -454,7 +454,7 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
         progress(f"imucald: {len(rec)} magnetometer rows; thinning over the sphere and fitting "
                  f"{model} with {args.method}")
     res = calibrate_rotation(rec.mag, model, args.method, rng=args.seed, temp_c=rec.temp,
-                             thermal_min_span_c=args.thermal_min_span, name=args.input)
+                             thermal_min_span_c=args.thermal_min_span, name=args.input, t_s=rec.t)
     why = unit_problem(res)
     if why:
         raise UserError(f"{args.input}: {why}")

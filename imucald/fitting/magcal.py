@@ -443,8 +443,8 @@ def fit_cloud(model: MagModel, points: np.ndarray, noise: Optional[np.ndarray], 
     return {"determined": True, "coverage": cv, "calibration": cal, "consistency": fc}
 
 
-def _readings(mag: np.ndarray, temp_c: Optional[np.ndarray], name: str = ""):
-    """(readings, their temperatures, rails) of a magnetometer series (N, 3): finite rows,
+def _readings(mag: np.ndarray, name: str = ""):
+    """(readings, the rows they came from, rails) of a magnetometer series (N, 3): finite rows,
     each reading once (a board that samples faster than its magnetometer holds the last
     reading: repeats would fake a zero noise and weigh one direction more; imucald's own
     9-DoF recordings repeat the slower magnetometer's reading by design, so the report says
@@ -456,25 +456,49 @@ def _readings(mag: np.ndarray, temp_c: Optional[np.ndarray], name: str = ""):
     if keep.sum() > 1:
         ix = np.flatnonzero(keep)
         keep[ix[1:]] &= np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
-    mag = mag[keep]
-    temp = None if temp_c is None else np.asarray(temp_c, float)[keep]
-    off, rl = on_rails(mag)
+    idx = np.flatnonzero(keep)
+    off, rl = on_rails(mag[idx])
     if rl:
         where = ", ".join(f"{'xyz'[j]} at {v:+.6g} ({n})" for j, v, n in rl)
         head = f"{name}: " if name else ""
         warn(f"{head}{int(off.sum())} magnetometer samples sit on a rail ({where}): the sensor "
              f"clipped at its range or wrote an overflow code; they are left out of the fit")
-        mag = mag[~off]
-        temp = None if temp is None else temp[~off]
-    return mag, temp, rl
+        idx = idx[~off]
+    return mag[idx], idx, rl
+
+
+def field_step(model: MagModel, theta: np.ndarray, mag: np.ndarray,
+               t_s: Optional[np.ndarray]) -> Optional[Dict[str, float]]:
+    """Where a field that is not one field changed, when one step explains most of it: the
+    split of the corrected magnitude (readings ``mag`` in time order, at ``t_s``) into a
+    before and an after that takes away the most variance; None unless it takes at least
+    half (a passing magnet is a bump, not a step).  {"t_s" (or "row" without times), "change"
+    (after / before - 1: the rejected fit's own scale is a compromise between the two fields,
+    so only their ratio is told)}."""
+    h = np.linalg.norm(model.forward(theta, np.asarray(mag, float)), axis=1)
+    n = len(h)
+    if n < 20:
+        return None
+    c = np.cumsum(h)
+    k = np.arange(1, n)
+    m1, m2 = c[:-1] / k, (c[-1] - c[:-1]) / (n - k)
+    gain = k * (n - k) / n * (m1 - m2) ** 2          # variance taken away by the split, x n
+    lo, hi = max(1, n // 20), n - max(1, n // 20)
+    b = lo + int(np.argmax(gain[lo - 1:hi - 1]))
+    if gain[b - 1] < 0.5 * float(np.sum((h - h.mean()) ** 2)):
+        return None
+    where = {"row": int(b)} if t_s is None else {"t_s": float(np.asarray(t_s, float)[b])}
+    return {**where, "change": float(m2[b - 1] / m1[b - 1] - 1.0)}
 
 
 def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "lm",
                        holdout_fraction: float = 0.3, rng=None, noise: Optional[np.ndarray] = None,
                        cells: int = 200, per_cell: int = 5, temp_c: Optional[np.ndarray] = None,
-                       thermal_min_span_c: float = 10.0, name: str = "") -> Dict[str, Any]:
+                       thermal_min_span_c: float = 10.0, name: str = "",
+                       t_s: Optional[np.ndarray] = None) -> Dict[str, Any]:
     """Hard + soft iron from a rotation time series ``mag`` (N, 3), in time order (``name``:
-    the file, heading the warning for samples on a rail).
+    the file, heading the warning for samples on a rail; ``t_s``: the rows' times, for when
+    a field that is not one field changed, else the row numbers).
 
     Returns a dict: ``determined`` (False for a one-plane swing, with ``flat``
     describing the plane), ``calibration`` (a :class:`FitResult` fitted on the
@@ -487,7 +511,8 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     cloud, each point at its own temperature (order 0 below ``thermal_min_span_c``).
     """
     mag_rows = mag
-    mag, temp, rl = _readings(mag, temp_c, name)
+    mag, idx, rl = _readings(mag, name)
+    temp = None if temp_c is None else np.asarray(temp_c, float)[idx]
     mdl = get_model(model)
     if not isinstance(mdl, MagModel):
         raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")
@@ -504,6 +529,11 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
         raise UserError(f"{len(mag)} magnetometer samples reach only {len(pts)} direction cells: "
                         f"rotate the sensor through many orientations")
     out.update(fit_cloud(mdl, pts, sigma, method, rng, cells))
+    if "inconsistent" in out:
+        step = field_step(mdl, out["rejected_fit"].theta, mag,
+                          None if t_s is None else np.asarray(t_s, float)[idx])
+        if step is not None:
+            out["inconsistent"]["step"] = step
     if not out["determined"]:
         return out
     cal = out["calibration"]
@@ -598,8 +628,11 @@ def flat_message(res: Dict[str, Any]) -> str:
         return undetermined_message(res)
     if "inconsistent" in res:
         c = res["inconsistent"]
+        st = c.get("step")
+        at = (f"{st['t_s']:.4g} s" if "t_s" in st else f"row {st['row']}") if st else ""
+        when = f"; it changes by {st['change']:+.0%} at {at}" if st else ""
         return (f"the corrected field's magnitude varies by {c['excess_rel_std']:.1%} of the field beyond "
-                f"the noise (spread {c['rel_std']:.2%}, the noise alone {c['predicted_rel_std']:.2%}); a "
+                f"the noise (spread {c['rel_std']:.2%}, the noise alone {c['predicted_rel_std']:.2%}{when}); a "
                 f"calibration is determined to {FIELD_EXCESS_MAX:.0%}: the field changed during the "
                 f"recording (the board carried elsewhere, a magnet, a motor or iron nearby) or the sensor "
                 f"clipped; no calibration is given: record again away from iron and magnets, in one place")

@@ -55,7 +55,8 @@ def test_a_clipped_axis_is_left_out_and_the_fit_stays_within_its_errors(seed, ca
 def test_a_field_that_changes_halfway_is_refused_and_one_field_is_not(seed, tmp_path, capsys):
     """The second half's field 10 % weaker (the board carried to another room): exit 3, one
     line naming the field's change and when it changed.  Broken once: field_consistency
-    always consistent (exit 0, a calibration written); field_step returning None (no "when")."""
+    always consistent (exit 0, a calibration written); field_step returning None (no "when");
+    offline._time_window returning the whole recording (--end-s: refused again)."""
     rec, tr = _tumble(seed)
     res = calibrate_rotation(rec.mag, rng=0)
     assert res["determined"] and res["consistency"]["excess_rel_std"] < 0.005
@@ -75,6 +76,12 @@ def test_a_field_that_changes_halfway_is_refused_and_one_field_is_not(seed, tmp_
     # the step's size is read off the rejected fit, bent toward both fields: -8 % for the -10 %
     # injected here (-29..-31 % for the probe's -30..-33 %); its time within 1-2 s of the change
     assert m and -14 <= int(m.group(1)) <= -6 and abs(float(m.group(2)) - rec.t[n // 2]) < 2.5, last
+    # the part before the change calibrates (calibrate --end-s, a newcomer's wish)
+    assert main(["calibrate", str(p), "--sensor", "mag", "--json", "--end-s", str(rec.t[n // 2] - 2)]) == 0
+    import json
+    j = json.loads(capsys.readouterr().out)
+    z = (np.array(j["params"]["hard_iron_gauss"]) - tr.mag_hard_iron_gauss) / np.array(j["stderr"]["hard_iron_gauss"])
+    assert np.all(np.abs(z) < 3), z
 
 
 def test_repeated_readings_are_fitted_once_and_said(capsys):

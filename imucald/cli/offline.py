@@ -211,6 +211,7 @@ def _calibrate(args) -> int:
     from ..fitting.stillness.poses import poses_and_pieces
     from ._common import read_input
     kind, obj = read_input(args, args.input)
+    obj = _time_window(args, kind, obj)
     if args.sensor == "all":    # every part the recording supports, into one file (cli/calall.py)
         from .calall import cmd_calibrate_all
         return cmd_calibrate_all(args, kind, obj)
@@ -273,6 +274,24 @@ def _calibrate(args) -> int:
     else:
         _print_report(sensor, cal, rec, rot, why, part, tf)
     return 0
+
+
+def _time_window(args, kind: str, obj):
+    """The recording within --start-s/--end-s (s after its first sample), or as it is."""
+    start, end = getattr(args, "start_s", None), getattr(args, "end_s", None)
+    if start is None and end is None:
+        return obj
+    if kind != "recording":
+        raise UserError(f"{args.input}: --start-s/--end-s select samples: give a recording or a raw "
+                        f"table, not a pose file")
+    import numpy as np
+    t = obj.t
+    lo = 0 if start is None else int(np.searchsorted(t, t[0] + start))
+    hi = len(t) if end is None else int(np.searchsorted(t, t[0] + end, side="right"))
+    if hi - lo < 2:
+        raise UserError(f"{args.input}: --start-s/--end-s select {max(hi - lo, 0)} samples of "
+                        f"{t[-1] - t[0]:.4g} s: widen the window")
+    return obj.slice(lo, hi)
 
 
 def _sensor_and_model(args, kind: str, obj):

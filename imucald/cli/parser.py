@@ -149,6 +149,10 @@ def _add_calibrate(c) -> None:
     c.add_argument("--plot", metavar="DIR", help="accel: write coverage.png (the pose-coverage sphere) and "
                                              "residuals.png (|a| - 1 g per pose before/after) here (plots extra)")
     c.add_argument("--seed", type=seed, default=0, help="seed for the GA")
+    c.add_argument("--start-s", type=finite_float, help="use the recording from this time (s after its first "
+                                                        "sample), e.g. after a warm-up")
+    c.add_argument("--end-s", type=finite_float, help="use the recording up to this time (s after its first "
+                                                      "sample), e.g. before the board was carried elsewhere")
     _raw_table_options(c, "t,ax,ay,az")
     c.add_argument("--window-s", type=_lim("window"), default=_ST["window_s"], help="still detector window, s")
     c.add_argument("--threshold-k", type=positive_float, default=_ST["k"],

@@ -635,7 +635,8 @@ def flat_message(res: Dict[str, Any]) -> str:
                 f"the noise (spread {c['rel_std']:.2%}, the noise alone {c['predicted_rel_std']:.2%}{when}); a "
                 f"calibration is determined to {FIELD_EXCESS_MAX:.0%}: the field changed during the "
                 f"recording (the board carried elsewhere, a magnet, a motor or iron nearby) or the sensor "
-                f"clipped; no calibration is given: record again away from iron and magnets, in one place")
+                f"clipped; no calibration is given: record again away from iron and magnets, in one place "
+                f"(or calibrate the part before or after the change: --start-s, --end-s)")
     f = res["flat"]
     if f.get("rank", 2) < 2:
         return ("the magnetometer was hardly turned (its readings spread no more than its noise "

@@ -6,9 +6,23 @@ import os
 from ..errors import UserError
 from ._common import eprint, print_json
 
-__all__ = ["cmd_noise", "still_stretch"]
+__all__ = ["cmd_noise", "still_stretch", "window_rows"]
 
 _AXES = {"accel": ("acc", "xyz"), "gyro": ("gyro", "xyz"), "mag": ("mag", "xyz")}
+
+
+def window_rows(t, start_s=None, end_s=None, where: str = "") -> "tuple":
+    """(lo, hi): the rows of ``t`` within [start_s, end_s] (s after the first sample), at
+    least two, else a one-line UserError (``where``: the file, heading it)."""
+    import numpy as np
+    t = np.asarray(t, float)
+    lo = 0 if start_s is None else int(np.searchsorted(t, t[0] + start_s))
+    hi = len(t) if end_s is None else int(np.searchsorted(t, t[0] + end_s, side="right"))
+    if hi - lo < 2:
+        head = f"{where}: " if where else ""
+        raise UserError(f"{head}--start-s/--end-s select {max(hi - lo, 0)} samples of "
+                        f"{t[-1] - t[0]:.4g} s: widen the window")
+    return lo, hi
 
 
 def still_stretch(t, start_s=None, end_s=None, max_gap_s: float = 1.0):
@@ -17,10 +31,7 @@ def still_stretch(t, start_s=None, end_s=None, max_gap_s: float = 1.0):
     reception times, average out; the Allan deviation is taken over the sample index)."""
     import numpy as np
     t = np.asarray(t, float)
-    lo = 0 if start_s is None else int(np.searchsorted(t, t[0] + start_s))
-    hi = len(t) if end_s is None else int(np.searchsorted(t, t[0] + end_s, side="right"))
-    if hi - lo < 2:
-        raise UserError(f"--start-s/--end-s select {max(hi - lo, 0)} samples: widen the window")
+    lo, hi = window_rows(t, start_s, end_s)
     cut = np.flatnonzero(np.diff(t[lo:hi]) > max_gap_s) + 1
     edges = np.concatenate([[0], cut, [hi - lo]])
     k = int(np.argmax(np.diff(edges)))

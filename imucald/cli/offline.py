@@ -284,14 +284,8 @@ def _time_window(args, kind: str, obj):
     if kind != "recording":
         raise UserError(f"{args.input}: --start-s/--end-s select samples: give a recording or a raw "
                         f"table, not a pose file")
-    import numpy as np
-    t = obj.t
-    lo = 0 if start is None else int(np.searchsorted(t, t[0] + start))
-    hi = len(t) if end is None else int(np.searchsorted(t, t[0] + end, side="right"))
-    if hi - lo < 2:
-        raise UserError(f"{args.input}: --start-s/--end-s select {max(hi - lo, 0)} samples of "
-                        f"{t[-1] - t[0]:.4g} s: widen the window")
-    return obj.slice(lo, hi)
+    from .noise import window_rows
+    return obj.slice(*window_rows(obj.t, start, end, args.input))
 
 
 def _sensor_and_model(args, kind: str, obj):

@@ -368,7 +368,7 @@ def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
 
 
 def _burst_rate(t: np.ndarray, c: Dict[str, np.ndarray]) -> Optional[float]:
-    """Rows a second (pauses out: stillness/repeats.py effective_rate) when most rows share
+    """Rows a second (pauses out: numerics/rates.py effective_rate) when most rows share
     their stamp with the row before and differ from it: a logger that stamps each FIFO burst
     with its read time (40 rows at 400 Hz under one stamp every 0.1 s), whose steps alone
     gave 10 Hz, and the gap diagnosis, noise and the gyro's windows then took each pose as

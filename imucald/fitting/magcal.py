@@ -66,7 +66,7 @@ from ..numerics.npstats import median
 __all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage", "undetermined_terms",
            "missing_axes", "fit_cloud", "fit_points", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
            "SOFT_IRON_SE_MAX", "MIN_DIRECTION_EIG", "rails", "on_rails", "field_consistency",
-           "FIELD_EXCESS_MAX", "FIELD_RATIO_MIN", "unit_problem"]
+           "FIELD_EXCESS_MAX", "FIELD_RATIO_MIN", "unit_problem", "readings"]
 
 #: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
 #: along the plane normal is flat: the normal axis is not determined (3 sigma)
@@ -443,13 +443,13 @@ def fit_cloud(model: MagModel, points: np.ndarray, noise: Optional[np.ndarray], 
     return {"determined": True, "coverage": cv, "calibration": cal, "consistency": fc}
 
 
-def _readings(mag: np.ndarray, name: str = ""):
+def readings(mag: np.ndarray, name: str = "", say: bool = True):
     """(readings, the rows they came from, rails) of a magnetometer series (N, 3): finite rows,
     each reading once (a board that samples faster than its magnetometer holds the last
     reading: repeats would fake a zero noise and weigh one direction more; imucald's own
     9-DoF recordings repeat the slower magnetometer's reading by design, so the report says
     how many readings the rows held, without a warning), the samples on a rail
-    (:func:`rails`) left out with a warning line."""
+    (:func:`rails`) left out with a warning line (``say``; gap notes them in its output)."""
     from ..files.tables import warn
     mag = np.asarray(mag, float)
     keep = np.all(np.isfinite(mag), axis=1)
@@ -458,11 +458,12 @@ def _readings(mag: np.ndarray, name: str = ""):
         keep[ix[1:]] &= np.any(np.diff(mag[ix], axis=0) != 0, axis=1)
     idx = np.flatnonzero(keep)
     off, rl = on_rails(mag[idx])
-    if rl:
+    if rl and say:
         where = ", ".join(f"{'xyz'[j]} at {v:+.6g} ({n})" for j, v, n in rl)
         head = f"{name}: " if name else ""
         warn(f"{head}{int(off.sum())} magnetometer samples sit on a rail ({where}): the sensor "
              f"clipped at its range or wrote an overflow code; they are left out of the fit")
+    if rl:
         idx = idx[~off]
     return mag[idx], idx, rl
 
@@ -511,7 +512,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     cloud, each point at its own temperature (order 0 below ``thermal_min_span_c``).
     """
     mag_rows = mag
-    mag, idx, rl = _readings(mag, name)
+    mag, idx, rl = readings(mag, name)
     temp = None if temp_c is None else np.asarray(temp_c, float)[idx]
     mdl = get_model(model)
     if not isinstance(mdl, MagModel):

@@ -18,7 +18,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..fitting.magcal import SphereReservoir, flat_axis, on_rails, sample_noise
+from ..fitting.magcal import SphereReservoir, flat_axis, readings, sample_noise
 from ..fitting.models.mag import MagModel
 from ..fitting.models.accel import Triangular9
 from ..fitting.solvers.lsq import sphere_fit
@@ -116,9 +116,10 @@ def mag_points(rec, slices: Sequence[slice], pose_mag: Optional[np.ndarray], pos
     for s in slices:
         still[s] = True
     m = rec.mag
-    fresh = np.r_[True, np.any(np.diff(m, axis=0) != 0, axis=1)] & np.all(np.isfinite(m), axis=1)
-    off, rl = on_rails(m[fresh])        # clipping, an overflow code: left out (fitting/magcal.py)
-    fresh[np.flatnonzero(fresh)[off]] = False
+    # each reading once, off the rails (clipping, an overflow code): the calibration's rule
+    _, idx, rl = readings(m, say=False)
+    fresh = np.zeros(n, bool)
+    fresh[idx] = True
     # per-sample noise: second differences inside the still poses (plain mean of squares:
     # the robust MAD of the calibration's sample_noise is lumpy on quantised readings and
     # overstates the noise by ~10 % there); no still stretch: the calibration's estimate

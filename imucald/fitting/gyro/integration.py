@@ -16,7 +16,7 @@ RAIL_FRACTION = 1.0 - 4.0 / 32768.0
 #: samples were lost in a rotation's window when a time step is longer than the hole limit,
 #: max(HOLE_FACTOR, 1 + 5 x the steps' relative scatter) periods, or when the window's span
 #: holds MISSING_MIN more periods than it has steps.  The period is the mean step between
-#: distinct timestamps, pauses out (stillness/repeats.py effective_rate): the median step was
+#: distinct timestamps, pauses out (numerics/rates.py effective_rate): the median step was
 #: 0 in a file of duplicated rows, where every step read as a loss.  A step over 1.5 periods
 #: was the only test: stamps jittering by 15 % of the period, or a whole-ms clock at 416 Hz
 #: (steps of 1-4 ms for 2.4), make such steps in every rotation with nothing lost (an

@@ -25,7 +25,7 @@ from ..fitting.gate import Decision, fitted_poses, gate_accel, gate_gyro_bias, p
 from ..fitting.inputs import stuck_columns
 from ..fitting.judging.levels import GATE_FALSE_ACCEPT_RATE
 from ..fitting.magcal import SphereReservoir as MagReservoir
-from ..fitting.magcal import fit_cloud, fit_points, on_rails
+from ..fitting.magcal import fit_cloud, fit_points, on_rails, rotation_noise
 from ..fitting.models.mag import MagModel
 from ..fitting.models.accel import Triangular9
 from ..calibration import Calibration, SensorCal, build_calibration
@@ -67,7 +67,8 @@ def calibration_job(job: Dict[str, Any]) -> JobResult:
     nothing) or None, t0 (N,),
     t1 (N,) (the poses' still intervals, s: matched against the incumbent's poses_used), n (N,),
     gyro (N,3) or None, temp (N,) degC or None, mag_points (M,3) or None, mag_noise (3,)
-    per-sample noise or None, current (the Calibration in force), method, holdout_fraction
+    per-sample noise or None, mag_series (K,3) the latest readings in time order (for the
+    noise: fitting/magcal.py rotation_noise), current (the Calibration in force), method, holdout_fraction
     (magnetometer points), alpha (the gate's false-accept rate), seed; thermal (the thermal
     log's arrays, daemon/thermallog.py) or None and thermal_min_span_c (daemon/thermaljob.py).
     """
@@ -216,6 +217,8 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
     if rl:
         mp, mt = mp[~off], (None if mt is None else np.asarray(mt)[~off])
         notes["mag_rails"] = [{"axis": "xyz"[j], "value": v, "points": n} for j, v, n in rl]
+    if noise is not None and job.get("mag_series") is not None:   # the turning may have inflated it
+        noise = rotation_noise(_MAG, mp, job["mag_series"], noise, job.get("seed"))[0]
     tm = cur.mag.thermal if cur.mag is not None and mt is not None else None
     raw = mp
     if tm:      # thermal terms in force: the constant part is refitted without them, and keeps them

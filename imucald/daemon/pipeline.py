@@ -349,7 +349,11 @@ class Pipeline:
 
     def _mag_noise(self):
         from ..fitting.magcal import sample_noise
-        return sample_noise(np.array(self.mag_recent)) if len(self.mag_recent) >= 20 else None
+        return sample_noise(self._mag_series()) if len(self.mag_recent) >= 20 else None
+
+    def _mag_series(self) -> np.ndarray:
+        """The latest magnetometer readings (sensor units), in time order."""
+        return np.array(self.mag_recent)
 
     def _maybe_calibrate_mag_only(self) -> None:
         c = self.cfg["calibration"]
@@ -363,11 +367,11 @@ class Pipeline:
         if not self.force and noise is not None:
             from ..fitting.magcal import flat_axis
             flat = flat_axis(r.points(), noise)
-            if flat is not None:       # not turned in 3-D yet: wait, and say so once
+            # not turned yet: wait, and say so once (a cloud that looks like one plane goes to
+            # the job, whose noise the turning has not inflated: fitting/magcal.py rotation_noise)
+            if flat is not None and flat["rank"] < 2:
                 self._next_mag_seen = r.seen + int(MAG_RECAL_S * self.rate_hz)
-                msg = ("magnetometer: the rotation so far stays in one plane; tilt the sensor onto "
-                       "another face and keep turning it" if flat["rank"] == 2 else
-                       "magnetometer: waiting for rotation (the readings hardly change)")
+                msg = "magnetometer: waiting for rotation (the readings hardly change)"
                 if not self.events or self.events[-1] != msg:
                     log.info(msg)
                     self.events.append(msg)
@@ -375,6 +379,7 @@ class Pipeline:
         self.force = False
         self._next_mag_seen = r.seen + int(MAG_RECAL_S * self.rate_hz)
         job = {"acc": None, "mag_points": r.points(), "mag_noise": noise,
+               "mag_series": self._mag_series(),
                "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
                "seed": int(r.seen),
                "current": self.applied}
@@ -444,6 +449,7 @@ class Pipeline:
                "t0": ps.t0, "t1": ps.t1, "n": ps.n,
                "temp": _temps(ps.temp),
                "gyro": ps.gyro, "mag_points": mag_pts, "mag_temp": mag_temp, "mag_noise": self._mag_noise(),
+               "mag_series": self._mag_series(),
                "method": c["method"],
                "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
                "seed": int(self.acc.added),

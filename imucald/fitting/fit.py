@@ -47,7 +47,7 @@ class FitResult:
     crlb_std: np.ndarray            #: per parameter (flat, model order)
     uncertainty: Optional[Uncertainty]
     noise: float                    #: robust per-pose residual sigma used for the bound
-    noise_source: str               #: 'poses' (within-pose scatter) or 'residuals'
+    noise_source: str               #: 'poses' (within-pose scatter), 'residuals', or a rotation fit's (fitting/magcal.py)
     iterations: int
     nfev: int
     wall_s: float

@@ -46,8 +46,11 @@ cloud whose corrected magnitude varies beyond the noise by more than ``FIELD_EXC
 the field (and over ``FIELD_RATIO_MIN`` times the noise's spread) determines nothing
 (:func:`field_consistency`).  Error rates: docs/guide/magnetometer.md.
 
-Noise per sample comes from second differences of the time series (robust: a
-smooth hand rotation contributes little to them at 10-200 Hz).
+Noise per sample comes from second differences of the time series (robust scale), per axis.
+A brisk turn logged slowly (a figure-8 at 10-12.5 Hz) inflates those 6-116x, so the corrected
+field magnitude's second differences under a first fit, which the turning leaves, replace
+them when they give under ``MOTION_NOISE_RATIO`` of it (:func:`rotation_noise`; its figures:
+docs/guide/magnetometer.md).
 """
 from __future__ import annotations
 
@@ -66,7 +69,8 @@ from ..numerics.npstats import median
 __all__ = ["SphereReservoir", "sample_noise", "flat_axis", "coverage", "undetermined_terms",
            "missing_axes", "fit_cloud", "fit_points", "calibrate_rotation", "rel_std", "FLAT_K", "HARD_IRON_SE_MAX",
            "SOFT_IRON_SE_MAX", "MIN_DIRECTION_EIG", "rails", "on_rails", "field_consistency",
-           "FIELD_EXCESS_MAX", "FIELD_RATIO_MIN", "unit_problem", "readings"]
+           "FIELD_EXCESS_MAX", "FIELD_RATIO_MIN", "unit_problem", "readings", "motion_free_noise",
+           "rotation_noise"]
 
 #: a cloud whose out-of-plane standard deviation is below FLAT_K times the noise's
 #: along the plane normal is flat: the normal axis is not determined (3 sigma)
@@ -95,6 +99,10 @@ FIELD_RATIO_MIN = 1.5
 #: a rail (clipping, an overflow code) is an axis's extreme value met in at least this
 #: many distinct samples and this fraction of them, and in more than lie near it inside
 #: (within 1 % of the axis's span or 3 counts): :func:`rails`
+#: the corrected magnitude's second differences replace the per-axis noise figure when they
+#: give under this fraction of it: motion, not noise (:func:`motion_free_noise`)
+MOTION_NOISE_RATIO = 2.0 / 3.0
+MOTION_FREE_SOURCE = "second differences of the field magnitude"
 RAIL_MIN_COUNT = 5
 RAIL_MIN_FRACTION = 0.005
 SOFT_NAMES = ("soft_iron_xx", "soft_iron_yy", "soft_iron_zz", "soft_iron_xy", "soft_iron_xz",
@@ -246,6 +254,45 @@ def sample_noise(m: np.ndarray) -> np.ndarray:
     # noise below one count: most second differences are 0 and the MAD with them; the
     # plain standard deviation still sees the quantisation
     return np.where(sd > 0, sd, d2.std(axis=0) / np.sqrt(6.0))
+
+
+def motion_free_noise(model: MagModel, theta: np.ndarray, mag: np.ndarray,
+                      noise: np.ndarray) -> Optional[np.ndarray]:
+    """Per-axis noise (sensor units, the same on each axis) from the second differences of the
+    corrected magnitude's time series under a first fit ``theta`` of the readings ``mag`` (N, 3)
+    in time order, when it is below MOTION_NOISE_RATIO of what the per-axis figure ``noise``
+    (3,) (:func:`sample_noise`) gives; else None.  The magnitude does not change as the
+    board turns, so the motion that inflates the per-axis second differences at low rates
+    (a figure-8 at 10 Hz: 6-116x) leaves it; a step or a bump of the field is a few
+    outlying differences, which the robust scale ignores."""
+    h = np.linalg.norm(model.forward(theta, mag), axis=1)
+    d2 = np.diff(h, 2)
+    d2 = d2[np.isfinite(d2)]
+    if len(d2) < 10:
+        return None
+    sd = 1.4826 * median(np.abs(d2 - median(d2))) / np.sqrt(6.0)
+    if not sd > 0:
+        sd = float(d2.std() / np.sqrt(6.0))
+    pred = float(np.sqrt(np.mean(residual_variance(model, theta, mag, np.diag(np.asarray(noise, float) ** 2)[None]
+                                                   .repeat(len(mag), 0)))))
+    if not sd < MOTION_NOISE_RATIO * pred:
+        return None
+    unit = float(np.sqrt(np.mean(residual_variance(model, theta, mag, 1.0))))
+    return np.full(3, sd / unit)
+
+
+def rotation_noise(model: MagModel, points: np.ndarray, mag: np.ndarray, noise: np.ndarray,
+                   rng=None) -> Tuple[np.ndarray, str]:
+    """(per-sample noise (3,), where it came from) for the fit of the thinned cloud ``points``
+    of the readings ``mag`` (N, 3) in time order: ``noise`` (:func:`sample_noise` of ``mag``),
+    or, when the turning inflated it, :func:`motion_free_noise` under a first fit of the cloud
+    (``calibrate --sensor mag`` and the daemon alike)."""
+    if len(points) > int(model.free_mask.sum()) and np.all(np.isfinite(noise)):
+        pilot = fit_points(model, points, noise, "lm", rng, heldout=False)
+        quiet = motion_free_noise(model, pilot.theta, mag, noise)
+        if quiet is not None:
+            return quiet, MOTION_FREE_SOURCE
+    return np.asarray(noise, float), "second differences"
 
 
 def flat_axis(points: np.ndarray, noise: np.ndarray, k: float = FLAT_K) -> Optional[Dict[str, Any]]:
@@ -518,6 +565,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     if not isinstance(mdl, MagModel):
         raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")
     sigma = sample_noise(mag) if noise is None else np.asarray(noise, float)
+    source = "second differences" if noise is None else "given"
     res = SphereReservoir(cells, per_cell)
     res.add(mag, np.arange(len(mag)))
     pts = res.points()
@@ -529,6 +577,10 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
         from ..errors import UserError
         raise UserError(f"{len(mag)} magnetometer samples reach only {len(pts)} direction cells: "
                         f"rotate the sensor through many orientations")
+    if noise is None:       # estimated: the turning may have inflated it
+        sigma, source = rotation_noise(mdl, pts, mag, sigma, rng)
+        out["noise"] = sigma.tolist()
+    out["noise_source"] = source
     out.update(fit_cloud(mdl, pts, sigma, method, rng, cells))
     if "inconsistent" in out:
         step = field_step(mdl, out["rejected_fit"].theta, mag,
@@ -538,7 +590,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     if not out["determined"]:
         return out
     cal = out["calibration"]
-    cal.noise_source = "second differences"
+    cal.noise_source = source
     hn = np.linalg.norm(mdl.forward(cal.theta, mag), axis=1)
     out["norm_rel_std"] = rel_std(hn)
     var = residual_variance(mdl, cal.theta, pts, np.broadcast_to(np.diag(sigma ** 2), (len(pts), 3, 3)))
@@ -588,7 +640,8 @@ def rotation_json(res: Dict[str, Any]) -> Dict[str, Any]:
     """The JSON object ``imucald calibrate --sensor mag`` prints for a rotation fit."""
     d: Dict[str, Any] = {"sensor": "mag", "input": "rotation", "determined": bool(res["determined"]),
                          "samples": res["samples"], "rows": res.get("rows", res["samples"]),
-                         "points": res["points"], "noise_gauss": res["noise"]}
+                         "points": res["points"], "noise_gauss": res["noise"],
+                         "noise_source": res.get("noise_source", "second differences")}
     if "rails" in res:
         d["rails"] = res["rails"]
     if not res["determined"] and "inconsistent" in res:

@@ -71,6 +71,24 @@ def test_replay_stream_matches_the_golden_file(tmp_path):
     assert json.loads(lines[0])["class"] == "VERSION"
 
 
+def test_a_provisional_calibration_is_refitted_when_the_poses_needed_are_reached(tmp_path):
+    """14 poses with --min-poses 12: the provisional calibration of the 10th pose is refitted at
+    the 12th, where the log says the poses needed are reached (a user may stop there), not at
+    the next 5-pose mark (the 15th, which this file never reaches: it stayed provisional), and
+    the end of the replay says how many poses the calibration in force was fitted on.  Seen to
+    fail with the pipeline's refit at readiness (Pipeline._just_ready) removed: #1 stays in
+    force, "fitted on 10 of the 14"."""
+    rec = tmp_path / "g.csv"
+    assert main(["simulate", "-o", str(rec), "--board", "mpu6050", "--poses", "14", "--hold", "4",
+                 "--move", "2", "--rate", "50", "--seed", "7"]) == 0
+    _, err = _replay(rec, "--min-poses", "12", "--orientation", "no")
+    log = err.splitlines()
+    at12 = next(i for i, l in enumerate(log) if "pose 12/12" in l)
+    at13 = next(i for i, l in enumerate(log) if "pose 13 " in l)
+    assert any("calibration #2 applied:" in l for l in log[at12:at13]), log[at12:at13]
+    assert "calibration #2 is in force, its accelerometer part fitted on 12 of the 14 still poses" in log[-1]
+
+
 def test_replay_reaches_the_true_calibration_and_saves_it(tmp_path, capsys):
     rec, truth = tmp_path / "r.csv", tmp_path / "t.json"
     assert main(["simulate", "-o", str(rec), "--board", "9dof", "--poses", "30", "--hold", "6",

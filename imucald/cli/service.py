@@ -131,9 +131,26 @@ def cmd_replay(args) -> int:
             out.write(pipe.process(SampleBatch(*rows)))
         out.write(pipe.end_of_stream())
     out.flush()
+    _replay_unused(args.recording, pipe, cfg)
     if args.state_dir:
         _replay_save(args.state_dir, pipe, start, cfg)
     return 0
+
+
+def _replay_unused(path: str, pipe, cfg) -> None:
+    """At the end of a replay, the still poses the accelerometer calibration in force was not
+    fitted on, said: the daemon refits after every calibration.recalibrate_every_poses new
+    poses, so the last few of a file wait for more (calibrate fits them all)."""
+    import logging
+    acc = pipe.applied.accel if pipe.applied.id else None
+    if acc is None or not pipe.has_acc:
+        return
+    used, total = int(acc.quality.get("poses", 0)), len(pipe.acc)
+    if 0 < used < total:
+        logging.getLogger("imucald").info(
+            "end of %s: calibration #%d is in force, its accelerometer part fitted on %d of the %d "
+            "still poses (the daemon refits after every %d new poses; `imucald calibrate %s` fits "
+            "them all)", path, pipe.applied.id, used, total, cfg["calibration"]["recalibrate_every_poses"], path)
 
 
 def _replay_save(state_dir: str, pipe, start, cfg) -> None:

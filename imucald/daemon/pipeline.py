@@ -108,6 +108,7 @@ class Pipeline:
         self.t_last = 0.0
         self.temp_range = [np.inf, -np.inf]
         self._tried_raw_at = 0           #: acc.added at the last attempt on the raw sensor
+        self._ready_tried_id = -1        #: the calibration in force when the poses needed were last fitted
         self._job_ready = True           #: the pending job's pose set met the readiness targets
         self._job_missing: List[str] = []
         #: noise figures (fitting.noise.allan.read_figures of noise.file), or None
@@ -390,6 +391,14 @@ class Pipeline:
         self.events.append(msg)
         self.pending = self.executor.submit(calibration_job, job)
 
+    def _just_ready(self, r) -> bool:
+        """A provisional calibration is in force and the pose set has reached the poses needed
+        (``r``: :meth:`ready_to_calibrate`) since it was applied: fit now, not at the next
+        recalibrate_every_poses mark (the log has just said the poses needed are reached; a
+        user may stop there)."""
+        return (self.applied.provisional is not None and bool(r["poses"])
+                and self._ready_tried_id != self.applied.id)
+
     def maybe_calibrate(self) -> None:
         if self.pending is not None:
             return
@@ -420,10 +429,12 @@ class Pipeline:
             if self.acc.added <= self._tried_raw_at:
                 return
         elif not ((ready or self.applied.provisional is not None) and
-                  self.acc.added >= self.next_cal_added):
+                  self.acc.added >= self.next_cal_added) and not self._just_ready(r):
             return
         self._tried_raw_at = self.acc.added
         self._job_ready = bool(ready)
+        if r["poses"]:
+            self._ready_tried_id = self.applied.id
         self._job_missing = self.acc.coverage()["missing"]
         ps = self.acc.pose_set()
         mag_pts = mag_temp = None

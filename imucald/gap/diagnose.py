@@ -39,7 +39,7 @@ step per sensor).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Dict, List, Optional, Sequence
 
 import numpy as np
@@ -454,6 +454,24 @@ def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     return r
 
 
+def _gyro_disturbed(gyro: np.ndarray, gsl: List[slice], u: PoseSetup):
+    """(the setup the gyro step uses, the poses it leaves out (N,) bool): a hold whose gyro
+    varies far more than the others' (the accelerometer's rule, gap/posenoise.py
+    flag_disturbed, on the within-pose gyro variance) turned or settled during it, e.g. a
+    1-s hold right after a fast move, which moves the gyro's pose mean tens of its standard
+    errors while the accelerometer's screen sees nothing; left out when MIN_POSES remain, and
+    only beyond one LSB^2 (quantisation is no turn)."""
+    n = np.array([s_.stop - s_.start for s_ in gsl])
+    s2 = np.array([gyro[s_].var(0).mean() if k > 1 else 0.0 for s_, k in zip(gsl, n)])
+    # a gyro held at one value inside most holds (noise below its LSB) has a median of ~0: a
+    # hold that flips between two values is not a turn (their variance is at most LSB^2 / 4)
+    lsb = estimate_lsb(np.asarray(gyro, float), [slice(0, len(gyro))])
+    moved = flag_disturbed(s2, n) & (s2 > np.mean(lsb ** 2)) & u.keep
+    if not moved.any() or (u.keep & ~moved).sum() < MIN_POSES:
+        return u, np.zeros(len(n), bool)
+    return replace(u, keep=u.keep & ~moved, bad=u.bad | moved), moved
+
+
 def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     """The gyro against a bias per axis and Earth's vertical rate (gap/linear.py)."""
     rate, ps, keep, longest = rec.rate_hz, u.ps, u.keep, u.longest
@@ -461,6 +479,8 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     # detector keeps inside a pose are cut (gap/gyrostill.py)
     gsl, trim = trim_turns(rec.gyro, u.sl, rate)
     gm = np.array([rec.gyro[s_].mean(0) for s_ in gsl])
+    u, moved = _gyro_disturbed(rec.gyro, gsl, u)
+    keep = u.keep
     kap_g, colour_g = colour_inflation(None if longest is None else rec.gyro[longest], rate, u.T_pose)
     wp = within_pose_inflation(rec.gyro, u.kept(gsl))
     kap_g = max(kap_g, wp["inflation"])
@@ -479,6 +499,12 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     ctx["acc_dir"] = Triangular9().forward(u.accel_theta(), ps.acc[keep])
     r = gyro_diag(gm[keep], gvar, ctx, sims, rng, u.skip)
     r["turn_ends_trimmed_s"] = float(np.sum(trim["trimmed_s"]))
+    if moved.any():
+        idx = np.flatnonzero(moved).tolist()
+        r["where"]["gyro_disturbed_poses"] = {"indices": idx, "t0_s": np.round(ps.t0[moved], 2).tolist()}
+        r.setdefault("notes", []).append(
+            f"poses {idx} left out of the gyro's diagnosis: their gyro scatters far more than the "
+            f"other holds' (the board turned or settled during the hold)")
     if colour_g:
         r["noise_colour"] = colour_g
     return r

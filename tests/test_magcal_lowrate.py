@@ -74,3 +74,19 @@ def test_the_daemon_fits_a_figure8_at_10hz_as_calibrate_does(seed):
                            "mag_series": m, "holdout_fraction": 0.3, "alpha": 0.05, "seed": 0,
                            "current": None})
     assert res.accept == {"mag": True} and "mag_flat" not in res.notes, res.notes
+
+
+def test_a_reading_that_is_not_finite_does_not_switch_the_estimate_off():
+    """One NaN row in the daemon job's latest readings (calibrate drops them before, the job
+    did not): the estimate leaves the row out and the 10-Hz figure-8 is applied.  Seen to
+    fail without motion_free_noise's finite-row filter (a cold review): the predicted figure
+    was NaN, the per-axis noise stood, "mag not determined" (one plane)."""
+    m = _figure8(0)
+    r = SphereReservoir()
+    r.add(m)
+    series = m.copy()
+    series[100] = np.nan
+    res = calibration_job({"acc": None, "mag_points": r.points(), "mag_noise": sample_noise(m),
+                           "mag_series": series, "holdout_fraction": 0.3, "alpha": 0.05, "seed": 0,
+                           "current": None})
+    assert res.accept == {"mag": True}, res.notes

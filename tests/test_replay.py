@@ -89,6 +89,23 @@ def test_a_provisional_calibration_is_refitted_when_the_poses_needed_are_reached
     assert "calibration #2 is in force, its accelerometer part fitted on 12 of the 14 still poses" in log[-1]
 
 
+def test_the_refit_at_the_poses_needed_runs_once(tmp_path):
+    """A pose set that reaches the poses needed (12) but never the uncertainty target (set far
+    below reach) keeps getting provisional calibrations: the fit at the 12th pose runs once,
+    then the 5-pose mark resumes (12, 17, 22, 27), and no fit runs on poses its predecessor
+    was fitted on.  Keyed on the calibration in force (a cold review found), each new
+    provisional id re-armed it: 9 fits instead of 5, four with "nothing to score it on out of
+    sample".  Seen to fail with Pipeline._ready_tried never set: fits at 12, 12, 13, 13, 14..."""
+    rec, cfg = tmp_path / "g.csv", tmp_path / "c.yaml"
+    cfg.write_text("calibration:\n  target_bias_g: 0.000001\n  target_scale: 0.000001\n")
+    assert main(["simulate", "-o", str(rec), "--board", "mpu6050", "--poses", "30", "--hold", "4",
+                 "--move", "2", "--rate", "50", "--seed", "7"]) == 0
+    _, err = _replay(rec, "--config", str(cfg), "--min-poses", "12", "--orientation", "no")
+    fits = [l.split(" on ")[1].split()[0] for l in err.splitlines() if "calibrating in the background" in l]
+    assert fits == ["10", "12", "17", "22", "27"], fits
+    assert "nothing to score it on out of sample" not in err
+
+
 def test_replay_reaches_the_true_calibration_and_saves_it(tmp_path, capsys):
     rec, truth = tmp_path / "r.csv", tmp_path / "t.json"
     assert main(["simulate", "-o", str(rec), "--board", "9dof", "--poses", "30", "--hold", "6",

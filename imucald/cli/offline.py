@@ -413,7 +413,7 @@ def _print_report(sensor, cal, rec, rot, why, part, tf) -> None:
 
 def print_cal(sensor: str, cal) -> None:
     unit = {"accel": ("mg", 1e3), "mag": ("mG", 1e3), "gyro": ("deg/s", 1.0)}[sensor]
-    what = "points (thinned rotation samples)" if cal.noise_source not in ("poses", "residuals") else "poses"
+    what = "poses" if cal.noise_source in ("poses", "residuals") else "points (thinned rotation samples)"
     print(f"{sensor} {cal.model} by {cal.method}: {cal.poses} {what}, fitness {cal.fitness:.6g}")
     for g, v in cal.params.items():
         se = cal.stderr.get(g)

@@ -139,8 +139,9 @@ def cmd_replay(args) -> int:
 
 def _replay_unused(path: str, pipe, cfg) -> None:
     """At the end of a replay, the still poses the accelerometer calibration in force was not
-    fitted on, said: the daemon refits after every calibration.recalibrate_every_poses new
-    poses, so the last few of a file wait for more (calibrate fits them all)."""
+    fitted on, said: the daemon refits every calibration.recalibrate_every_poses new poses and
+    keeps a fit only when the gate takes it, so the last few of a file wait for more, or the
+    fit on them was not taken (calibrate fits them all)."""
     import logging
     acc = pipe.applied.accel if pipe.applied.id else None
     if acc is None or not pipe.has_acc:
@@ -149,8 +150,9 @@ def _replay_unused(path: str, pipe, cfg) -> None:
     if 0 < used < total:
         logging.getLogger("imucald").info(
             "end of %s: calibration #%d is in force, its accelerometer part fitted on %d of the %d "
-            "still poses (the daemon refits after every %d new poses; `imucald calibrate %s` fits "
-            "them all)", path, pipe.applied.id, used, total, cfg["calibration"]["recalibrate_every_poses"], path)
+            "still poses (the daemon refits every %d new poses and keeps a fit only when the gate "
+            "takes it; `imucald calibrate %s` fits them all)", path, pipe.applied.id, used, total,
+            cfg["calibration"]["recalibrate_every_poses"], path)
 
 
 def _replay_save(state_dir: str, pipe, start, cfg) -> None:

@@ -218,7 +218,8 @@ def _mag(mp: np.ndarray, job, cur: Calibration, parts, accept, notes) -> None:
         mp, mt = mp[~off], (None if mt is None else np.asarray(mt)[~off])
         notes["mag_rails"] = [{"axis": "xyz"[j], "value": v, "points": n} for j, v, n in rl]
     if noise is not None and job.get("mag_series") is not None:   # the turning may have inflated it
-        noise = rotation_noise(_MAG, mp, job["mag_series"], noise, job.get("seed"))[0]
+        series = np.asarray(job["mag_series"], float).reshape(-1, 3)
+        noise = rotation_noise(_MAG, mp, series[~on_rails(series)[0]], noise, job.get("seed"))[0]
     tm = cur.mag.thermal if cur.mag is not None and mt is not None else None
     raw = mp
     if tm:      # thermal terms in force: the constant part is refitted without them, and keeps them

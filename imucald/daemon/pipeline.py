@@ -108,7 +108,7 @@ class Pipeline:
         self.t_last = 0.0
         self.temp_range = [np.inf, -np.inf]
         self._tried_raw_at = 0           #: acc.added at the last attempt on the raw sensor
-        self._ready_tried_id = -1        #: the calibration in force when the poses needed were last fitted
+        self._ready_tried = False        #: a fit has run with the poses needed reached
         self._job_ready = True           #: the pending job's pose set met the readiness targets
         self._job_missing: List[str] = []
         #: noise figures (fitting.noise.allan.read_figures of noise.file), or None
@@ -392,12 +392,11 @@ class Pipeline:
         self.pending = self.executor.submit(calibration_job, job)
 
     def _just_ready(self, r) -> bool:
-        """A provisional calibration is in force and the pose set has reached the poses needed
-        (``r``: :meth:`ready_to_calibrate`) since it was applied: fit now, not at the next
-        recalibrate_every_poses mark (the log has just said the poses needed are reached; a
-        user may stop there)."""
-        return (self.applied.provisional is not None and bool(r["poses"])
-                and self._ready_tried_id != self.applied.id)
+        """A provisional calibration is in force and the pose set has just reached the poses
+        needed (``r``: :meth:`ready_to_calibrate`), not fitted since: fit now, once, not at the
+        next recalibrate_every_poses mark (the log has just said the poses needed are reached;
+        a user may stop there).  Later fits keep that mark."""
+        return self.applied.provisional is not None and bool(r["poses"]) and not self._ready_tried
 
     def maybe_calibrate(self) -> None:
         if self.pending is not None:
@@ -434,7 +433,7 @@ class Pipeline:
         self._tried_raw_at = self.acc.added
         self._job_ready = bool(ready)
         if r["poses"]:
-            self._ready_tried_id = self.applied.id
+            self._ready_tried = True
         self._job_missing = self.acc.coverage()["missing"]
         ps = self.acc.pose_set()
         mag_pts = mag_temp = None

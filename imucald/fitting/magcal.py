@@ -96,13 +96,13 @@ FIELD_EXCESS_MAX = 0.02
 #: noise gives: the noise estimate (second differences) is itself uncertain, e.g. 1.25x short
 #: on the real filtered GY-273 log (a smoothing filter hides noise from second differences)
 FIELD_RATIO_MIN = 1.5
-#: a rail (clipping, an overflow code) is an axis's extreme value met in at least this
-#: many distinct samples and this fraction of them, and in more than lie near it inside
-#: (within 1 % of the axis's span or 3 counts): :func:`rails`
 #: the corrected magnitude's second differences replace the per-axis noise figure when they
 #: give under this fraction of it: motion, not noise (:func:`motion_free_noise`)
 MOTION_NOISE_RATIO = 2.0 / 3.0
 MOTION_FREE_SOURCE = "second differences of the field magnitude"
+#: a rail (clipping, an overflow code) is an axis's extreme value met in at least this
+#: many distinct samples and this fraction of them, and in more than lie near it inside
+#: (within 1 % of the axis's span or 3 counts): :func:`rails`
 RAIL_MIN_COUNT = 5
 RAIL_MIN_FRACTION = 0.005
 SOFT_NAMES = ("soft_iron_xx", "soft_iron_yy", "soft_iron_zz", "soft_iron_xy", "soft_iron_xz",
@@ -264,7 +264,11 @@ def motion_free_noise(model: MagModel, theta: np.ndarray, mag: np.ndarray,
     (3,) (:func:`sample_noise`) gives; else None.  The magnitude does not change as the
     board turns, so the motion that inflates the per-axis second differences at low rates
     (a figure-8 at 10 Hz: 6-116x) leaves it; a step or a bump of the field is a few
-    outlying differences, which the robust scale ignores."""
+    outlying differences, which the robust scale ignores (so is a slow change of the field:
+    the one-field rule, :func:`field_consistency`, judges those).  Rows that are not finite
+    are left out."""
+    mag = np.asarray(mag, float).reshape(-1, 3)
+    mag = mag[np.all(np.isfinite(mag), axis=1)]
     h = np.linalg.norm(model.forward(theta, mag), axis=1)
     d2 = np.diff(h, 2)
     d2 = d2[np.isfinite(d2)]
@@ -273,8 +277,8 @@ def motion_free_noise(model: MagModel, theta: np.ndarray, mag: np.ndarray,
     sd = 1.4826 * median(np.abs(d2 - median(d2))) / np.sqrt(6.0)
     if not sd > 0:
         sd = float(d2.std() / np.sqrt(6.0))
-    pred = float(np.sqrt(np.mean(residual_variance(model, theta, mag, np.diag(np.asarray(noise, float) ** 2)[None]
-                                                   .repeat(len(mag), 0)))))
+    cov = np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (len(mag), 3, 3))
+    pred = float(np.sqrt(np.mean(residual_variance(model, theta, mag, cov))))
     if not sd < MOTION_NOISE_RATIO * pred:
         return None
     unit = float(np.sqrt(np.mean(residual_variance(model, theta, mag, 1.0))))

@@ -454,15 +454,25 @@ def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     return r
 
 
+def _detrended_var(x: np.ndarray) -> float:
+    """The mean over axes of the variance of ``x`` (n, C) about its straight line in sample
+    order: a bias drifting through a warm-up hold is the thermal signal, not a disturbance."""
+    k = np.arange(len(x), dtype=float)
+    k -= k.mean()
+    xc = x - x.mean(0)
+    slope = (k @ xc) / (k @ k)
+    return float(np.mean((xc - np.outer(k, slope)) ** 2))
+
+
 def _gyro_disturbed(gyro: np.ndarray, gsl: List[slice], u: PoseSetup):
     """(the setup the gyro step uses, the poses it leaves out (N,) bool): a hold whose gyro
     varies far more than the others' (the accelerometer's rule, gap/posenoise.py
-    flag_disturbed, on the within-pose gyro variance) turned or settled during it, e.g. a
+    flag_disturbed, on the within-pose gyro variance about a straight line in time) turned or settled during it, e.g. a
     1-s hold right after a fast move, which moves the gyro's pose mean tens of its standard
     errors while the accelerometer's screen sees nothing; left out when MIN_POSES remain, and
     only beyond one LSB^2 (quantisation is no turn)."""
     n = np.array([s_.stop - s_.start for s_ in gsl])
-    s2 = np.array([gyro[s_].var(0).mean() if k > 1 else 0.0 for s_, k in zip(gsl, n)])
+    s2 = np.array([_detrended_var(gyro[s_]) if k > 2 else 0.0 for s_, k in zip(gsl, n)])
     # a gyro held at one value inside most holds (noise below its LSB) has a median of ~0: a
     # hold that flips between two values is not a turn (their variance is at most LSB^2 / 4)
     lsb = estimate_lsb(np.asarray(gyro, float), [slice(0, len(gyro))])

@@ -569,7 +569,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     if not isinstance(mdl, MagModel):
         raise ValueError(f"model {model!r} is not a magnetometer model (mag_sym, mag_diag, mag_sphere)")
     sigma = sample_noise(mag) if noise is None else np.asarray(noise, float)
-    source = "second differences" if noise is None else "given"
+    source = "second differences" if noise is None else "the caller's figure"
     res = SphereReservoir(cells, per_cell)
     res.add(mag, np.arange(len(mag)))
     pts = res.points()

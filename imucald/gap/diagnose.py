@@ -467,10 +467,11 @@ def _detrended_var(x: np.ndarray) -> float:
 def _gyro_disturbed(gyro: np.ndarray, gsl: List[slice], u: PoseSetup):
     """(the setup the gyro step uses, the poses it leaves out (N,) bool): a hold whose gyro
     varies far more than the others' (the accelerometer's rule, gap/posenoise.py
-    flag_disturbed, on the within-pose gyro variance about a straight line in time) turned or settled during it, e.g. a
-    1-s hold right after a fast move, which moves the gyro's pose mean tens of its standard
-    errors while the accelerometer's screen sees nothing; left out when MIN_POSES remain, and
-    only beyond one LSB^2 (quantisation is no turn)."""
+    flag_disturbed, on the within-pose gyro variance about a straight line in time) turned
+    during it, e.g. a hand hold among table holds, turning about gravity, which moves the
+    gyro's pose mean tens of the pooled standard errors while the accelerometer's screen sees
+    nothing; left out when MIN_POSES remain, and only beyond one LSB^2 (quantisation is no
+    turn)."""
     n = np.array([s_.stop - s_.start for s_ in gsl])
     s2 = np.array([_detrended_var(gyro[s_]) if k > 2 else 0.0 for s_, k in zip(gsl, n)])
     # a gyro held at one value inside most holds (noise below its LSB) has a median of ~0: a
@@ -489,6 +490,7 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     # detector keeps inside a pose are cut (gap/gyrostill.py)
     gsl, trim = trim_turns(rec.gyro, u.sl, rate)
     gm = np.array([rec.gyro[s_].mean(0) for s_ in gsl])
+    # the gyro's own disturbed holds leave this step only (gm holds every pose; keep picks)
     u, moved = _gyro_disturbed(rec.gyro, gsl, u)
     keep = u.keep
     kap_g, colour_g = colour_inflation(None if longest is None else rec.gyro[longest], rate, u.T_pose)

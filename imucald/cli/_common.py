@@ -10,6 +10,21 @@ def eprint(*a) -> None:
     print(*a, file=sys.stderr, flush=True)
 
 
+def window_rows(t, start_s=None, end_s=None, where: str = "") -> "tuple":
+    """(lo, hi): the rows of ``t`` within [start_s, end_s] (s after the first sample), at
+    least two, else a one-line UserError (``where``: the file, heading it)."""
+    import numpy as np
+    t = np.asarray(t, float)
+    lo = 0 if start_s is None else int(np.searchsorted(t, t[0] + start_s))
+    hi = len(t) if end_s is None else int(np.searchsorted(t, t[0] + end_s, side="right"))
+    if hi - lo < 2:
+        head = f"{where}: " if where else ""
+        from ..errors import UserError
+        raise UserError(f"{head}--start-s/--end-s select {max(hi - lo, 0)} samples of "
+                        f"{t[-1] - t[0]:.4g} s: widen the window")
+    return lo, hi
+
+
 def print_json(doc) -> None:
     """A command's ``--json`` answer, one object on stdout, as the stream's objects are
     (docs/reference/stream.md): a field whose value is unknown (None, or a number that is

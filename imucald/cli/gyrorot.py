@@ -43,8 +43,9 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
     on ``pieces`` (the detector's still pieces, each at its own temperature), then the
     rotations between the recording's still intervals (found with the same detector
     settings).  mag_cal: the magnetometer's rotation-cloud FitResult when already fitted
-    (None: fitted here, mag_sym; False: tried, none: gravity alone is the reference); slices: the poses' sample ranges (None: read back from
-    ``poses``, :func:`pose_slices`, else the detector is run again with the same settings)."""
+    (None: fitted here, mag_sym; False: tried, none: gravity alone is the reference); slices:
+    the poses' sample ranges (None: read back from ``poses``, :func:`pose_slices`, else the
+    detector is run again with the same settings)."""
     from ..fitting.fit import fit_norm
     from ..fitting.gyro.rotations import fit_gyro_rotations
     from ..fitting.stillness.poses import detect_static

@@ -4,25 +4,11 @@ from __future__ import annotations
 import os
 
 from ..errors import UserError
-from ._common import eprint, print_json
+from ._common import eprint, print_json, window_rows
 
-__all__ = ["cmd_noise", "still_stretch", "window_rows"]
+__all__ = ["cmd_noise", "still_stretch"]
 
 _AXES = {"accel": ("acc", "xyz"), "gyro": ("gyro", "xyz"), "mag": ("mag", "xyz")}
-
-
-def window_rows(t, start_s=None, end_s=None, where: str = "") -> "tuple":
-    """(lo, hi): the rows of ``t`` within [start_s, end_s] (s after the first sample), at
-    least two, else a one-line UserError (``where``: the file, heading it)."""
-    import numpy as np
-    t = np.asarray(t, float)
-    lo = 0 if start_s is None else int(np.searchsorted(t, t[0] + start_s))
-    hi = len(t) if end_s is None else int(np.searchsorted(t, t[0] + end_s, side="right"))
-    if hi - lo < 2:
-        head = f"{where}: " if where else ""
-        raise UserError(f"{head}--start-s/--end-s select {max(hi - lo, 0)} samples of "
-                        f"{t[-1] - t[0]:.4g} s: widen the window")
-    return lo, hi
 
 
 def still_stretch(t, start_s=None, end_s=None, max_gap_s: float = 1.0):

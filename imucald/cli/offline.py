@@ -284,7 +284,7 @@ def _time_window(args, kind: str, obj):
     if kind != "recording":
         raise UserError(f"{args.input}: --start-s/--end-s select samples: give a recording or a raw "
                         f"table, not a pose file")
-    from .noise import window_rows
+    from ._common import window_rows
     return obj.slice(*window_rows(obj.t, start, end, args.input))
 
 

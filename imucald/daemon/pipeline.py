@@ -349,12 +349,12 @@ class Pipeline:
         return self.pending is not None
 
     def _mag_noise(self):
+        """(per-sample noise (3,) or None under 20 readings, the latest readings (K, 3) in time
+        order): a job's magnetometer noise and what fitting/magcal.py rotation_noise re-estimates
+        it from when the turning inflated it."""
         from ..fitting.magcal import sample_noise
-        return sample_noise(self._mag_series()) if len(self.mag_recent) >= 20 else None
-
-    def _mag_series(self) -> np.ndarray:
-        """The latest magnetometer readings (sensor units), in time order."""
-        return np.array(self.mag_recent)
+        series = np.array(self.mag_recent)
+        return (sample_noise(series) if len(series) >= 20 else None), series
 
     def _maybe_calibrate_mag_only(self) -> None:
         c = self.cfg["calibration"]
@@ -364,7 +364,7 @@ class Pipeline:
                 return
         if len(r.points()) < MIN_MAG_POINTS:
             return
-        noise = self._mag_noise()
+        noise, series = self._mag_noise()
         if not self.force and noise is not None:
             from ..fitting.magcal import flat_axis
             flat = flat_axis(r.points(), noise)
@@ -379,8 +379,7 @@ class Pipeline:
                 return
         self.force = False
         self._next_mag_seen = r.seen + int(MAG_RECAL_S * self.rate_hz)
-        job = {"acc": None, "mag_points": r.points(), "mag_noise": noise,
-               "mag_series": self._mag_series(),
+        job = {"acc": None, "mag_points": r.points(), "mag_noise": noise, "mag_series": series,
                "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
                "seed": int(r.seen),
                "current": self.applied}
@@ -436,6 +435,7 @@ class Pipeline:
             self._ready_tried = True
         self._job_missing = self.acc.coverage()["missing"]
         ps = self.acc.pose_set()
+        mag_noise, mag_series = self._mag_noise()
         mag_pts = mag_temp = None
         if self.reservoir is not None and self.reservoir.coverage() >= c["mag_min_coverage"]:
             mag_pts = self.reservoir.points()
@@ -458,8 +458,8 @@ class Pipeline:
                "acc_sample_cov": ps.acc_sample_cov,
                "t0": ps.t0, "t1": ps.t1, "n": ps.n,
                "temp": _temps(ps.temp),
-               "gyro": ps.gyro, "mag_points": mag_pts, "mag_temp": mag_temp, "mag_noise": self._mag_noise(),
-               "mag_series": self._mag_series(),
+               "gyro": ps.gyro, "mag_points": mag_pts, "mag_temp": mag_temp, "mag_noise": mag_noise,
+               "mag_series": mag_series,
                "method": c["method"],
                "holdout_fraction": c["holdout_fraction"], "alpha": c["false_accept_rate"],
                "seed": int(self.acc.added),

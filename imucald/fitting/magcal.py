@@ -256,6 +256,11 @@ def sample_noise(m: np.ndarray) -> np.ndarray:
     return np.where(sd > 0, sd, d2.std(axis=0) / np.sqrt(6.0))
 
 
+def _noise_cov(noise: np.ndarray, n: int) -> np.ndarray:
+    """Each of ``n`` points' covariance (n, 3, 3) from the per-sample noise (3,), per axis."""
+    return np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (n, 3, 3))
+
+
 def motion_free_noise(model: MagModel, theta: np.ndarray, mag: np.ndarray,
                       noise: np.ndarray) -> Optional[np.ndarray]:
     """Per-axis noise (sensor units, the same on each axis) from the second differences of the
@@ -270,15 +275,10 @@ def motion_free_noise(model: MagModel, theta: np.ndarray, mag: np.ndarray,
     mag = np.asarray(mag, float).reshape(-1, 3)
     mag = mag[np.all(np.isfinite(mag), axis=1)]
     h = np.linalg.norm(model.forward(theta, mag), axis=1)
-    d2 = np.diff(h, 2)
-    d2 = d2[np.isfinite(d2)]
-    if len(d2) < 10:
+    sd = float(sample_noise(h[:, None])[0])         # the same robust scale, of one column
+    if not np.isfinite(sd):
         return None
-    sd = 1.4826 * median(np.abs(d2 - median(d2))) / np.sqrt(6.0)
-    if not sd > 0:
-        sd = float(d2.std() / np.sqrt(6.0))
-    cov = np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (len(mag), 3, 3))
-    pred = float(np.sqrt(np.mean(residual_variance(model, theta, mag, cov))))
+    pred = float(np.sqrt(np.mean(residual_variance(model, theta, mag, _noise_cov(noise, len(mag))))))
     if not sd < MOTION_NOISE_RATIO * pred:
         return None
     unit = float(np.sqrt(np.mean(residual_variance(model, theta, mag, 1.0))))
@@ -400,7 +400,7 @@ def rel_std(norms: np.ndarray) -> float:
 def fit_points(model, points, noise, method, rng, heldout=True) -> FitResult:
     """The norm fit of rotation points (M, 3) with ``noise`` (3,) per-sample as each point's
     covariance (None: the fit uses its residuals)."""
-    cov = None if noise is None else np.broadcast_to(np.diag(np.asarray(noise, float) ** 2), (len(points), 3, 3))
+    cov = None if noise is None else _noise_cov(noise, len(points))
     return fit_norm(points, model, method, pose_cov=cov, rng=rng, heldout=heldout)
 
 
@@ -453,8 +453,7 @@ def field_consistency(model: MagModel, theta: np.ndarray, points: np.ndarray,
         return None
     pts = np.asarray(points, float)
     rel = rel_std(np.linalg.norm(model.forward(theta, pts), axis=1))
-    var = residual_variance(model, theta, pts, np.broadcast_to(np.diag(np.asarray(noise, float) ** 2),
-                                                              (len(pts), 3, 3)))
+    var = residual_variance(model, theta, pts, _noise_cov(noise, len(pts)))
     pred = float(np.sqrt(np.mean(var)))
     excess = float(np.sqrt(max(rel * rel - pred * pred, 0.0)))
     return {"rel_std": rel, "predicted_rel_std": pred, "excess_rel_std": excess,
@@ -597,7 +596,7 @@ def calibrate_rotation(mag: np.ndarray, model: str = "mag_sym", method: str = "l
     cal.noise_source = source
     hn = np.linalg.norm(mdl.forward(cal.theta, mag), axis=1)
     out["norm_rel_std"] = rel_std(hn)
-    var = residual_variance(mdl, cal.theta, pts, np.broadcast_to(np.diag(sigma ** 2), (len(pts), 3, 3)))
+    var = residual_variance(mdl, cal.theta, pts, _noise_cov(sigma, len(pts)))
     out["predicted_rel_std"] = float(np.sqrt(np.mean(var)))
     if temp is not None and np.all(np.isfinite(temp[res.tags()])):
         from .thermal.terms import fit_norm_thermal

@@ -40,9 +40,8 @@ from typing import Optional
 
 import numpy as np
 
-from ...numerics.rates import effective_rate
-
 from ...numerics.npstats import median, row_all, row_prod
+from ...numerics.rates import effective_rate
 
 __all__ = ["Repeats", "find_repeats", "chance_repeats", "repeat_flags",
            "HOLD_RATIO", "RATE_MISMATCH"]

@@ -117,3 +117,37 @@ def test_swaying_hand_keeps_the_norm_residuals_at_their_noise(tmp_path, capsys):
         nm = json.loads(capsys.readouterr().out)["noise_model"]
         chi2, dof = chi2 + nm["chi2"], dof + nm["dof"]
     assert 0.5 < chi2 / dof < 1.6, (chi2, dof)
+
+
+def _tremor_ratio(tremor_dps, noise_dps, seeds):
+    """Pooled over ``seeds``: the estimated pose-mean variance (gap's one-sided estimate)
+    over the pose means' own scatter about their average, 30 holds of 1.5-3 s at 100 Hz
+    of a hand's tremor (6-12 Hz, imucald.sim.motion.HandTremor) plus white noise."""
+    from imucald.sim.motion import HandTremor
+    est, emp = [], []
+    for seed in seeds:
+        g = np.random.default_rng(seed)
+        t = np.arange(0, 140, 0.01)
+        w = tremor_dps * HandTremor(g, 140.0).unit(t)[1] + g.normal(0, noise_dps, (len(t), 3))
+        stops = np.cumsum(g.uniform(1.5, 3.0, 60) * 100).astype(int)
+        parts = [w[a:b] for a, b in zip(stops[0::2], stops[1::2])]           # hold, move, hold..
+        var, _ = pose_mean_variance_parts(parts)
+        m = np.array([p.mean(0) for p in parts])
+        est.append(var.mean())
+        emp.append(np.sum((m - m.mean(0)) ** 2) / (3 * (len(m) - 1)))
+    return float(np.mean(est) / np.mean(emp))
+
+
+def test_tremor_pose_mean_variance_is_neither_pessimistic_nor_optimistic():
+    """A tremor-filled gyro (bounded part dominating): the estimate over the pose means' own
+    scatter, pooled over 30 records of 30 holds, is within 1 +- 0.1.  The tolerance: each
+    record's scatter is a mean of 87 squared deviations (relative SE sqrt(2/87) = 0.15),
+    pooled over 30 records 0.028 (the estimate's own scatter adds little): +-0.1 is 3.5 SE.
+    Two cases, because the white part matters in the weak one (its share of the pose mean's
+    variance ~45 %) and not in the strong one.  Seen to fail with the white part read from
+    the structure function's non-negative split (strong tremor 1.15: a clipped b >= 0 is
+    biased up; the gap twin's ratio median 0.84 on hand-held sessions) and with the bounded
+    part alone (weak tremor 0.63: the white part dropped)."""
+    strong = _tremor_ratio(1.5, 0.05, range(30))
+    weak = _tremor_ratio(0.3, 0.05, range(30))
+    assert 0.9 < strong < 1.1 and 0.9 < weak < 1.1, (strong, weak)

@@ -152,7 +152,7 @@ def _merge(a: StaticInterval, b: StaticInterval) -> StaticInterval:
                           None if a.gyro_cov is None or b.gyro_cov is None else
                           (a.gyro_cov * a.n ** 2 + b.gyro_cov * b.n ** 2) / n ** 2,
                           mix(a.mag, b.mag) if a.mag is not None and b.mag is not None else (b.mag if b.mag is not None else a.mag),
-                          # both holds' structure functions (each ~25 numbers), when both known;
+                          # both holds' structure functions (each ~28 numbers), when both known;
                           # the longest MAX_HOLDS kept (a board resting for hours refines one pose)
                           acc_sf=_holds(a.acc_sf, b.acc_sf),
                           acc_radial_sf=_holds(a.acc_radial_sf, b.acc_radial_sf))

@@ -688,10 +688,10 @@ class _Core:
             tmp = float(np.nanmean(temp[sl]))
         iv = StaticInterval(m, sc / len(acc), sc, len(acc), float(t[0]), float(t[-1]), tmp,
                             i0=int(oi[sl][0]), i1=int(oi[sl][-1]) + 1)
-        if self.keep_structure and n >= SF_MIN_SAMPLES:     # 25 numbers a pose: what the
+        if self.keep_structure and n >= SF_MIN_SAMPLES:     # 28 numbers a pose: what the
                                     # daemon's pose covariance needs (calibrate has the rows)
             iv.acc_sf = [(n,) + pose_sf_rows(acc)]
-            # and the radial series' (5 more): the daemon's sway override (daemon/fitjob.py)
+            # and the radial series' (6 more): the daemon's sway override (daemon/fitjob.py)
             iv.acc_radial_sf = [(n,) + pose_sf_rows((acc @ (m / norm))[:, None])]
         if gyro is not None:
             g = gyro[sl]

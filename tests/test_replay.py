@@ -322,3 +322,30 @@ def test_a_warm_up_set_down_again_in_one_orientation_applies_no_accelerometer_pa
     assert heads, err[-500:]
     assert all("(gyro part; accel not applied)" in h for h in heads), heads[:2]
     assert "accel not applied: the poses determine none of its parameters" in err
+
+
+def test_revisited_orientations_start_no_refit_until_a_new_one(tmp_path):
+    """A tour of 12 orientations, then the same 12 again (each revisit refines a pose and
+    adds none), then 2 new ones, with --min-poses 12: once the calibration in force was
+    fitted on all 12, the revisits start no fit (the gate could score none: "no pose the
+    current one was not fitted on"), the log says why once, and the first new orientation
+    starts one.  Seen to fail with Pipeline._nothing_to_score always False: two fits on the
+    revisits, both "not applied", and no such line."""
+    from imucald.files.recording import write_recording
+    from imucald.sim.orientations import random_pose_set
+    from imucald.sim.sensor import simulate_session
+    g = np.random.default_rng(3)
+    R = random_pose_set(12, g)
+    s = simulate_session("mpu6050", np.concatenate([R, R, random_pose_set(2, g)]), g, rate_hz=50,
+                         hold_s=(3.5, 4.5), move_s=(1.5, 2.5))
+    rec = tmp_path / "revisits.csv"
+    write_recording(s.recording, rec)
+    _, err = _replay(rec, "--min-poses", "12", "--orientation", "no")
+    log = [l for l in err.splitlines() if l.startswith("imucald: ")]
+    first_revisit = next(i for i, l in enumerate(log) if "(refined" in l)
+    first_new = next(i for i, l in enumerate(log) if "pose 13 " in l)
+    fits_on_revisits = [l for l in log[first_revisit:first_new] if "calibrating in the background" in l]
+    said = [l for l in log if l.startswith("imucald: no refit: all 12 poses")]
+    assert fits_on_revisits == [] and len(said) == 1, (fits_on_revisits, said)
+    assert "calibrating in the background on 13 poses" in log[first_new + 1], log[first_new:first_new + 3]
+    assert "nothing to score it on out of sample" not in err

@@ -16,6 +16,7 @@ from typing import Any, Callable, Deque, Dict, List, Optional
 
 import numpy as np
 
+from ..fitting.gate import fitted_poses
 from ..fitting.judging.coverage import next_orientation
 from ..fitting.stillness.detector import StillnessDetector
 from ..calibration import Calibration
@@ -109,6 +110,7 @@ class Pipeline:
         self.temp_range = [np.inf, -np.inf]
         self._tried_raw_at = 0           #: acc.added at the last attempt on the raw sensor
         self._ready_tried = False        #: a fit has run with the poses needed reached
+        self._said_nothing_new = False   #: the log has said why revisits start no refit
         self._job_ready = True           #: the pending job's pose set met the readiness targets
         self._job_missing: List[str] = []
         #: noise figures (fitting.noise.allan.read_figures of noise.file), or None
@@ -397,6 +399,27 @@ class Pipeline:
         a user may stop there).  Later fits keep that mark."""
         return self.applied.provisional is not None and bool(r["poses"]) and not self._ready_tried
 
+    def _nothing_to_score(self, ready: bool) -> bool:
+        """A periodic refit would have nothing to be judged on: every pose is one the
+        calibration in force was fitted on (a tour back at its orientations refines its
+        poses and adds none), so the gate could only say "not applied: no pose the current
+        one was not fitted on".  Still refitted: a provisional calibration once the pose set
+        is ready (refined poses can make it so; the fit confirms it), and a board with a
+        magnetometer (its points may be new).  Says so in the log once."""
+        if self.reservoir is not None or (self.applied.provisional is not None and ready):
+            return False
+        ps = self.acc.pose_set()
+        fitted, _ = fitted_poses(ps.acc, ps.t0, ps.t1, self.applied.poses_used)
+        if not (len(fitted) and fitted.all()):
+            return False
+        if not self._said_nothing_new:
+            self._said_nothing_new = True
+            msg = (f"no refit: all {len(ps)} poses are ones the calibration in force was fitted "
+                   f"on (revisits refine them); the next new orientation starts one")
+            log.info(msg)
+            self.events.append(msg)
+        return True
+
     def maybe_calibrate(self) -> None:
         if self.pending is not None:
             return
@@ -429,6 +452,9 @@ class Pipeline:
         elif not ((ready or self.applied.provisional is not None) and
                   self.acc.added >= self.next_cal_added) and not self._just_ready(r):
             return
+        elif self._nothing_to_score(bool(ready)):
+            return
+        self._said_nothing_new = False
         self._tried_raw_at = self.acc.added
         self._job_ready = bool(ready)
         if r["poses"]:

@@ -349,3 +349,15 @@ def test_revisited_orientations_start_no_refit_until_a_new_one(tmp_path):
     assert fits_on_revisits == [] and len(said) == 1, (fits_on_revisits, said)
     assert "calibrating in the background on 13 poses" in log[first_new + 1], log[first_new:first_new + 3]
     assert "nothing to score it on out of sample" not in err
+
+
+def test_a_replay_that_reaches_no_calibration_says_why(tmp_path):
+    """Three poses, no --state-dir: the replay's last line says no calibration was reached and
+    why (the poses a first one needs).  Seen to fail with the reason said only under
+    --state-dir (service.py before): the file ended on its last pose line, without a word."""
+    rec = tmp_path / "g.csv"
+    assert main(["simulate", "-o", str(rec), "--board", "mpu6050", "--poses", "3", "--hold", "4",
+                 "--move", "2", "--rate", "50", "--seed", "7"]) == 0
+    _, err = _replay(rec, "--orientation", "no")
+    assert err.splitlines()[-1] == ("imucald: no calibration was reached (3 still poses; a first "
+                                    "calibration needs 10 in different orientations)"), err

@@ -132,8 +132,10 @@ def cmd_replay(args) -> int:
         out.write(pipe.end_of_stream())
     out.flush()
     _replay_unused(args.recording, pipe, cfg)
-    if args.state_dir:
-        _replay_save(args.state_dir, pipe, start, cfg)
+    if not pipe.applied.id:
+        _none_reached(pipe, cfg)
+    elif args.state_dir:
+        _replay_save(args.state_dir, pipe, start)
     return 0
 
 
@@ -155,22 +157,27 @@ def _replay_unused(path: str, pipe, cfg) -> None:
             cfg["calibration"]["recalibrate_every_poses"], path)
 
 
-def _replay_save(state_dir: str, pipe, start, cfg) -> None:
+def _replay_save(state_dir: str, pipe, start) -> None:
     """The end of a replay with --state-dir: the calibration reached saved there (the one it
     started from, if replaced, kept in DIR/history first: a calibrate -o copied in is not
-    lost), or why none was reached."""
+    lost)."""
     import logging
 
     from ..daemon.state import save_calibration
+    os.makedirs(state_dir, exist_ok=True)
+    kept = ""
+    if start is not None and pipe.applied is not start:
+        kept = f" (the one it started from, #{start.id}, kept as {_keep_replaced(state_dir)})"
+    p = save_calibration(state_dir, pipe.applied, history=0)
+    logging.getLogger("imucald").info("calibration #%d saved to %s%s", pipe.applied.id, p, kept)
+
+
+def _none_reached(pipe, cfg) -> None:
+    """The end of a replay that reached no calibration: why (with or without --state-dir; a
+    file of two long rests otherwise ended without a word)."""
+    import logging
     log = logging.getLogger("imucald")
-    if pipe.applied.id:
-        os.makedirs(state_dir, exist_ok=True)
-        kept = ""
-        if start is not None and pipe.applied is not start:
-            kept = f" (the one it started from, #{start.id}, kept as {_keep_replaced(state_dir)})"
-        p = save_calibration(state_dir, pipe.applied, history=0)
-        log.info("calibration #%d saved to %s%s", pipe.applied.id, p, kept)
-    elif not pipe.has_acc:
+    if not pipe.has_acc:
         log.info("no calibration was reached (magnetometer rotation coverage %.0f%%, %.0f%% needed, "
                  "turned in all three dimensions)", 100 * pipe.reservoir.coverage(),
                  100 * cfg["calibration"]["mag_min_coverage"])

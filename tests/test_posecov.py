@@ -130,7 +130,8 @@ def _tremor_ratio(tremor_dps, noise_dps, seeds):
         t = np.arange(0, 140, 0.01)
         w = tremor_dps * HandTremor(g, 140.0).unit(t)[1] + g.normal(0, noise_dps, (len(t), 3))
         stops = np.cumsum(g.uniform(1.5, 3.0, 60) * 100).astype(int)
-        parts = [w[a:b] for a, b in zip(stops[0::2], stops[1::2])]           # hold, move, hold..
+        # hold, move, hold..: 60 segments of 1.5-3 s (~135 s), those past the record left out
+        parts = [w[a:b] for a, b in zip(stops[0::2], stops[1::2]) if b <= len(w)]
         var, _ = pose_mean_variance_parts(parts)
         m = np.array([p.mean(0) for p in parts])
         est.append(var.mean())
@@ -147,7 +148,9 @@ def test_tremor_pose_mean_variance_is_neither_pessimistic_nor_optimistic():
     variance ~45 %) and not in the strong one.  Seen to fail with the white part read from
     the structure function's non-negative split (strong tremor 1.15: a clipped b >= 0 is
     biased up; the gap twin's ratio median 0.84 on hand-held sessions) and with the bounded
-    part alone (weak tremor 0.63: the white part dropped)."""
+    part alone (weak tremor 0.63: the white part dropped); a cold review saw it fail with
+    rectangular halves and with the white part doubled or halved.  Not pinned: a taken from
+    the non-negative split instead of refitted given b (weak tremor 0.95)."""
     strong = _tremor_ratio(1.5, 0.05, range(30))
     weak = _tremor_ratio(0.3, 0.05, range(30))
     assert 0.9 < strong < 1.1 and 0.9 < weak < 1.1, (strong, weak)

@@ -324,13 +324,8 @@ def test_a_warm_up_set_down_again_in_one_orientation_applies_no_accelerometer_pa
     assert "accel not applied: the poses determine none of its parameters" in err
 
 
-def test_revisited_orientations_start_no_refit_until_a_new_one(tmp_path):
-    """A tour of 12 orientations, then the same 12 again (each revisit refines a pose and
-    adds none), then 2 new ones, with --min-poses 12: once the calibration in force was
-    fitted on all 12, the revisits start no fit (the gate could score none: "no pose the
-    current one was not fitted on"), the log says why once, and the first new orientation
-    starts one.  Seen to fail with Pipeline._nothing_to_score always False: two fits on the
-    revisits, both "not applied", and no such line."""
+def _revisits(tmp_path):
+    """12 orientations, the same 12 again, then 2 new ones (MPU-6050, 50 Hz, 3.5-4.5 s holds)."""
     from imucald.files.recording import write_recording
     from imucald.sim.orientations import random_pose_set
     from imucald.sim.sensor import simulate_session
@@ -340,6 +335,17 @@ def test_revisited_orientations_start_no_refit_until_a_new_one(tmp_path):
                          hold_s=(3.5, 4.5), move_s=(1.5, 2.5))
     rec = tmp_path / "revisits.csv"
     write_recording(s.recording, rec)
+    return rec
+
+
+def test_revisited_orientations_start_no_refit_until_a_new_one(tmp_path):
+    """A tour of 12 orientations, then the same 12 again (each revisit refines a pose and
+    adds none), then 2 new ones, with --min-poses 12: once the calibration in force was
+    fitted on all 12, the revisits start no fit (the gate could score none: "no pose the
+    current one was not fitted on"), the log says why once, and the first new orientation
+    starts one.  Seen to fail with Pipeline._nothing_to_score always False: two fits on the
+    revisits, both "not applied", and no such line."""
+    rec = _revisits(tmp_path)
     _, err = _replay(rec, "--min-poses", "12", "--orientation", "no")
     log = [l for l in err.splitlines() if l.startswith("imucald: ")]
     first_revisit = next(i for i, l in enumerate(log) if "(refined" in l)
@@ -361,3 +367,34 @@ def test_a_replay_that_reaches_no_calibration_says_why(tmp_path):
     _, err = _replay(rec, "--orientation", "no")
     assert err.splitlines()[-1] == ("imucald: no calibration was reached (3 still poses; a first "
                                     "calibration needs 10 in different orientations)"), err
+
+
+def test_revisits_still_refit_while_no_gyro_part_is_in_force(tmp_path, capsys, caplog, monkeypatch):
+    """The same tour, with the gyro gate refusing the first two fits' gyro part (as when the
+    bias is not yet clear of the scatter between poses): the calibration in force has no
+    gyro part, whose gate scores against the raw readings on every pose, so revisits still
+    start fits and one applies the gyro bias before any new orientation; only then are
+    they held back (a cold review found them held back at once: the gyro bias waited for a
+    new orientation).  Seen to fail with Pipeline._nothing_to_score's gyro exception
+    removed: "no refit" right after the accelerometer's fit, no gyro bias applied."""
+    import dataclasses
+
+    import imucald.daemon.fitjob as fitjob
+    orig, calls = fitjob.gate_gyro_bias, [0]
+
+    def refuse_twice(*a, **k):
+        bias, dec = orig(*a, **k)
+        calls[0] += 1
+        return bias, (dataclasses.replace(dec, accept=False) if calls[0] <= 2 else dec)
+
+    monkeypatch.setattr(fitjob, "gate_gyro_bias", refuse_twice)
+    import logging
+    rec = _revisits(tmp_path)
+    caplog.set_level(logging.INFO, logger="imucald")
+    assert main(["replay", str(rec), "--min-poses", "12", "--orientation", "no"]) == 0
+    capsys.readouterr()                                  # the stream
+    log = caplog.messages
+    first_new = next(i for i, l in enumerate(log) if "pose 13 " in l)
+    gyro = [i for i, l in enumerate(log[:first_new]) if "gyro bias applied" in l]
+    held = [i for i, l in enumerate(log[:first_new]) if l.startswith("no refit")]
+    assert gyro and all(i > gyro[0] for i in held), log           # then no refit: nothing new

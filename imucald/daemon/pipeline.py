@@ -404,11 +404,15 @@ class Pipeline:
         calibration in force was fitted on (a tour back at its orientations refines its
         poses and adds none), so the gate could only say "not applied: no pose the current
         one was not fitted on".  Still refitted: a provisional calibration once the pose set
-        is ready (refined poses can make it so; the fit confirms it), and a board with a
-        magnetometer (its points may be new).  Says so in the log once."""
+        is ready (refined poses can make it so; the fit confirms it), a gyro with no part in
+        force (its gate scores against the raw readings on every pose, refined ones
+        included), and a board with a magnetometer (its points may be new).  Says so in the
+        log once."""
         if self.reservoir is not None or (self.applied.provisional is not None and ready):
             return False
         ps = self.acc.pose_set()
+        if self.applied.gyro is None and ps.gyro is not None:
+            return False
         fitted, _ = fitted_poses(ps.acc, ps.t0, ps.t1, self.applied.poses_used)
         if not (len(fitted) and fitted.all()):
             return False

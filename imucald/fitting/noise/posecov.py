@@ -33,11 +33,14 @@ pose mean's variance 1.2x (its clipped b >= 0 is biased upwards) and the unconst
 understated it 0.76x; the bounded part alone is right there (1.01x) but drops the white
 part (0.63-0.69x with a weak tremor over the noise).  There b comes from each hold's two
 halves instead (:func:`_half_white`): their Hann-weighted means differ by the white noise
-only (a Hann window's leakage falls as f^-3: a 4-6 Hz tremor enters a 0.5-0.75-s half's
-mean at -49 to -56 dB of its amplitude), and a is fitted given that b.  Measured (60-80
-simulated tremor records of 30 holds, the estimate over the pose means' own scatter,
-pooled): 1.01-1.02 with tremor 1.5-3 deg/s over white noise 0.05 deg/s, 0.95-0.98 with
-tremor 0.15-0.5 deg/s, 1.01-1.17 for a 4-12 Hz tremor over 1-3 s holds (before: 0.90-1.62).
+only (a Hann window's leakage falls as f^-3; at worst a 4-6 Hz tremor enters a half's
+mean at -31.5 dB of its amplitude over 0.5 s, -41.5 dB over 0.75 s), and a is fitted given
+that b.  Measured (30-80 simulated tremor records of 30 holds, the estimate over the pose
+means' own scatter, pooled): 1.01-1.02 with a 6-12 Hz tremor of 1.5-3 deg/s over white
+noise 0.05 deg/s, 0.95-0.98 with tremor 0.15-0.5 deg/s; 1.0-1.3 for a 4-12 Hz or 3-8 Hz
+tremor over 1-3 s holds, the leakage into short halves erring high (before: 1.4-1.7).  A
+hand's slow sway (0.2-2 Hz) or a drifting bias inside the holds raises the halves'
+difference too: pessimistic, never below the truth (the sway's own term: posefloor.py).
 
 Decision (stated error rate): the estimate replaces the white one (s^2 / n) only when it
 differs from it beyond twice its jackknife standard error over poses: below it
@@ -219,7 +222,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     """:func:`pose_mean_variance` from per-pose statistics, for poses whose samples are
     gone (the daemon keeps these, a few hundred bytes a pose): ``ns`` (N,) samples per
     pose, ``s2`` (N, C) per-sample variances, ``sf[i]`` the holds averaged into pose i,
-    each (n_k, rows, obs) of :func:`pose_sf_rows` (one for a pose from one hold, several
+    each (n_k, rows, obs, halves' white part) of :func:`pose_sf_rows` (one for a pose from one hold, several
     for a pose refined by later holds, none when unknown, e.g. read back from a file).
     A pose of K holds has variance (K a + b n) / n^2 (independent holds)."""
     ns = np.asarray(ns, float)
@@ -244,7 +247,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     m = len(ent)
     jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
     # where the bounded part dominates (the pose mean's variance below a quarter of the
-    # white figure: a tremor-filled gyro; an accelerometer keeps its split), the white part
+    # white figure: a tremor-filled gyro, or an accelerometer a lever arm's tremor fills), the white part
     # from the holds' halves, pooled (and per leave-one-out fold), and a fitted given it: a
     # tremor's structure function biases the split (module doc)
     bounded = (ab[0] + ab[1] * ref) / ref ** 2 / (s2_pool / ref) < 0.25

@@ -147,7 +147,7 @@ class StaticInterval:
     mag: Optional[np.ndarray] = None        #: mean of fresh readings, gauss
     i0: int = -1                  #: first sample, index in the stream since start
     i1: int = -1                  #: one past the last sample
-    #: the structure function of each hold averaged into this pose, [(n, rows, obs)] of
+    #: the structure function of each hold averaged into this pose, [(n, rows, obs, hw)] of
     #: fitting/noise/posecov.py (a daemon's pose covariance under tremor); None: unknown
     acc_sf: Optional[list] = None
     #: the same of the radial series (the samples projected on the hold's mean direction)

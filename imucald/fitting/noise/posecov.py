@@ -222,8 +222,9 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     """:func:`pose_mean_variance` from per-pose statistics, for poses whose samples are
     gone (the daemon keeps these, a few hundred bytes a pose): ``ns`` (N,) samples per
     pose, ``s2`` (N, C) per-sample variances, ``sf[i]`` the holds averaged into pose i,
-    each (n_k, rows, obs, halves' white part) of :func:`pose_sf_rows` (one for a pose from one hold, several
-    for a pose refined by later holds, none when unknown, e.g. read back from a file).
+    each (n_k, rows, obs, the halves' white part) of :func:`pose_sf_rows` (one for a pose
+    from one hold, several for a pose refined by later holds, none when unknown, e.g. read
+    back from a file).
     A pose of K holds has variance (K a + b n) / n^2 (independent holds)."""
     ns = np.asarray(ns, float)
     s2 = np.asarray(s2, float).reshape(len(ns), -1)
@@ -247,13 +248,14 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     m = len(ent)
     jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
     # where the bounded part dominates (the pose mean's variance below a quarter of the
-    # white figure: a tremor-filled gyro, or an accelerometer a lever arm's tremor fills), the white part
-    # from the holds' halves, pooled (and per leave-one-out fold), and a fitted given it: a
-    # tremor's structure function biases the split (module doc)
+    # white figure: a tremor-filled gyro, or an accelerometer a lever arm's tremor fills),
+    # the white part from the holds' halves, pooled (and per leave-one-out fold), and a
+    # fitted given it: a tremor's structure function biases the split (module doc)
     bounded = (ab[0] + ab[1] * ref) / ref ** 2 / (s2_pool / ref) < 0.25
     if bounded.any():
         hw = np.array([e[3] for e in ent], float)        # (E, C)
-        abw, jkw = _fit_jack(stats, white=np.concatenate([hw.mean(0)[None], (hw.sum(0) - hw) / (m - 1)]))
+        b = np.concatenate([hw.mean(0)[None], (hw.sum(0) - hw) / (m - 1)])   # all, each fold
+        abw, jkw = _fit_jack(stats, white=b)
         ab[:, bounded] = abw[:, bounded]
         jk_ab[:, :, bounded] = jkw[:, :, bounded]
     est = lambda ab_: (ab_[0] + ab_[1] * ref) / ref ** 2          # (C,) at the median length

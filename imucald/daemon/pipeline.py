@@ -424,6 +424,21 @@ class Pipeline:
             self.events.append(msg)
         return True
 
+    def _fit_due(self, r, ready: bool, thermal_due: bool) -> bool:
+        """Whether a fit starts now (``r``: :meth:`ready_to_calibrate`): when asked for
+        (control socket) or the thermal span grew; on the raw sensor at every new pose until
+        a calibration beats the raw readings significantly (applied as provisional while the
+        pose set is not ready); else at each recalibrate_every_poses mark, or once at the
+        poses needed, unless no pose is new to the calibration in force."""
+        if self.force or thermal_due:
+            return True
+        if self.applied.accel is None:
+            return self.acc.added > self._tried_raw_at
+        if not ((ready or self.applied.provisional is not None) and
+                self.acc.added >= self.next_cal_added) and not self._just_ready(r):
+            return False
+        return not self._nothing_to_score(ready)
+
     def maybe_calibrate(self) -> None:
         if self.pending is not None:
             return
@@ -444,19 +459,7 @@ class Pipeline:
         self._checked = key
         r = self.ready_to_calibrate()
         ready = r["poses"] and r["uncertainty"]
-        if len(self.acc) < MIN_FIT_POSES:
-            return
-        if self.force or thermal_due:       # asked for (control socket), or the span grew
-            pass
-        elif self.applied.accel is None:
-            # raw sensor: try at every new pose until a calibration beats the raw readings
-            # significantly; it is applied as provisional while the pose set is not ready
-            if self.acc.added <= self._tried_raw_at:
-                return
-        elif not ((ready or self.applied.provisional is not None) and
-                  self.acc.added >= self.next_cal_added) and not self._just_ready(r):
-            return
-        elif self._nothing_to_score(bool(ready)):
+        if len(self.acc) < MIN_FIT_POSES or not self._fit_due(r, bool(ready), thermal_due):
             return
         self._said_nothing_new = False
         self._tried_raw_at = self.acc.added

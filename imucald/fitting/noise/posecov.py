@@ -225,6 +225,40 @@ def _pose_vars(white, ab, lower, higher, sf, ns) -> np.ndarray:
     return var
 
 
+def _tremor_axes(stats, ab: np.ndarray, jk_ab: np.ndarray, hw: np.ndarray, s2_pool: np.ndarray,
+                 ref: float) -> Tuple[np.ndarray, np.ndarray]:
+    """The axes where the bounded part dominates (a tremor-filled gyro, or an accelerometer
+    a lever arm's tremor fills), and whether the halves' white part is clearly below the
+    per-sample variance there; on those axes ``ab`` (2, C) and ``jk_ab`` (m, 2, C) are
+    replaced in place by the white part from the holds' halves ``hw`` (m, C), pooled (and
+    per leave-one-out fold), and a fitted given it (module doc).
+
+    An axis is tremor-filled when the split's pose-mean variance is below a quarter of the
+    white figure, or the halves' white part below a quarter of the per-sample variance
+    (the split itself scatters: at 400 Hz some tremor axes read 0.26-0.36 and kept it,
+    2.7-3.4x the pose means' scatter).  On white noise the halves' part is the per-sample
+    variance times a mean of m one-degree chi-squares over m: below a quarter of it by
+    chance with probability 3e-4 at m = 20 holds (1e-5 at 30; 0.9 % at 10), so the second
+    reading needs 20 holds.
+
+    "Below white" on those axes: the white-only fit reads the tremor's bound as a slope
+    (its ratio ~5x the estimate's: at 400 Hz 0.12-0.15 -> 0.6-0.8, not clear of 1, and the
+    white figure stood: twin ratio 0.48-0.64), so the test there is the halves' own: their
+    white part (the noise that averages down) below the per-sample variance by twice its
+    standard error over the holds (white noise: ratio 1)."""
+    m = len(hw)
+    white_hw = hw.mean(0) / s2_pool
+    split_ratio = (ab[0] + ab[1] * ref) / ref ** 2 / (s2_pool / ref)
+    bounded = (split_ratio < 0.25) | ((white_hw < 0.25) & (m >= 20))
+    if bounded.any():
+        b = np.concatenate([hw.mean(0)[None], (hw.sum(0) - hw) / (m - 1)])   # all, each fold
+        abw, jkw = _fit_jack(stats, white=b)
+        ab[:, bounded] = abw[:, bounded]
+        jk_ab[:, :, bounded] = jkw[:, :, bounded]
+    hw_below = white_hw + 2 * hw.std(0, ddof=1) / np.sqrt(m) / s2_pool < 1.0
+    return bounded, hw_below
+
+
 def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],
                              two_sided: bool = False) -> Tuple[np.ndarray, Dict[str, object]]:
     """:func:`pose_mean_variance` from per-pose statistics, for poses whose samples are
@@ -255,25 +289,8 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     ref = median(hn)
     m = len(ent)
     jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
-    # where the bounded part dominates (a tremor-filled gyro, or an accelerometer a lever
-    # arm's tremor fills): the split's pose-mean variance below a quarter of the white
-    # figure, or the holds' halves' white part below a quarter of the per-sample variance
-    # (the split itself scatters: at 400 Hz some tremor axes read 0.26-0.36 and kept it,
-    # 2.7-3.4x the pose means' scatter); there the white part from the halves, pooled (and
-    # per leave-one-out fold), and a fitted given it: a tremor's structure function biases
-    # the split (module doc).  On white noise the halves' part is the per-sample variance
-    # times a mean of m one-degree chi-squares over m: below a quarter of it by chance with
-    # probability 3e-4 at m = 20 holds (1e-5 at 30; 0.9 % at 10), so the second reading
-    # needs 20 holds
-    hw = np.array([e[3] for e in ent], float)            # (E, C)
-    white_hw = hw.mean(0) / s2_pool
-    split_ratio = (ab[0] + ab[1] * ref) / ref ** 2 / (s2_pool / ref)
-    bounded = (split_ratio < 0.25) | ((white_hw < 0.25) & (m >= 20))
-    if bounded.any():
-        b = np.concatenate([hw.mean(0)[None], (hw.sum(0) - hw) / (m - 1)])   # all, each fold
-        abw, jkw = _fit_jack(stats, white=b)
-        ab[:, bounded] = abw[:, bounded]
-        jk_ab[:, :, bounded] = jkw[:, :, bounded]
+    bounded, hw_below = _tremor_axes(stats, ab, jk_ab, np.array([e[3] for e in ent], float),
+                                     s2_pool, ref)
     est = lambda ab_: (ab_[0] + ab_[1] * ref) / ref ** 2          # (C,) at the median length
     # jackknife over poses: the standard error of the ratio to the white figure
     full = est(ab) / (s2_pool / ref)
@@ -291,12 +308,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     # came with a falsely small error: `full + 2 se < 1` alone fired on 8.4 % of white
     # axes against the rule's 2.3 %, tests/test_gap_blind_calibration.py)
     lower = (full + 2 * se < 1.0) & (full_ls < 1.0 - 2 * se_ls / np.maximum(full_ls, 1e-12))
-    # where the bounded part dominates, the white-only fit reads the tremor's bound as a
-    # slope (its ratio ~5x the estimate's: at 400 Hz, 0.12-0.15 -> 0.6-0.8, not clear of 1,
-    # and the white figure stood, twin ratio 0.48-0.64); there the second test is the
-    # halves' own: their white part (the noise that averages down) below the per-sample
-    # variance by twice its standard error over the holds (white noise: ratio 1)
-    hw_below = white_hw + 2 * hw.std(0, ddof=1) / np.sqrt(m) / s2_pool < 1.0
+    # on tremor-filled axes the second test is the halves' (_tremor_axes)
     lower = np.where(bounded, (full + 2 * se < 1.0) & hw_below, lower)
     higher = np.zeros(C, bool)
     if two_sided:

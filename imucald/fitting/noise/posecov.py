@@ -37,8 +37,10 @@ only (a Hann window's leakage falls as f^-3; at worst a 4-6 Hz tremor enters a h
 mean at -31.5 dB of its amplitude over 0.5 s, -41.5 dB over 0.75 s), and a is fitted given
 that b.  Measured (30-80 simulated tremor records of 30 holds, the estimate over the pose
 means' own scatter, pooled): 1.01-1.02 with a 6-12 Hz tremor of 1.5-3 deg/s over white
-noise 0.05 deg/s, 0.95-0.98 with tremor 0.15-0.5 deg/s; 1.0-1.3 for a 4-12 Hz or 3-8 Hz
-tremor over 1-3 s holds, the leakage into short halves erring high (before: 1.4-1.7).  A
+noise 0.05 deg/s, 0.95-0.98 with tremor 0.15-0.5 deg/s; 0.95-1.04 for a 4-12, 4-6 or 3-8 Hz
+tremor over 1-3 s holds (before: 1.4-1.7; with the split's quarter as the only reading of
+which axes are tremor-filled, below, 1.0-1.3).  Noise correlated over 0.3-1 s under the
+tremor reads 0.62-0.83 (beyond the model, as before).  A
 hand's slow sway (0.2-2 Hz) or a drifting bias inside the holds raises the halves'
 difference too: pessimistic, never below the truth (the sway's own term: posefloor.py).
 

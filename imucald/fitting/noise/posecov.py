@@ -227,6 +227,12 @@ def _pose_vars(white, ab, lower, higher, sf, ns) -> np.ndarray:
     return var
 
 
+def _ratio_to_white(ab: np.ndarray, ref: float, s2_pool: np.ndarray) -> np.ndarray:
+    """The variance of a mean over the median pose length ``ref`` from a, b (..., 2, C), over
+    the white figure s2 / ref: (C,) for one fit, (m, C) for the folds."""
+    return (ab[..., 0, :] + ab[..., 1, :] * ref) / ref ** 2 / (s2_pool / ref)
+
+
 def _tremor_axes(stats, ab: np.ndarray, jk_ab: np.ndarray, hw: np.ndarray, s2_pool: np.ndarray,
                  ref: float) -> Tuple[np.ndarray, np.ndarray]:
     """The axes where the bounded part dominates (a tremor-filled gyro, or an accelerometer
@@ -250,8 +256,7 @@ def _tremor_axes(stats, ab: np.ndarray, jk_ab: np.ndarray, hw: np.ndarray, s2_po
     standard error over the holds (white noise: ratio 1)."""
     m = len(hw)
     white_hw = hw.mean(0) / s2_pool
-    split_ratio = (ab[0] + ab[1] * ref) / ref ** 2 / (s2_pool / ref)
-    bounded = (split_ratio < 0.25) | ((white_hw < 0.25) & (m >= 20))
+    bounded = (_ratio_to_white(ab, ref, s2_pool) < 0.25) | ((white_hw < 0.25) & (m >= 20))
     if bounded.any():
         b = np.concatenate([hw.mean(0)[None], (hw.sum(0) - hw) / (m - 1)])   # all, each fold
         abw, jkw = _fit_jack(stats, white=b)
@@ -293,17 +298,16 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
     jse = lambda v: np.sqrt((m - 1) / m * np.sum((v - v.mean(0)) ** 2, axis=0))
     bounded, hw_below = _tremor_axes(stats, ab, jk_ab, np.array([e[3] for e in ent], float),
                                      s2_pool, ref)
-    est = lambda ab_: (ab_[0] + ab_[1] * ref) / ref ** 2          # (C,) at the median length
     # jackknife over poses: the standard error of the ratio to the white figure
-    full = est(ab) / (s2_pool / ref)
-    jk = np.array([est(a_) / (s2_pool / ref) for a_ in jk_ab])
+    full = _ratio_to_white(ab, ref, s2_pool)
+    jk = _ratio_to_white(jk_ab, ref, s2_pool)
     se = jse(jk)
     # the white part alone (a = 0), one parameter per axis: unbiased on white noise (1.00 of
     # white) where the constrained split is not (its clipping picks the bounded part alone
     # on some white axes: 0.89 of white on average)
     ab_ls, jk_ls = _fit_jack(stats, white="b")
-    full_ls = est(ab_ls) / (s2_pool / ref)
-    se_ls = jse(np.array([est(a_) / (s2_pool / ref) for a_ in jk_ls]))
+    full_ls = _ratio_to_white(ab_ls, ref, s2_pool)
+    se_ls = jse(_ratio_to_white(jk_ls, ref, s2_pool))
     # clearly below white, per axis: by twice the estimate's jackknife error AND by twice
     # the white-only fit's error, which is what the estimate scatters by when the noise
     # is white (a variance's error shrinks with the estimate, so a falsely low estimate

@@ -34,9 +34,9 @@ def test_hand_held_gyro_twin_ratio_is_near_one():
 
 def test_hand_held_sway_the_tilt_test_misses_is_not_read_as_colour():
     """A swaying hand (0.1 deg at 0.2-2 Hz) over the tremor, on the three sessions of
-    seeds 0-9 whose sway the tilt test misses (seeds 0, 3, 5): the accelerometer's colour is
-    read on the radial component, where the norm model sees the noise, so the slow
-    tangential sway is not colour.  The sensor noise is white: the inflation stays below 2
+    seeds 0-9 whose sway the tilt test misses (seeds 0, 3, 5): the accelerometer's colour
+    inside the poses is read on the radial component, where the norm model sees the noise,
+    so the slow tangential sway is not colour.  The sensor noise is white: the inflation stays below 2
     (the one-column estimate clears 1.5 by chance only when its log-log slope reads 2
     standard errors high, and 2 about 3.4).  Its twin ratio then lies above 1 - 4 sampling
     standard deviations (1 / sqrt(2 dof)).  Seen to fail with the colour read per axis:

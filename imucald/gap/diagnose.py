@@ -415,7 +415,7 @@ def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     colour = dict(colour or {}, within_pose=wp)
     # the pose means' variance from within-pose statistics (gap/posenoise.py): below the
     # white figure under hand tremor; the colour inflation applies to the white axes
-    pmv, pinfo = pose_mean_variance(x_a, kept)
+    pmv, pinfo = pose_mean_variance(x_a, kept, rate_hz=rate)
     white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * x_a.shape[1]))
     if tilt["wander"]:
         # the radial component holds no rotation tremor (tangential): its pose means keep the
@@ -502,7 +502,7 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     wp = within_pose_inflation(rec.gyro, u.kept(gsl))
     kap_g = max(kap_g, wp["inflation"])
     colour_g = dict(colour_g or {}, within_pose=wp)
-    gvar, pinfo = pose_mean_variance(rec.gyro, u.kept(gsl))
+    gvar, pinfo = pose_mean_variance(rec.gyro, u.kept(gsl), rate_hz=rate)
     white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
     gvar = gvar * np.where(white_ax, kap_g, 1.0)[None, :]
     # a swaying hand's net rotation over each hold, and the quantisation floor (fitting/noise/posefloor.py)

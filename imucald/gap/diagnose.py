@@ -408,9 +408,11 @@ def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     # component whatever the tilt test says: the norm model sees that one, and a sway too
     # small for the test is slow and tangential; read per axis it was colour (inflation
     # 2.6-3.9, twin ratio 0.28-0.39 on 5 of 10 simulated swaying hand-held nulls; radial
-    # 1.0 and 0.53-0.68).  The longest stretch (a rest on a table) is one direction, and its
-    # three axes stand for all the poses' directions
-    wp = within_pose_inflation(x_a if tilt["wander"] else radial_series(rec.acc, kept), kept)
+    # 1.0 and 0.53-0.68).  One column scatters more than the mean of three (the cost:
+    # docs/methods/gap.md).  The longest stretch is one direction, and its three axes stand
+    # for all the poses' directions: kap below is the larger of that per-axis figure and
+    # this radial one
+    wp = within_pose_inflation(radial_series(rec.acc, kept), kept)
     kap = max(kap, wp["inflation"])
     colour = dict(colour or {}, within_pose=wp)
     # the pose means' variance from within-pose statistics (gap/posenoise.py): below the

@@ -40,7 +40,7 @@ step per sensor).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -382,6 +382,61 @@ def _quant_floor(x: np.ndarray, slices) -> tuple:
     return qf, {"lsb": lsb.tolist(), "noise_before_quantisation": sig.tolist(), "floor_variance": qf.tolist()}
 
 
+def _accel_pose_noise(rec: Recording, u: PoseSetup, kept, x_a: np.ndarray, tilt) -> Tuple[np.ndarray, dict]:
+    """The variance of each accelerometer pose mean along its direction (what the norm
+    model sees), and the noise-colour report: ``x_a`` the samples (per axis, or the radial
+    series under tilt wander), ``kept`` the poses' still rows."""
+    rate, ps, keep, longest = rec.rate_hz, u.ps, u.keep, u.longest
+    xl = None if longest is None else rec.acc[longest]
+    if tilt["wander"] and xl is not None:
+        xl = radial_series(xl, [slice(0, len(xl))])
+    kap, colour = colour_inflation(xl, rate, u.T_pose)
+    # colour measured inside the poses too (short holds have no long stretch), on the radial
+    # component whatever the tilt test says: the norm model sees that one, and a sway too
+    # small for the test is slow and tangential; read per axis it was colour (inflation
+    # 2.6-3.9, twin ratio 0.28-0.39 on 5 of 10 simulated swaying hand-held nulls; radial
+    # 1.0 and 0.53-0.68).  One column scatters more than the mean of three (the cost:
+    # docs/methods/gap.md).  The longest stretch is one direction, and its three axes stand
+    # for all the poses' directions: kap below is the larger of that per-axis figure and
+    # this radial one
+    x_r = x_a if tilt["wander"] else radial_series(rec.acc, kept)
+    wp = within_pose_inflation(x_r, kept)
+    kap = max(kap, wp["inflation"])
+    colour = dict(colour or {}, within_pose=wp)
+    # the pose means' variance from within-pose statistics (gap/posenoise.py): below the
+    # white figure under hand tremor; the colour inflation applies to the white axes
+    pmv, pinfo = pose_mean_variance(x_a, kept, rate_hz=rate)
+    white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * x_a.shape[1]))
+    if tilt["wander"]:
+        # the radial component holds no rotation tremor (tangential): its pose means keep the
+        # white figure (the structure function's bounded part, from one column, read white
+        # radial noise as half of it on simulated swaying nulls: 5 of 40 called a gap)
+        white_ax[:] = True
+        n_k = np.asarray(ps.n[keep], float)
+        s2r = np.median([x_a[s_, 0].var(ddof=1) for s_ in kept if s_.stop - s_.start > 1])
+        pmv = (s2r / n_k)[:, None]
+        pinfo["radial_white"] = "the radial pose means keep the white figure"
+    pv = np.mean(pmv * np.where(white_ax, kap, 1.0)[None, :], axis=1)
+    # colour clearly above the white figure, read on the radial series too (its structure
+    # function, two-sided): slow-correlated noise (an AR(1) of 0.1-2 s, 1/f) that the
+    # within-pose inflation under-reads in short holds (a cold review's 300 coloured nulls:
+    # 118 false alarms, now 68; its 30 white ones none either way); read per axis, a sway
+    # passed for such colour (simulated swaying hand-held nulls: twin ratio 0.68 -> 0.35)
+    rv, rinfo = pose_mean_variance(x_r, kept, two_sided=True, rate_hz=rate)
+    if rinfo.get("axes_above_white", [False])[0]:
+        pv = np.maximum(pv, rv[:, 0])
+        pinfo["radial_above_white"] = {"ratio_to_white": rinfo["ratio_to_white"][0],
+                                       "ratio_stderr": rinfo["ratio_stderr"][0]}
+    pinfo["tilt_wander"] = tilt
+    # the quantisation floor of each pose mean (does not average down without dither)
+    qf, qinfo = _quant_floor(rec.acc, kept)
+    up = ps.acc[keep] / np.linalg.norm(ps.acc[keep], axis=1, keepdims=True)
+    pv = pv + up ** 2 @ qf
+    pinfo["quantisation"] = qinfo
+    colour["pose_mean_variance"] = pinfo
+    return pv, colour
+
+
 def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     """The accelerometer against the deployed triangular9 MAP fit (gap/norm.py)."""
     rate, ps, keep, longest = rec.rate_hz, u.ps, u.keep, u.longest
@@ -400,42 +455,7 @@ def _accel_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
         if rec.gyro is not None:
             kept = u.kept(trim_turns(rec.gyro, u.sl, rate)[0])
         x_a = radial_series(rec.acc, kept)
-    xl = None if longest is None else rec.acc[longest]
-    if tilt["wander"] and xl is not None:
-        xl = radial_series(xl, [slice(0, len(xl))])
-    kap, colour = colour_inflation(xl, rate, u.T_pose)
-    # colour measured inside the poses too (short holds have no long stretch), on the radial
-    # component whatever the tilt test says: the norm model sees that one, and a sway too
-    # small for the test is slow and tangential; read per axis it was colour (inflation
-    # 2.6-3.9, twin ratio 0.28-0.39 on 5 of 10 simulated swaying hand-held nulls; radial
-    # 1.0 and 0.53-0.68).  One column scatters more than the mean of three (the cost:
-    # docs/methods/gap.md).  The longest stretch is one direction, and its three axes stand
-    # for all the poses' directions: kap below is the larger of that per-axis figure and
-    # this radial one
-    wp = within_pose_inflation(radial_series(rec.acc, kept), kept)
-    kap = max(kap, wp["inflation"])
-    colour = dict(colour or {}, within_pose=wp)
-    # the pose means' variance from within-pose statistics (gap/posenoise.py): below the
-    # white figure under hand tremor; the colour inflation applies to the white axes
-    pmv, pinfo = pose_mean_variance(x_a, kept, rate_hz=rate)
-    white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * x_a.shape[1]))
-    if tilt["wander"]:
-        # the radial component holds no rotation tremor (tangential): its pose means keep the
-        # white figure (the structure function's bounded part, from one column, read white
-        # radial noise as half of it on simulated swaying nulls: 5 of 40 called a gap)
-        white_ax[:] = True
-        n_k = np.asarray(ps.n[keep], float)
-        s2r = np.median([x_a[s_, 0].var(ddof=1) for s_ in kept if s_.stop - s_.start > 1])
-        pmv = (s2r / n_k)[:, None]
-        pinfo["radial_white"] = "the radial pose means keep the white figure"
-    pv = np.mean(pmv * np.where(white_ax, kap, 1.0)[None, :], axis=1)
-    pinfo["tilt_wander"] = tilt
-    # the quantisation floor of each pose mean (does not average down without dither)
-    qf, qinfo = _quant_floor(rec.acc, kept)
-    up = ps.acc[keep] / np.linalg.norm(ps.acc[keep], axis=1, keepdims=True)
-    pv = pv + up ** 2 @ qf
-    pinfo["quantisation"] = qinfo
-    colour["pose_mean_variance"] = pinfo
+    pv, colour = _accel_pose_noise(rec, u, kept, x_a, tilt)
     # the deployed fit: triangular9 with the datasheet prior (MAP), as `calibrate` fits it
     chip = BOARDS.get(rec.meta.get("board", ""), (None,))[0]
     r = norm_diag(ps.acc[keep], u.ctx, pv, Triangular9(), ACCEL_CANDIDATES, sims, rng,

@@ -2,8 +2,10 @@
 included (the twin's noise; issue 25 item 1), and the disturbed poses.
 
 The structure-function estimate lives in :mod:`imucald.fitting.noise.posecov` (the calibration's
-pose covariance uses it too); the gap twin calls it one-sided: it replaces the white
-figure only when clearly below it (its colour inflation is handled elsewhere).
+pose covariance uses it too); the gap twin calls it one-sided per axis: it replaces the white
+figure only when clearly below it (its colour inflation is handled elsewhere), and for the
+accelerometer two-sided on the radial series, whose colour clearly above the white figure
+it takes when larger (gap/diagnose.py ``_accel_pose_noise``).
 """
 from __future__ import annotations
 

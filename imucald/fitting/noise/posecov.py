@@ -40,7 +40,10 @@ that b.  A hold long enough is cut into pairs of segments of at least MIN_SEGMEN
 calibrate cut at the same distinct-sample rate): over 12 holds of 10 s the white part
 scattered by 0.41 of itself from the halves, 0.15 from the segments; calibrate's per-pose
 radial errors against the simulator's truth under a 5 cm lever arm's tremor went from RMS
-1.38 to 1.20 on the radial series (the simulator's 2.5 cm: 1.20 -> 1.07).  Measured (30-80
+1.38 to 1.20 on the radial series (the simulator's 2.5 cm: 1.20 -> 1.07).  A shorter
+segment lets a slow tremor in more: under a strong 3-8 Hz tremor (variance 100x the
+noise's) the white part reads 1.33x at 100 Hz, 2.62x at 400 Hz (halves: 1.00, 1.13); a
+6-12 Hz tremor ~1.0 either way; pessimistic only (docs/methods/gap.md).  Measured (30-80
 simulated tremor records of 30 holds, the estimate over the pose means' own scatter, pooled): 1.01-1.02 with a 6-12 Hz tremor of 1.5-3 deg/s over white
 noise 0.05 deg/s, 0.95-0.98 with tremor 0.15-0.5 deg/s; 0.95-1.04 for a 4-12, 4-6 or 3-8 Hz
 tremor over 1-3 s holds (before: 1.4-1.7; with the split's quarter as the only reading of

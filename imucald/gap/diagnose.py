@@ -405,7 +405,10 @@ def _accel_pose_noise(rec: Recording, u: PoseSetup, kept, x_a: np.ndarray, tilt)
     colour = dict(colour or {}, within_pose=wp)
     # the pose means' variance from within-pose statistics (gap/posenoise.py): below the
     # white figure under hand tremor; the colour inflation applies to the white axes
-    pmv, pinfo = pose_mean_variance(x_a, kept, rate_hz=rate)
+    # under tilt wander x_a is the radial series itself: one two-sided reading serves both
+    # (its "below white" is the one-sided reading's; "above white" is used below)
+    pmv, pinfo = pose_mean_variance(x_a, kept, two_sided=tilt["wander"], rate_hz=rate)
+    rv, rinfo = pmv, pinfo
     white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * x_a.shape[1]))
     if tilt["wander"]:
         # the radial component holds no rotation tremor (tangential): its pose means keep the
@@ -422,7 +425,8 @@ def _accel_pose_noise(rec: Recording, u: PoseSetup, kept, x_a: np.ndarray, tilt)
     # within-pose inflation under-reads in short holds (a cold review's 300 coloured nulls:
     # 118 false alarms, now 68; its 30 white ones none either way); read per axis, a sway
     # passed for such colour (simulated swaying hand-held nulls: twin ratio 0.68 -> 0.35)
-    rv, rinfo = pose_mean_variance(x_r, kept, two_sided=True, rate_hz=rate)
+    if not tilt["wander"]:
+        rv, rinfo = pose_mean_variance(x_r, kept, two_sided=True, rate_hz=rate)
     if rinfo.get("axes_above_white", [False])[0]:
         pv = np.maximum(pv, rv[:, 0])
         pinfo["radial_above_white"] = {"ratio_to_white": rinfo["ratio_to_white"][0],

@@ -44,8 +44,9 @@ radial errors against the simulator's truth under a 5 cm lever arm's tremor went
 segment lets a slow tremor in more: under a strong 3-8 Hz tremor (variance 100x the
 noise's) the white part reads 1.33x at 100 Hz, 2.62x at 400 Hz (halves: 1.00, 1.13); a
 6-12 Hz tremor ~1.0 either way; pessimistic only (docs/methods/gap.md).  Measured (30-80
-simulated tremor records of 30 holds, the estimate over the pose means' own scatter, pooled): 1.01-1.02 with a 6-12 Hz tremor of 1.5-3 deg/s over white
-noise 0.05 deg/s, 0.95-0.98 with tremor 0.15-0.5 deg/s; 0.95-1.04 for a 4-12, 4-6 or 3-8 Hz
+simulated tremor records of 30 holds, the estimate over the pose means' own scatter,
+pooled): 1.01-1.02 with a 6-12 Hz tremor of 1.5-3 deg/s over white noise 0.05 deg/s,
+0.95-0.98 with tremor 0.15-0.5 deg/s; 0.95-1.04 for a 4-12, 4-6 or 3-8 Hz
 tremor over 1-3 s holds (before: 1.4-1.7; with the split's quarter as the only reading of
 which axes are tremor-filled, below, 1.0-1.3).  Noise correlated over 0.3-1 s under the
 tremor reads 0.62-0.83 (beyond the model, as before).  A

@@ -40,6 +40,7 @@ def test_colour_on_the_holds_time_scale_is_in_the_twin():
     session's ratio scatters by ~1 / sqrt(2 x 21 dof) = 0.15, a median of 8 by ~0.07).  The
     colour is read by the radial series' structure function, two-sided (it reads 3.4-4.5x
     the white figure here; seen: no false alarm, median 1.08).  Seen to fail with the
+    radial reading's larger figure not taken (gap/diagnose.py ``_accel_pose_noise``), the
     colour left to the within-pose inflation alone: 7 false alarms of 8, median ratio ~1.8
     (5 of 8, median 1.65, with that inflation read per axis, as before this round)."""
     ratios, alarms = [], 0

@@ -177,9 +177,9 @@ def test_white_part_from_segments_has_the_degrees_of_freedom_of_its_pairs():
     pooled figure over the true white variance scatters by sqrt(2 / 72) = 0.17 over 30
     replicas (0.15 seen, mean 1.02), and its mean lies within 0.1 of 1 (3 of its standard
     errors, 0.03, and room for the tremor's leakage into a segment's mean, which would bias
-    it up).  Seen to fail with the holds' halves (``rate_hz`` not given: one pair, 12
-    degrees of freedom): scatter 0.41, above the bound 0.25 (3.8 standard errors of a 0.17
-    scatter over 30 replicas)."""
+    it up).  Seen to fail with ``_half_white`` held to one pair, each hold's halves (as
+    before, and as without ``rate_hz``: 12 degrees of freedom): scatter 0.41, above the
+    bound 0.25 (3.8 standard errors of a 0.17 scatter over 30 replicas)."""
     rng = np.random.default_rng(7)
     rate, n, sd = 100.0, 1000, 1.0
     t = np.arange(n) / rate

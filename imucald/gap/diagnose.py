@@ -407,7 +407,7 @@ def _accel_pose_noise(rec: Recording, u: PoseSetup, kept, x_a: np.ndarray, tilt)
     # white figure under hand tremor; the colour inflation applies to the white axes
     # under tilt wander x_a is the radial series itself: one two-sided reading serves both
     # (its "below white" is the one-sided reading's; "above white" is used below)
-    pmv, pinfo = pose_mean_variance(x_a, kept, two_sided=tilt["wander"], rate_hz=rate)
+    pmv, pinfo = pose_mean_variance(x_a, kept, two_sided=tilt["wander"])
     rv, rinfo = pmv, pinfo
     white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * x_a.shape[1]))
     if tilt["wander"]:
@@ -426,7 +426,7 @@ def _accel_pose_noise(rec: Recording, u: PoseSetup, kept, x_a: np.ndarray, tilt)
     # 118 false alarms, now 68; its 30 white ones none either way); read per axis, a sway
     # passed for such colour (simulated swaying hand-held nulls: twin ratio 0.68 -> 0.35)
     if not tilt["wander"]:
-        rv, rinfo = pose_mean_variance(x_r, kept, two_sided=True, rate_hz=rate)
+        rv, rinfo = pose_mean_variance(x_r, kept, two_sided=True)
     if rinfo.get("axes_above_white", [False])[0]:
         pv = np.maximum(pv, rv[:, 0])
         pinfo["radial_above_white"] = {"ratio_to_white": rinfo["ratio_to_white"][0],
@@ -528,7 +528,7 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     wp = within_pose_inflation(rec.gyro, u.kept(gsl))
     kap_g = max(kap_g, wp["inflation"])
     colour_g = dict(colour_g or {}, within_pose=wp)
-    gvar, pinfo = pose_mean_variance(rec.gyro, u.kept(gsl), rate_hz=rate)
+    gvar, pinfo = pose_mean_variance(rec.gyro, u.kept(gsl))
     white_ax = ~np.asarray(pinfo.get("axes_below_white", [False] * 3))
     gvar = gvar * np.where(white_ax, kap_g, 1.0)[None, :]
     # a swaying hand's net rotation over each hold, and the quantisation floor (fitting/noise/posefloor.py)

@@ -35,23 +35,14 @@ part (0.63-0.69x with a weak tremor over the noise).  There b comes from each ho
 halves instead (:func:`_half_white`): their Hann-weighted means differ by the white noise
 only (a Hann window's leakage falls as f^-3; at worst a 4-6 Hz tremor enters a half's
 mean at -31.5 dB of its amplitude over 0.5 s, -41.5 dB over 0.75 s), and a is fitted given
-that b.  A hold long enough is cut into pairs of segments of at least MIN_SEGMENT_S
-(0.75 s) instead of its halves, one degree of freedom per pair (the daemon's detector and
-calibrate cut at the same distinct-sample rate): over 12 holds of 10 s the white part
-scattered by 0.41 of itself from the halves, 0.15 from the segments; calibrate's per-pose
-radial errors against the simulator's truth under a 5 cm lever arm's tremor went from RMS
-1.38 to 1.20 on the radial series (the simulator's 2.5 cm: 1.20 -> 1.07).  A shorter
-segment lets a slow tremor in more: under a strong 3-8 Hz tremor (variance 100x the
-noise's) the white part reads 1.33x at 100 Hz, 2.62x at 400 Hz (halves: 1.00, 1.13); a
-6-12 Hz tremor ~1.0 either way; pessimistic only (docs/methods/gap.md).  Measured (30-80
-simulated tremor records of 30 holds, the estimate over the pose means' own scatter,
-pooled): 1.01-1.02 with a 6-12 Hz tremor of 1.5-3 deg/s over white noise 0.05 deg/s,
-0.95-0.98 with tremor 0.15-0.5 deg/s; 0.95-1.04 for a 4-12, 4-6 or 3-8 Hz
+that b.  Measured (30-80 simulated tremor records of 30 holds, the estimate over the pose
+means' own scatter, pooled): 1.01-1.02 with a 6-12 Hz tremor of 1.5-3 deg/s over white
+noise 0.05 deg/s, 0.95-0.98 with tremor 0.15-0.5 deg/s; 0.95-1.04 for a 4-12, 4-6 or 3-8 Hz
 tremor over 1-3 s holds (before: 1.4-1.7; with the split's quarter as the only reading of
 which axes are tremor-filled, below, 1.0-1.3).  Noise correlated over 0.3-1 s under the
 tremor reads 0.62-0.83 (beyond the model, as before).  A
-hand's slow sway (0.2-2 Hz) or a drifting bias inside the holds raises the segments'
-differences too: pessimistic, never below the truth (the sway's own term: posefloor.py).
+hand's slow sway (0.2-2 Hz) or a drifting bias inside the holds raises the halves'
+difference too: pessimistic, never below the truth (the sway's own term: posefloor.py).
 
 Decision (stated error rate): the estimate replaces the white one (s^2 / n) only when it
 differs from it beyond twice its jackknife standard error over poses: below it
@@ -78,39 +69,26 @@ from ...numerics.npstats import median, nanmedian
 
 __all__ = ["pose_mean_variance", "pose_mean_variance_parts", "pose_mean_variance_stats", "pose_sf_rows",
            "scale_pose_cov", "scale_pose_cov_stats", "radial_pose_cov",
-           "radial_pose_cov_stats", "allan_still_needed", "segment_samples", "FRACTIONS", "MIN_SAMPLES",
-           "MIN_SEGMENT_S",
+           "radial_pose_cov_stats", "allan_still_needed", "FRACTIONS", "MIN_SAMPLES",
            "MIN_POSES"]
 
 FRACTIONS = (0.125, 0.1875, 0.25, 0.375, 0.5)    #: lags as fractions of the pose length
 MIN_SAMPLES = 16                                 #: shortest pose whose increments count
 MIN_POSES = 5                                    #: fewest such poses for an estimate
 MAX_HOLDS = 8                                    #: holds a refined daemon pose keeps
-#: shortest segment whose Hann-weighted mean the white part is read from (s): within the
-#: lengths the halves were measured at (a 4-6 Hz tremor leaks in at -41.5 dB over 0.75 s)
-MIN_SEGMENT_S = 0.75
 
 
-def segment_samples(rate_hz: Optional[float]) -> Optional[int]:
-    """The white part's shortest segment in samples at ``rate_hz`` (None: each hold's halves)."""
-    if rate_hz is None or not rate_hz > 0:
-        return None
-    return max(8, int(np.ceil(MIN_SEGMENT_S * float(rate_hz))))
-
-
-def pose_sf_rows(x: np.ndarray, seg: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pose_sf_rows(x: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Design rows (len(FRACTIONS), 2) and observed mean squared increments (len, C) of one
     pose's samples x (n, C): the structure function of its bridge (module doc); and the
-    white part measured from the pose's segments (C,) (:func:`_half_white`; ``seg``:
-    :func:`segment_samples`)."""
+    white part measured from the pose's halves (C,) (:func:`_half_white`)."""
     x = np.asarray(x, float)
     # means as sum / count: numpy's mean(axis=0) bit for bit, without its wrapper (called
     # for every pose twice, and 5 lags each)
-    return _sf_rows(x - x.sum(0) / len(x), seg)
+    return _sf_rows(x - x.sum(0) / len(x))
 
 
-def _pose_stats(parts: List[np.ndarray], centred: Optional[Sequence[np.ndarray]] = None,
-                seg: Optional[int] = None):
+def _pose_stats(parts: List[np.ndarray], centred: Optional[Sequence[np.ndarray]] = None):
     """(ns, s2, sf) of each pose's samples: counts, per-sample variances (ddof 1; NaN for
     one sample) and :func:`pose_sf_rows` (for poses of MIN_SAMPLES or more), from one
     centring of each pose (numpy's ``var(0, ddof=1)``: sum / n, the deviations squared,
@@ -129,35 +107,26 @@ def _pose_stats(parts: List[np.ndarray], centred: Optional[Sequence[np.ndarray]]
             d = x - x.sum(0) / n if n else x
         if n > 1:
             s2[i] = np.square(d).sum(0) / (n - 1)
-        sf.append([(n,) + _sf_rows(d, seg)] if n >= MIN_SAMPLES else [])
+        sf.append([(n,) + _sf_rows(d)] if n >= MIN_SAMPLES else [])
     return ns, s2, sf
 
 
-def _half_white(d: np.ndarray, seg: Optional[int] = None) -> np.ndarray:
+def _half_white(d: np.ndarray) -> np.ndarray:
     """The white part b (C,) (the per-sample variance of a flat noise spectrum) from one
-    pose's samples or deviations ``d`` (n, C): the Hann-weighted means of two adjacent
-    segments differ by white noise of variance 2 k b (k = sum w^2 / (sum w)^2), while a
-    hand's tremor (above ~4 Hz, several Hann bins over a segment of 0.5 s or more) barely
-    leaks into either mean.  The hold is cut into as many pairs of segments of at least
-    ``seg`` samples as it holds (one pair, its halves, when ``seg`` is None or the hold is
-    shorter than four of them); the pairs' figures are averaged: one degree of freedom per
-    pair and axis, pooled over the holds by the caller."""
-    n = len(d)
-    pairs = 1 if seg is None else max(1, n // (2 * int(seg)))
-    h = n // (2 * pairs)
+    pose's samples or deviations ``d`` (n, C): the Hann-weighted means of its two halves
+    differ by white noise of variance 2 k b (k = sum w^2 / (sum w)^2), while a hand's
+    tremor (above ~4 Hz, several Hann bins over a half of 0.5 s or more) barely leaks into
+    either mean.  One degree of freedom per axis: pooled over the holds by the caller."""
+    h = len(d) // 2
     w = np.hanning(h + 2)[1:-1]
     sw = float(w.sum())
-    if pairs == 1:
-        return np.square((w @ d[:h] - w @ d[h:2 * h]) / sw) / (2.0 * float(w @ w) / sw ** 2)
-    m = d[:2 * pairs * h].reshape(pairs, 2, h, d.shape[1])
-    diff = (w @ m[:, 0] - w @ m[:, 1]) / sw                    # (pairs, C)
-    return np.square(diff).mean(0) / (2.0 * float(w @ w) / sw ** 2)
+    return np.square((w @ d[:h] - w @ d[h:2 * h]) / sw) / (2.0 * float(w @ w) / sw ** 2)
 
 
-def _sf_rows(d: np.ndarray, seg: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _sf_rows(d: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`pose_sf_rows` from the pose's deviations from its mean."""
     n = len(d)
-    hw = _half_white(d, seg)
+    hw = _half_white(d)
     if d.flags.c_contiguous:                   # [0; cumsum(d)] without a vstack copy (a C-
         c = np.empty((n + 1, d.shape[1]))      # order array, as vstack makes it from C-order d)
         c[0] = 0.0
@@ -229,20 +198,19 @@ def _solve_stats(G, h, yy, white):
     return out
 
 
-def pose_mean_variance(x: np.ndarray, slices: Sequence[slice], two_sided: bool = False,
-                       rate_hz: Optional[float] = None) -> Tuple[np.ndarray, Dict[str, object]]:
+def pose_mean_variance(x: np.ndarray, slices: Sequence[slice], two_sided: bool = False
+                       ) -> Tuple[np.ndarray, Dict[str, object]]:
     """Variance (N, C) of each pose mean of ``x`` (samples, C) over ``slices`` (sensor
-    units squared), and a summary.  Poses shorter than 16 samples get the white figure.
-    ``rate_hz``: the white part from segments of MIN_SEGMENT_S (else each hold's halves)."""
-    return pose_mean_variance_parts([x[s] for s in slices], two_sided, rate_hz)
+    units squared), and a summary.  Poses shorter than 16 samples get the white figure."""
+    return pose_mean_variance_parts([x[s] for s in slices], two_sided)
 
 
-def pose_mean_variance_parts(parts: List[np.ndarray], two_sided: bool = False,
-                             rate_hz: Optional[float] = None) -> Tuple[np.ndarray, Dict[str, object]]:
+def pose_mean_variance_parts(parts: List[np.ndarray], two_sided: bool = False
+                             ) -> Tuple[np.ndarray, Dict[str, object]]:
     """:func:`pose_mean_variance` from each pose's samples (a list of (n_i, C) arrays)."""
     if not parts:
         return pose_mean_variance_stats(np.zeros(0), np.zeros((0, 1)), [], two_sided)
-    return pose_mean_variance_stats(*_pose_stats(parts, seg=segment_samples(rate_hz)), two_sided)
+    return pose_mean_variance_stats(*_pose_stats(parts), two_sided)
 
 
 def _pose_vars(white, ab, lower, higher, sf, ns) -> np.ndarray:
@@ -279,8 +247,7 @@ def _tremor_axes(stats, ab: np.ndarray, jk_ab: np.ndarray, hw: np.ndarray, s2_po
     2.7-3.4x the pose means' scatter).  On white noise the halves' part is the per-sample
     variance times a mean of m one-degree chi-squares over m: below a quarter of it by
     chance with probability 3e-4 at m = 20 holds (1e-5 at 30; 0.9 % at 10), so the second
-    reading needs 20 holds (at most: a hold of 3 s or more gives a pair of segments per
-    1.5 s, each one more degree of freedom).
+    reading needs 20 holds.
 
     "Below white" on those axes: the white-only fit reads the tremor's bound as a slope
     (its ratio ~5x the estimate's: at 400 Hz 0.12-0.15 -> 0.6-0.8, not clear of 1, and the
@@ -367,7 +334,7 @@ def pose_mean_variance_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequen
 
 
 def scale_pose_cov(parts: List[np.ndarray], cov_mean: np.ndarray,
-                   centred: Optional[Sequence[np.ndarray]] = None, rate_hz: Optional[float] = None
+                   centred: Optional[Sequence[np.ndarray]] = None
                    ) -> Tuple[np.ndarray, Dict[str, object]]:
     """Each pose's covariance of the mean (N, C, C), formed as its own sample covariance
     over n, rescaled per axis by the structure-function estimate's ratio to the white
@@ -376,7 +343,7 @@ def scale_pose_cov(parts: List[np.ndarray], cov_mean: np.ndarray,
     noisier); the averaging is what changes.  Returns (covariances, summary)."""
     if len(parts) == 0:
         return np.asarray(cov_mean, float), {"method": "white", "poses_used": 0}
-    return scale_pose_cov_stats(*_pose_stats(parts, centred, segment_samples(rate_hz)), cov_mean)
+    return scale_pose_cov_stats(*_pose_stats(parts, centred), cov_mean)
 
 
 def scale_pose_cov_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[tuple]],
@@ -395,8 +362,8 @@ def scale_pose_cov_stats(ns: np.ndarray, s2: np.ndarray, sf: Sequence[Sequence[t
     return cov_mean * s[:, :, None] * s[:, None, :], info
 
 
-def radial_pose_cov(parts: List[np.ndarray], means: np.ndarray, cov_mean: np.ndarray,
-                    rate_hz: Optional[float] = None) -> Tuple[np.ndarray, Dict[str, object]]:
+def radial_pose_cov(parts: List[np.ndarray], means: np.ndarray, cov_mean: np.ndarray
+                    ) -> Tuple[np.ndarray, Dict[str, object]]:
     """The accelerometer's pose covariances (N, 3, 3) with the variance along each pose's
     mean direction set from the structure function of the RADIAL series (the samples
     projected on that direction), by a congruence S cov S with S = I + (f - 1) u u^T (the
@@ -410,8 +377,7 @@ def radial_pose_cov(parts: List[np.ndarray], means: np.ndarray, cov_mean: np.nda
         return cov_mean, {"method": "white", "poses_used": 0}
     u = np.asarray(means, float)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
-    ns, s2, sf = _pose_stats([(np.asarray(p, float) @ ui)[:, None] for p, ui in zip(parts, u)],
-                             seg=segment_samples(rate_hz))
+    ns, s2, sf = _pose_stats([(np.asarray(p, float) @ ui)[:, None] for p, ui in zip(parts, u)])
     return radial_pose_cov_stats(ns, s2[:, 0], sf, means, cov_mean)
 
 

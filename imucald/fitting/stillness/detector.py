@@ -87,7 +87,7 @@ import numpy as np
 
 from ...numerics.npstats import median, row_all, row_sum, window_var
 from .floor import FLOOR_WINDOWS, floors as _floors, onset as _onset
-from ..noise.posecov import MIN_SAMPLES as SF_MIN_SAMPLES, pose_sf_rows, segment_samples
+from ..noise.posecov import MIN_SAMPLES as SF_MIN_SAMPLES, pose_sf_rows
 
 __all__ = ["StaticInterval", "StillnessDetector", "DEFAULTS", "still_limits"]
 
@@ -690,10 +690,9 @@ class _Core:
                             i0=int(oi[sl][0]), i1=int(oi[sl][-1]) + 1)
         if self.keep_structure and n >= SF_MIN_SAMPLES:     # 28 numbers a pose: what the
                                     # daemon's pose covariance needs (calibrate has the rows)
-            seg = segment_samples(self.rate)      # the white part's segments, as calibrate's
-            iv.acc_sf = [(n,) + pose_sf_rows(acc, seg)]
+            iv.acc_sf = [(n,) + pose_sf_rows(acc)]
             # and the radial series' (6 more): the daemon's sway override (daemon/fitjob.py)
-            iv.acc_radial_sf = [(n,) + pose_sf_rows((acc @ (m / norm))[:, None], seg)]
+            iv.acc_radial_sf = [(n,) + pose_sf_rows((acc @ (m / norm))[:, None])]
         if gyro is not None:
             g = gyro[sl]
             iv.gyro = g.mean(0)

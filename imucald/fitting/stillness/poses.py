@@ -153,9 +153,7 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
     cuts = [slice(iv.i0, iv.i1) for iv in ivs]
     pieces, _, centred = _averaged(rec, cuts, keep)
     joined = merge_cut(ivs)
-    # the distinct samples' effective rate (the detector's, hence the daemon's): the white
-    # part's segments (fitting/noise/posecov.py segment_samples) are that many samples long
-    ps = _joined(rec, joined, cuts, pieces, keep, centred, None if det is None else det.rate)
+    ps = _joined(rec, joined, cuts, pieces, keep, centred)
     ps.slices, pieces.slices = joined, cuts
     if dropped:
         ps.meta["dropped_samples"] = pieces.meta["dropped_samples"] = str(dropped)
@@ -165,7 +163,7 @@ def poses_and_pieces(rec: Recording, **kw) -> Tuple[PoseSet, PoseSet]:
 
 
 def _joined(rec: Recording, slices: List[slice], cuts: List[slice], pieces: PoseSet,
-            keep: Optional[np.ndarray], centred: Dict[str, list], rate_hz: Optional[float] = None) -> PoseSet:
+            keep: Optional[np.ndarray], centred: Dict[str, list]) -> PoseSet:
     """``poses_from_slices(rec, slices, keep, structure=True)``, the rows of a slice that is
     also one of the pieces (``cuts``: most poses are one piece) copied from ``pieces``
     instead of averaged again (the same rows of the same samples, so the same numbers),
@@ -174,7 +172,7 @@ def _joined(rec: Recording, slices: List[slice], cuts: List[slice], pieces: Pose
     at = {(s.start, s.stop): i for i, s in enumerate(cuts)}
     new = [s for s in slices if (s.start, s.stop) not in at]
     if len(new) == len(slices):
-        return poses_from_slices(rec, slices, keep, structure=True, rate_hz=rate_hz)
+        return poses_from_slices(rec, slices, keep, structure=True)
     more, _, more_centred = _averaged(rec, new, keep)
     src, j = [], len(cuts)
     for s in slices:
@@ -191,7 +189,7 @@ def _joined(rec: Recording, slices: List[slice], cuts: List[slice], pieces: Pose
                  rows(pieces.mag_cov, more.mag_cov), rows(pieces.temp, more.temp), dict(rec.meta))
     both = {k: centred[k] + more_centred[k] for k in centred}
     return _structure(ps, rec, [_distinct(s, keep) for s in slices],
-                      {k: [v[i] for i in src] if v else [] for k, v in both.items()}, rate_hz)
+                      {k: [v[i] for i in src] if v else [] for k, v in both.items()})
 
 
 def still_report(det) -> List[str]:
@@ -248,15 +246,14 @@ def no_still_message(path: str, det, n_found: int = 0) -> str:
 
 
 def poses_from_slices(rec: Recording, slices: List[slice], keep: Optional[np.ndarray] = None,
-                      structure: bool = False, rate_hz: Optional[float] = None) -> PoseSet:
+                      structure: bool = False) -> PoseSet:
     """Each slice's rows averaged; with ``keep`` only the distinct ones (repeated samples
     are not measurements: counted, they would shrink the standard errors).  With
     ``structure`` the accelerometer's and gyro's covariances of the means are rescaled
     per axis by the within-pose structure function (fitting/noise/posecov.py; ``ps.noise`` says
-    what it found); else each is the pose's sample covariance over n.  ``rate_hz``: the rate
-    of the rows kept (default the recording's)."""
+    what it found); else each is the pose's sample covariance over n."""
     ps, rows, centred = _averaged(rec, slices, keep)
-    return _structure(ps, rec, rows, centred, rate_hz) if structure else ps
+    return _structure(ps, rec, rows, centred) if structure else ps
 
 
 def _averaged(rec: Recording, slices: List[slice], keep: Optional[np.ndarray]):
@@ -309,8 +306,7 @@ def _distinct(s: slice, keep: Optional[np.ndarray]):
     return s
 
 
-def _structure(ps: PoseSet, rec: Recording, rows, centred: Dict[str, list],
-               rate_hz: Optional[float] = None) -> PoseSet:
+def _structure(ps: PoseSet, rec: Recording, rows, centred: Dict[str, list]) -> PoseSet:
     """The accelerometer's and gyro's covariances of the means rescaled per axis by the
     within-pose structure function (fitting/noise/posecov.py), the accelerometer's along
     its mean direction by the radial series' own; ``rows``: each pose's rows, ``centred``
@@ -324,20 +320,19 @@ def _structure(ps: PoseSet, rec: Recording, rows, centred: Dict[str, list],
         # float32 samples (an API caller's) are the samples' own precision, and these
         # functions centre in float64 themselves
         f64 = rec.acc.dtype == np.float64
-        rate = rate_hz if rate_hz else rec.rate_hz
         ps.acc_cov, ps.noise["accel"] = scale_pose_cov(parts, ps.acc_cov,
-                                                       [d for _, d in centred["acc"]] if f64 else None, rate)
+                                                       [d for _, d in centred["acc"]] if f64 else None)
         # along each pose's direction from the radial series where the direction wanders
         # within the poses (a hand's sway, which the norm model does not see: radial_pose_cov;
         # the test is gap's, fitting/noise/posefloor.py, one-sided ~2 %)
         tilt = tilt_wander_test_parts(parts, means=[m for m, _ in centred["acc"]] if f64 else None)
         if tilt["wander"]:
-            ps.acc_cov, ps.noise["accel_radial"] = radial_pose_cov(parts, ps.acc, ps.acc_cov, rate)
+            ps.acc_cov, ps.noise["accel_radial"] = radial_pose_cov(parts, ps.acc, ps.acc_cov)
             ps.noise["accel_radial"]["tilt_wander"] = tilt
         if ps.gyro_cov is not None:
             ps.gyro_cov, ps.noise["gyro"] = scale_pose_cov(
                 [rec.gyro[s] for s in rows], ps.gyro_cov,
-                [d for _, d in centred["gyro"]] if rec.gyro.dtype == np.float64 else None, rate)
+                [d for _, d in centred["gyro"]] if rec.gyro.dtype == np.float64 else None)
     return ps
 
 

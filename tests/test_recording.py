@@ -325,7 +325,8 @@ def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
     '.' table, with a warning naming the line, and an error later in it names its own line.
     A plain CSV whose rows split into as many values as columns stays a CSV.  Broken once:
     _first_row without the decimal-comma test (tabs: "expected 4 values, found 6"; ";": no rows),
-    and without the look past a row of whole numbers (the tab case: "found 7")."""
+    and without the look past a row of whole numbers (the tab case: "found 7"); spec.quoted
+    without the file's own text ('1.2.3' is quoted: fails)."""
     from imucald.fitting.inputs import read_table
     p = tmp_path / "semi.csv"
     rows = [(i / 100, 0.5, -0.25, 16384 - i) for i in range(300)]
@@ -341,6 +342,14 @@ def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
     p.write_text(f"time{sep}ax{sep}ay{sep}az\n" + "".join(lines))
     msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
     assert msg.startswith(f"{p}:42: column ax: 'zz' is not a number"), msg
+    # the quote is the file's own text, not the translated one (it read '1.2.3' for 1,2,3 and
+    # '3.0e9' for 3,0e9: a user searching the file for it found nothing)
+    for bad, said in (("1,2,3", "column ax: '1,2,3' is not a number"),
+                      ("3,0e9", "column ax: 3,0e9 is beyond what a sensor reads")):
+        lines[40] = sep.join(["0,41", bad, "0", "1"]) + "\n"
+        p.write_text(f"time{sep}ax{sep}ay{sep}az\n" + "".join(lines))
+        msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 1.0, cls=UserError)
+        assert msg.startswith(f"{p}:42: {said}"), msg
     capsys.readouterr()
     # a wrong --columns (an extra column in the file) gets the count's own message, not "not a
     # numeric table" (a newcomer's walk: phyphox's "Absolute acceleration" column)

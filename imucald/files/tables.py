@@ -75,6 +75,16 @@ class TableSpec:
         self.limit_note = limit_note
         #: columns whose values are checked (finite, within bounds); others need only be numbers
         self.checked = np.ones(self.ncol, bool) if checked is None else np.asarray(checked, bool)
+        #: (line number, column index) -> that value as the file writes it, for a table read
+        #: through a translation (a decimal-comma export: ``1,5`` is parsed as ``1.5``); an
+        #: error then quotes the file's own text, not the translated one
+        self.source_text = None
+
+    def quoted(self, lineno: int, j: int, text: str) -> str:
+        """The value of column ``j`` on line ``lineno``, parsed as ``text``, as the file has it."""
+        if self.source_text is not None:
+            text = self.source_text(lineno, j) or text
+        return text.strip()
 
     def fail(self, lineno: int, msg: str):
         raise self.error(f"{self.path}:{lineno}: {msg}")
@@ -499,7 +509,7 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
             try:
                 v = float(p)
             except ValueError:
-                spec.fail(ln, f"column {spec.names[j]}: {snippet(p.strip())} is not a number")
+                spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, p))} is not a number")
             row.append(v)
         for j, v in enumerate(row):
             if not spec.checked[j]:
@@ -508,7 +518,7 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
                 spec.fail(ln, f"column {spec.names[j]}: {v} is not a finite number (repair or "
                               f"delete this line)")
             if not abs(v - spec.centre[j]) <= spec.halfwidth[j]:
-                spec.fail(ln, f"column {spec.names[j]}: {snippet(parts[j].strip(), quote=False)} is beyond what "
+                spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, parts[j]), quote=False)} is beyond what "
                               f"a sensor reads{spec.limit_note} (repair or delete this line)")
         if spec.tcol is not None:
             t = row[spec.tcol]

@@ -146,6 +146,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
             warn(f"{path}:{lineno}: read as a spreadsheet's export: ';' or whitespace between "
                  f"values, ',' (if any) as the decimal mark")
             fh = _Translated(fh, _DECIMAL_COMMA)
+            spec.source_text = lambda ln, j: _decimal_comma_value(path, ln, j)
         idx = {name: i for i, name in enumerate(cols) if name != "-"}
         groups = [(k, [idx[k]]) for k in (t_name, "temp") if k in idx]
         for g, ks in _GROUP_COLUMNS.items():
@@ -198,6 +199,20 @@ class _Translated:
 
     def __getattr__(self, name):
         return getattr(self._fh, name)
+
+
+def _decimal_comma_value(path: str, lineno: int, j: int) -> Optional[str]:
+    """Value ``j`` of line ``lineno`` of a decimal-comma table as written (``1,2,3``, where
+    the translated line reads ``1.2.3``), for an error's quote; None if it cannot be had."""
+    try:
+        with open(path, "rb") as fh:
+            for i, raw in enumerate(fh, 1):
+                if i == lineno:
+                    toks = raw.decode("utf-8", "replace").lstrip("\ufeff").replace(";", " ").split()
+                    return toks[j] if j < len(toks) else None
+    except OSError:
+        return None
+    return None
 
 
 #: a number written with the comma as its decimal mark: digits on both sides of it, as

@@ -84,3 +84,22 @@ def test_with_no_still_pose_the_accelerometer_and_gyro_are_said_not_diagnosed():
     res = diagnose(r, sims=50)
     assert set(res["sensors"]) == {"mag"}
     assert "accel: not diagnosed: no still stretch; gyro: not diagnosed: no still stretch" in res["notes"]
+
+
+def test_the_magnetometer_excess_is_placed_by_the_field_direction_not_by_up():
+    """The magnetometer's excess was placed by "+Z up", "-X up" (the region of the field's
+    direction in the body frame, named as if it were the up vector), which without an
+    accelerometer means nothing and with one is wrong (the freeimu recording's "+X up 33 %").
+    Placed by the body axis nearest the field direction now: the shares are those of the
+    poses whose corrected field points along each signed axis.  Seen to fail with region()
+    naming every direction "up" (the labels end in "up")."""
+    from imucald.fitting.models.registry import get_model
+    from imucald.gap.where import norm_where
+    model = get_model("mag_sym")
+    th = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.1, -0.2, 0.3])
+    # four field directions about the hard iron (th[6:9]); all excess on the +Y pose
+    x = th[6:9] + 0.5 * np.array([[1, 0, 0], [0, 1, 0], [0, 0, -1], [0, 0, -1.0]])
+    z = np.array([1.0, 3.0, 0.5, 1.0])
+    where, _ = norm_where(x, z, model, th, {"t": np.arange(4.0)})
+    assert where["region_share"] == {"+X along the field": 0.0, "+Y along the field": 1.0,
+                                     "-Z along the field": 0.0}

@@ -13,10 +13,11 @@ from .signif import corr_p
 __all__ = ["norm_where", "linear_where", "region"]
 
 
-def region(u: np.ndarray) -> str:
-    """'+Z up', '-X up' ...: the axis nearest the up vector ``u``."""
+def region(u: np.ndarray, along: str = "up") -> str:
+    """'+Z up', '-X up' ...: the axis nearest the vector ``u`` (the up vector; for the
+    magnetometer the field's direction, ``along`` 'along the field')."""
     j = int(np.argmax(np.abs(u)))
-    return f"{'+' if u[j] > 0 else '-'}{'XYZ'[j]} up"
+    return f"{'+' if u[j] > 0 else '-'}{'XYZ'[j]} {along}"
 
 
 def norm_where(x: np.ndarray, z_n: np.ndarray, model: NormModel, th: np.ndarray,
@@ -25,10 +26,14 @@ def norm_where(x: np.ndarray, z_n: np.ndarray, model: NormModel, th: np.ndarray,
     trends; also the poses' unit directions about the fitted centre (for the plots)."""
     N = len(x)
     excess = z_n ** 2 - 1.0
-    u = (x - (th[6:9] if model.k == 9 else th[model.kw:] if isinstance(model, MagModel) else 0))
+    mag = isinstance(model, MagModel)
+    u = (x - (th[6:9] if model.k == 9 else th[model.kw:] if mag else 0))
+    # the magnetometer's u is the field's direction in the body frame, not the up vector: its
+    # regions are named so ("+X up" read as an orientation, without an accelerometer too)
+    along = "along the field" if mag else "up"
     regions = {}
     for i in range(N):
-        regions.setdefault(region(u[i]), []).append(i)
+        regions.setdefault(region(u[i], along), []).append(i)
     tot = float(np.sum(np.maximum(excess, 0))) or 1.0
     where = {"region_share": {k: round(float(np.sum(np.maximum(excess[v], 0))) / tot, 3)
                               for k, v in sorted(regions.items())}}

@@ -487,25 +487,73 @@ def test_duplicated_rows_are_not_lost_samples_and_a_hole_still_is():
     assert left["gap"] == 1 and len(wins) == len(sl) - 2
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_jittered_stamps_are_not_lost_samples_and_one_lost_sample_is(seed):
+def test_jittered_stamps_are_not_lost_samples_and_one_lost_sample_is():
     """Timestamps jittering by 15 % of the period (a logger's serial delays): no rotation is
-    left out, and one sample lost in a rotation's window is still seen (the window's span
+    left out, and one sample lost in a rotation's motion is still seen (the motion's span
     holds a period more than its steps).  Before, any step over 1.5 periods was a loss:
     an independent probe's jittered files left 27 of 31 rotations out and fitted no K or G.
-    Broken once (a step over 1.5 periods as the only test): all 3 seeds fail.  Over 200
-    seeds: 3 of 1800 windows wrongly left out, one lost sample seen in 165 of 200."""
-    import numpy as np
+    Over 40 seeds (the two stamps' jitter makes the count's error ~0.21 periods: a loss is
+    seen ~86 % of the time, measured 172 of 200 seeds; 1 of 1800 windows wrongly left out):
+    at most 2 of 360 windows wrongly left out, the loss seen in at least 28 of 40 (3 sd
+    below the rate).  Broken once (a step over 1.5 periods as the only test): 355 of 360
+    left out; without the count (the step test alone): the loss seen in 16 of 40."""
     from imucald.fitting.gyro.integration import rotation_windows
-    rng = np.random.default_rng(seed)
-    t = np.sort(np.arange(6000) / 100.0 + rng.normal(0, 0.0015, 6000))
-    g = np.zeros((len(t), 3))
-    sl = [slice(i, i + 200) for i in range(0, len(t) - 400, 600)]
-    wins, left = rotation_windows(t, g, sl)
-    assert left["gap"] == 0 and len(wins) == len(sl) - 1
-    keep = np.ones(len(t), bool)
-    keep[sl[3].stop + 100] = False                   # one sample lost in the 4th rotation
+    wrong = seen = 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        t = np.sort(np.arange(6000) / 100.0 + rng.normal(0, 0.0015, 6000))
+        g = np.zeros((len(t), 3))
+        sl = [slice(i, i + 200) for i in range(0, len(t) - 400, 600)]
+        wins, left = rotation_windows(t, g, sl)
+        wrong += left["gap"]
+        keep = np.ones(len(t), bool)
+        keep[sl[3].stop + 100] = False                   # one sample lost in the 4th rotation
+        idx = np.cumsum(keep) - 1
+        sl2 = [slice(int(idx[s.start]), int(idx[s.stop - 1]) + 1) for s in sl]
+        wins, left = rotation_windows(t[keep], g[keep], sl2)
+        seen += [w[0] for w in wins] == [p for p in range(len(sl) - 1) if p != 3]
+    assert wrong <= 2 and seen >= 28, (wrong, seen)
+
+
+def test_samples_lost_inside_the_holds_leave_no_rotation_out(capsys, tmp_path):
+    """A serial logger losing ~1 % of its rows inside the still holds (none in the turns): the
+    lost-sample test ran over each whole window (pose p's first sample to pose p+1's last),
+    so every rotation was left out and K and G were "not fitted (fewer than 3 clean
+    rotations)" on a cold review's 4 such files.  Inside a hold the rates are bias and noise,
+    integrated over the stamps' own steps: the losses do not matter there.  Now counted over
+    the motion only; a loss in a turn is still one, and when too few rotations are left the
+    reason counts them.  Broken once (the window's whole span tested): no window found, and
+    the fit None."""
+    from imucald.fitting.gyro.integration import rotation_windows
+    s = _session(17, n=12)
+    rec = s.recording
+    sl = detect_static(rec.t, rec.acc, rec.gyro, rec.rate_hz)
+    keep = np.ones(len(rec), bool)
+    for x in sl:                                   # every 80th sample of each hold lost
+        keep[x.start + 5:x.stop - 5:80] = False
     idx = np.cumsum(keep) - 1
-    sl2 = [slice(int(idx[s.start]), int(idx[s.stop - 1]) + 1) for s in sl]
-    wins, left = rotation_windows(t[keep], g[keep], sl2)
-    assert left["gap"] == 1 and [w[0] for w in wins] == [p for p in range(len(sl) - 1) if p != 3]
+    sl2 = [slice(int(idx[x.start]), int(idx[x.stop - 1]) + 1) for x in sl]
+    t, g = rec.t[keep], rec.gyro[keep]
+    wins, left = rotation_windows(t, g, sl2)
+    assert left == {"saturated": 0, "gap": 0} and len(wins) == len(sl) - 1
+    for k in ("t", "acc", "gyro", "temp"):
+        setattr(rec, k, getattr(rec, k)[keep])
+    f, _ = _fit(rec)
+    assert f is not None and f.rotations == len(sl) - 1
+    z = (f.matrix - np.linalg.inv(s.truth.gyro_matrix)) / f.matrix_se
+    assert np.all(np.abs(z) < 3.5), z             # 9 terms: |z| < 3.5 for all ~0.4 % by chance
+    # a loss in every turn: the reason says how many and why
+    from imucald.cli.gyrorot import _too_few_rotations
+    keep = np.ones(len(t), bool)
+    for a, b in zip(sl2[:-1], sl2[1:]):
+        keep[(a.stop + b.start) // 2] = False
+    idx = np.cumsum(keep) - 1
+    sl3 = [slice(int(idx[x.start]), int(idx[x.stop - 1]) + 1) for x in sl2]
+
+    class R:
+        pass
+    r = R()
+    r.t, r.gyro = t[keep], g[keep]
+    why = _too_few_rotations(r, sl3, None)
+    assert why == (f"0 clean rotations between consecutive still poses, 3 needed (of {len(sl) - 1}; left "
+                   f"out: {len(sl) - 1} with samples lost in the motion (time steps longer than the rate's))"), why

@@ -76,7 +76,7 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
     frame = (acc_cal.model, theta, acc_cal.info["covariance"])
     fit = fit_gyro_rotations(rec.t, rec.gyro, acc, slices, chip=chips[1], range_dps=rng, acc_frame=frame)
     if fit is None:
-        return None, "fewer than 3 clean rotations between consecutive still poses"
+        return None, _too_few_rotations(rec, slices, rng)
     fit.reference += tnote
     mag = _calibrated_mag(rec, args.seed, mag_cal)
     if mag is not None:     # the field direction too, when it agrees with its noise model
@@ -87,6 +87,20 @@ def fit_rotations(rec, poses, args, pieces=None, acc_cal=None, mag_cal=None, sli
             return _warned(fm, args), ""
         fit.reference += " (field directions left out: they scatter beyond their noise)"
     return _warned(fit, args), ""
+
+
+def _too_few_rotations(rec, slices, range_dps) -> str:
+    """Why no rotation fit: how many rotations were clean of how many, and what left the
+    others out (it said "fewer than 3 clean rotations" only: a logger losing samples in
+    every turn could not tell why)."""
+    from ..fitting.gyro.rotations import rotation_windows
+    slices = [s for s in slices if s.stop - s.start >= 2]
+    wins, left = rotation_windows(rec.t, rec.gyro, slices, range_dps)
+    why = [f"{v} {k}" for k, v in (("with samples lost in the motion (time steps longer than the "
+                                     "rate's)", left["gap"]),
+                                    ("with a gyro sample at its range's rail", left["saturated"])) if v]
+    return (f"{len(wins)} clean rotations between consecutive still poses, 3 needed"
+            + (f" (of {max(len(slices) - 1, 0)}; left out: {', '.join(why)})" if why else ""))
 
 
 def _warned(fit, args):

@@ -34,7 +34,7 @@ the noise model (above its 99 % point), as the accelerometer fit does.  A parame
 ``undetermined`` when its posterior std exceeds half its prior std.
 
 Rotations are left out when a gyro sample sits at the rail (|x| within 4 LSB of a 16-bit
-converter's full scale) or when samples were lost (a time step > 1.5 median steps).
+converter's full scale) or when samples were lost in the motion between the two poses (integration.py).
 """
 from __future__ import annotations
 

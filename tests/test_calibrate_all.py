@@ -340,3 +340,27 @@ def test_board_names_a_raw_table_only(tmp_path):
                  ["replay", rec, *cols, "--board", "9dof"], ["gap", rec, *cols, "--board", "9dof"]):
         p = cli(*argv, check=False)
         assert p.returncode == 2 and "--board 9dof: names the board of a raw table" in p.stderr, (argv[0], p.stderr[-300:])
+
+
+def test_all_says_the_repeated_rows_once_as_each_part_does(nine_dof, tmp_path):
+    """A logger that writes each sample three times at three times the rate (sample-and-hold):
+    --sensor accel and --sensor gyro warn of it ("... rows repeat the previous sample ...
+    dropped"), --sensor all said nothing (a cold review).  Now once, on stderr, text and
+    --json alike.  Broken once (the warning taken out of calall.fit_all): no such line."""
+    import re
+    from imucald.files.recording import Recording, read_recording, write_recording
+    rec = read_recording(str(nine_dof))
+    n = len(rec.t)
+    t = (rec.t[:, None] + np.arange(3) / (3 * rec.rate_hz)).ravel()
+    held = Recording(t=t, acc=np.repeat(rec.acc, 3, 0), gyro=np.repeat(rec.gyro, 3, 0),
+                     mag=np.repeat(rec.mag, 3, 0), temp=np.repeat(rec.temp, 3, 0),
+                     meta={**rec.meta, "rate_hz": f"{3 * rec.rate_hz:g}"})
+    p = tmp_path / "held.csv"
+    write_recording(held, str(p))
+    for extra in ((), ("--json",)):
+        err = cli("calibrate", p, "--sensor", "all", *extra).stderr
+        assert err.count("rows repeat the previous sample") == 1, err
+        # 2 n held rows, and a few more the quantised accelerometer repeats by chance
+        m = re.search(rf"imucald: warning: {re.escape(str(p))}: (\d+) rows repeat the previous sample "
+                      rf"\(sample-and-hold, 3\.\d+ rows per distinct sample", err)
+        assert m and 2 * n <= int(m.group(1)) < 2.1 * n, err

@@ -73,6 +73,10 @@ def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
     if rec.acc is not None:
         poses, pieces = poses_and_pieces(rec, window_s=args.window_s, k=args.threshold_k,
                                          min_still_s=args.min_still_s)
+        det = poses.detector
+        if det is not None and det.repeats.summary():
+            # repeated rows are said once, as --sensor accel and gyro say them (it said nothing)
+            _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
         if progress:
             progress(f"imucald: {len(poses)} still poses")
     out["accel"], acc_fit = _accel(args, rec, poses, pieces, progress)

@@ -304,7 +304,8 @@ def test_table_rate_of_whole_millisecond_steps_bursts_and_coarse_clocks(tmp_path
 def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
     """A time column that steps back is named in its own unit; in t_us a step back by more
     than 2**31 us is an Arduino's 32-bit micros() wrapping (every 71.6 min), said as such.
-    Broken once: the wrap threshold at 2**40 (the generic message: fails)."""
+    Broken once: the wrap threshold at 2**40 (the generic message: fails); the step back's
+    seconds taken as its units (25 ms read as a restart: fails)."""
     from imucald.fitting.inputs import read_table
     p = tmp_path / "us.csv"
     t = [2 ** 32 - 30000 + 10000 * i for i in range(3)] + [(10000 * i) % 2 ** 32 for i in range(1, 4)]
@@ -315,6 +316,13 @@ def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
     p.write_text("".join(f"0,0,16384,{x}\n" for x in (10, 20, 30, 25, 40)))
     msg = _one_line_error(read_table, str(p), ["ax", "ay", "az", "t_ms"], 16384.0, cls=UserError)
     assert msg.startswith(f"{p}:4: time goes backwards (25 ms after 30 ms); sort the rows")
+    # back by more than a second: a logger that restarted (sorting would mix two recordings);
+    # said so, with the split (a cold review: "sort the rows" for an Arduino's reset)
+    p.write_text("".join(f"0,0,16384,{x}\n" for x in (118421, 118441, 1830, 1840)))
+    msg = _one_line_error(read_table, str(p), ["ax", "ay", "az", "t_ms"], 16384.0, cls=UserError)
+    assert msg == (f"{p}:3: time goes backwards (1830 ms after 118441 ms): the logger restarted or its "
+                   f"time counter wrapped; split the file there (head -n 2 {p} > part1.csv, and the rest "
+                   f"from line 3: each part is a recording)"), msg
 
 
 @pytest.mark.parametrize("sep", [";", "\t"])
@@ -357,6 +365,7 @@ def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
         sep.join(f"{v:g}".replace(".", ",") for v in (*r, 1.5)) + "\n" for r in rows))
     msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
     assert msg.startswith(f"{p}:2: expected 4 values (t,ax,ay,az), found 5"), msg
+    assert msg.endswith("(repair or delete this line)"), msg
     capsys.readouterr()
     # a first row of whole numbers (t = 0, counts) says nothing of the mark: the first row
     # with a ',' decides (a cold review: "expected 4 values, found 5" on the second row)
@@ -632,3 +641,24 @@ def test_rows_of_one_value_on_every_axis_are_failed_reads_left_out(tmp_path, cap
     p.write_text("".join(",".join(map(str, r[:4])) + "\n" for r in raw))
     assert len(read_table(str(p), cols[:4], 16384.0).t) == n
     assert "failed" not in capsys.readouterr().err
+
+
+def test_a_garbled_line_is_quoted_and_an_empty_field_named(tmp_path):
+    """A serial logger's file: a banner line written again after a reset, a line cut short, an
+    empty field.  The error said "expected 7 values (...), found 3" without the line (which
+    was it: a banner, two rows run together?) and "found 6" for an empty field (a cold review).
+    Now the line itself, quoted, and the empty column by name, each with what to do.  Broken
+    once (the former message): fails."""
+    from imucald.fitting.inputs import read_table
+    cols = ["t_ms", "ax", "ay", "az", "gx", "gy", "gz"]
+    rows = [f"{10 * i},12,-40,16384,3,-2,1" for i in range(20)]
+    p = tmp_path / "serial.csv"
+    for bad, said in (("Initializing I2C devices...",
+                       "expected 7 values (t_ms,ax,ay,az,gx,gy,gz), found 3: 'Initializing I2C devices...' "
+                       "(repair or delete this line)"),
+                      ("110,12", "expected 7 values (t_ms,ax,ay,az,gx,gy,gz), found 2: '110,12' (repair "
+                                 "or delete this line)"),
+                      ("110,12,,16384,3,-2,1", "column ay is empty (repair or delete this line)")):
+        p.write_text("\n".join(rows[:11] + [bad] + rows[12:]) + "\n")
+        msg = _one_line_error(read_table, str(p), cols, 16384.0, cls=UserError)
+        assert msg == f"{p}:12: {said}", msg

@@ -20,6 +20,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import shlex
 import warnings
 from typing import BinaryIO, Iterator, List, Optional, Sequence, Tuple
 
@@ -49,14 +50,22 @@ def warn(msg: str) -> None:
 TIME_UNITS = {"t": ("s", 1.0), "t_ms": ("ms", 1e-3), "t_us": ("us", 1e-6), "t_ns": ("ns", 1e-9)}
 
 
-def _backwards(name: str, t: float, prev_t: float) -> str:
+def _backwards(name: str, t: float, prev_t: float, lineno: int = 0, path: str = "") -> str:
     """The message for a time column ``name`` (t in s; a raw table's t_ms, t_us, t_ns) that steps
     back from ``prev_t`` to ``t``, in its unit: an Arduino's 32-bit micros() wraps every
-    2**32 us (71.6 min), which a long recording in t_us meets."""
-    unit = TIME_UNITS.get(name, ("s",))[0]
+    2**32 us (71.6 min), which a long recording in t_us meets.  A step back of more than a
+    second is a logger that restarted (or a narrow counter that wrapped): sorting would mix
+    two recordings, so the advice is to split the file at that line (the command that does it
+    when the line is known); a small one is rows out of order."""
+    unit, s_per_unit = TIME_UNITS.get(name, ("s", 1.0))
+    split = (f"split the file there (head -n {lineno - 1} {shlex.quote(path)} > part1.csv, and the rest from line "
+             f"{lineno}: each part is a recording)" if lineno > 1 and path else "split the file there")
     if name == "t_us" and prev_t - t > 2 ** 31:
         return (f"time goes backwards ({t:.12g} us after {prev_t:.12g} us): a 32-bit micros() "
-                f"counter wraps every 71.6 min; split the file there, or log a wider counter")
+                f"counter wraps every 71.6 min; {split}, or log a wider counter")
+    if (prev_t - t) * s_per_unit > 1.0:
+        return (f"time goes backwards ({t:.12g} {unit} after {prev_t:.12g} {unit}): the logger "
+                f"restarted or its time counter wrapped; {split}")
     return (f"time goes backwards ({t:.12g} {unit} after {prev_t:.12g} {unit}); sort the rows by "
             f"time or cut the file there")
 
@@ -492,6 +501,18 @@ def _ok(rows: np.ndarray, spec: TableSpec, prev_t: float) -> bool:
     return True
 
 
+def _count_message(s: str, parts: List[str], spec: TableSpec) -> str:
+    """A row that does not hold one value per column: an empty field named by its column
+    (``1,2,,4``), else the count and the line itself (a serial logger's banner, a header
+    written again, a line cut short), and what to do."""
+    fields = s.split(",") if "," in s else None
+    if fields is not None and len(fields) == spec.ncol and any(not f.strip() for f in fields):
+        j = next(j for j, f in enumerate(fields) if not f.strip())
+        return f"column {spec.names[j]} is empty (repair or delete this line)"
+    return (f"expected {spec.ncol} values ({','.join(spec.names)}), found {len(parts)}: {snippet(s)} "
+            f"(repair or delete this line)")
+
+
 def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.ndarray:
     """The reference parser: defines what is accepted; raises naming file:line and column."""
     out: List[List[float]] = []
@@ -503,7 +524,7 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
         ln = lineno + i
         parts = s.split(",") if spec.comma_only else s.replace(",", " ").split()
         if len(parts) != n:
-            spec.fail(ln, f"expected {n} values ({','.join(spec.names)}), found {len(parts)}")
+            spec.fail(ln, _count_message(s, parts, spec))
         row = []
         for j, p in enumerate(parts):
             try:
@@ -523,7 +544,7 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
         if spec.tcol is not None:
             t = row[spec.tcol]
             if t < prev_t:
-                spec.fail(ln, _backwards(spec.names[spec.tcol], t, prev_t))
+                spec.fail(ln, _backwards(spec.names[spec.tcol], t, prev_t, ln, spec.path))
             prev_t = t
         out.append(row)
     return np.array(out, dtype=np.float64).reshape(len(out), n)

@@ -111,7 +111,7 @@ def _accel(args, rec, poses, pieces, progress):
     if not len(poses):
         # why none (the quiet windows' scatter, the quiet stretches rejected), as --sensor accel says
         from ..fitting.stillness.poses import no_still_message
-        return {"skipped": no_still_message("", poses.detector, 0)}, None   # the error names the file
+        return {"skipped": no_still_message("", poses.detector, 0, rec.acc)}, None   # the file: in the error
     why = one_orientation(poses)
     if why:
         return {"skipped": why}, None

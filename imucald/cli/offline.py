@@ -157,7 +157,7 @@ def _check_mag_span(path: str, mag) -> None:
                         f"(docs/guide/magnetometer.md)")
 
 
-def _accel_model_order(path, model, n_poses, default, det, progress):
+def _accel_model_order(path, model, n_poses, default, det, progress, acc_g=None):
     """(poses needed, model to fit): each model needs one pose more than its free parameters
     (diag6 7, triangular9 10, full12 13; ``auto`` the smallest candidate's).  An explicit
     model is judged by its own count; the default (triangular9, no --model) with fewer poses
@@ -170,7 +170,7 @@ def _accel_model_order(path, model, n_poses, default, det, progress):
     need = min(k(m) for m in AUTO_MODELS) + 1 if model == "auto" else k(model) + 1
     smallest = min(k(m) for m in AUTO_MODELS) + 1
     if n_poses == 0:
-        raise UserError(no_still_message(path, det, 0))
+        raise UserError(no_still_message(path, det, 0, acc_g))
     if n_poses >= need:
         return need, model
     if default and n_poses >= smallest:
@@ -317,7 +317,8 @@ def _fit_accel(args, rec, poses, pieces, det, model, progress):
     why = one_orientation(poses)
     if why:
         raise UserError(f"{args.input}: {why}")
-    need, model = _accel_model_order(args.input, model, len(poses), args.model is None, det, progress)
+    need, model = _accel_model_order(args.input, model, len(poses), args.model is None, det, progress,
+                                     rec.acc if rec is not None else None)
     if progress:
         from ..fitting.stillness.poses import still_report
         for line in still_report(det)[1:]:

@@ -215,9 +215,12 @@ def still_report(det) -> List[str]:
     return out
 
 
-def no_still_message(path: str, det, n_found: int = 0) -> str:
+def no_still_message(path: str, det, n_found: int = 0, acc_g: Optional[np.ndarray] = None) -> str:
     """One line: the recording has no still moment (or too few), and why (``path`` heads it;
-    '' for a line that names the file already)."""
+    '' for a line that names the file already).  ``acc_g``: the recording's accelerometer
+    samples; a median |a| beyond 0.5-2 g says the unit is wrong (m/s^2 read as g scatters
+    9.8x, so no window is quiet enough: the line told such a file to hold the board still,
+    under a warning that named the unit)."""
     head = f"{path}: " if path else ""
     if det is None:
         return f"{head}no still moment: only 0 still poses found (too few samples)"
@@ -239,6 +242,10 @@ def no_still_message(path: str, det, n_found: int = 0) -> str:
                f"{np.sqrt(q / kc):.3g}x the most a still {det.chip or 'accelerometer'} can "
                f"({np.sqrt(kc / 3) * 1e3:.3g} mg at {det.rate:.3g} Hz)")
         units = np.sqrt(q / 3) > 0.1        # a tenth of a g in the quietest second: not in g
+    if acc_g is not None and len(acc_g):
+        x = np.asarray(acc_g, float)[::max(1, len(acc_g) // 5000)]
+        norm = float(np.median(np.sqrt(np.einsum("ij,ij->i", x, x))))
+        units = units or not 0.5 <= norm <= 2.0
     fix = ("check --nominal-scale first (is the file in g? counts or m/s^2 read as g fail every "
            "test), then hold the board still for a few seconds in each orientation" if units else
            "hold the board still for a few seconds in each orientation")

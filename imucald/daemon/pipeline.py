@@ -16,7 +16,8 @@ from typing import Any, Callable, Deque, Dict, List, Optional
 
 import numpy as np
 
-from ..fitting.gate import fitted_poses
+from ..fitting.gate import fitted_poses, in_force_check
+from ..fitting.judging.levels import IN_FORCE_CHALLENGE_LEVEL
 from ..fitting.judging.coverage import next_orientation
 from ..fitting.stillness.detector import StillnessDetector
 from ..calibration import Calibration
@@ -436,8 +437,38 @@ class Pipeline:
             return self.acc.added > self._tried_raw_at
         if not ((ready or self.applied.provisional is not None) and
                 self.acc.added >= self.next_cal_added) and not self._just_ready(r):
-            return False
+            return self._challenged()
         return not self._nothing_to_score(ready)
+
+    def _challenged(self) -> bool:
+        """A final calibration in force (loaded at start, or from an earlier session) that the
+        poses it was not fitted on reject: fit now, before the pose set is ready, and let the
+        gate judge.  It waited for the poses needed (25) while a calibration 28-120 mg off (the
+        wrong board's file in the state directory) corrected every sample, and a shorter session
+        saved it back untouched (a cold review: 20 of 20).  The test: the chi-square of those
+        poses' |a| - 1 g under it, each over its pose mean's radial variance plus the calibration's
+        own held-out RMS squared (its quality figure; conservative), at IN_FORCE_CHALLENGE_LEVEL.
+        At most once per recalibrate_every_poses new poses, so a refused fit is not retried at
+        every pose."""
+        if self.applied.provisional is not None or len(self.acc) < MIN_FIT_POSES or \
+                self.acc.added < getattr(self, "_challenge_at", 0):
+            return False
+        ps = self.acc.pose_set()
+        fitted, _ = fitted_poses(ps.acc, ps.t0, ps.t1, self.applied.poses_used)
+        new = ~fitted if len(fitted) else np.ones(len(ps), bool)
+        if new.sum() < 3:
+            return False
+        p, rms_g, expected_g = in_force_check(self.applied, ps.acc[new], ps.acc_cov[new],
+                                              None if _temps(ps.temp) is None else ps.temp[new])
+        if not p < IN_FORCE_CHALLENGE_LEVEL:
+            return False
+        self._challenge_at = self.acc.added + self.cfg["calibration"]["recalibrate_every_poses"]
+        msg = (f"the calibration in force disagrees with the {int(new.sum())} poses it was not fitted "
+               f"on (|a| - 1 g RMS {rms_g * 1e3:.3g} mg where {expected_g * 1e3:.2g} mg is expected, "
+               f"p = {p:.2g}): fitting now, before the {self.cfg['calibration']['min_poses']} poses needed")
+        log.info(msg)
+        self.events.append(msg)
+        return True
 
     def maybe_calibrate(self) -> None:
         if self.pending is not None:

@@ -310,6 +310,31 @@ def fitted_poses(acc: np.ndarray, t0_s: np.ndarray, t1_s: np.ndarray,
     return hit.any(1), bool(hit.any(0).all())
 
 
+def in_force_check(cal, raw_g: np.ndarray, pose_cov: Optional[np.ndarray], temp_c=None):
+    """(p-value, |a| - 1 g RMS, expected RMS) of a calibration in force on poses it was not
+    fitted on (raw means (n, 3), g; their covariances (n, 3, 3) or None; temperatures or None):
+    the chi-square of each pose's |corrected| - 1 g over its variance, the pose mean's along its
+    direction plus the calibration's own held-out RMS squared (``quality['loo_rms_g']``, else
+    its ``heldout_rms_g``, else its noise figure: the error it makes on a pose it never saw,
+    noise included, so the test is conservative), on n degrees of freedom.  A right
+    calibration gives p uniform or larger; a calibration of another board, p ~ 0."""
+    raw = np.asarray(raw_g, float).reshape(-1, 3)
+    corr = np.asarray(cal.apply_accel(raw, temp_c), float)
+    nrm = np.linalg.norm(corr, axis=1)
+    u = corr / np.maximum(nrm, 1e-300)[:, None]
+    var = (np.einsum("ni,nij,nj->n", u, np.asarray(pose_cov, float), u) if pose_cov is not None
+           else np.zeros(len(raw)))
+    q = cal.accel.quality if cal.accel is not None else {}
+    own = next((float(q[k]) for k in ("loo_rms_g", "heldout_rms_g", "noise_g")
+                if k in q and np.isfinite(q[k]) and q[k] > 0), 0.0)
+    var = var + own ** 2
+    if not np.all(var > 0):
+        return 1.0, float(np.sqrt(np.mean((nrm - 1) ** 2))), 0.0
+    x2 = float(np.sum((nrm - 1) ** 2 / var))
+    return (chi2_sf(x2, len(raw)), float(np.sqrt(np.mean((nrm - 1) ** 2))),
+            float(np.sqrt(np.mean(var))))
+
+
 def incumbent_predicted_var(model, theta: np.ndarray, raw: np.ndarray,
                             pose_cov: Optional[np.ndarray], fitted: np.ndarray,
                             chip: Optional[str] = None) -> Optional[np.ndarray]:

@@ -5,12 +5,18 @@ model the test assumes (the measured rates are in the tests named beside each).
 """
 from __future__ import annotations
 
-__all__ = ["GATE_FALSE_ACCEPT_RATE", "GAP_EFFECT_LEVEL", "GAP_TEST_LEVEL", "GAP_ATTRIBUTION_LEVEL",
+__all__ = ["GATE_FALSE_ACCEPT_RATE", "IN_FORCE_CHALLENGE_LEVEL", "GAP_EFFECT_LEVEL", "GAP_TEST_LEVEL", "GAP_ATTRIBUTION_LEVEL",
            "GAP_REMAINING_LEVEL", "GAP_HELDOUT_LEVEL", "THERMAL_TREND_LEVEL"]
 
 #: the calibration gate: how often a new calibration that is no better than the incumbent
 #: is applied (default of config calibration.false_accept_rate; tests/test_gate.py)
 GATE_FALSE_ACCEPT_RATE = 0.05
+
+#: the daemon's check of a final calibration in force (one loaded at start, or applied in an
+#: earlier session) on the poses it was not fitted on, before the pose set is ready: how often
+#: a right calibration is challenged by an early fit (which the gate then judges, so a false
+#: challenge costs one background fit; tests/test_daemon_challenge.py)
+IN_FORCE_CHALLENGE_LEVEL = 1e-3
 
 #: the gap diagnosis (imucald gap): how often a gap, or an effect within it, is named when
 #: the simulation explains the data (tests/test_gap*.py)

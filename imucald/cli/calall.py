@@ -77,6 +77,8 @@ def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
         if det is not None and det.repeats.summary():
             # repeated rows are said once, as --sensor accel and gyro say them (it said nothing)
             _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
+        from .offline import drop_outlier_poses
+        poses, pieces = drop_outlier_poses(args.input, poses, pieces)
         if progress:
             progress(f"imucald: {len(poses)} still poses")
     out["accel"], acc_fit = _accel(args, rec, poses, pieces, progress)

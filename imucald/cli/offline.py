@@ -239,6 +239,8 @@ def _calibrate(args) -> int:
     if det is not None and det.repeats.summary():
         # repeated rows (sample-and-hold, duplicated rows) are not measurements: said once
         _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
+    if rec is not None and sensor in ("accel", "gyro"):
+        poses, pieces = drop_outlier_poses(args.input, poses, pieces)
     chip = infl_pieces = None
     if sensor == "accel":
         cal, chip, infl_pieces = _fit_accel(args, rec, poses, pieces, det, model, progress)
@@ -274,6 +276,44 @@ def _calibrate(args) -> int:
     else:
         _print_report(sensor, cal, rec, rot, why, part, tf)
     return 0
+
+
+def drop_outlier_poses(path: str, poses, pieces):
+    """(poses, pieces) without the still poses that no calibration of the others explains (a
+    board held still while it accelerated, or knocked: fitting/judging/outliers.py), said in
+    one warning and counted among the detector's rejected stretches (``outlier``); as they
+    were with fewer than 11 poses, or when fewer than 10 would be left (then only said)."""
+    import numpy as np
+    from ..fitting.fit import fit_norm
+    from ..fitting.judging.outliers import OUTLIER_POSE_Z, outlier_poses
+    from ..fitting.models.registry import get_model
+    if poses.acc is None or poses.acc_cov is None or len(poses) < 11:
+        return poses, pieces
+    try:
+        quick = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, heldout=False)
+    except (UserError, ValueError, np.linalg.LinAlgError):
+        return poses, pieces
+    bad, z, r = outlier_poses(get_model("triangular9"), quick.theta, poses.acc, poses.acc_cov)
+    if not bad.any():
+        return poses, pieces
+    idx = np.flatnonzero(bad)
+    what = "; ".join(f"{poses.t0[i]:.1f}-{poses.t1[i]:.1f} s: |a| {-r[i] * 1e3:+.3g} mg, {abs(z[i]):.0f} sd"
+                     for i in idx[:4]) + ("; ..." if len(idx) > 4 else "")
+    drop = len(poses) - len(idx) >= 10
+    _eprint(f"imucald: warning: {path}: {len(idx)} still pose(s) read |a| far from what the others' "
+            f"calibration predicts (over {OUTLIER_POSE_Z:g} sd: {what}): the board accelerated while still "
+            f"(a lift, a vehicle) or was knocked; " + ("left out" if drop else "kept: too few poses would be left"))
+    if not drop:
+        return poses, pieces
+    det = poses.detector
+    if det is not None:
+        det.rejected_counts["outlier"] = det.rejected_counts.get("outlier", 0) + len(idx)
+        det.rejected.extend({"kind": "outlier", "t0_s": float(poses.t0[i]), "t1_s": float(poses.t1[i]),
+                             "reason": f"|a| {-r[i] * 1e3:+.3g} mg off the others' calibration "
+                                       f"({abs(z[i]):.0f} sd)"} for i in idx)
+    inside = lambda ps: np.any((ps.t0[:, None] >= poses.t0[idx][None, :] - 1e-9) &
+                               (ps.t1[:, None] <= poses.t1[idx][None, :] + 1e-9), axis=1)
+    return poses.subset(~bad), (pieces.subset(~inside(pieces)) if pieces is not poses else poses.subset(~bad))
 
 
 def _time_window(args, kind: str, obj):

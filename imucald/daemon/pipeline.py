@@ -583,6 +583,12 @@ class Pipeline:
         the thermal fits for status."""
         a, m = res.candidate.accel, res.candidate.mag
         parts = []
+        out = res.notes.get("outlier_poses")
+        if out:
+            parts.append(f"{len(out)} pose(s) left out, |a| far from what the others' calibration predicts "
+                         f"(" + ", ".join(f"{o['residual_g'] * 1e3:+.3g} mg" + (f" at {o['t0_s']:.1f} s" if "t0_s" in o
+                                                                                    else "") for o in out[:4])
+                         + "): the board accelerated while still (a lift, a vehicle) or was knocked")
         if res.notes.get("stuck"):
             from ..fitting.inputs import stuck_message
             parts += [f"{s} not fitted: {stuck_message(c, 'pose')}" for s, c in res.notes["stuck"].items()]

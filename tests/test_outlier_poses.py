@@ -1,0 +1,88 @@
+"""Still poses taken while the board accelerated (a lift, a vehicle) or was knocked: left out
+of calibrate's fit and the daemon's, and said (fitting/judging/outliers.py).
+
+A cold review's hand-held sessions with 2 of their first 10 holds in an accelerating lift
+(|f| = 1 g +- 20-50 mg, otherwise still): calibrate kept all 25 poses with exit 0 and no word,
+its bias 4.9 mg off (median of the worst axis over 20 sessions; 0.13 mg with them left out)
+and its standard errors scaled by the scatter; the daemon ended 6.6-18.4 mg off.
+
+Noise model: the simulated MPU-6050's pose means, 0.1-0.3 mg; a lift's 20-50 mg is 50-300 of
+their standard deviations, far beyond OUTLIER_POSE_Z (8), which no clean session of 270
+reached (max 5.3: the module's docstring)."""
+import json
+
+import numpy as np
+import pytest
+
+from imucald.cli import main
+from imucald.files.recording import write_recording
+from imucald.fitting.fit import fit_norm
+from imucald.fitting.judging.outliers import outlier_poses
+from imucald.fitting.models.registry import get_model
+from imucald.fitting.stillness.poses import poses_and_pieces
+from imucald.sim.orientations import random_pose_set
+from imucald.sim.sensor import simulate_session
+
+
+def _session(seed, lift=(), hold=(1.5, 3)):
+    """A hand-held MPU-6050 session; the holds in ``lift`` taken in a lift accelerating along
+    gravity (|f| 1 g +- 20-50 mg, the sign and size drawn), applied to the raw readings."""
+    g = np.random.default_rng(seed)
+    s = simulate_session("mpu6050", random_pose_set(25, g), g, hold_s=hold, move_s=(1.5, 3), tremor_dps=1.0)
+    rec = s.recording
+    for i in lift:
+        a, b = s.hold[i]
+        m = (rec.t >= a) & (rec.t <= b)
+        f = s.specific_force_g[m]
+        extra = f / np.linalg.norm(f, axis=1, keepdims=True) * g.choice([-1, 1]) * g.uniform(0.02, 0.05)
+        rec.acc[m] = s.truth.accel_raw(f + extra) + (rec.acc[m] - s.truth.accel_raw(f))
+    return s
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_lifts_poses_and_only_they_are_outliers(seed):
+    """Broken once (outlier_poses flagging nothing): fails; with no reweighting (iters=0: the
+    least-squares fit's residuals, dragged toward the lift's poses) all three seeds fail."""
+    m = get_model("triangular9")
+    for lift in ((), (1, 6)):
+        s = _session(seed, lift)
+        ps, _ = poses_and_pieces(s.recording)
+        cal = fit_norm(ps.acc, "triangular9", "lm", pose_cov=ps.acc_cov, heldout=False)
+        bad, z, r = outlier_poses(m, cal.theta, ps.acc, ps.acc_cov)
+        want = [int(np.argmin(np.abs(ps.t0 - s.hold[i][0]))) for i in lift]
+        assert np.flatnonzero(bad).tolist() == sorted(want), (lift, np.round(z, 1))
+        assert np.all(np.abs(z[~bad]) < 6)
+
+
+def test_calibrate_leaves_the_lifts_poses_out_says_so_and_lands_on_the_truth(tmp_path, capsys):
+    """Broken once (drop_outlier_poses returning the poses as they are): no warning, and the
+    bias 3-50 standard errors off."""
+    s = _session(3, (2, 7))
+    p = tmp_path / "lift.csv"
+    write_recording(s.recording, str(p))
+    assert main(["calibrate", str(p), "--json"]) == 0
+    cap = capsys.readouterr()
+    d = json.loads(cap.out)
+    assert "imucald: warning: " + str(p) + ": 2 still pose(s) read |a| far from what the others' calibration " \
+        "predicts" in cap.err and "left out" in cap.err, cap.err
+    assert d["stillness"]["rejected"].get("outlier") == 2 and d["poses"] == 23
+    b, sb = np.array(d["params"]["bias_g"]), np.array(d["stderr"]["bias_g"])
+    assert np.all(np.abs(b - s.truth.accel[6:9]) < 3.5 * sb), ((b - s.truth.accel[6:9]) / sb)
+
+
+def test_the_daemon_leaves_them_out_of_its_fits(tmp_path):
+    """The fit job (daemon/fitjob.py) drops them as calibrate does and says so; the candidate
+    on the remaining poses is within 3.5 of its standard errors of the truth.  Broken once
+    (_without_outliers returning the job): no note, and the bias mg off."""
+    from imucald.daemon.fitjob import calibration_job
+    s = _session(4, (1, 5), hold=(3, 4))
+    ps, _ = poses_and_pieces(s.recording)
+    job = {"acc": ps.acc, "acc_cov": ps.acc_cov, "acc_sample_cov": None, "t0": ps.t0, "t1": ps.t1,
+           "n": ps.n, "temp": None, "gyro": ps.gyro, "method": "lm", "alpha": 0.05, "seed": 0}
+    res = calibration_job(job)
+    out = res.notes.get("outlier_poses")
+    assert out and [round(o["t0_s"], 2) for o in out] == [round(float(ps.t0[i]), 2) for i in
+                                                          (int(np.argmin(np.abs(ps.t0 - s.hold[k][0]))) for k in (1, 5))]
+    a = res.candidate.accel
+    b, sb = np.asarray(a.params["bias_g"]), np.asarray(a.stderr["bias_g"])
+    assert np.all(np.abs(b - s.truth.accel[6:9]) < 3.5 * sb), ((b - s.truth.accel[6:9]) / sb)

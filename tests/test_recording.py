@@ -662,3 +662,22 @@ def test_a_garbled_line_is_quoted_and_an_empty_field_named(tmp_path):
         p.write_text("\n".join(rows[:11] + [bad] + rows[12:]) + "\n")
         msg = _one_line_error(read_table, str(p), cols, 16384.0, cls=UserError)
         assert msg == f"{p}:12: {said}", msg
+
+
+def test_a_skipped_column_may_hold_text(tmp_path):
+    """A ROS `rostopic echo -p` export has a text column (field.header.frame_id, "imu_link")
+    among its numbers: skipped with '-', the file was still "not a numeric table" (a cold
+    review), and the only way in was editing it.  A skipped column may now hold text; the
+    table reads as the one with a number there.  A named column holding text is still an
+    error ("no numeric rows").  Broken once (the first-row test without the skipped columns):
+    "no numeric rows" for the ROS file; fails."""
+    from imucald.fitting.inputs import read_table
+    rows = [(1_000_000_000 + 10_000_000 * i, 0.01 * i, -0.02, 9.8) for i in range(300)]
+    p, q = tmp_path / "ros.csv", tmp_path / "num.csv"
+    p.write_text("%time,field.header.frame_id,ax,ay,az\n" + "".join(f"{t},imu_link,{x},{y},{z}\n" for t, x, y, z in rows))
+    q.write_text("".join(f"{t},0,{x},{y},{z}\n" for t, x, y, z in rows))
+    cols = ["t_ns", "-", "ax", "ay", "az"]
+    a, b = read_table(str(p), cols, 9.80665), read_table(str(q), cols, 9.80665)
+    assert np.array_equal(a.t, b.t) and np.array_equal(a.acc, b.acc) and len(a.t) == 300
+    msg = _one_line_error(read_table, str(p), ["t_ns", "ax", "ay", "az", "-"], 9.80665, cls=UserError)
+    assert f"{p}: no numeric rows (expected 5 numbers per line: t_ns,ax,ay,az,-)" == msg, msg

@@ -530,7 +530,10 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
             try:
                 v = float(p)
             except ValueError:
-                spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, p))} is not a number")
+                if spec.names[j] == "-":        # a skipped column may hold text (a frame id)
+                    v = float("nan")
+                else:
+                    spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, p))} is not a number")
             row.append(v)
         for j, v in enumerate(row):
             if not spec.checked[j]:

@@ -282,7 +282,11 @@ def _first_row(fh, path: str, cols: Sequence[str]):
         s = decode_line(path, raw, lineno, offset).strip()
         if s and s[0] not in "#%":
             comma = _decimal_comma(s, len(cols))
-            if comma or _numeric(s.replace(",", " ").split()):
+            toks = s.replace(",", " ").split()
+            # a row of numbers; or of numbers where the columns are named and text where they are
+            # skipped ('-': a ROS export's frame_id "imu_link" was "not a numeric table")
+            if comma or _numeric(toks) or (len(toks) == len(cols) and "-" in cols and
+                                           _numeric([t for t, c in zip(toks, cols) if c != "-"])):
                 if not comma and "," not in s and ";" not in s:
                     # a row of whole numbers (t = 0, counts) says nothing of the decimal mark
                     comma = _decimal_comma_ahead(fh, path, lineno + 1, offset + len(raw), len(cols))

@@ -262,8 +262,12 @@ def _nul_tail(fh: BinaryIO, spec: TableSpec, head: bytes, lineno: int, offset: i
         junk = tail.strip(b"\0")
         if junk:
             at = pos - len(tail) + tail.find(junk[:1])
-            spec.fail(lineno, f"NUL bytes from byte offset {offset + nul}, then other data at "
-                              f"offset {at}: the file is damaged (cut it at offset {offset + nul})")
+            # the data after may be most of the file (one stray NUL byte in a serial log): cutting
+            # there threw it away; taking the NULs out keeps it, and names a line they broke
+            spec.fail(lineno, f"{at - offset - nul} NUL byte(s) from byte offset {offset + nul}, then other "
+                              f"data at offset {at}: the file is damaged; take the NUL bytes out "
+                              f"(tr -d '\\000' < {shlex.quote(spec.path)} > fixed.csv: a line they broke is "
+                              f"then named) or cut the file at offset {offset + nul}")
         tail = fh.read(chunk_bytes)
         if not tail:
             break

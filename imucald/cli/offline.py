@@ -284,16 +284,14 @@ def drop_outlier_poses(path: str, poses, pieces):
     one warning and counted among the detector's rejected stretches (``outlier``); as they
     were with fewer than 11 poses, or when fewer than 10 would be left (then only said)."""
     import numpy as np
-    from ..fitting.fit import fit_norm
     from ..fitting.judging.outliers import OUTLIER_POSE_Z, outlier_poses
     from ..fitting.models.registry import get_model
     if poses.acc is None or poses.acc_cov is None or len(poses) < 11:
         return poses, pieces
     try:
-        quick = fit_norm(poses.acc, "triangular9", "lm", pose_cov=poses.acc_cov, heldout=False)
-    except (UserError, ValueError, np.linalg.LinAlgError):
+        bad, z, r = outlier_poses(get_model("triangular9"), poses.acc, poses.acc_cov)
+    except (ValueError, np.linalg.LinAlgError):
         return poses, pieces
-    bad, z, r = outlier_poses(get_model("triangular9"), quick.theta, poses.acc, poses.acc_cov)
     if not bad.any():
         return poses, pieces
     idx = np.flatnonzero(bad)

@@ -105,18 +105,15 @@ def _without_outliers(job: Dict[str, Any], notes: Dict[str, Any]) -> Dict[str, A
     ``outlier_poses``.  Kept, two such poses in the first ten left a cold review's replays
     6.6-18.4 mg off at the end (20 of 20).  As it was with fewer than 11 poses, or when fewer
     than 10 would be left."""
-    from ..errors import UserError
-    from ..fitting.fit import fit_norm
     from ..fitting.judging.outliers import outlier_poses
     from ..fitting.models.registry import get_model
     acc = np.asarray(job["acc"], float)
     if len(acc) < 11:
         return job
     try:
-        quick = fit_norm(acc, "triangular9", "lm", pose_cov=job["acc_cov"], heldout=False)
-    except (UserError, ValueError, np.linalg.LinAlgError):
+        bad, z, r = outlier_poses(get_model("triangular9"), acc, job["acc_cov"])
+    except (ValueError, np.linalg.LinAlgError):
         return job
-    bad, z, r = outlier_poses(get_model("triangular9"), quick.theta, acc, job["acc_cov"])
     if not bad.any() or len(acc) - int(bad.sum()) < 10:
         return job
     idx = np.flatnonzero(bad)

@@ -6,7 +6,7 @@ made calibrate's result 9 mg off (median over 2000 directions; clean sessions 0.
 exit 0 and no word, and the standard errors scaled by the scatter (x260-4700).
 
 The test: a robust fit (Tukey's biweight, iteratively reweighted Gauss-Newton from the least-
-squares fit) whose residuals are each divided by the pose's own radial noise and by the
+squares solution, itself Gauss-Newton from the ideal sensor) whose residuals are each divided by the pose's own radial noise and by the
 robust scale of those ratios when above 1 (real noise above the model: the Xsens file's
 1.3); a pose beyond OUTLIER_POSE_Z of that is an outlier.  The robust fit is needed: a
 least-squares fit drags toward the outliers, so that every pose's residual grows and none
@@ -22,6 +22,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
+from ...numerics.npstats import median
 from .uncertainty import residual_variance
 
 __all__ = ["OUTLIER_POSE_Z", "outlier_poses"]
@@ -32,35 +33,45 @@ OUTLIER_POSE_Z = 8.0
 _TUKEY_C = 4.685
 
 
-def outlier_poses(model, theta: np.ndarray, raw: np.ndarray, pose_cov: Optional[np.ndarray],
-                  iters: int = 50) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta: Optional[np.ndarray] = None,
+                  iters: int = 40, tol: float = 1e-8) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(outlier mask (N,), z (N,), residual (N,), 1 - |a| under the robust fit, the raw
-    unit): the robust residual of each pose in its standard deviations (module doc), from the
-    model's least-squares solution ``theta``.  With no covariances nothing is flagged."""
+    unit): the robust residual of each pose in its standard deviations (module doc).  From
+    ``theta`` (else the ideal sensor) Gauss-Newton least squares until its step falls under
+    ``tol``, then Tukey-reweighted steps (``iters`` at most each).  With no covariances
+    nothing is flagged."""
     raw = np.asarray(raw, float)
     N = len(raw)
+    none = np.zeros(N, bool), np.zeros(N), np.zeros(N)
     if pose_cov is None or N == 0:
-        return np.zeros(N, bool), np.zeros(N), np.zeros(N)
-    th = np.asarray(theta, float).copy()
+        return none
+    th = np.asarray(model.nominal if theta is None else theta, float).copy()
     free = np.asarray(model.free_mask, bool)
-    for _ in range(iters):
-        sig = np.sqrt(np.maximum(residual_variance(model, th, raw, pose_cov), 1e-300))
-        r, J = model.jacobian(th, raw)
-        u = r / sig
-        s = 1.4826 * float(np.median(np.abs(u)))
-        if not s > 0:
-            break
-        w = np.clip(1.0 - (u / (_TUKEY_C * s)) ** 2, 0.0, None) ** 2
-        Jf = J[:, free] / sig[:, None]
-        step = np.linalg.lstsq(Jf.T @ (w[:, None] * Jf), -(Jf.T @ (w * u)), rcond=None)[0]
-        th[free] += step
-        if not np.all(np.isfinite(th)):
-            return np.zeros(N, bool), np.zeros(N), np.zeros(N)
-        if float(np.max(np.abs(step))) < 1e-12:
-            break
+    for robust in (False, True):
+        for _ in range(iters):
+            sig = np.sqrt(np.maximum(residual_variance(model, th, raw, pose_cov), 1e-300))
+            r, J = model.jacobian(th, raw)
+            u = r / sig
+            w = np.ones(N)
+            if robust:
+                s = 1.4826 * float(median(np.abs(u)))
+                if not s > 0:
+                    break
+                w = np.clip(1.0 - (u / (_TUKEY_C * s)) ** 2, 0.0, None) ** 2
+            Jf = J[:, free] / sig[:, None]
+            H, g = Jf.T @ (w[:, None] * Jf), -(Jf.T @ (w * u))
+            try:
+                step = np.linalg.solve(H, g)
+            except np.linalg.LinAlgError:       # a direction the poses do not determine
+                step = np.linalg.lstsq(H, g, rcond=None)[0]
+            th[free] += step
+            if not np.all(np.isfinite(th)):
+                return none
+            if float(np.max(np.abs(step))) < tol:
+                break
     sig = np.sqrt(np.maximum(residual_variance(model, th, raw, pose_cov), 1e-300))
     r = model.residual(th, raw)
     u = r / sig
-    s = 1.4826 * float(np.median(np.abs(u)))
+    s = 1.4826 * float(median(np.abs(u)))
     z = u / max(s, 1.0)
     return np.abs(z) > OUTLIER_POSE_Z, z, r

@@ -78,7 +78,7 @@ def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
             # repeated rows are said once, as --sensor accel and gyro say them (it said nothing)
             _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
         from .offline import drop_outlier_poses
-        poses, pieces = drop_outlier_poses(args.input, poses, pieces)
+        poses, pieces = drop_outlier_poses(args.input, poses, pieces, rec.acc)
         if progress:
             progress(f"imucald: {len(poses)} still poses")
     out["accel"], acc_fit = _accel(args, rec, poses, pieces, progress)

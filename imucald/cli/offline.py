@@ -240,7 +240,7 @@ def _calibrate(args) -> int:
         # repeated rows (sample-and-hold, duplicated rows) are not measurements: said once
         _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
     if rec is not None and sensor in ("accel", "gyro"):
-        poses, pieces = drop_outlier_poses(args.input, poses, pieces)
+        poses, pieces = drop_outlier_poses(args.input, poses, pieces, rec.acc)
     chip = infl_pieces = None
     if sensor == "accel":
         cal, chip, infl_pieces = _fit_accel(args, rec, poses, pieces, det, model, progress)
@@ -278,18 +278,20 @@ def _calibrate(args) -> int:
     return 0
 
 
-def drop_outlier_poses(path: str, poses, pieces):
+def drop_outlier_poses(path: str, poses, pieces, acc_g=None):
     """(poses, pieces) without the still poses that no calibration of the others explains (a
-    board held still while it accelerated, or knocked: fitting/judging/outliers.py), said in
+    board held still while it accelerated, or knocked: fitting/judging/outliers.py, with the
+    poses' temperatures and, from the samples ``acc_g``, the converter's rounding), said in
     one warning and counted among the detector's rejected stretches (``outlier``); as they
     were with fewer than 11 poses, or when fewer than 10 would be left (then only said)."""
     import numpy as np
-    from ..fitting.judging.outliers import OUTLIER_POSE_Z, outlier_poses
+    from ..fitting.judging.outliers import OUTLIER_POSE_Z, lsb_floor_var, outlier_poses
     from ..fitting.models.registry import get_model
     if poses.acc is None or poses.acc_cov is None or len(poses) < 11:
         return poses, pieces
     try:
-        bad, z, r = outlier_poses(get_model("triangular9"), poses.acc, poses.acc_cov)
+        bad, z, r = outlier_poses(get_model("triangular9"), poses.acc, poses.acc_cov, temp_c=poses.temp,
+                                  floor_var=lsb_floor_var(acc_g))
     except (ValueError, np.linalg.LinAlgError):
         return poses, pieces
     if not bad.any():

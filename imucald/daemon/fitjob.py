@@ -107,11 +107,14 @@ def _without_outliers(job: Dict[str, Any], notes: Dict[str, Any]) -> Dict[str, A
     than 10 would be left."""
     from ..fitting.judging.outliers import outlier_poses
     from ..fitting.models.registry import get_model
+    from ..specs import ACCEL
     acc = np.asarray(job["acc"], float)
     if len(acc) < 11:
         return job
+    chip = ACCEL.get((job.get("current") or Calibration()).chips.get("accel", ""))
     try:
-        bad, z, r = outlier_poses(get_model("triangular9"), acc, job["acc_cov"])
+        bad, z, r = outlier_poses(get_model("triangular9"), acc, job["acc_cov"], temp_c=job.get("temp"),
+                                  floor_var=chip.lsb_g ** 2 / 12.0 if chip is not None else 0.0)
     except (ValueError, np.linalg.LinAlgError):
         return job
     if not bad.any() or len(acc) - int(bad.sum()) < 10:

@@ -62,10 +62,14 @@ class PoseSet:
         return len(self.acc)
 
     def subset(self, idx) -> "PoseSet":
+        """The poses ``idx`` (indices or a mask), with the detector and the noise summary that
+        found them and their sample slices (dropped before: calibrate's --model eq6 then had
+        no slices, --sensor all no stillness object)."""
         f = lambda a: None if a is None else a[idx]
+        sl = None if self.slices is None else [self.slices[i] for i in np.arange(len(self.acc))[idx]]
         return PoseSet(self.acc[idx], self.acc_cov[idx], self.n[idx], self.t0[idx], self.t1[idx],
                        f(self.acc_sample_cov), f(self.gyro), f(self.gyro_cov), f(self.mag),
-                       f(self.mag_cov), f(self.temp), dict(self.meta))
+                       f(self.mag_cov), f(self.temp), dict(self.meta), self.detector, self.noise, sl)
 
 
 def detect_static(t: np.ndarray, acc: np.ndarray, gyro: Optional[np.ndarray] = None,

@@ -51,8 +51,8 @@ def test_another_boards_calibration_in_force_is_challenged_at_the_tenth_pose(tmp
     assert said and said[0] == i10 + 1, "\n".join(log)
     assert "fitting now, before the 25 poses needed" in log[said[0]]
     assert cals and cals[0]["applied"], "\n".join(log)
-    # once per recalibrate_every_poses (5): not at every pose while the gate refuses
-    assert len(said) <= 3
+    # (once per recalibrate_every_poses while the gate refuses: not exercised here, the gate
+    # takes the first challenge's fit)
 
 
 def test_the_same_boards_calibration_in_force_is_not_challenged(tmp_path):
@@ -76,6 +76,11 @@ def test_the_same_boards_calibration_in_force_is_not_challenged(tmp_path):
         ps, _ = poses_and_pieces(B.recording)
         p = [in_force_check(cal, ps.acc[:n], ps.acc_cov[:n], ps.temp[:n])[0] for n in range(10, len(ps) + 1)]
         assert min(p) >= 1e-3, (seed, min(p))
+        # a calibration without quality figures (written by hand) is not tested at all: the
+        # poses' noise alone challenged a right one (p 8e-4 on seed 0: a cold review)
+        from dataclasses import replace
+        bare = replace(cal, accel=replace(cal.accel, quality={}))
+        assert in_force_check(bare, ps.acc, ps.acc_cov, ps.temp)[0] == 1.0
         if seed == 0:
             log, _ = _replay_log(fb, state)
             assert not any("disagrees" in x for x in log), "\n".join(log)

@@ -322,7 +322,7 @@ def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
     msg = _one_line_error(read_table, str(p), ["ax", "ay", "az", "t_ms"], 16384.0, cls=UserError)
     assert msg == (f"{p}:3: time goes backwards (1830 ms after 118441 ms): the logger restarted or its "
                    f"time counter wrapped; split the file there (head -n 2 {p} > part1.csv, and the rest "
-                   f"from line 3: each part is a recording)"), msg
+                   f"from line 3, below the header lines if the file has them: each part is a recording)"), msg
 
 
 @pytest.mark.parametrize("sep", [";", "\t"])
@@ -358,6 +358,16 @@ def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
         p.write_text(f"time{sep}ax{sep}ay{sep}az\n" + "".join(lines))
         msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 1.0, cls=UserError)
         assert msg.startswith(f"{p}:42: {said}"), msg
+    # a line of the wrong count is quoted as written too, and an empty field named (a cold review:
+    # "found 6: '0.50 0.01 ...'" for 0,50;0,01;...)
+    if sep == ";":
+        for bad, said in (("0,41;0,5;;1", "column ay is empty (repair or delete this line)"),
+                          ("0,41;0,5;1,5;1;2", "expected 4 values (t,ax,ay,az), found 5: '0,41;0,5;1,5;1;2' "
+                                               "(repair or delete this line)")):
+            lines[40] = bad + "\n"
+            p.write_text(f"time{sep}ax{sep}ay{sep}az\n" + "".join(lines))
+            msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 1.0, cls=UserError)
+            assert msg == f"{p}:42: {said}", msg
     capsys.readouterr()
     # a wrong --columns (an extra column in the file) gets the count's own message, not "not a
     # numeric table" (a newcomer's walk: phyphox's "Absolute acceleration" column)
@@ -617,7 +627,8 @@ def test_rows_of_one_value_on_every_axis_are_failed_reads_left_out(tmp_path, cap
     scale 0.1-0.3 % off.  Taken out now as lost samples, with one warning; the table then
     reads as the one without them.  An accelerometer-only table keeps its rows (three equal
     values are a free fall's 0 g).  Broken once (_drop_failed_reads returning at once): the
-    rows are read (the length and the warning fail)."""
+    rows are read (the length and the warning fail); the time from the count of rows kept
+    (np.arange): the no-time-column case fails."""
     from imucald.fitting.inputs import read_table
     rng = np.random.default_rng(5)
     n = 400
@@ -637,6 +648,12 @@ def test_rows_of_one_value_on_every_axis_are_failed_reads_left_out(tmp_path, cap
     ref = read_table(str(q), cols, scale)
     assert len(rec.t) == n - 3 and np.array_equal(rec.t, ref.t) and np.array_equal(rec.acc, ref.acc) \
         and np.array_equal(rec.gyro, ref.gyro)
+    # without a time column the rows' numbers are the time: a failed read is a sample lost,
+    # not closed up (it was: a cold review's rotations then read the motion short)
+    p.write_text("".join(",".join(map(str, r[1:])) + "\n" for r in raw))
+    rec = read_table(str(p), cols[1:], scale, rate_hz=100.0)
+    capsys.readouterr()
+    assert np.array_equal(rec.t, np.delete(np.arange(n), bad) / 100.0)
     # three columns alike (an accelerometer alone): kept
     p.write_text("".join(",".join(map(str, r[:4])) + "\n" for r in raw))
     assert len(read_table(str(p), cols[:4], 16384.0).t) == n

@@ -265,7 +265,7 @@ def test_a_recording_ending_in_a_cut_line_or_nul_bytes_is_read_with_one_warning(
     assert rc == 2 and f"1000 NUL byte(s) from byte offset {len(text)}, then other data" in line, line
     # the fix keeps the data after them (cutting there threw away most of a file with one stray
     # NUL byte in its middle: a cold review)
-    assert f"take the NUL bytes out (tr -d '\\000' < {bad} > fixed.csv" in line, line
+    assert f"take the NUL bytes out (tr -d '\\000' < {bad} > fixed.csv; a line they broke" in line, line
 
 
 def test_a_line_longer_than_the_limit_is_refused_without_reading_it_whole(tmp_path, capsys):

@@ -463,9 +463,11 @@ class Pipeline:
         if not p < IN_FORCE_CHALLENGE_LEVEL:
             return False
         self._challenge_at = self.acc.added + self.cfg["calibration"]["recalibrate_every_poses"]
+        need = self.cfg["calibration"]["min_poses"]
+        when = f"before the {need} poses needed" if len(self.acc) < need else "before the next refit"
         msg = (f"the calibration in force disagrees with the {int(new.sum())} poses it was not fitted "
                f"on (|a| - 1 g RMS {rms_g * 1e3:.3g} mg where {expected_g * 1e3:.2g} mg is expected, "
-               f"p = {p:.2g}): fitting now, before the {self.cfg['calibration']['min_poses']} poses needed")
+               f"p = {p:.2g}): fitting now, {when}")
         log.info(msg)
         self.events.append(msg)
         return True

@@ -59,7 +59,8 @@ def _backwards(name: str, t: float, prev_t: float, lineno: int = 0, path: str = 
     when the line is known); a small one is rows out of order."""
     unit, s_per_unit = TIME_UNITS.get(name, ("s", 1.0))
     split = (f"split the file there (head -n {lineno - 1} {shlex.quote(path)} > part1.csv, and the rest from line "
-             f"{lineno}: each part is a recording)" if lineno > 1 and path else "split the file there")
+             f"{lineno}, below the header lines if the file has them: each part is a recording)"
+             if lineno > 1 and path else "split the file there")
     if name == "t_us" and prev_t - t > 2 ** 31:
         return (f"time goes backwards ({t:.12g} us after {prev_t:.12g} us): a 32-bit micros() "
                 f"counter wraps every 71.6 min; {split}, or log a wider counter")
@@ -88,6 +89,8 @@ class TableSpec:
         #: through a translation (a decimal-comma export: ``1,5`` is parsed as ``1.5``); an
         #: error then quotes the file's own text, not the translated one
         self.source_text = None
+        #: line number -> that line as the file writes it (the same translated tables), or None
+        self.source_line = None
 
     def quoted(self, lineno: int, j: int, text: str) -> str:
         """The value of column ``j`` on line ``lineno``, parsed as ``text``, as the file has it."""
@@ -266,8 +269,9 @@ def _nul_tail(fh: BinaryIO, spec: TableSpec, head: bytes, lineno: int, offset: i
             # there threw it away; taking the NULs out keeps it, and names a line they broke
             spec.fail(lineno, f"{at - offset - nul} NUL byte(s) from byte offset {offset + nul}, then other "
                               f"data at offset {at}: the file is damaged; take the NUL bytes out "
-                              f"(tr -d '\\000' < {shlex.quote(spec.path)} > fixed.csv: a line they broke is "
-                              f"then named) or cut the file at offset {offset + nul}")
+                              f"(tr -d '\\000' < {shlex.quote(spec.path)} > fixed.csv; a line they broke is "
+                              f"then named, unless it still reads as numbers: check the line) or cut "
+                              f"the file at offset {offset + nul}")
         tail = fh.read(chunk_bytes)
         if not tail:
             break
@@ -505,11 +509,17 @@ def _ok(rows: np.ndarray, spec: TableSpec, prev_t: float) -> bool:
     return True
 
 
-def _count_message(s: str, parts: List[str], spec: TableSpec) -> str:
+def _count_message(s: str, parts: List[str], spec: TableSpec, lineno: int) -> str:
     """A row that does not hold one value per column: an empty field named by its column
-    (``1,2,,4``), else the count and the line itself (a serial logger's banner, a header
-    written again, a line cut short), and what to do."""
-    fields = s.split(",") if "," in s else None
+    (``1,2,,4``; ``1;2;;4`` in a decimal-comma table), else the count and the line itself as
+    the file writes it (a serial logger's banner, a header written again, a line cut short),
+    and what to do."""
+    orig = spec.source_line(lineno) if spec.source_line is not None else None
+    if orig:
+        s = orig.strip()
+        fields = s.split(";") if ";" in s else None
+    else:
+        fields = s.split(",") if "," in s else None
     if fields is not None and len(fields) == spec.ncol and any(not f.strip() for f in fields):
         j = next(j for j, f in enumerate(fields) if not f.strip())
         return f"column {spec.names[j]} is empty (repair or delete this line)"
@@ -528,7 +538,7 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
         ln = lineno + i
         parts = s.split(",") if spec.comma_only else s.replace(",", " ").split()
         if len(parts) != n:
-            spec.fail(ln, _count_message(s, parts, spec))
+            spec.fail(ln, _count_message(s, parts, spec, ln))
         row = []
         for j, p in enumerate(parts):
             try:

@@ -317,7 +317,8 @@ def in_force_check(cal, raw_g: np.ndarray, pose_cov: Optional[np.ndarray], temp_
     direction plus the calibration's own held-out RMS squared (``quality['loo_rms_g']``, else
     its ``heldout_rms_g``, else its noise figure: the error it makes on a pose it never saw,
     noise included, so the test is conservative), on n degrees of freedom.  A right
-    calibration gives p uniform or larger; a calibration of another board, p ~ 0."""
+    calibration gives p uniform or larger; a calibration of another board, p ~ 0.  Without
+    any of those figures there is no test (p 1)."""
     raw = np.asarray(raw_g, float).reshape(-1, 3)
     corr = np.asarray(cal.apply_accel(raw, temp_c), float)
     nrm = np.linalg.norm(corr, axis=1)
@@ -327,6 +328,10 @@ def in_force_check(cal, raw_g: np.ndarray, pose_cov: Optional[np.ndarray], temp_
     q = cal.accel.quality if cal.accel is not None else {}
     own = next((float(q[k]) for k in ("loo_rms_g", "heldout_rms_g", "noise_g")
                 if k in q and np.isfinite(q[k]) and q[k] > 0), 0.0)
+    if own == 0.0:
+        # no figure of its own error (a file written by hand): the poses' noise alone would
+        # challenge a right calibration (a cold review: p 8e-4 on a same-board session)
+        return 1.0, float(np.sqrt(np.mean((nrm - 1) ** 2))), 0.0
     var = var + own ** 2
     if not np.all(var > 0):
         return 1.0, float(np.sqrt(np.mean((nrm - 1) ** 2))), 0.0

@@ -147,6 +147,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
                  f"values, ',' (if any) as the decimal mark")
             fh = _Translated(fh, _DECIMAL_COMMA)
             spec.source_text = lambda ln, j: _decimal_comma_value(path, ln, j)
+            spec.source_line = lambda ln: _file_line(path, ln)
         idx = {name: i for i, name in enumerate(cols) if name != "-"}
         groups = [(k, [idx[k]]) for k in (t_name, "temp") if k in idx]
         for g, ks in _GROUP_COLUMNS.items():
@@ -156,7 +157,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
     if not n:
         raise UserError(f"{path}: no whole numeric rows (expected {len(cols)} numbers per line: "
                         f"{','.join(cols)})")
-    n = _drop_failed_reads(path, c, n)
+    rows = _drop_failed_reads(path, c, n)     # the rows kept (their numbers: the time without a t column)
     for g in ("acc", "gyro", "mag"):
         if g in c:
             c[g] -= offsets[g]
@@ -174,35 +175,37 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
         if not rate_hz:
             raise UserError(f"{path}: no time column (t, t_ms, t_us or t_ns): give --rate-hz")
         rate = rate_hz
-        t = np.arange(n) / rate
+        t = rows / rate                 # a failed read left out is a sample lost, not closed up
     meta = {"board": board or "unknown", "rate_hz": f"{rate:g}", "source": os.path.basename(path)}
     return Recording(t=t, acc=c.get("acc"), gyro=c.get("gyro"), mag=c.get("mag"),
                      temp=c.get("temp"), meta=meta)
 
 
-def _drop_failed_reads(path: str, c: Dict[str, np.ndarray], n: int) -> int:
+def _drop_failed_reads(path: str, c: Dict[str, np.ndarray], n: int) -> np.ndarray:
     """Rows whose every accelerometer and gyro value (and magnetometer's, when logged) is the
     same number as written, before --nominal-scale: a read that failed and was logged anyway
     (an MPU-6050 on a disturbed I2C bus returns 0x0000 or 0xFFFF in every register: rows of
     0 or -1 counts).  No sensor reads one value on six axes at once, so they are taken out,
     with one warning, as lost samples; the rows left (their count returned) are the table's.
     Kept, they made poses of their own and split real ones (a cold review: 20 rows of zeros
-    in 22,627 gave 36 poses for 28 holds and the gyro's scale 0.1-0.3 % off, z up to 4)."""
+    in 22,627 gave 36 poses for 28 holds and the gyro's scale 0.1-0.3 % off, z up to 4).
+    Returns the numbers of the rows kept."""
     groups = [g for g in ("acc", "gyro", "mag") if g in c]
+    every = np.arange(n)
     if "acc" not in groups or "gyro" not in groups or n == 0:
-        return n
+        return every
     x = np.concatenate([c[g] for g in groups], axis=1)
     bad = np.all(x == x[:, :1], axis=1)
     k = int(bad.sum())
     if k == 0 or k == n:        # every row alike: not a few failed reads (stuck columns say it)
-        return n
+        return every
     vals = ", ".join(f"{v:g}" for v in np.unique(x[bad, 0])[:3])
     warn(f"{path}: {k} rows read one value ({vals}) on every axis: reads that failed (an I2C "
          f"error logged as data); left out as lost samples")
     keep = ~bad
     for key in list(c):
         c[key] = c[key][keep]
-    return n - k
+    return every[keep]
 
 
 #: a decimal-comma table read as an ordinary one: ',' -> '.', ';' -> ' ' (byte for byte, so
@@ -227,18 +230,24 @@ class _Translated:
         return getattr(self._fh, name)
 
 
-def _decimal_comma_value(path: str, lineno: int, j: int) -> Optional[str]:
-    """Value ``j`` of line ``lineno`` of a decimal-comma table as written (``1,2,3``, where
-    the translated line reads ``1.2.3``), for an error's quote; None if it cannot be had."""
+def _file_line(path: str, lineno: int) -> Optional[str]:
+    """Line ``lineno`` of the file as written (for an error's quote), or None."""
     try:
         with open(path, "rb") as fh:
             for i, raw in enumerate(fh, 1):
                 if i == lineno:
-                    toks = raw.decode("utf-8", "replace").lstrip("\ufeff").replace(";", " ").split()
-                    return toks[j] if j < len(toks) else None
+                    return raw.decode("utf-8", "replace").lstrip("\ufeff")
     except OSError:
         return None
     return None
+
+
+def _decimal_comma_value(path: str, lineno: int, j: int) -> Optional[str]:
+    """Value ``j`` of line ``lineno`` of a decimal-comma table as written (``1,2,3``, where
+    the translated line reads ``1.2.3``), for an error's quote; None if it cannot be had."""
+    line = _file_line(path, lineno)
+    toks = line.replace(";", " ").split() if line is not None else []
+    return toks[j] if j < len(toks) else None
 
 
 #: a number written with the comma as its decimal mark: digits on both sides of it, as

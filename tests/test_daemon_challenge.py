@@ -51,8 +51,8 @@ def test_another_boards_calibration_in_force_is_challenged_at_the_tenth_pose(tmp
     assert said and said[0] == i10 + 1, "\n".join(log)
     assert "fitting now, before the 25 poses needed" in log[said[0]]
     assert cals and cals[0]["applied"], "\n".join(log)
-    # (once per recalibrate_every_poses while the gate refuses: not exercised here, the gate
-    # takes the first challenge's fit)
+    # (once per recalibrate_every_poses while the gate refuses: the gate takes this first
+    # challenge's fit; test_a_refused_challenge_is_not_retried_at_every_pose checks the rest)
 
 
 def test_the_same_boards_calibration_in_force_is_not_challenged(tmp_path):
@@ -84,3 +84,44 @@ def test_the_same_boards_calibration_in_force_is_not_challenged(tmp_path):
         if seed == 0:
             log, _ = _replay_log(fb, state)
             assert not any("disagrees" in x for x in log), "\n".join(log)
+
+
+def test_a_refused_challenge_is_not_retried_at_every_pose(tmp_path):
+    """The challenge fits at most once per recalibrate_every_poses (5) new poses: when the gate
+    keeps the calibration in force (here: every job is dropped, nothing applied), the next
+    challenge waits 5 poses.  Broken once (_challenge_at not set): a job at every pose from the
+    10th (11 jobs instead of 3)."""
+    from concurrent.futures import Executor, Future
+    from dataclasses import replace
+    from imucald.daemon.config import validate
+    from imucald.daemon.pipeline import Pipeline
+    from imucald.fitting.stillness.detector import StillnessDetector
+
+    class Capture(Executor):
+        def __init__(self):
+            self.jobs = []
+
+        def submit(self, fn, *a, **kw):
+            self.jobs.append(a[0])
+            return Future()         # never done: the test drops it, as a refusal would leave things
+
+    other = tmp_path / "other.csv"
+    assert main(["simulate", "-o", str(other), "--poses", "25", "--hold", "3", "--seed", "5"]) == 0
+    assert main(["calibrate", str(other), "-o", str(tmp_path / "cal.yaml")]) == 0
+    cal = load(str(tmp_path / "cal.yaml"))
+    g = np.random.default_rng(9)
+    rec = simulate_session("mpu6050", random_pose_set(20, g), g, hold_s=3.0).recording
+    det = StillnessDetector(rec.rate_hz, chip="mpu6050", keep_structure=True)
+    ivs = det.update(rec.t, rec.acc, rec.gyro, rec.temp)[1] + det.flush()
+    ex = Capture()
+    pipe = Pipeline(validate({}), "mpu6050", rec.rate_hz, False, executor=ex, chips={"accel": "mpu6050"})
+    pipe.applied = replace(cal, id=1, provisional=None)
+    at = []
+    for iv in ivs:
+        pipe.acc.add(iv)
+        n = len(ex.jobs)
+        pipe.maybe_calibrate()
+        if len(ex.jobs) > n:
+            at.append(len(pipe.acc))
+            pipe.pending = None
+    assert len(pipe.acc) == 20 and at == [10, 15, 20], at

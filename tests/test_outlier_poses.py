@@ -136,3 +136,24 @@ def test_every_calibrate_path_leaves_them_out_with_the_poses_state_kept(tmp_path
     assert d["stillness"]["rejected"].get("outlier") == 2
     assert main(["calibrate", str(p), "--sensor", "gyro", "--model", "eq6", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["poses"] == 23
+
+
+def test_the_daemons_calibration_does_not_list_them_as_fitted_on(tmp_path):
+    """poses_used (the poses the accelerometer part in force was fitted on, which the gate
+    never scores it on) listed the poses its fit left out (a cold review).  A replay of the
+    lift session: the saved calibration's poses_used holds neither lift pose, and every other
+    pose.  Broken once (the job's pose set kept whole in _apply): the lift poses are listed."""
+    import subprocess
+    import sys
+    import yaml
+    s = _session(3, (2, 7))
+    p = tmp_path / "lift.csv"
+    write_recording(s.recording, str(p))
+    r = subprocess.run([sys.executable, "-m", "imucald.cli", "replay", str(p), "--state-dir", str(tmp_path / "st"),
+                        "--orientation", "no"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    doc = yaml.safe_load(open(tmp_path / "st" / "calibration.yaml"))
+    t0 = [row[doc["poses_used"]["columns"].index("t0_s")] for row in doc["poses_used"]["rows"]]
+    lift = [s.hold[i][0] for i in (2, 7)]
+    assert not any(abs(a - b) < 0.5 for a in t0 for b in lift), (t0, lift)
+    assert "2 pose(s) left out" in r.stderr

@@ -578,6 +578,9 @@ class Pipeline:
         gate_ev = {k: d.to_dict() for k, d in gates.items()} or None
         if not take:
             return self._keep_applied(cand, gates, parts, gate_ev)
+        out = [o["t0_s"] for o in res.notes.get("outlier_poses") or [] if "t0_s" in o]
+        if out and ps is not None:       # poses the fit left out are none it was fitted on
+            ps = ps.subset(~np.isin(np.round(ps.t0, 9), np.round(out, 9)))
         return self._take_parts(cand, take, gates, parts, gate_ev, undet, ps)
 
     def _outcome_texts(self, res: JobResult, take, gates, undet) -> List[str]:

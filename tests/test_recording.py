@@ -450,7 +450,11 @@ def test_table_temperature_in_counts_is_converted_when_named_and_warned_of_other
     # (inside any die's range: no warning) and wrote thermal terms that never act on a board
     # reading degC; a scale naming temp alone read the gyro's counts as deg/s
     msg = _one_line_error(read_table, str(p), cols, per_sensor("accel=16384,temp=340"), 0.0, cls=UserError)
-    assert msg.startswith("--nominal-scale temp=N without --nominal-offset temp=N")
+    assert msg.startswith("--nominal-scale temp=N without --nominal-offset temp=N") and "needs neither" not in msg
+    # temp=1 alone: a column already in degC, which needs neither (a cold review: told it needs
+    # an offset); said so (broken once: the hint left out)
+    msg = _one_line_error(read_table, str(p), cols, per_sensor("accel=16384,temp=1"), 0.0, cls=UserError)
+    assert msg.endswith("; a column already in degC needs neither: leave temp= out of --nominal-scale"), msg
     g = tmp_path / "g.csv"
     g.write_text("".join(f"{i * 10},0,0,131,{c:.0f}\n" for i, c in enumerate(counts)))
     msg = _one_line_error(read_table, str(g), ["t_ms", "gx", "gy", "gz", "temp"], per_sensor("temp=340"),

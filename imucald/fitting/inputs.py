@@ -330,9 +330,12 @@ def _temp_conversion(nominal_scale: PerSensor, nominal_offset: PerSensor, cols: 
     if not named:
         return 1.0, 0.0
     if len(named) == 1:
+        v = (nominal_scale if named[0] == "--nominal-scale" else nominal_offset)["temp"]
+        plain = (named[0] == "--nominal-scale" and float(v) == 1.0) or (named[0] == "--nominal-offset" and float(v) == 0.0)
         raise UserError(f"{named[0]} temp=N without {'--nominal-offset' if named[0] == '--nominal-scale' else '--nominal-scale'} "
                         f"temp=N: a temperature in counts needs both (an MPU-6050: --nominal-scale temp=340 "
-                        f"and --nominal-offset temp=-12420.2, from T = counts / 340 + 36.53)")
+                        f"and --nominal-offset temp=-12420.2, from T = counts / 340 + 36.53)"
+                        + (f"; a column already in degC needs neither: leave temp= out of {named[0]}" if plain else ""))
     if "temp" not in cols:
         raise UserError("--nominal-scale temp=N: no temp column in --columns to convert")
     scale, offset = float(nominal_scale["temp"]), float(nominal_offset["temp"])

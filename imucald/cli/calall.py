@@ -67,18 +67,11 @@ def _part_name(sensor: str, part) -> str:
 def fit_all(args, rec, progress=None) -> Dict[str, Dict[str, Any]]:
     """sensor -> {part (SensorCal for the file), json, lines, thermal} or {skipped: why}; and
     under "stillness" the still-pose detection the parts share (calibrate --json's object)."""
-    from ..fitting.stillness.poses import poses_and_pieces
     out: Dict[str, Dict[str, Any]] = {}
     poses = pieces = None
     if rec.acc is not None:
-        poses, pieces = poses_and_pieces(rec, window_s=args.window_s, k=args.threshold_k,
-                                         min_still_s=args.min_still_s)
-        det = poses.detector
-        if det is not None and det.repeats.summary():
-            # repeated rows are said once, as --sensor accel and gyro say them (it said nothing)
-            _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
-        from .offline import drop_outlier_poses
-        poses, pieces = drop_outlier_poses(args.input, poses, pieces, rec.acc)
+        from .offline import still_poses
+        poses, pieces = still_poses(args, rec)
         if progress:
             progress(f"imucald: {len(poses)} still poses")
     out["accel"], acc_fit = _accel(args, rec, poses, pieces, progress)

@@ -208,7 +208,6 @@ def _calibrate(args) -> int:
     # and the detector's MB-sized temporaries are reused from the heap, not page-faulted
     # afresh each time (measured: 3.5 ms of reading, 1.5 ms of detection on the Xsens file)
     allocator.tune()
-    from ..fitting.stillness.poses import poses_and_pieces
     from ._common import read_input
     kind, obj = read_input(args, args.input)
     obj = _time_window(args, kind, obj)
@@ -233,14 +232,8 @@ def _calibrate(args) -> int:
         return _calibrate_mag_rotation(args, rec, model, progress)
     # poses: one per placement (the constant fit); pieces: the detector's pieces of them, each
     # at its own temperature (the thermal fit: a one-placement warm-up is one pose but many pieces)
-    poses, pieces = poses_and_pieces(rec, window_s=args.window_s, k=args.threshold_k,
-                                     min_still_s=args.min_still_s) if rec is not None else (obj, obj)
+    poses, pieces = still_poses(args, rec) if rec is not None else (obj, obj)
     det = poses.detector
-    if det is not None and det.repeats.summary():
-        # repeated rows (sample-and-hold, duplicated rows) are not measurements: said once
-        _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
-    if rec is not None and sensor in ("accel", "gyro"):
-        poses, pieces = drop_outlier_poses(args.input, poses, pieces, rec.acc)
     chip = infl_pieces = None
     if sensor == "accel":
         cal, chip, infl_pieces = _fit_accel(args, rec, poses, pieces, det, model, progress)
@@ -278,31 +271,44 @@ def _calibrate(args) -> int:
     return 0
 
 
+def still_poses(args, rec):
+    """(poses, pieces) of a recording, as every accelerometer and gyro calibration takes them:
+    found (poses: one per placement, for the constant fit; pieces: the detector's pieces of
+    them, each at its own temperature, for the thermal fit: a one-placement warm-up is one
+    pose but many pieces), the repeated rows said once (sample-and-hold, duplicated rows: not
+    measurements), and the poses no calibration of the others explains left out."""
+    from ..fitting.stillness.poses import poses_and_pieces
+    poses, pieces = poses_and_pieces(rec, window_s=args.window_s, k=args.threshold_k,
+                                     min_still_s=args.min_still_s)
+    det = poses.detector
+    if det is not None and det.repeats.summary():
+        _eprint(f"imucald: warning: {args.input}: {det.repeats.summary()}")
+    return drop_outlier_poses(args.input, poses, pieces, rec.acc)
+
+
 def drop_outlier_poses(path: str, poses, pieces, acc_g=None):
     """(poses, pieces) without the still poses that no calibration of the others explains (a
     board held still while it accelerated, or knocked: fitting/judging/outliers.py, with the
-    poses' temperatures and, from the samples ``acc_g``, the converter's rounding), said in
-    one warning and counted among the detector's rejected stretches (``outlier``); as they
-    were with fewer than 11 poses, or when fewer than 10 would be left (then only said)."""
+    poses' temperatures and, from the samples ``acc_g``, the rounding of their means), said
+    in one warning and counted among the detector's rejected stretches (``outlier``)."""
     import numpy as np
-    from ..fitting.judging.outliers import OUTLIER_POSE_Z, lsb_floor_var, outlier_poses
-    from ..fitting.models.registry import get_model
-    if poses.acc is None or poses.acc_cov is None or len(poses) < 11:
+    from ..fitting.judging.outliers import OUTLIER_CAUSE, OUTLIER_POSE_Z, poses_to_leave_out
+    from ..fitting.noise.posefloor import pose_quantisation_floor
+    if poses.acc is None:
         return poses, pieces
-    try:
-        bad, z, r = outlier_poses(get_model("triangular9"), poses.acc, poses.acc_cov, temp_c=poses.temp,
-                                  floor_var=lsb_floor_var(acc_g))
-    except (ValueError, np.linalg.LinAlgError):
+    idx, z, r, drop = poses_to_leave_out(poses.acc, poses.acc_cov, poses.temp)
+    if len(idx) and acc_g is not None and poses.slices:
+        # the rounding of the pose means (a coarse converter) only adds variance: read off the
+        # samples (~15 ms on the Xsens file) only when a pose stands out without it
+        floor = pose_quantisation_floor(acc_g, poses.slices)[0]
+        idx, z, r, drop = poses_to_leave_out(poses.acc, poses.acc_cov, poses.temp, floor)
+    if not len(idx):
         return poses, pieces
-    if not bad.any():
-        return poses, pieces
-    idx = np.flatnonzero(bad)
     what = "; ".join(f"{poses.t0[i]:.1f}-{poses.t1[i]:.1f} s: |a| {-r[i] * 1e3:+.3g} mg, {abs(z[i]):.0f} sd"
                      for i in idx[:4]) + ("; ..." if len(idx) > 4 else "")
-    drop = len(poses) - len(idx) >= 10
     _eprint(f"imucald: warning: {path}: {len(idx)} still pose(s) read |a| far from what the others' "
-            f"calibration predicts (over {OUTLIER_POSE_Z:g} sd: {what}): the board accelerated while still "
-            f"(a lift, a vehicle) or was knocked; " + ("left out" if drop else "kept: too few poses would be left"))
+            f"calibration predicts (over {OUTLIER_POSE_Z:g} sd: {what}): {OUTLIER_CAUSE}; "
+            + ("left out" if drop else "kept: too few poses would be left"))
     if not drop:
         return poses, pieces
     det = poses.detector
@@ -311,6 +317,7 @@ def drop_outlier_poses(path: str, poses, pieces, acc_g=None):
         det.rejected.extend({"kind": "outlier", "t0_s": float(poses.t0[i]), "t1_s": float(poses.t1[i]),
                              "reason": f"|a| {-r[i] * 1e3:+.3g} mg off the others' calibration "
                                        f"({abs(z[i]):.0f} sd)"} for i in idx)
+    bad = np.isin(np.arange(len(poses)), idx)
     inside = lambda ps: np.any((ps.t0[:, None] >= poses.t0[idx][None, :] - 1e-9) &
                                (ps.t1[:, None] <= poses.t1[idx][None, :] + 1e-9), axis=1)
     return poses.subset(~bad), (pieces.subset(~inside(pieces)) if pieces is not poses else poses.subset(~bad))

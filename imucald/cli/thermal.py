@@ -23,7 +23,7 @@ def fit_thermal(sensor: str, poses, fit, chip: Optional[str], infl, min_span_c: 
     cold review's 9.5 degC warm-up: "constant only" while the constant missed the truth by
     3 standard errors and a term closed the scatter)."""
     tf = _fit_thermal(sensor, poses, fit, chip, infl, min_span_c, seed)
-    if tf is None or tf.order > 0 or tf.scale_poly is not None or "degC (calibration.thermal_min_span_c)" not in tf.note:
+    if tf is None or tf.order > 0 or tf.scale_poly is not None or tf.t_max_c - tf.t_min_c >= min_span_c:
         return tf
     alt = _fit_thermal(sensor, poses, fit, chip, infl, 0.0, seed)
     if alt is not None and (alt.order > 0 or alt.scale_poly is not None):

@@ -103,29 +103,27 @@ def _without_outliers(job: Dict[str, Any], notes: Dict[str, Any]) -> Dict[str, A
     a lift or a vehicle that accelerated, or knocked: fitting/judging/outliers.py), as
     calibrate leaves them out (cli/offline.py drop_outlier_poses); noted under
     ``outlier_poses``.  Kept, two such poses in the first ten left a cold review's replays
-    6.6-18.4 mg off at the end (20 of 20).  As it was with fewer than 11 poses, or when fewer
-    than 10 would be left."""
-    from ..fitting.judging.outliers import outlier_poses
-    from ..fitting.models.registry import get_model
+    6.6-18.4 mg off at the end (20 of 20).  As it was when the rule leaves none out."""
+    from ..fitting.judging.outliers import poses_to_leave_out
+    from ..fitting.noise.posefloor import noise_before_quantisation, quantisation_floor
     from ..specs import ACCEL
     acc = np.asarray(job["acc"], float)
-    if len(acc) < 11:
-        return job
     chip = ACCEL.get((job.get("current") or Calibration()).chips.get("accel", ""))
-    try:
-        bad, z, r = outlier_poses(get_model("triangular9"), acc, job["acc_cov"], temp_c=job.get("temp"),
-                                  floor_var=chip.lsb_g ** 2 / 12.0 if chip is not None else 0.0)
-    except (ValueError, np.linalg.LinAlgError):
+    floor, sc = None, job.get("acc_sample_cov")
+    if chip is not None and sc is not None and len(acc):
+        # the rounding of a pose mean at the chip's LSB, given the noise before it (as calibrate,
+        # which reads the LSB off the samples: fitting/noise/posefloor.py)
+        v = np.median(np.einsum("nii->ni", np.asarray(sc, float)), axis=0)
+        floor = quantisation_floor(chip.lsb_g, noise_before_quantisation(v, np.full(3, chip.lsb_g)))
+    idx, z, r, drop = poses_to_leave_out(acc, job["acc_cov"], job.get("temp"), floor)
+    if not drop:
         return job
-    if not bad.any() or len(acc) - int(bad.sum()) < 10:
-        return job
-    idx = np.flatnonzero(bad)
     t0, t1 = job.get("t0"), job.get("t1")
     notes["outlier_poses"] = [{k: v for k, v in (("t0_s", None if t0 is None else float(t0[i])),
                                                  ("t1_s", None if t1 is None else float(t1[i])),
                                                  ("residual_g", float(-r[i])), ("z", float(z[i])))
                                if v is not None} for i in idx]
-    keep = np.flatnonzero(~bad)
+    keep = np.setdiff1d(np.arange(len(acc)), idx)
     out = dict(job)
     for k in _PER_POSE:
         v = job.get(k)

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..fitting.gate import fitted_poses, in_force_check
 from ..fitting.judging.levels import IN_FORCE_CHALLENGE_LEVEL
+from ..fitting.judging.outliers import OUTLIER_CAUSE
 from ..fitting.judging.coverage import next_orientation
 from ..fitting.stillness.detector import StillnessDetector
 from ..calibration import Calibration
@@ -593,7 +594,7 @@ class Pipeline:
             parts.append(f"{len(out)} pose(s) left out, |a| far from what the others' calibration predicts "
                          f"(" + ", ".join(f"{o['residual_g'] * 1e3:+.3g} mg" + (f" at {o['t0_s']:.1f} s" if "t0_s" in o
                                                                                     else "") for o in out[:4])
-                         + "): the board accelerated while still (a lift, a vehicle) or was knocked")
+                         + f"): {OUTLIER_CAUSE}")
         if res.notes.get("stuck"):
             from ..fitting.inputs import stuck_message
             parts += [f"{s} not fitted: {stuck_message(c, 'pose')}" for s, c in res.notes["stuck"].items()]

@@ -85,18 +85,17 @@ class TableSpec:
         self.limit_note = limit_note
         #: columns whose values are checked (finite, within bounds); others need only be numbers
         self.checked = np.ones(self.ncol, bool) if checked is None else np.asarray(checked, bool)
-        #: (line number, column index) -> that value as the file writes it, for a table read
-        #: through a translation (a decimal-comma export: ``1,5`` is parsed as ``1.5``); an
-        #: error then quotes the file's own text, not the translated one
-        self.source_text = None
-        #: line number -> that line as the file writes it (the same translated tables), or None
+        #: line number -> that line as the file writes it, or None, for a table read through a
+        #: translation (a decimal-comma export: ``1,5;2`` is parsed as ``1.5 2``): an error then
+        #: quotes the file's own text, not the translated one
         self.source_line = None
 
     def quoted(self, lineno: int, j: int, text: str) -> str:
-        """The value of column ``j`` on line ``lineno``, parsed as ``text``, as the file has it."""
-        if self.source_text is not None:
-            text = self.source_text(lineno, j) or text
-        return text.strip()
+        """The value of column ``j`` on line ``lineno``, parsed as ``text``, as the file has it
+        (a translated table's values are separated by ';' or whitespace)."""
+        line = self.source_line(lineno) if self.source_line is not None else None
+        toks = line.replace(";", " ").split() if line else []
+        return (toks[j] if j < len(toks) else text).strip()
 
     def fail(self, lineno: int, msg: str):
         raise self.error(f"{self.path}:{lineno}: {msg}")

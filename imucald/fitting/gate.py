@@ -328,16 +328,13 @@ def in_force_check(cal, raw_g: np.ndarray, pose_cov: Optional[np.ndarray], temp_
     q = cal.accel.quality if cal.accel is not None else {}
     own = next((float(q[k]) for k in ("loo_rms_g", "heldout_rms_g", "noise_g")
                 if k in q and np.isfinite(q[k]) and q[k] > 0), 0.0)
-    if own == 0.0:
-        # no figure of its own error (a file written by hand): the poses' noise alone would
-        # challenge a right calibration (a cold review: p 8e-4 on a same-board session)
-        return 1.0, float(np.sqrt(np.mean((nrm - 1) ** 2))), 0.0
+    rms = float(np.sqrt(np.mean((nrm - 1) ** 2)))
     var = var + own ** 2
-    if not np.all(var > 0):
-        return 1.0, float(np.sqrt(np.mean((nrm - 1) ** 2))), 0.0
-    x2 = float(np.sum((nrm - 1) ** 2 / var))
-    return (chi2_sf(x2, len(raw)), float(np.sqrt(np.mean((nrm - 1) ** 2))),
-            float(np.sqrt(np.mean(var))))
+    # no figure of its own error (a file written by hand): no test, for the poses' noise alone
+    # would challenge a right calibration (a cold review: p 8e-4 on a same-board session)
+    if own == 0.0 or not np.all(var > 0):
+        return 1.0, rms, 0.0
+    return chi2_sf(float(np.sum((nrm - 1) ** 2 / var)), len(raw)), rms, float(np.sqrt(np.mean(var)))
 
 
 def incumbent_predicted_var(model, theta: np.ndarray, raw: np.ndarray,

@@ -146,7 +146,6 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
             warn(f"{path}:{lineno}: read as a spreadsheet's export: ';' or whitespace between "
                  f"values, ',' (if any) as the decimal mark")
             fh = _Translated(fh, _DECIMAL_COMMA)
-            spec.source_text = lambda ln, j: _decimal_comma_value(path, ln, j)
             spec.source_line = lambda ln: _file_line(path, ln)
         idx = {name: i for i, name in enumerate(cols) if name != "-"}
         groups = [(k, [idx[k]]) for k in (t_name, "temp") if k in idx]
@@ -240,14 +239,6 @@ def _file_line(path: str, lineno: int) -> Optional[str]:
     except OSError:
         return None
     return None
-
-
-def _decimal_comma_value(path: str, lineno: int, j: int) -> Optional[str]:
-    """Value ``j`` of line ``lineno`` of a decimal-comma table as written (``1,2,3``, where
-    the translated line reads ``1.2.3``), for an error's quote; None if it cannot be had."""
-    line = _file_line(path, lineno)
-    toks = line.replace(";", " ").split() if line is not None else []
-    return toks[j] if j < len(toks) else None
 
 
 #: a number written with the comma as its decimal mark: digits on both sides of it, as

@@ -61,8 +61,8 @@ from .magpath import diagnosable, mag_model, mag_points, mag_still_slices, quiet
 from .norm import norm_diag
 from .posenoise import flag_disturbed, pose_mean_variance
 from ..fitting.noise.posefloor import (
-    estimate_lsb, noise_before_quantisation, quantisation_floor, radial_series,
-    run_effective_counts, sway_rotation_variance, tilt_wander_test
+    estimate_lsb, pose_quantisation_floor, radial_series, run_effective_counts, sway_rotation_variance,
+    tilt_wander_test
 )
 from .saturation import saturated
 from .search import PAIR_ENTRY_MIN_DOF
@@ -354,34 +354,6 @@ def noise_stretch(rec: Recording, sl: List[slice]) -> Optional[slice]:
     return max(sl, key=span)
 
 
-def _quant_floor(x: np.ndarray, slices) -> tuple:
-    """Per axis (C,): the variance of a pose mean's quantisation offset, from the LSB seen in
-    the data and the noise before the quantiser (fitting/noise/posefloor.py); and a summary."""
-    # float64 first: a float32 column's held values show a variance at float32's rounding,
-    # far above the "held" threshold below (a float32 held column crashed as a float64 one did)
-    x = np.asarray(x, float)
-    lsb = estimate_lsb(x, slices)
-    many = [x[s] for s in slices if s.stop - s.start > 1]
-    if not many:
-        return np.zeros(x.shape[1]), {"lsb": lsb.tolist()}
-    # the median over the poses whose variance is defined (a NaN in a pose is not a variance)
-    v = np.nanmedian([p.var(0, ddof=1) for p in many], axis=0)
-    # "held": a variance at the float rounding of the values (a grid of 1/14.375 is not exact)
-    flat = (lsb == 0) & ~(v > (1e-9 * np.nanmax(np.abs(x), axis=0)) ** 2)
-    if np.any(flat):
-        # a column held at one value inside (nearly) every pose (noise far below the LSB: an
-        # un-dithered gyro at 14.375 LSB/dps read at 25 Hz) shows no spacing inside the poses;
-        # its grid is read from the whole column (the turns sweep it), and its pose means are
-        # then off by up to half an LSB (variance LSB^2 / 12 at zero noise): with no floor a
-        # zero pose-mean variance divided the fit's weights by zero (LinAlgError)
-        lsb = np.where(flat, estimate_lsb(x, [slice(0, len(x))]), lsb)
-    if not np.any(lsb > 0):
-        return np.zeros(x.shape[1]), {"lsb": lsb.tolist()}
-    sig = noise_before_quantisation(v, lsb)
-    qf = quantisation_floor(lsb, sig)
-    return qf, {"lsb": lsb.tolist(), "noise_before_quantisation": sig.tolist(), "floor_variance": qf.tolist()}
-
-
 def _accel_pose_noise(rec: Recording, u: PoseSetup, kept, x_a: np.ndarray, tilt) -> Tuple[np.ndarray, dict]:
     """The variance of each accelerometer pose mean along its direction (what the norm
     model sees), and the noise-colour report: ``x_a`` the samples (per axis, or the radial
@@ -433,7 +405,7 @@ def _accel_pose_noise(rec: Recording, u: PoseSetup, kept, x_a: np.ndarray, tilt)
                                        "ratio_stderr": rinfo["ratio_stderr"][0]}
     pinfo["tilt_wander"] = tilt
     # the quantisation floor of each pose mean (does not average down without dither)
-    qf, qinfo = _quant_floor(rec.acc, kept)
+    qf, qinfo = pose_quantisation_floor(rec.acc, kept)
     up = ps.acc[keep] / np.linalg.norm(ps.acc[keep], axis=1, keepdims=True)
     pv = pv + up ** 2 @ qf
     pinfo["quantisation"] = qinfo
@@ -533,7 +505,7 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     gvar = gvar * np.where(white_ax, kap_g, 1.0)[None, :]
     # a swaying hand's net rotation over each hold, and the quantisation floor (fitting/noise/posefloor.py)
     sway, pinfo["sway"] = sway_rotation_variance(rec.acc, rec.gyro, u.kept(gsl), rate)
-    qf, pinfo["quantisation"] = _quant_floor(rec.gyro, u.kept(gsl))
+    qf, pinfo["quantisation"] = pose_quantisation_floor(rec.gyro, u.kept(gsl))
     gvar = np.maximum(gvar, sway[:, None]) + qf[None, :]
     colour_g["pose_mean_variance"] = pinfo
     ctx = u.ctx

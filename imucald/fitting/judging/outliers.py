@@ -25,28 +25,16 @@ import numpy as np
 from ...numerics.npstats import median
 from .uncertainty import residual_variance
 
-__all__ = ["OUTLIER_POSE_Z", "outlier_poses", "lsb_floor_var"]
+__all__ = ["OUTLIER_POSE_Z", "OUTLIER_CAUSE", "outlier_poses", "poses_to_leave_out"]
 
 #: a pose whose robust residual is this many of its standard deviations off is an outlier
 OUTLIER_POSE_Z = 8.0
 #: Tukey's biweight constant (95 % efficiency on normal residuals)
 _TUKEY_C = 4.685
-
-
-def lsb_floor_var(acc_g: Optional[np.ndarray], rows: int = 5000) -> float:
-    """LSB^2 / 12 of the accelerometer's samples (the smallest step between distinct values
-    on each axis of the first ``rows``, the median over axes): the variance a pose mean's
-    rounding keeps when the noise is under a count; 0 when it cannot be read."""
-    if acc_g is None or len(acc_g) < 2:
-        return 0.0
-    steps = []
-    for j in range(np.shape(acc_g)[1]):
-        v = np.unique(np.asarray(acc_g[:rows, j], float))
-        d = np.diff(v[np.isfinite(v)])
-        d = d[d > 0]
-        if len(d):
-            steps.append(float(d.min()))
-    return float(np.median(steps)) ** 2 / 12.0 if steps else 0.0
+#: what such a pose was, in the CLI's warning and the daemon's calibration line
+OUTLIER_CAUSE = "the board accelerated while still (a lift, a vehicle) or was knocked"
+#: the model the test fits (the deployed one) and the fewest poses its fit keeps
+_MODEL = "triangular9"
 
 
 def _temperature_basis(temp_c, n_poses: int, n_params: int) -> Optional[np.ndarray]:
@@ -66,8 +54,28 @@ def _temperature_basis(temp_c, n_poses: int, n_params: int) -> Optional[np.ndarr
     return u[:, None]
 
 
+def poses_to_leave_out(raw: np.ndarray, pose_cov: Optional[np.ndarray], temp_c: Optional[np.ndarray] = None,
+                       floor_var: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """(indices of the outlier poses, z (N,), residual (N,), whether to leave them out) under
+    the deployed model (calibrate's and the daemon's one rule): none with fewer poses than
+    its fit needs plus one; found but kept when fewer than it needs would be left."""
+    from ...numerics.folds import poses_needed
+    from ..models.registry import get_model
+    m = get_model(_MODEL)
+    need = poses_needed(int(np.sum(m.free_mask)))
+    N = len(raw)
+    if pose_cov is None or N < need + 1:
+        return np.zeros(0, int), np.zeros(N), np.zeros(N), False
+    try:
+        bad, z, r = outlier_poses(m, raw, pose_cov, temp_c=temp_c, floor_var=floor_var)
+    except (ValueError, np.linalg.LinAlgError):
+        return np.zeros(0, int), np.zeros(N), np.zeros(N), False
+    idx = np.flatnonzero(bad)
+    return idx, z, r, len(idx) > 0 and N - len(idx) >= need
+
+
 def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta: Optional[np.ndarray] = None,
-                  temp_c: Optional[np.ndarray] = None, floor_var: float = 0.0,
+                  temp_c: Optional[np.ndarray] = None, floor_var: Optional[np.ndarray] = None,
                   iters: int = 40, tol: float = 1e-8) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(outlier mask (N,), z (N,), residual (N,), 1 - |a| under the robust fit, the raw
     unit): the robust residual of each pose in its standard deviations (module doc).  From
@@ -78,9 +86,10 @@ def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta:
     bias linear in temperature, so that a warm-up's
     cold first poses are not taken for a lift (a cold review: 1-3 of them left out at 9-20
     sd in 5 of 8 simulated warm-ups at the datasheet's 0.5 mg/degC, and the thermal fit lost
-    with its span).  ``floor_var``: a variance added to every pose's (a coarse converter's
-    rounding, LSB^2 / 12: at 15.6 mg/LSB the samples of a hold are often one value, the
-    pose's own variance ~0, and the rounding of its mean took a clean pose 12 sd off).
+    with its span).  ``floor_var`` (3,): per axis, the variance of a pose mean's rounding
+    (fitting/noise/posefloor.py pose_quantisation_floor), added along each pose's direction:
+    at 15.6 mg/LSB the samples of a hold are often one value, the pose's own variance ~0,
+    and the rounding of its mean took a clean pose 12 sd off.
     With no covariances nothing is flagged."""
     raw = np.asarray(raw, float)
     N = len(raw)
@@ -89,12 +98,15 @@ def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta:
         return none
     th = np.asarray(model.nominal if theta is None else theta, float).copy()
     free = np.asarray(model.free_mask, bool)
-    P = _temperature_basis(temp_c, N, int(free.sum()))
+    k = int(free.sum())
+    P = _temperature_basis(temp_c, N, k)
     c = np.zeros((0 if P is None else P.shape[1], 3))     # bias per temperature power, raw unit
+    floor = (0.0 if floor_var is None else
+             (raw / np.linalg.norm(raw, axis=1, keepdims=True)) ** 2 @ np.asarray(floor_var, float))
 
     def state(th, c):
         x = raw if P is None else raw - P @ c
-        sig = np.sqrt(np.maximum(residual_variance(model, th, x, pose_cov) + floor_var, 1e-300))
+        sig = np.sqrt(np.maximum(residual_variance(model, th, x, pose_cov) + floor, 1e-300))
         return x, sig
 
     for robust in (False, True):
@@ -121,8 +133,8 @@ def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta:
                 step = np.linalg.solve(H, g)
             except np.linalg.LinAlgError:       # a direction the poses do not determine
                 step = np.linalg.lstsq(H, g, rcond=None)[0]
-            th[free] += step[:int(free.sum())]
-            c = c + step[int(free.sum()):].reshape(c.shape)
+            th[free] += step[:k]
+            c = c + step[k:].reshape(c.shape)
             if not (np.all(np.isfinite(th)) and np.all(np.isfinite(c))):
                 return none
             if float(np.max(np.abs(step))) < tol:

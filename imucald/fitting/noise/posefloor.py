@@ -68,7 +68,7 @@ from ...numerics.npstats import median
 
 __all__ = ["quantisation_floor", "noise_before_quantisation", "estimate_lsb", "run_effective_counts",
            "radial_series", "sway_rotation_variance", "tilt_wander_test", "tilt_wander_test_parts",
-           "tilt_wander_test_stats"]
+           "tilt_wander_test_stats", "pose_quantisation_floor"]
 
 _K = np.arange(1, 401, dtype=float)     #: the tail beyond is below 0.2 % of LSB^2 / 12
 
@@ -285,3 +285,33 @@ def sway_rotation_variance(acc_g: np.ndarray, gyro_dps: np.ndarray, slices: Sequ
     info.update({"net_rotation_variance_deg2": S, "stderr_deg2": se, "used": bool(on),
                  "net_rotation_rms_deg": math.sqrt(max(S, 0.0) * 1.5)})
     return np.where(use, per_axis / T ** 2, 0.0), info
+
+
+def pose_quantisation_floor(x: np.ndarray, slices) -> Tuple[np.ndarray, dict]:
+    """Per axis (C,): the variance of a pose mean's quantisation offset, from the LSB seen in
+    the samples ``x`` inside the still ``slices`` and the noise before the quantiser; and a
+    summary (the gap twin's, gap/diagnose.py, and calibrate's outlier test,
+    cli/offline.py drop_outlier_poses)."""
+    # float64 first: a float32 column's held values show a variance at float32's rounding,
+    # far above the "held" threshold below (a float32 held column crashed as a float64 one did)
+    x = np.asarray(x, float)
+    lsb = estimate_lsb(x, slices)
+    many = [x[s] for s in slices if s.stop - s.start > 1]
+    if not many:
+        return np.zeros(x.shape[1]), {"lsb": lsb.tolist()}
+    # the median over the poses whose variance is defined (a NaN in a pose is not a variance)
+    v = np.nanmedian([p.var(0, ddof=1) for p in many], axis=0)
+    # "held": a variance at the float rounding of the values (a grid of 1/14.375 is not exact)
+    flat = (lsb == 0) & ~(v > (1e-9 * np.nanmax(np.abs(x), axis=0)) ** 2)
+    if np.any(flat):
+        # a column held at one value inside (nearly) every pose (noise far below the LSB: an
+        # un-dithered gyro at 14.375 LSB/dps read at 25 Hz) shows no spacing inside the poses;
+        # its grid is read from the whole column (the turns sweep it), and its pose means are
+        # then off by up to half an LSB (variance LSB^2 / 12 at zero noise): with no floor a
+        # zero pose-mean variance divided the fit's weights by zero (LinAlgError)
+        lsb = np.where(flat, estimate_lsb(x, [slice(0, len(x))]), lsb)
+    if not np.any(lsb > 0):
+        return np.zeros(x.shape[1]), {"lsb": lsb.tolist()}
+    sig = noise_before_quantisation(v, lsb)
+    qf = quantisation_floor(lsb, sig)
+    return qf, {"lsb": lsb.tolist(), "noise_before_quantisation": sig.tolist(), "floor_variance": qf.tolist()}

@@ -185,7 +185,7 @@ def _drop_failed_reads(path: str, c: Dict[str, np.ndarray], n: int) -> np.ndarra
     same number as written, before --nominal-scale: a read that failed and was logged anyway
     (an MPU-6050 on a disturbed I2C bus returns 0x0000 or 0xFFFF in every register: rows of
     0 or -1 counts).  No sensor reads one value on six axes at once, so they are taken out,
-    with one warning, as lost samples; the rows left (their count returned) are the table's.
+    with one warning, as lost samples.
     Kept, they made poses of their own and split real ones (a cold review: 20 rows of zeros
     in 22,627 gave 36 poses for 28 holds and the gyro's scale 0.1-0.3 % off, z up to 4).
     Returns the numbers of the rows kept."""

@@ -21,6 +21,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from ...errors import UserError
+from ...numerics.npstats import median
 from ...files.recording import Recording
 from .detector import StillnessDetector
 
@@ -248,7 +249,7 @@ def no_still_message(path: str, det, n_found: int = 0, acc_g: Optional[np.ndarra
         units = np.sqrt(q / 3) > 0.1        # a tenth of a g in the quietest second: not in g
     if acc_g is not None and len(acc_g):
         x = np.asarray(acc_g, float)[::max(1, len(acc_g) // 5000)]
-        norm = float(np.median(np.sqrt(np.einsum("ij,ij->i", x, x))))
+        norm = float(median(np.sqrt(np.einsum("ij,ij->i", x, x))))
         units = units or not 0.5 <= norm <= 2.0
     fix = ("check --nominal-scale first (is the file in g? counts or m/s^2 read as g fail every "
            "test), then hold the board still for a few seconds in each orientation" if units else

@@ -109,6 +109,27 @@ def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta:
         sig = np.sqrt(np.maximum(residual_variance(model, th, x, pose_cov) + floor, 1e-300))
         return x, sig
 
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        # poses that do not determine the model (all in one orientation: a board turned on a
+        # table) send Gauss-Newton off to infinity; that ends the test with nothing flagged
+        # (below), not with numpy's warnings on the user's terminal (an independent probe)
+        fitted = _robust_fit(model, raw, th, c, P, free, k, state, iters, tol)
+        if fitted is None:
+            return none
+        x, sig = state(*fitted)
+        r = model.residual(fitted[0], x)
+        u = r / sig
+    if not np.all(np.isfinite(u)):
+        return none
+    s = 1.4826 * float(median(np.abs(u)))
+    z = u / max(s, 1.0)
+    return np.abs(z) > OUTLIER_POSE_Z, z, r
+
+
+def _robust_fit(model, raw, th, c, P, free, k, state, iters, tol):
+    """Gauss-Newton least squares, then Tukey-reweighted steps (outlier_poses); (theta, c),
+    or None when a step leaves the finite numbers."""
+    N = len(raw)
     for robust in (False, True):
         for _ in range(iters):
             x, sig = state(th, c)
@@ -136,12 +157,7 @@ def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta:
             th[free] += step[:k]
             c = c + step[k:].reshape(c.shape)
             if not (np.all(np.isfinite(th)) and np.all(np.isfinite(c))):
-                return none
+                return None
             if float(np.max(np.abs(step))) < tol:
                 break
-    x, sig = state(th, c)
-    r = model.residual(th, x)
-    u = r / sig
-    s = 1.4826 * float(median(np.abs(u)))
-    z = u / max(s, 1.0)
-    return np.abs(z) > OUTLIER_POSE_Z, z, r
+    return th, c

@@ -18,7 +18,7 @@ from ..fitting.judging.uncertainty import residual_variance
 from .candidates import Candidate
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
 from .signif import p_and_log10, proj_sig, score, wald_p
-from .search import MIN_DOF, stepwise, walk_sensitivity
+from .search import single_floor, stepwise, walk_sensitivity
 from .verdict import confusable, no_gap, verdict
 from .wander import random_walk_fit
 from .where import norm_where
@@ -242,7 +242,7 @@ def fit_candidates(b: NormBaseline, tested: List[Dict[str, object]], ctx: Dict[s
                           "significant": False, "ratio_after": b.ratio, "params": {}})
             out.effects.append(entry)
             continue
-        if b.p0 + d["q"] > b.n - MIN_DOF:
+        if b.p0 + d["q"] > b.n - single_floor(d["q"]):
             continue                              # too many visible parameters for this pose set
         f = refit_with(b, [c], ctx, sims, rng)
         out.prefit[id(c)] = f

@@ -52,14 +52,29 @@ from ..fitting.judging.levels import GAP_HELDOUT_LEVEL
 from .signif import scaled_wald_p
 from .wander import random_walk_fit, walk_kernel
 
-__all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "WALK"]
+__all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "single_floor", "WALK"]
 
 #: residual degrees of freedom a model must leave (N - trace of its hat matrix): the Wald
 #: covariance is scaled by the remaining chi2 / dof, which needs a few, and a fit with fewer
 #: interpolates the poses (leverages near 1: the held-out residuals and the twin lose their
 #: meaning); a nonlinearity (7 visible coefficients) with a thermal bias (3) on 22 poses leaves 3
 SEARCH_MIN_DOF = 3
-MIN_DOF = 10           #: residual degrees of freedom a candidate fit alone must leave
+MIN_DOF = 10           #: residual degrees of freedom from which a fit's excess scale is taken as known
+#: residual degrees of freedom (N minus its visible coefficients) a fixed form of at most
+#: SIMPLE_FORM_Q visible coefficients alone must leave beside the baseline (its Wald test
+#: referred to F below MIN_DOF; a richer form keeps MIN_DOF): a 3-term form on 20 poses leaves
+#: 8.  With every form held to MIN_DOF, the random walk (held back by no such floor) took every
+#: strong thermal bias of 20-21 poses (an independent probe: 17 of 18 "wandering_bias"); with
+#: the richer forms let down to 8 too, a curved thermal bias soaked up the old blind
+#: generator's orientation hysteresis once more in 15 (24 poses)
+SINGLE_MIN_DOF = 8
+SIMPLE_FORM_Q = 3
+
+
+def single_floor(q_visible: int) -> int:
+    """The residual degrees of freedom a fixed form of ``q_visible`` coefficients must leave
+    when it enters alone (SINGLE_MIN_DOF for simple forms, MIN_DOF for richer ones)."""
+    return SINGLE_MIN_DOF if q_visible <= SIMPLE_FORM_Q else MIN_DOF
 #: residual degrees of freedom (N minus all its coefficients) a pair entering together may leave
 #: below MIN_DOF, its members' Wald tests then referred to F(rank, dof) as every model's below
 #: MIN_DOF are (Search._fit, _pair_entries): a 3-term nonlinearity and a 3-term thermal bias
@@ -190,7 +205,7 @@ class Search(MemberTests):
 
     def dof_ok(self, cands, walk, refine=False) -> bool:
         """Room for the model, in visible coefficients (what the score tests see): N minus them
-        at least MIN_DOF when it holds one effect, at least
+        at least single_floor(its count) when it holds one effect, at least
         SEARCH_MIN_DOF for a second member added to a first or for another variant of a member
         already in the model (``refine``, even when that member is alone: its class has passed
         both tests, and the new variant must also beat the model it replaces on held-out
@@ -200,11 +215,13 @@ class Search(MemberTests):
         used = self.b.p0 + sum(self.vis_q[id(c)] for c in cands) + (1 if walk else 0)
         if refine:
             return used <= self.b.n - SEARCH_MIN_DOF
-        # one effect alone leaves what a single candidate must (gap/norm.py MIN_DOF): a
+        # one effect alone leaves what a single candidate must (gap/norm.py, single_floor): a
         # curved form fitted on few spare poses soaked up an orientation hysteresis of the
         # old blind generator (tests/test_gap_blindgen.py); a second member may go to
         # SEARCH_MIN_DOF, each of its members' tests still judged on held-out poses
-        floor = MIN_DOF if len(cands) + (1 if walk else 0) <= 1 else SEARCH_MIN_DOF
+        alone = len(cands) + (1 if walk else 0) <= 1
+        floor = (single_floor(sum(self.vis_q[id(c)] for c in cands)) if alone and cands else
+                 MIN_DOF if alone else SEARCH_MIN_DOF)
         return used <= self.b.n - floor
 
     def fit(self, cands, walk) -> Optional[ModelFit]:

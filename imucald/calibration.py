@@ -49,10 +49,12 @@ from .files.calibration_checks import (
     check_provisional, check_table, check_thermal
 )
 
-__all__ = ["Calibration", "SensorCal", "CalibrationError", "FORMAT_VERSION", "UNITS", "FLAGS",
-           "load", "save", "apply"]
+__all__ = ["Calibration", "SensorCal", "CalibrationError", "FORMAT_VERSION", "MAX_ID", "next_id", "UNITS",
+           "FLAGS", "load", "save", "apply"]
 
 FORMAT_VERSION = 2
+#: the largest calibration id: the binary stream holds it in 4 bytes (daemon/outputs.py)
+MAX_ID = 2 ** 32 - 1
 UNITS = {"accel": "g", "gyro": "deg/s", "mag": "gauss", "temperature": "degC", "time": "s"}
 SENSORS = ("accel", "gyro", "mag")
 _MAG_PARAMS = {"hard_iron_gauss": 3, "soft_iron": 6, "field_gauss": 0}
@@ -80,6 +82,12 @@ _SYM = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
 #: misalignment errors are percents (A near I, condition ~1.1); a singular A maps a whole
 #: axis onto zero (and made applying the thermal terms raise)
 MAX_CONDITION = 1e3
+
+
+def next_id(current: int) -> int:
+    """The id after ``current``: one more, back to 1 after MAX_ID (a daemon that has applied
+    four billion calibrations numbers on rather than stopping)."""
+    return current + 1 if current < MAX_ID else 1
 
 
 def param_shapes(sensor: str, model: str) -> Tuple[Dict[str, int], Dict[str, int]]:
@@ -449,8 +457,10 @@ class Calibration:
         if d["format_version"] != FORMAT_VERSION:
             fail_check("format_version", f"{d['format_version']!r} is not supported",
                   f"this imucald reads 1 and {FORMAT_VERSION}")
-        if isinstance(d["id"], bool) or not isinstance(d["id"], int) or d["id"] < 0:
-            fail_check("id", f"{d['id']!r} is not a non-negative integer", "e.g. id: 1")
+        if isinstance(d["id"], bool) or not isinstance(d["id"], int) or not 0 <= d["id"] <= MAX_ID:
+            # the stream carries it in 4 bytes (daemon/outputs.py BINARY_DTYPE "cal" <u4): a
+            # larger one passed here and crashed the daemon at its first binary record
+            fail_check("id", f"{d['id']!r} is not an integer from 0 to {MAX_ID}", "e.g. id: 1")
         for k in ("board", "created", "sensor"):
             if not isinstance(d.get(k, ""), str):
                 fail_check(k, f"expected text, got {type(d[k]).__name__}", "quote it")

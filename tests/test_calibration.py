@@ -478,3 +478,26 @@ def test_every_correction_the_fit_can_reach_loads_again():
                 worst_c = max(worst_c, float(np.abs(c).max()))
     assert worst_A <= _ACCEL_BOUNDS[0] and worst_c <= _ACCEL_BOUNDS[1], (worst_A, worst_c)
     assert worst_c > 1.0            # the ADXL345's box reaches past 1 g: the former 0.5 was too tight
+
+
+def test_an_id_beyond_the_streams_four_bytes_is_refused_and_the_last_one_wraps():
+    """The binary stream holds the calibration id in 4 bytes (daemon/outputs.py): an id of
+    2^32 passed validation and the daemon then died at its first binary record with an
+    OverflowError, a restart loop under systemd (a cold review).  Seen to fail with the range
+    check removed (no error) and with the id incremented past MAX_ID (an OverflowError)."""
+    from imucald.calibration import MAX_ID, next_id
+    from imucald.daemon.outputs import encode_samples
+    for bad in (MAX_ID + 1, 10 ** 26):
+        d = copy.deepcopy(_DOC)
+        d["id"] = bad
+        with pytest.raises(CalibrationError, match=r"^id: .*from 0 to 4294967295"):
+            Calibration.from_dict(d)
+    d = copy.deepcopy(_DOC)
+    d["id"] = MAX_ID
+    assert Calibration.from_dict(d).id == MAX_ID
+    assert next_id(MAX_ID - 1) == MAX_ID and next_id(MAX_ID) == 1
+    z = np.zeros((2, 3))
+    for cal_id in (MAX_ID, next_id(MAX_ID)):
+        out = encode_samples("binary", np.arange(2), np.arange(2.0), z, z, np.zeros(2), None,
+                             np.zeros(2, bool), cal_id)
+        assert len(out) > 0

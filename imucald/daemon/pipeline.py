@@ -21,7 +21,7 @@ from ..fitting.judging.levels import IN_FORCE_CHALLENGE_LEVEL
 from ..fitting.judging.outliers import OUTLIER_CAUSE
 from ..fitting.judging.coverage import next_orientation
 from ..fitting.stillness.detector import StillnessDetector
-from ..calibration import Calibration
+from ..calibration import Calibration, next_id
 from .accumulator import PoseAccumulator
 from .fitjob import JobResult, MagReservoir, calibration_job
 from .config import accel_poses_needed
@@ -666,7 +666,7 @@ class Pipeline:
         temp = ps.temp if ps.temp is not None else np.full(len(ps), np.nan)
         rows = np.column_stack([ps.acc, ps.n, temp, ps.t0, ps.t1]).round(7).tolist()
         prov = self._provisional_after(cand, take, gates, parts, len(ps))
-        new = ap.replace(id=ap.id + 1, created=now, provisional=prov,
+        new = ap.replace(id=next_id(ap.id), created=now, provisional=prov,
                          temperature_range_c=(round(lo, 2), round(hi, 2)) if np.isfinite(lo) else None,
                          # the poses the accelerometer part in force was fitted on (fitting/gate.py
                          # scores it on the others): kept when only the gyro or mag part changes

@@ -380,6 +380,21 @@ def test_a_poses_file_with_a_nan_does_not_stop_start_up(tmp_path, caplog):
     assert d.pipe.samples >= 1490 and sum(b'"IMU"' in x for x in lines) > 300
 
 
+def test_the_daemons_own_empty_poses_file_is_no_poses_not_damage(tmp_path, caplog):
+    """A daemon stopped before its first pose (or reset) saves poses.csv with its header and
+    no pose; the next start took that for damage: "unreadable poses (...: no poses)", the file
+    set aside as poses.csv.corrupt-TIME, one more at every quick restart (a cold review).
+    Seen to fail with the header-only case not told apart (a .corrupt file, that log line)."""
+    st = tmp_path / "state"
+    st.mkdir()
+    (st / "poses.csv").write_text("# imucald poses v1\nt0,t1,n,ax,ay,az,sax,say,saz,temp\n")
+    with caplog.at_level(logging.INFO, logger="imucald"):
+        d, lines = _run_daemon(tmp_path, None)
+    assert "unreadable poses" not in caplog.text
+    assert not any("corrupt" in f for f in os.listdir(st)), os.listdir(st)
+    assert d.pipe.samples >= 1490
+
+
 def test_thermal_block_checks_its_range_order_and_the_older_gyro_term():
     d = copy.deepcopy(_DOC)
     d["accel"]["thermal"]["t_ref_c"] = 40.0

@@ -14,7 +14,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
-from ..fitting.stillness.poses import PoseSet, read_poses, write_poses
+from ..fitting.stillness.poses import NoPoses, PoseSet, read_poses, write_poses
 from ..files.atomic import read_own_file
 from ..calibration import MAX_CALIBRATION_BYTES, Calibration, CalibrationError, load, save
 from ..errors import UserError
@@ -92,6 +92,8 @@ def load_poses(state_dir: str, name: str = "poses.csv") -> Optional[PoseSet]:
                 bad = int(np.flatnonzero(~np.isfinite(v.reshape(len(ps), -1)).all(1))[0])
                 raise UserError(f"pose {bad + 1}: {name} is not finite")
         return ps
+    except NoPoses:     # saved before the first pose or after a reset: nothing to restore
+        return None
     except (UserError, ValueError, IndexError) as e:
         set_aside(path, f"unreadable poses ({e})")
         return None

@@ -27,7 +27,7 @@ from .detector import StillnessDetector
 
 __all__ = ["PoseSet", "detect_static", "detect_intervals", "detect", "poses_from_recording",
            "poses_and_pieces", "still_report", "no_still_message",
-           "read_poses", "write_poses", "POSES_MAGIC"]
+           "read_poses", "write_poses", "NoPoses", "POSES_MAGIC"]
 
 POSES_MAGIC = "# imucald poses v1"
 #: rows fed to the stillness detector at a time by the whole-file calls
@@ -396,6 +396,11 @@ def _cut_last_line(path: str, lines, n: int):
     return lines
 
 
+class NoPoses(UserError):
+    """A pose file with its header and no pose: what the daemon saves before its first pose
+    or after a reset (daemon/state.py reads it as no poses, not as damage)."""
+
+
 def read_poses(path: str) -> PoseSet:
     """Read a pose file written by :func:`write_poses`.  Errors name file and line.
 
@@ -444,7 +449,7 @@ def read_poses(path: str) -> PoseSet:
             _check_pose_value(path, j + 1, name, v, PLAUSIBLE_LIMIT)
         rows.append(row)
     if not rows:
-        raise UserError(f"{path}: no poses")
+        raise NoPoses(f"{path}: no poses")
     d = np.array(rows)
     c = {k: d[:, cols.index(k)] for k in cols}
     N = len(d)

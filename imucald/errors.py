@@ -13,7 +13,7 @@ code  name            meaning (a restart cannot fix the ones marked *)
                       errors at start (wiring, power: may come back)
 73    cannot create * an output file, socket or directory cannot be created
 74    I/O error       reading or writing failed (disk full, read-only, EIO)
-75    temporary       another imucald holds the runtime/state directory (its lock)
+75    temporary       another imucald holds the runtime/state directory (its lock), or listens on a socket path
 78    config *        the configuration file is wrong
 ====  ==============  ==========================================================
 

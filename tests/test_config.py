@@ -187,3 +187,38 @@ def test_the_fifo_check_runs_a_real_drain_at_its_limit():
         for _ in range(int(2.0 / batch)):
             b.read_batch(batch_s=batch)
         assert (b.stats.missing > 0) == lost, (batch, b.stats.as_dict())
+
+
+@pytest.mark.parametrize("text,msg", [
+    ('control:\n  socket: imucald.sock\n',
+     r"c\.yaml:2: control\.socket: 'imucald\.sock' is the same path as output\.socket"),
+    ('output:\n  fifo: ./control.sock\n',
+     r"c\.yaml:2: output\.fifo: '\./control\.sock' is the same path as control\.socket"),
+    ('output:\n  socket: "a\\0b"\n', r"c\.yaml:2: output\.socket: 'a\\x00b' holds a NUL byte"),
+])
+def test_the_sockets_and_fifo_are_three_plain_paths(tmp_path, text, msg):
+    """A cold review: the control socket given the data socket's name was accepted, one socket
+    was made and the stream was out of reach (`imucald watch` hung); a NUL in a socket name ended
+    in a traceback and a stray file.  Seen to fail with the check removed (no ConfigError)."""
+    with pytest.raises(ConfigError, match=msg):
+        load_config(cfg_file(tmp_path, text))
+
+
+def test_a_live_socket_at_an_absolute_path_is_another_daemons(tmp_path):
+    """output.socket may be an absolute path, outside the runtime directory its lock covers: a
+    second daemon replaced a first one's live sockets there (a cold review).  A socket that
+    answers is now refused (exit 75) and left in place; a stale one is still replaced.
+    Seen to fail without the probe (no error; the listener's file unlinked)."""
+    from imucald.daemon.unixsock import check_socket_path
+    from imucald.errors import AlreadyRunning
+    live = str(tmp_path / "live.sock")
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    srv.bind(live)
+    srv.listen(1)
+    try:
+        with pytest.raises(AlreadyRunning, match="another process listens on"):
+            check_socket_path(live, "output.socket")
+    finally:
+        srv.close()
+    assert os.path.exists(live)
+    check_socket_path(live, "output.socket")          # stale now: no error

@@ -12,6 +12,7 @@ byte that is not UTF-8 (its offset named).
 from __future__ import annotations
 
 import copy
+import os
 import re
 from typing import Any, Dict, List, Optional, Tuple
 
@@ -357,6 +358,7 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
     if any(c in m["topic_prefix"] for c in "+#\0"):
         raise error("mqtt.topic_prefix", f"mqtt.topic_prefix: {m['topic_prefix']!r} holds an MQTT "
                     f"wildcard (+ or #): use plain words, e.g. imucald or site/lab")
+    _check_socket_paths(cfg, error)
     c = cfg["calibration"]
     need = accel_poses_needed()
     if c["min_poses"] < need:
@@ -375,6 +377,27 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
                           f"{c['false_accept_rate']:g} is below {floor:.2g}, the smallest p-value {need} "
                           f"poses can give: the first calibration could never be accepted; allowed "
                           f"{floor:.2g}..0.5")
+
+
+def _check_socket_paths(cfg: Dict[str, Dict[str, Any]], error) -> None:
+    """The data socket, the control socket and the FIFO: paths a socket can take (no NUL
+    byte: a cold review's "a\\0b" ended in a traceback and a stray file), and three different
+    ones (the control socket given the data socket's name left one socket, and the stream
+    out of reach)."""
+    rd = cfg["runtime"]["directory"]
+    keys = [k for k in ("output.socket", "control.socket", "output.fifo")
+            if cfg[k.split(".")[0]][k.split(".")[1]]]
+    seen: Dict[str, str] = {}
+    for key in keys:
+        name = cfg[key.split(".")[0]][key.split(".")[1]]
+        if "\0" in name:
+            raise error(key, f"{key}: {name!r} holds a NUL byte: give a plain file name, e.g. "
+                             f"{SCHEMA[key][0] or 'imucald.fifo'}")
+        full = os.path.normpath(os.path.join(rd, name))
+        if full in seen:
+            raise error(key, f"{key}: {name!r} is the same path as {seen[full]}: the data stream and "
+                             f"the control channel each need their own; choose another name")
+        seen[full] = key
 
 
 def parse_yaml(raw: bytes, path: str) -> Tuple[Any, Dict[str, int], Dict[str, str]]:

@@ -119,12 +119,19 @@ class Daemon:
         cfg = self.cfg
         sd, rd = self._dirs()
         o, c = cfg["output"], cfg["control"]
-        check_socket_path(self._path(rd, o["socket"]), "output.socket")
-        check_socket_path(self._path(rd, c["socket"]), "control.socket")
         self._lock_fds: list = []
-        self._lock(rd, "runtime.directory")
-        if os.path.realpath(sd) != os.path.realpath(rd):
-            self._lock(sd, "state.directory")
+        try:
+            self._lock(rd, "runtime.directory")
+            if os.path.realpath(sd) != os.path.realpath(rd):
+                self._lock(sd, "state.directory")
+            # after the locks: a second instance on these directories is named by them (its
+            # pid); a live socket elsewhere (an absolute path) by check_socket_path
+            check_socket_path(self._path(rd, o["socket"]), "output.socket")
+            check_socket_path(self._path(rd, c["socket"]), "control.socket")
+        except BaseException:
+            for fd in self._lock_fds:
+                os.close(fd)
+            raise
         signal.signal(signal.SIGTERM, self._on_stop)
         signal.signal(signal.SIGINT, self._on_stop)
         signal.signal(signal.SIGHUP, self._on_hup)

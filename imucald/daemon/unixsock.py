@@ -61,6 +61,27 @@ def check_socket_path(path: str, key: str) -> None:
         what = "a directory" if os.path.isdir(path) else "a file"
         raise CannotCreate(f"{key}: {path} exists and is {what}, not a socket: move it away "
                            f"or choose another {key}")
+    if os.path.lexists(path) and _answers(path):
+        # a live socket is another process's, even where no lock covers it (an absolute path
+        # outside this runtime directory: a second daemon took a first one's sockets, and the
+        # first removed them on its way out, a cold review); a stale one is replaced
+        from ..errors import AlreadyRunning
+        raise AlreadyRunning(f"{key}: another process listens on {path}: stop it first "
+                             f"(systemctl stop imucald) or choose another {key}")
+
+
+def _answers(path: str) -> bool:
+    """Whether a process accepts connections on the Unix socket at ``path`` (a stale socket
+    file refuses them)."""
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(1.0)
+    try:
+        s.connect(path)
+        return True
+    except OSError:
+        return False
+    finally:
+        s.close()
 
 
 def listen_unix(path: str, mode: str, group: Optional[str], backlog: int,

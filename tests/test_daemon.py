@@ -429,3 +429,33 @@ def test_sampling_losses_are_said_once_they_pass_one_percent():
     assert "--speed 100 asks more than this machine sustains" in loss_warning(5400, 600, 30, 0, 60.0, 100.0)
     bus = loss_warning(5400, 600, 0, 3, 60.0)
     assert "3 re-initialisations after bus faults" in bus and "read too late" not in bus, bus
+
+
+def test_the_stream_takes_32_clients_and_refuses_more_with_one_line(tmp_path):
+    """Each client's buffer is bounded (1 MiB), so the clients' number must be too: a cold
+    review's 3000 clients that never read took the daemon to 1.4 GB and lost samples.  Seen to
+    fail with the limit removed (40 clients kept, none refused)."""
+    import json as _json
+    import socket as _socket
+    from imucald.daemon.outputs import MAX_STREAM_CLIENTS, SocketSink
+    sink = SocketSink(str(tmp_path / "s.sock"), "ndjson", "mpu6050")
+    socks = []
+    try:
+        for _ in range(MAX_STREAM_CLIENTS + 8):
+            c = _socket.socket(_socket.AF_UNIX, _socket.SOCK_STREAM)
+            c.connect(str(tmp_path / "s.sock"))
+            socks.append(c)
+            sink.write(b"")          # accepts (the listen backlog is 16)
+        sink.write(b'{"class":"IMU"}\n')
+        assert len(sink.clients) == MAX_STREAM_CLIENTS == 32 and sink.refused == 8
+        last = socks[-1]
+        last.settimeout(2.0)
+        line = last.makefile("rb").readline()
+        assert _json.loads(line) == {"class": "ERROR", "message": "too many stream clients (32); try again later"}
+        first = socks[0]
+        first.settimeout(2.0)
+        assert _json.loads(first.makefile("rb").readline())["class"] == "VERSION"
+    finally:
+        for c in socks:
+            c.close()
+        sink.close()

@@ -50,8 +50,8 @@ import numpy as np
 from .. import __version__
 from .unixsock import UnixServer, set_mode_group
 
-__all__ = ["encode_samples", "banner", "event", "SocketSink", "FifoSink", "BINARY_FORMAT",
-           "BINARY_DTYPE", "BINARY_VERSION", "PROTO_MAJOR", "PROTO_MINOR", "CSV_HEADER",
+__all__ = ["encode_samples", "banner", "event", "SocketSink", "FifoSink", "MAX_STREAM_CLIENTS",
+           "BINARY_FORMAT", "BINARY_DTYPE", "BINARY_VERSION", "PROTO_MAJOR", "PROTO_MINOR", "CSV_HEADER",
            "CSV_ORIENTATION", "orientation_extra"]
 
 #: 2.0: the binary record's layout changed (version 2, 100 bytes: a client of the 64-byte
@@ -293,8 +293,15 @@ class _Client:
         self.sock, self.buf, self.peer = sock, bytearray(), peer
 
 
+#: data clients at once, each buffer up to max_buffer (1 MiB): the stream's memory is bounded
+#: by their product (a cold review's 3000 clients that never read took 1.4 GB and lost samples);
+#: more are refused with one ERROR line (gpsd's limit is 64, on larger machines)
+MAX_STREAM_CLIENTS = 32
+
+
 class SocketSink(UnixServer):
-    """A listening Unix stream socket; any number of clients, each with a bounded buffer."""
+    """A listening Unix stream socket; up to MAX_STREAM_CLIENTS clients, each with a bounded
+    buffer."""
 
     def __init__(self, path: str, fmt: str, board: str, mode: str = "0660",
                  group: Optional[str] = None, max_buffer: int = 1 << 20):
@@ -306,6 +313,7 @@ class SocketSink(UnixServer):
         self.clients: List[_Client] = []
         self.dropped = 0          #: clients dropped for falling behind
         self.disconnected = 0     #: clients that went away
+        self.refused = 0          #: clients refused (MAX_STREAM_CLIENTS)
         self.accepted = 0
 
     def accept(self) -> None:
@@ -315,6 +323,15 @@ class SocketSink(UnixServer):
             except (BlockingIOError, InterruptedError):
                 return
             s.setblocking(False)
+            if len(self.clients) >= MAX_STREAM_CLIENTS:
+                self.refused += 1
+                try:
+                    s.send(json.dumps({"class": "ERROR", "message": f"too many stream clients "
+                                       f"({MAX_STREAM_CLIENTS}); try again later"}).encode() + b"\n")
+                except OSError:
+                    pass
+                s.close()
+                continue
             c = _Client(s, self.accepted)
             c.buf += banner(self.fmt, self.board, self.chips, self.orientation_off)
             self.clients.append(c)

@@ -295,6 +295,7 @@ class Daemon:
                  "sensor": {**self.sensor, "fingerprint": self.fingerprint},
                  "bus_stats": self.bus.stats.as_dict(),
                  "clients": len(self.sinks[0].clients), "clients_dropped": self.sinks[0].dropped,
+                 "clients_refused": self.sinks[0].refused,
                  "state": self.writer.status(), "control": self.control.stats(),
                  "worker": {"running": self.worker.running(), "started": self.worker.started,
                             "died": self.worker.died, "timeouts": self.worker.timeouts}}

@@ -342,6 +342,19 @@ def test_control_request_fuzz(parts, junk):
         assert h.calls and _REPLY_CLASS[h.calls[-1]] == back["class"]
 
 
+def test_a_key_given_twice_in_a_control_request_is_refused():
+    """{"cmd": "status", "cmd": "reset"} ran "reset" (JSON's last key wins) and wiped the
+    poses with nothing in the log (a cold review).  Seen to fail with the plain json.loads
+    (the handler called with "reset")."""
+    h = _Handler()
+    srv = ctl.ControlServer.__new__(ctl.ControlServer)
+    srv.handler = h
+    for raw in (b'{"cmd": "status", "cmd": "reset"}', b'{"cmd": "reset", "x": {"a": 1, "a": 2}}'):
+        reply = srv.dispatch(raw)
+        assert reply["class"] == "ERROR" and "given twice" in reply["message"], reply
+    assert h.calls == []
+
+
 def test_control_requests_through_a_real_socket(tmp_path):
     """Hostile lines through the real server: one reply line per request line, in order,
     each strict JSON; an over-long line ends that client only."""

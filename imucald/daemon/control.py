@@ -153,7 +153,12 @@ class ControlServer(UnixServer):
         cmd = line
         if line.startswith("{"):
             try:
-                obj = json.loads(line)
+                obj = json.loads(line, object_pairs_hook=_no_repeated_keys)
+            except _RepeatedKey as e:
+                # which of two "cmd"s is meant is not for the daemon to guess: {"cmd": "status",
+                # "cmd": "reset"} reset the poses, the last one winning (a cold review)
+                return {"class": "ERROR", "message": f"key {str(e)[:40]!r} given twice in the request; "
+                        "give it once"}
             except (ValueError, RecursionError):
                 return {"class": "ERROR", "message": "request is not valid JSON; send a command "
                         "name or {\"cmd\": \"status\"}"}
@@ -170,6 +175,20 @@ class ControlServer(UnixServer):
 
     def connections(self) -> List[_Conn]:
         return self.conns
+
+
+class _RepeatedKey(ValueError):
+    pass
+
+
+def _no_repeated_keys(pairs):
+    """json.loads's object hook: a dict, or _RepeatedKey naming the first key given twice."""
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise _RepeatedKey(k)
+        out[k] = v
+    return out
 
 
 def request(path: str, cmd: str, timeout: float = 5.0) -> Dict:

@@ -324,6 +324,8 @@ class Daemon:
                 return {"class": "RECALIBRATE", "started": False}
             return {"class": "RECALIBRATE", "started": p.request_calibration()}
         if cmd == "reset":
+            log.info("poses reset by a control request (%d dropped; the calibration in force "
+                     "stays)", len(p.acc))
             p.acc.clear()
             p.next_cal_added = 0
             self._persist("poses", p.acc.pose_set())

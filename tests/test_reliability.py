@@ -1,6 +1,7 @@
 """Issue 21: nothing lost on interrupt, nothing touched beyond the file named, no hang on any
 input.  Each test names, in its docstring, the breakage it was seen to catch."""
 import json
+import re
 import os
 import signal
 import socket
@@ -397,3 +398,30 @@ def test_a_state_file_owned_by_another_user_is_set_aside_unread(tmp_path, caplog
     with caplog.at_level("WARNING"):
         assert load_poses(str(st)) is None
     assert "is owned by uid 12345, not by imucald's user" in caplog.text
+
+
+def test_record_on_a_disk_that_fills_says_what_the_file_holds(tmp_path, capsys, monkeypatch):
+    """``record`` replaces an old file once recording starts (docs/guide/recording.md); a disk
+    that fills later leaves the recording up to there, and the error (exit 74) says so with its
+    sample count, not the "old file kept" of the other writers (a cold review's full tmpfs:
+    the page and the outcome disagreed).  Seen to fail without the added clause."""
+    import errno
+    old = tmp_path / "old.csv"
+    old.write_text("old\n")
+    from imucald.files.atomic import GrowingFile
+    real, calls = GrowingFile.write, []
+
+    def full_later(self, data):         # the disk fills after 20 blocks of rows
+        calls.append(len(data))
+        if len(calls) > 20:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(self, data)
+    monkeypatch.setattr(GrowingFile, "write", full_later)
+    rc, out, err = run_main(capsys, "record", "--board", "mpu6050", "--emulate", "--seconds", "30",
+                            "--seed", "1", "-o", old)
+    line = one_error_line(err)
+    assert rc == 74 and "No space left on device" in line, (rc, line)
+    n = int(re.search(r"it holds the recording up to that point \((\d+) samples handed on", line).group(1))
+    text = old.read_text()
+    assert text.startswith("# imucald recording") and n > 0
+    assert n - 1 <= sum(1 for ln in text.splitlines() if ln and ln[0].isdigit()) <= n

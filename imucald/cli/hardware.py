@@ -105,7 +105,13 @@ def cmd_record(args) -> int:
     except BrokenPipeError:         # -o - and the reader went away (| head): a normal end
         raise
     except OSError as e:
-        raise write_failure(e, "-o", args.output) from None
+        err = write_failure(e, "-o", args.output)
+        if writer is not None and args.output != "-":
+            # the recording had started, so the name given is the new file (an old one there
+            # is gone, docs/guide/recording.md): say what it holds (a cold review's full disk)
+            err = type(err)(f"{err}; it holds the recording up to that point ({writer.rows} samples "
+                            f"handed on, the last line possibly cut)")
+        raise err from None
     finally:
         if writer is not None:
             try:

@@ -425,3 +425,43 @@ def test_record_on_a_disk_that_fills_says_what_the_file_holds(tmp_path, capsys, 
     text = old.read_text()
     assert text.startswith("# imucald recording") and n > 0
     assert n - 1 <= sum(1 for ln in text.splitlines() if ln and ln[0].isdigit()) <= n
+
+
+def test_a_state_directory_made_anew_is_locked_again_before_it_is_written(tmp_path):
+    """The state directory removed and made again while the daemon runs: the daemon wrote
+    there without its lock, and a second daemon on it started (exit 0, not 75; a cold review).
+    The write now takes the new directory's lock first (told by the lock file, not the
+    directory's inode number, which may come back), and with another instance holding it
+    writes nothing (EBUSY, retried).  Seen to fail without _relock_state (no lock; no error)."""
+    import errno
+    import fcntl
+    from imucald.daemon.run import Daemon
+    d = Daemon.__new__(Daemon)
+    d._lock_fds = []
+    sd = tmp_path / "state"
+    sd.mkdir()
+    d._lock(str(sd), "state.directory")          # as at start
+    d._state_lock_fd = d._lock_fds[-1]
+    d._relock_state(str(sd))                     # the same directory: nothing to do
+    assert len(d._lock_fds) == 1
+    (sd / "imucald.lock").unlink()
+    os.rmdir(sd)
+    sd.mkdir()                                   # made anew (its inode number may be the old one)
+    d._relock_state(str(sd))
+    assert len(d._lock_fds) == 2
+    fd = os.open(sd / "imucald.lock", os.O_RDWR)
+    with pytest.raises(OSError):                 # held: another instance could not take it
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    os.close(fd)
+    for f in d._lock_fds:
+        os.close(f)
+    other = Daemon.__new__(Daemon)               # a second instance on a directory made anew
+    other._lock_fds = []
+    held = os.open(sd / "imucald.lock", os.O_RDWR)
+    fcntl.flock(held, fcntl.LOCK_EX)
+    try:
+        with pytest.raises(OSError) as e:
+            other._relock_state(str(sd))
+        assert e.value.errno == errno.EBUSY and "holds" in str(e.value)
+    finally:
+        os.close(held)

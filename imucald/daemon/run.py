@@ -8,6 +8,7 @@ milliseconds, a read-only directory is retried while the state stays in memory).
 """
 from __future__ import annotations
 
+import errno
 import logging
 import math
 import os
@@ -58,6 +59,10 @@ def loss_warning(got: int, lost: int, resets: int, reinits: int, span_s: float,
     return (f"sampling lost {100.0 * lost / (got + lost):.0f}% of the samples of the last {span_s:.0f} s "
             f"({'; '.join(causes) or 'cause not recorded'}); a pose needs an unbroken still run, so "
             f"fewer are found")
+
+
+def _file_id(st: os.stat_result):
+    return st.st_dev, st.st_ino
 
 
 class Daemon:
@@ -128,6 +133,7 @@ class Daemon:
             # pid); a live socket elsewhere (an absolute path) by check_socket_path
             check_socket_path(self._path(rd, o["socket"]), "output.socket")
             check_socket_path(self._path(rd, c["socket"]), "control.socket")
+            self._state_lock_fd = self._lock_fds[-1]     # the state directory's (_relock_state)
         except BaseException:
             for fd in self._lock_fds:
                 os.close(fd)
@@ -401,12 +407,39 @@ class Daemon:
     def _save(self, kind: str, obj) -> None:
         """One state write (the writer's thread; OSError is retried there)."""
         sd = self.cfg["state"]["directory"]
+        self._relock_state(sd)
         if kind == "poses":
             save_poses(sd, obj)
         elif kind == "thermal":
             save_poses(sd, obj, "thermal.csv")
         else:
             save_calibration(sd, obj, self.cfg["calibration"]["history"])
+
+    def _relock_state(self, sd: str) -> None:
+        """The lock of a state directory removed and made again while the daemon runs, taken
+        before writing there (a cold review: the daemon wrote into the new directory without
+        its lock, and a second daemon started on it).  Told by the lock file: not the one this
+        daemon holds open (a directory's inode number may come back).  Another instance
+        holding the new one: an OSError (EBUSY), so the writer retries and reports it, and
+        nothing is written."""
+        if not os.path.isdir(sd):
+            return                      # gone: the save fails and is retried
+        held = getattr(self, "_state_lock_fd", None)
+        try:
+            st = os.stat(os.path.join(sd, LOCK_FILE))
+            same = held is not None and (st.st_dev, st.st_ino) == _file_id(os.fstat(held))
+        except OSError:
+            same = False
+        if same:
+            return
+        try:
+            self._lock(sd, "state.directory")
+        except AlreadyRunning as e:
+            raise OSError(errno.EBUSY, str(e)) from None
+        except CannotCreate as e:
+            raise OSError(errno.EIO, str(e)) from None
+        log.warning("state.directory %s was made anew while running: its lock taken again", sd)
+        self._state_lock_fd = self._lock_fds[-1]
 
     def _on_stop(self, *_):
         self.stop = True

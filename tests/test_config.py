@@ -222,3 +222,16 @@ def test_a_live_socket_at_an_absolute_path_is_another_daemons(tmp_path):
         srv.close()
     assert os.path.exists(live)
     check_socket_path(live, "output.socket")          # stale now: no error
+
+
+@pytest.mark.parametrize("text,msg", [
+    ("sensor:\n  rate_hz: null\n", r"c\.yaml:2: sensor\.rate_hz: null \(empty\) is not allowed: give a value "
+                                   r"\(the default is 100\.0\)"),
+    ("sensor:\n  rate_hz: true\n", r"c\.yaml:2: sensor\.rate_hz: true is not a number"),
+    ("poses:\n  max_poses: false\n", r"c\.yaml:2: poses\.max_poses: false is not an integer"),
+])
+def test_yaml_words_in_messages(tmp_path, text, msg):
+    """The file says null, true, false; the messages said Python's None, True and False (a cold
+    review: "None is empty").  Seen to fail with repr() of the value."""
+    with pytest.raises(ConfigError, match=msg):
+        load_config(cfg_file(tmp_path, text))

@@ -219,7 +219,10 @@ def _lines(text: str) -> Dict[str, int]:
 
 
 def _quote(value: Any) -> str:
-    """A value for a message: bounded and escaped (errors.snippet)."""
+    """A value for a message, in YAML's words (null, true, false: a cold review read Python's
+    "None is empty"), bounded and escaped (errors.snippet)."""
+    if value is None or isinstance(value, bool):
+        return {None: "null", True: "true", False: "false"}[value]
     if isinstance(value, str):
         return snippet(value)
     import reprlib
@@ -241,7 +244,7 @@ def _check(key: str, value: Any, where: str, plain: Optional[str] = None) -> Any
     if value is None:
         if opt:
             return None
-        raise bad("is empty")
+        raise bad(f"(empty) is not allowed: give a value (the default is {_quote(default)})")
     if k == "choice":
         for a in allowed:
             if value == a or (isinstance(a, str) and str(value) == a):

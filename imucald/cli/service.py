@@ -47,6 +47,10 @@ def daemon_config(args, with_overrides: bool = False):
 
 
 def cmd_run(args) -> int:
+    import signal
+    # a SIGHUP (reload) before the daemon installs its handler killed it (exit 129; a cold
+    # review, within ~50 ms of the start): the configuration is being read then anyway
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
     from ..daemon.worker import without_openssl
     without_openssl()                   # before numpy: the daemon's resident set (issue 15)
     from ..daemon.run import Daemon

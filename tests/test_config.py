@@ -235,3 +235,13 @@ def test_yaml_words_in_messages(tmp_path, text, msg):
     review: "None is empty").  Seen to fail with repr() of the value."""
     with pytest.raises(ConfigError, match=msg):
         load_config(cfg_file(tmp_path, text))
+
+
+def test_a_missing_noise_file_and_group_are_named_with_file_and_line(tmp_path):
+    """A cold review: a missing noise.file came as "noise.file: noise.file: PATH: cannot read"
+    (no file:line, the key twice), a missing socket group with no file:line.  Seen to fail
+    without _check_files_and_groups (no ConfigError at load)."""
+    with pytest.raises(ConfigError, match=r"c\.yaml:2: noise\.file: \S+nothing\.yaml does not exist: make it"):
+        load_config(cfg_file(tmp_path, f"noise:\n  file: {tmp_path}/nothing.yaml\n"))
+    with pytest.raises(ConfigError, match=r"c\.yaml:3: control\.socket_group: group 'no-such-group-x' does not exist"):
+        load_config(cfg_file(tmp_path, "control:\n  socket: c.sock\n  socket_group: no-such-group-x\n"))

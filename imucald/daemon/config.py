@@ -362,6 +362,7 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
         raise error("mqtt.topic_prefix", f"mqtt.topic_prefix: {m['topic_prefix']!r} holds an MQTT "
                     f"wildcard (+ or #): use plain words, e.g. imucald or site/lab")
     _check_socket_paths(cfg, error)
+    _check_files_and_groups(cfg, error)
     c = cfg["calibration"]
     need = accel_poses_needed()
     if c["min_poses"] < need:
@@ -380,6 +381,28 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
                           f"{c['false_accept_rate']:g} is below {floor:.2g}, the smallest p-value {need} "
                           f"poses can give: the first calibration could never be accepted; allowed "
                           f"{floor:.2g}..0.5")
+
+
+def _check_files_and_groups(cfg: Dict[str, Dict[str, Any]], error) -> None:
+    """noise.file exists, and the socket groups do: said here with the file and line (a cold
+    review: at start-up they came without either, noise.file's key twice)."""
+    nf = cfg["noise"]["file"]
+    # only where this user can look (`imucald status` run by a user the daemon's state
+    # directory is closed to reads the same configuration; the daemon checks it again)
+    if nf and os.access(os.path.dirname(os.path.abspath(nf)), os.X_OK) and not os.path.isfile(nf):
+        what = "is a directory" if os.path.isdir(nf) else "does not exist"
+        raise error("noise.file", f"noise.file: {nf} {what}: make it with `imucald noise "
+                                  f"STILL_RECORDING -o FILE`, or remove the key")
+    import grp
+    for key in ("output.socket_group", "control.socket_group"):
+        g = cfg[key.split(".")[0]][key.split(".")[1]]
+        if g is None:
+            continue
+        try:
+            grp.getgrnam(g)
+        except KeyError:
+            raise error(key, f"{key}: group {g!r} does not exist (getent group lists them; create "
+                             f"it with groupadd or change the setting)") from None
 
 
 def _check_socket_paths(cfg: Dict[str, Dict[str, Any]], error) -> None:

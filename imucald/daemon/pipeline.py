@@ -201,7 +201,8 @@ class Pipeline:
         try:
             self.noise = read_figures(path)
         except UserError as e:
-            raise ConfigError(f"noise.file: {e}") from None
+            msg = str(e)
+            raise ConfigError(msg if msg.startswith("noise.file") else f"noise.file: {msg}") from None
         log.info("noise figures from %s (%s)", path, ", ".join(self.noise))
 
     def _covariance(self) -> str:

@@ -465,3 +465,19 @@ def test_a_state_directory_made_anew_is_locked_again_before_it_is_written(tmp_pa
         assert e.value.errno == errno.EBUSY and "holds" in str(e.value)
     finally:
         os.close(held)
+
+
+def test_a_file_named_history_costs_the_history_alone(tmp_path, caplog):
+    """A file named ``history`` in the state directory made every calibration save "fail"
+    with "File exists", retried forever and said unsaved at the stop, though calibration.yaml
+    had been written (a cold review).  Seen to fail with the history inside the save (an
+    OSError out of save_calibration)."""
+    import logging
+    from imucald.calibration import load
+    from imucald.daemon.state import save_calibration
+    from .test_calibration import full_cal
+    (tmp_path / "history").write_text("not a directory\n")
+    with caplog.at_level(logging.WARNING, logger="imucald"):
+        path = save_calibration(str(tmp_path), full_cal(), history=10)
+    assert load(path).id == full_cal().id
+    assert f"{tmp_path}/history: cannot keep the calibration history there" in caplog.text

@@ -39,17 +39,28 @@ def save_calibration(state_dir: str, cal: Calibration, history: int = 10) -> str
     path = os.path.join(state_dir, "calibration.yaml")
     save(cal, path)
     if history:
-        hd = os.path.join(state_dir, "history")
-        os.makedirs(hd, exist_ok=True)
-        stamp = "".join(ch for ch in cal.created[:19] if ch.isdigit() or ch == "T")
-        for f in os.listdir(hd):          # the same id saved again (e.g. at shutdown)
-            if f.startswith(f"calibration-{int(cal.id):06d}"):
-                os.unlink(os.path.join(hd, f))
-        save(cal, os.path.join(hd, f"calibration-{int(cal.id):06d}{'-' + stamp if stamp else ''}.yaml"))
-        old = sorted(f for f in os.listdir(hd) if f.startswith("calibration-"))
-        for f in old[:-history]:
-            os.unlink(os.path.join(hd, f))
+        try:
+            _keep_history(os.path.join(state_dir, "history"), cal, history)
+        except OSError as e:
+            # calibration.yaml is saved: the history alone is lost (a cold review: a file named
+            # "history" there made every save "fail" with "File exists", forever, no path named)
+            log.warning("%s: cannot keep the calibration history there: %s (move it away); "
+                        "calibration.yaml is saved", os.path.join(state_dir, "history"),
+                        e.strerror or e)
     return path
+
+
+def _keep_history(hd: str, cal: Calibration, history: int) -> None:
+    """history/calibration-<id>-<created, UTC>.yaml, the last ``history`` kept."""
+    os.makedirs(hd, exist_ok=True)
+    stamp = "".join(ch for ch in cal.created[:19] if ch.isdigit() or ch == "T")
+    for f in os.listdir(hd):          # the same id saved again (e.g. at shutdown)
+        if f.startswith(f"calibration-{int(cal.id):06d}"):
+            os.unlink(os.path.join(hd, f))
+    save(cal, os.path.join(hd, f"calibration-{int(cal.id):06d}{'-' + stamp if stamp else ''}.yaml"))
+    old = sorted(f for f in os.listdir(hd) if f.startswith("calibration-"))
+    for f in old[:-history]:
+        os.unlink(os.path.join(hd, f))
 
 
 def load_calibration(state_dir: str, board: Optional[str] = None,

@@ -481,3 +481,22 @@ def test_a_file_named_history_costs_the_history_alone(tmp_path, caplog):
         path = save_calibration(str(tmp_path), full_cal(), history=10)
     assert load(path).id == full_cal().id
     assert f"{tmp_path}/history: cannot keep the calibration history there" in caplog.text
+
+
+def test_a_killed_daemons_temporaries_are_removed_at_the_next_start(tmp_path):
+    """SIGKILL between a state file's write and its rename leaves ".poses.csv.XXXX.tmp" beside
+    it, never cleaned (a cold review).  The next start (under the directory's lock) removes
+    those of the daemon's own files, and nothing else.  Seen to fail without the removal."""
+    from imucald.daemon.state import remove_stale_temporaries
+    left = [".poses.csv.a1b2.tmp", ".thermal.csv.zz.tmp", ".calibration.yaml.q.tmp"]
+    other = [".mine.csv.a1.tmp", "poses.csv", "notes.tmp"]
+    for f in left + other:
+        (tmp_path / f).write_text("x")
+    assert remove_stale_temporaries(str(tmp_path)) == 3
+    assert sorted(os.listdir(tmp_path)) == sorted(other)
+    from .test_calibration import _run_daemon                # and the daemon does it at start
+    st = tmp_path / "d" / "state"
+    st.mkdir(parents=True)
+    (st / ".poses.csv.k1ll.tmp").write_text("half a file")
+    _run_daemon(tmp_path / "d", None)
+    assert ".poses.csv.k1ll.tmp" not in os.listdir(st)

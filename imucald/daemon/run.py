@@ -155,7 +155,10 @@ class Daemon:
         chips = self.board.chips()
         log.info("found %s", ", ".join(f"{k} {v.upper()}" for k, v in self.board.chips().items()))
         from .persist import StateWriter
+        from .state import remove_stale_temporaries
         from .worker import WorkerRunner
+        if remove_stale_temporaries(sd):
+            log.info("removed the temporary files an earlier run left in %s (killed mid-write)", sd)
         self.writer = StateWriter(self._save, sd)
         self.worker = WorkerRunner(cfg["calibration"]["timeout_s"])
         self.pipe = Pipeline(cfg, self.board.name, self.board.rate_hz, self.board.has_mag,

@@ -21,7 +21,7 @@ from ..errors import UserError
 from ..files.recording import MAX_SMALL_BYTES
 
 __all__ = ["save_calibration", "load_calibration", "save_poses", "load_poses",
-           "set_aside"]
+           "remove_stale_temporaries", "set_aside"]
 
 log = logging.getLogger("imucald")
 
@@ -31,6 +31,30 @@ def set_aside(path: str, why: str) -> str:
     os.replace(path, dst)
     log.warning("%s: %s; set aside as %s, continuing without it", path, why, dst)
     return dst
+
+
+#: the files the daemon writes atomically in its state directory (files/atomic.py: a temporary
+#: ".<name>.XXXX.tmp" beside each, renamed into place)
+STATE_FILES = ("calibration.yaml", "poses.csv", "thermal.csv", "sensor.yaml")
+
+
+def remove_stale_temporaries(state_dir: str) -> int:
+    """The temporaries a killed daemon left beside its state files (SIGKILL between write and
+    rename: a cold review found them never cleaned), removed; called under the directory's
+    lock, so no other writer owns them.  Returns how many."""
+    n = 0
+    try:
+        names = os.listdir(state_dir)
+    except OSError:
+        return 0
+    for f in names:
+        if f.endswith(".tmp") and any(f.startswith(f".{s}.") for s in STATE_FILES):
+            try:
+                os.unlink(os.path.join(state_dir, f))
+                n += 1
+            except OSError:
+                pass
+    return n
 
 
 def save_calibration(state_dir: str, cal: Calibration, history: int = 10) -> str:

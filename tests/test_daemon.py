@@ -459,3 +459,34 @@ def test_the_stream_takes_32_clients_and_refuses_more_with_one_line(tmp_path):
         for c in socks:
             c.close()
         sink.close()
+
+
+@pytest.mark.parametrize("fmt", ["ndjson", "csv"])
+def test_a_gap_inside_a_merged_batch_comes_where_its_samples_are_missing(fmt):
+    """Polled boards (9DOF, gy273) merge their polls into one batch (drivers/board.py
+    merge_batches), so a gap can lie inside a batch; its GAP object came before the whole
+    batch, before IMU lines of earlier seq (a cold review: GAP 980 after IMU 977, then 978).
+    Seen to fail with every GAP put first (the GAP line ahead of seq 0)."""
+    from imucald.daemon.config import validate
+    from imucald.daemon.pipeline import Pipeline
+    from imucald.drivers.board import SampleBatch
+    cfg = validate({"output": {"format": fmt}})
+    pipe = Pipeline(cfg, "mpu6050", 100.0, has_mag=False)
+    seq = np.r_[np.arange(0, 10), np.arange(12, 20), np.arange(25, 30)]
+    n = len(seq)
+    acc = np.tile([0.0, 0.0, 1.0], (n, 1))
+    b = SampleBatch(seq / 100.0, seq.astype(np.int64), acc, np.zeros((n, 3)), np.full(n, 25.0),
+                    gaps=[(10, 2), (20, 5)])
+    lines = [ln for ln in pipe.process(b).decode().splitlines() if ln and not ln.startswith("t,")]
+    order = []
+    for ln in lines:
+        if fmt == "ndjson":
+            o = json.loads(ln)
+            order.append(("GAP", o["seq"]) if o["class"] == "GAP" else ("IMU", o["seq"]))
+        elif ln.startswith("#"):
+            order.append(("GAP", json.loads(ln[2:])["seq"]))
+        else:
+            order.append(("IMU", int(ln.split(",")[0])))
+    want = ([("IMU", s) for s in range(10)] + [("GAP", 10)] + [("IMU", s) for s in range(12, 20)]
+            + [("GAP", 20)] + [("IMU", s) for s in range(25, 30)])
+    assert order == want, order

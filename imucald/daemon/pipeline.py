@@ -141,9 +141,12 @@ class Pipeline:
     # -- the hot path -------------------------------------------------------------------
     def process(self, b) -> bytes:
         out: List[bytes] = []
-        for s0, k in b.gaps:
-            out.append(event("GAP", self.fmt, seq=int(s0), missing=int(k)))
         n = len(b.t)
+        first = int(b.seq[0]) if n else None
+        inside = [(s0, k) for s0, k in b.gaps if first is not None and s0 > first]
+        for s0, k in b.gaps:
+            if (s0, k) not in inside:
+                out.append(event("GAP", self.fmt, seq=int(s0), missing=int(k)))
         if n:
             still, intervals = self.det.update(b.t, b.acc, b.gyro, b.temp, b.mag, b.mag_fresh)
             if self.det.repeats is not None and self._repeats_said is not self.det:
@@ -176,11 +179,30 @@ class Pipeline:
             gyro = None if b.gyro is None else ap.apply_gyro(b.gyro[keep], tb, acc)
             mag = None if b.mag is None else ap.apply_mag(b.mag[keep], tb)
             ori = None if self.orient is None else self._orientation(b, keep, tb, acc, gyro, mag, intervals)
-            out.append(encode_samples(self.fmt, b.seq[keep], b.t[keep], acc,
-                                      gyro, temp, mag, still[keep], ap.id, self._covariance(), ori))
+            enc = encode_samples(self.fmt, b.seq[keep], b.t[keep], acc,
+                                 gyro, temp, mag, still[keep], ap.id, self._covariance(), ori)
+            out.append(self._gaps_in_place(enc, b.seq[keep], inside) if inside else enc)
         out.append(self.poll_calibration())
         self.maybe_calibrate()
         out.append(self.poll_calibration())
+        return b"".join(out)
+
+    def _gaps_in_place(self, enc: bytes, seq, gaps) -> bytes:
+        """The batch's lines with each GAP object inside it where its samples are missing (a
+        cold review: on a gy273 a GAP came before IMU lines of earlier seq); binary streams
+        carry no GAP objects (their records hold seq)."""
+        if self.fmt == "binary":
+            return enc
+        lines = enc.split(b"\n")[:-1]
+        if len(lines) != len(seq):          # not one line a sample: as it was
+            return b"".join(event("GAP", self.fmt, seq=int(s0), missing=int(k)) for s0, k in gaps) + enc
+        out, at = [], 0
+        for s0, k in gaps:
+            i = int(np.searchsorted(seq, s0))
+            out += [ln + b"\n" for ln in lines[at:i]]
+            out.append(event("GAP", self.fmt, seq=int(s0), missing=int(k)))
+            at = max(at, i)
+        out += [ln + b"\n" for ln in lines[at:]]
         return b"".join(out)
 
     def end_of_stream(self) -> bytes:

@@ -500,3 +500,41 @@ def test_a_killed_daemons_temporaries_are_removed_at_the_next_start(tmp_path):
     (st / ".poses.csv.k1ll.tmp").write_text("half a file")
     _run_daemon(tmp_path / "d", None)
     assert ".poses.csv.k1ll.tmp" not in os.listdir(st)
+
+
+def test_a_live_busy_socket_at_an_absolute_path_is_another_daemons(tmp_path):
+    """output.socket may be an absolute path, outside the runtime directory its lock covers: a
+    second daemon replaced a first one's live sockets there (a cold review).  A socket that
+    answers, or whose listener's backlog is full (a busy or hung daemon: EAGAIN), is refused
+    (exit 75) and left in place; only a refused connection (no listener) means stale.
+    Seen to fail without the probe (no error), and with every OSError read as stale (the full
+    backlog passed, a second cold review)."""
+    import socket
+    from imucald.daemon.unixsock import check_socket_path
+    from imucald.errors import AlreadyRunning
+    live = str(tmp_path / "live.sock")
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    srv.bind(live)
+    srv.listen(1)
+    fill = []
+    try:
+        with pytest.raises(AlreadyRunning, match="is in use, or not ours to test"):
+            check_socket_path(live, "output.socket")
+        while True:                                # fill the backlog, never accepted
+            c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            c.setblocking(False)
+            fill.append(c)
+            try:
+                c.connect(live)
+            except BlockingIOError:
+                break
+            if len(fill) > 64:
+                pytest.skip("this kernel's backlog did not fill")
+        with pytest.raises(AlreadyRunning):
+            check_socket_path(live, "output.socket")
+    finally:
+        for c in fill:
+            c.close()
+        srv.close()
+    assert os.path.exists(live)
+    check_socket_path(live, "output.socket")          # stale now: no error

@@ -387,9 +387,11 @@ def _check_files_and_groups(cfg: Dict[str, Dict[str, Any]], error) -> None:
     """noise.file exists, and the socket groups do: said here with the file and line (a cold
     review: at start-up they came without either, noise.file's key twice)."""
     nf = cfg["noise"]["file"]
-    # only where this user can look (`imucald status` run by a user the daemon's state
-    # directory is closed to reads the same configuration; the daemon checks it again)
-    if nf and os.access(os.path.dirname(os.path.abspath(nf)), os.X_OK) and not os.path.isfile(nf):
+    # an absolute path only (a relative one is the daemon's working directory's, and `imucald
+    # status` run elsewhere read it against its own: exit 78, a cold review), and only where
+    # this user can look (a user the daemon's directories are closed to reads the same
+    # configuration); the daemon checks it again when it reads the file
+    if nf and os.path.isabs(nf) and os.access(os.path.dirname(nf), os.X_OK) and not os.path.isfile(nf):
         what = "is a directory" if os.path.isdir(nf) else "does not exist"
         raise error("noise.file", f"noise.file: {nf} {what}: make it with `imucald noise "
                                   f"STILL_RECORDING -o FILE`, or remove the key")

@@ -61,25 +61,33 @@ def check_socket_path(path: str, key: str) -> None:
         what = "a directory" if os.path.isdir(path) else "a file"
         raise CannotCreate(f"{key}: {path} exists and is {what}, not a socket: move it away "
                            f"or choose another {key}")
-    if os.path.lexists(path) and _answers(path):
+    if os.path.lexists(path) and not _stale(path):
         # a live socket is another process's, even where no lock covers it (an absolute path
         # outside this runtime directory: a second daemon took a first one's sockets, and the
-        # first removed them on its way out, a cold review); a stale one is replaced
+        # first removed them on its way out, a cold review); only a refused one is replaced
         from ..errors import AlreadyRunning
-        raise AlreadyRunning(f"{key}: another process listens on {path}: stop it first "
-                             f"(systemctl stop imucald) or choose another {key}")
+        raise AlreadyRunning(f"{key}: {path} is in use, or not ours to test (another process "
+                             f"listens there, or its owner keeps us out): stop that process, or "
+                             f"choose another {key}")
 
 
-def _answers(path: str) -> bool:
-    """Whether a process accepts connections on the Unix socket at ``path`` (a stale socket
-    file refuses them)."""
+#: how long the probe of an existing socket waits for its answer, s
+PROBE_TIMEOUT_S = 1.0
+
+
+def _stale(path: str) -> bool:
+    """Whether the Unix socket file at ``path`` is stale: a connection refused (no process
+    listens) or the file gone.  Anything else is taken as in use: an answer, a full backlog
+    (EAGAIN: a busy or hung listener), a timeout, a permission refused (another user's
+    socket; a cold review found all three read as stale and the socket replaced)."""
+    import errno
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(1.0)
+    s.settimeout(PROBE_TIMEOUT_S)
     try:
         s.connect(path)
-        return True
-    except OSError:
         return False
+    except OSError as e:
+        return e.errno in (errno.ECONNREFUSED, errno.ENOENT)
     finally:
         s.close()
 

@@ -242,7 +242,7 @@ def fit_candidates(b: NormBaseline, tested: List[Dict[str, object]], ctx: Dict[s
                           "significant": False, "ratio_after": b.ratio, "params": {}})
             out.effects.append(entry)
             continue
-        if b.p0 + d["q"] > b.n - single_floor(d["q"]):
+        if b.p0 + d["q"] > b.n - single_floor(d["cand"].q):
             continue                              # too many visible parameters for this pose set
         f = refit_with(b, [c], ctx, sims, rng)
         out.prefit[id(c)] = f

@@ -61,7 +61,7 @@ __all__ = ["stepwise", "walk_sensitivity", "SEARCH_MIN_DOF", "MIN_DOF", "single_
 SEARCH_MIN_DOF = 3
 MIN_DOF = 10           #: residual degrees of freedom from which a fit's excess scale is taken as known
 #: residual degrees of freedom (N minus its visible coefficients) a fixed form of at most
-#: SIMPLE_FORM_Q visible coefficients alone must leave beside the baseline (its Wald test
+#: SIMPLE_FORM_Q coefficients alone must leave beside the baseline (its Wald test
 #: referred to F below MIN_DOF; a richer form keeps MIN_DOF): a 3-term form on 20 poses leaves
 #: 8.  With every form held to MIN_DOF, the random walk (held back by no such floor) took every
 #: strong thermal bias of 20-21 poses (an independent probe: 17 of 18 "wandering_bias"); with
@@ -71,10 +71,11 @@ SINGLE_MIN_DOF = 8
 SIMPLE_FORM_Q = 3
 
 
-def single_floor(q_visible: int) -> int:
-    """The residual degrees of freedom a fixed form of ``q_visible`` coefficients must leave
-    when it enters alone (SINGLE_MIN_DOF for simple forms, MIN_DOF for richer ones)."""
-    return SINGLE_MIN_DOF if q_visible <= SIMPLE_FORM_Q else MIN_DOF
+def single_floor(q_form: int) -> int:
+    """The residual degrees of freedom (counted in visible coefficients) a fixed form of
+    ``q_form`` coefficients must leave when it enters alone (SINGLE_MIN_DOF for simple forms,
+    MIN_DOF for richer ones, however many of theirs a pose set sees)."""
+    return SINGLE_MIN_DOF if q_form <= SIMPLE_FORM_Q else MIN_DOF
 #: residual degrees of freedom (N minus all its coefficients) a pair entering together may leave
 #: below MIN_DOF, its members' Wald tests then referred to F(rank, dof) as every model's below
 #: MIN_DOF are (Search._fit, _pair_entries): a 3-term nonlinearity and a 3-term thermal bias
@@ -220,7 +221,7 @@ class Search(MemberTests):
         # old blind generator (tests/test_gap_blindgen.py); a second member may go to
         # SEARCH_MIN_DOF, each of its members' tests still judged on held-out poses
         alone = len(cands) + (1 if walk else 0) <= 1
-        floor = (single_floor(sum(self.vis_q[id(c)] for c in cands)) if alone and cands else
+        floor = (single_floor(sum(c.q for c in cands)) if alone and cands else
                  MIN_DOF if alone else SEARCH_MIN_DOF)
         return used <= self.b.n - floor
 

@@ -432,7 +432,8 @@ def test_a_state_directory_made_anew_is_locked_again_before_it_is_written(tmp_pa
     there without its lock, and a second daemon on it started (exit 0, not 75; a cold review).
     The write now takes the new directory's lock first (told by the lock file, not the
     directory's inode number, which may come back), and with another instance holding it
-    writes nothing (EBUSY, retried).  Seen to fail without _relock_state (no lock; no error)."""
+    writes nothing (EBUSY, retried).  Seen to fail without _relock_state in _save (no lock;
+no error) and with the old directory's lock fd kept (two fds, one each time: a cold review)."""
     import errno
     import fcntl
     from imucald.daemon.run import Daemon
@@ -447,8 +448,10 @@ def test_a_state_directory_made_anew_is_locked_again_before_it_is_written(tmp_pa
     (sd / "imucald.lock").unlink()
     os.rmdir(sd)
     sd.mkdir()                                   # made anew (its inode number may be the old one)
-    d._relock_state(str(sd))
-    assert len(d._lock_fds) == 2
+    from .test_calibration import full_cal
+    d.cfg = {"state": {"directory": str(sd)}, "calibration": {"history": 0}}
+    d._save("calibration", full_cal())           # the state writer's call: locks, then writes
+    assert len(d._lock_fds) == 1 and (sd / "calibration.yaml").exists()   # the old fd closed
     fd = os.open(sd / "imucald.lock", os.O_RDWR)
     with pytest.raises(OSError):                 # held: another instance could not take it
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -538,3 +541,21 @@ def test_a_live_busy_socket_at_an_absolute_path_is_another_daemons(tmp_path):
         srv.close()
     assert os.path.exists(live)
     check_socket_path(live, "output.socket")          # stale now: no error
+
+
+def test_the_history_keeps_the_newest_across_the_id_wrap(tmp_path):
+    """The history was pruned by name: after the id wrapped (4294967295 -> 1) the newest file
+    sorted first and was removed at once, and from 7 digits on the ids sorted wrongly; saving
+    id 100000 also removed id 1000000's file (its name starts the same; a cold review).
+    Seen to fail with the name sort (id 1 pruned) and the bare prefix match."""
+    from dataclasses import replace
+    from imucald.daemon.state import save_calibration
+    from .test_calibration import full_cal
+    hd = tmp_path / "history"
+    for i, cid in enumerate((1000000, 4294967294, 4294967295, 1, 100000)):
+        save_calibration(str(tmp_path), replace(full_cal(), id=cid, created=f"2026-11-28T03:00:0{i}+00:00"),
+                         history=3)
+        for f in os.listdir(hd):                 # saved a second apart, as in a daemon
+            os.utime(hd / f, ns=(os.stat(hd / f).st_mtime_ns - 10 ** 9,) * 2)
+    ids = sorted(int(f.split("-")[1]) for f in os.listdir(hd))
+    assert ids == [1, 100000, 4294967295], ids

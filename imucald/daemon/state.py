@@ -78,11 +78,15 @@ def _keep_history(hd: str, cal: Calibration, history: int) -> None:
     """history/calibration-<id>-<created, UTC>.yaml, the last ``history`` kept."""
     os.makedirs(hd, exist_ok=True)
     stamp = "".join(ch for ch in cal.created[:19] if ch.isdigit() or ch == "T")
+    me = f"calibration-{int(cal.id):06d}"
     for f in os.listdir(hd):          # the same id saved again (e.g. at shutdown)
-        if f.startswith(f"calibration-{int(cal.id):06d}"):
+        if f.startswith(me + "-") or f == me + ".yaml":
             os.unlink(os.path.join(hd, f))
-    save(cal, os.path.join(hd, f"calibration-{int(cal.id):06d}{'-' + stamp if stamp else ''}.yaml"))
-    old = sorted(f for f in os.listdir(hd) if f.startswith("calibration-"))
+    save(cal, os.path.join(hd, f"{me}{'-' + stamp if stamp else ''}.yaml"))
+    # oldest first by when each was saved: the names' ids sort wrongly from 7 digits on and
+    # after the id wraps (next_id), where the newest was pruned at once (a cold review)
+    old = sorted((f for f in os.listdir(hd) if f.startswith("calibration-")),
+                 key=lambda f: (os.stat(os.path.join(hd, f)).st_mtime_ns, f))
     for f in old[:-history]:
         os.unlink(os.path.join(hd, f))
 

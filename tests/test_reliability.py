@@ -493,14 +493,18 @@ def test_a_killed_daemons_temporaries_are_removed_at_the_next_start(tmp_path):
     from imucald.daemon.state import remove_stale_temporaries
     left = [".poses.csv.a1b2.tmp", ".thermal.csv.zz.tmp", ".calibration.yaml.q.tmp"]
     other = [".mine.csv.a1.tmp", "poses.csv", "notes.tmp"]
-    for f in left + other:
+    for f in left + other + [".poses.csv.now.tmp"]:
         (tmp_path / f).write_text("x")
+    for f in left + other:                             # a killed writer's: minutes old
+        os.utime(tmp_path / f, (time.time() - 300,) * 2)
     assert remove_stale_temporaries(str(tmp_path)) == 3
+    other.append(".poses.csv.now.tmp")                 # a writer's of this moment (replay): kept
     assert sorted(os.listdir(tmp_path)) == sorted(other)
     from .test_calibration import _run_daemon                # and the daemon does it at start
     st = tmp_path / "d" / "state"
     st.mkdir(parents=True)
     (st / ".poses.csv.k1ll.tmp").write_text("half a file")
+    os.utime(st / ".poses.csv.k1ll.tmp", (time.time() - 300,) * 2)
     _run_daemon(tmp_path / "d", None)
     assert ".poses.csv.k1ll.tmp" not in os.listdir(st)
 

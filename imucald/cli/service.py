@@ -49,8 +49,9 @@ def daemon_config(args, with_overrides: bool = False):
 def cmd_run(args) -> int:
     import signal
     # a SIGHUP (reload) before the daemon installs its handler killed it (exit 129; a cold
-    # review, within ~50 ms of the start): the configuration is being read then anyway
-    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    # review, within ~50 ms of the start): kept, and the daemon reloads once it runs
+    early_hup: list = []
+    signal.signal(signal.SIGHUP, lambda *_: early_hup.append(1))
     from ..daemon.worker import without_openssl
     without_openssl()                   # before numpy: the daemon's resident set (issue 15)
     from ..daemon.run import Daemon
@@ -74,6 +75,7 @@ def cmd_run(args) -> int:
                                   tour=dict(RUN_TOUR, tremor_dps=args.tremor_dps), **kw)
     d = Daemon(cfg, board, bus, desc, duration_s=args.duration, echo=args.echo, config_path=path,
                overrides=overrides)
+    d.early_hup = early_hup
     return d.run()
 
 

@@ -141,6 +141,8 @@ class Daemon:
         signal.signal(signal.SIGTERM, self._on_stop)
         signal.signal(signal.SIGINT, self._on_stop)
         signal.signal(signal.SIGHUP, self._on_hup)
+        if getattr(self, "early_hup", None):       # one that came during start-up (cli/service.py)
+            self.reload = True
         try:
             return self._run(sd, rd)
         finally:

@@ -36,22 +36,29 @@ def set_aside(path: str, why: str) -> str:
 #: the files the daemon writes atomically in its state directory (files/atomic.py: a temporary
 #: ".<name>.XXXX.tmp" beside each, renamed into place)
 STATE_FILES = ("calibration.yaml", "poses.csv", "thermal.csv", "sensor.yaml")
+#: a temporary older than this is a killed writer's, s
+STALE_TEMPORARY_S = 60.0
 
 
 def remove_stale_temporaries(state_dir: str) -> int:
     """The temporaries a killed daemon left beside its state files (SIGKILL between write and
-    rename: a cold review found them never cleaned), removed; called under the directory's
-    lock, so no other writer owns them.  Returns how many."""
+    rename: a cold review found them never cleaned), removed when STALE_TEMPORARY_S old;
+    called under the directory's lock.  Returns how many."""
     n = 0
     try:
         names = os.listdir(state_dir)
     except OSError:
         return 0
+    now = time.time()
     for f in names:
         if f.endswith(".tmp") and any(f.startswith(f".{s}.") for s in STATE_FILES):
+            p = os.path.join(state_dir, f)
             try:
-                os.unlink(os.path.join(state_dir, f))
-                n += 1
+                # a minute old at least: `imucald replay --state-dir` writes there without
+                # the lock, for milliseconds (a cold review)
+                if now - os.stat(p).st_mtime > STALE_TEMPORARY_S:
+                    os.unlink(p)
+                    n += 1
             except OSError:
                 pass
     return n

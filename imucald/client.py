@@ -119,6 +119,9 @@ class StreamClient:
         self._fh = self.sock.makefile("rb")
         self._records = iter_records(self._fh, path)
         self.version: Dict[str, Any] = next(self._records, {})
+        if self.version.get("class") == "ERROR":            # refused (too many clients)
+            self.close()
+            raise UserError(f"{path}: the daemon refused this client: {self.version.get('message', '')}")
         if self.version.get("class") != "VERSION":
             self.close()
             raise UserError(f"{path}: no VERSION banner: not an imucald stream socket")

@@ -437,7 +437,7 @@ def test_the_stream_takes_32_clients_and_refuses_more_with_one_line(tmp_path):
     fail with the limit removed (40 clients kept, none refused)."""
     import json as _json
     import socket as _socket
-    from imucald.daemon.outputs import MAX_STREAM_CLIENTS, SocketSink
+    from imucald.daemon.outputs import MAX_STREAM_CLIENTS, REFUSED_MESSAGE, SocketSink
     sink = SocketSink(str(tmp_path / "s.sock"), "ndjson", "mpu6050")
     socks = []
     try:
@@ -451,7 +451,15 @@ def test_the_stream_takes_32_clients_and_refuses_more_with_one_line(tmp_path):
         last = socks[-1]
         last.settimeout(2.0)
         line = last.makefile("rb").readline()
-        assert _json.loads(line) == {"class": "ERROR", "message": "too many stream clients (32); try again later"}
+        assert _json.loads(line) == {"class": "ERROR", "message": REFUSED_MESSAGE}
+        from imucald.client import StreamClient
+        from imucald.errors import UserError
+        import threading
+        t = threading.Timer(0.3, sink.write, (b"",))        # the daemon's next batch accepts it
+        t.start()
+        with pytest.raises(UserError, match=r"the daemon refused this client: too many stream clients \(32\)"):
+            StreamClient(str(tmp_path / "s.sock"), timeout_s=5.0)      # the library says why
+        t.join()
         first = socks[0]
         first.settimeout(2.0)
         assert _json.loads(first.makefile("rb").readline())["class"] == "VERSION"

@@ -281,7 +281,8 @@ def cmd_status(args) -> int:
         print(f"sensor {sn.get('id')}{note}")
     bs = r["board_stats"]
     print(f"samples {bs['samples']}, gaps {bs['gaps']} ({bs['missing']} lost), bus faults {bs['bus_faults']}, "
-          f"clients {r['clients']} (dropped {r['clients_dropped']})")
+          f"clients {r['clients']} (dropped {r['clients_dropped']}"
+          + (f", refused {r['clients_refused']}" if r.get("clients_refused") else "") + ")")
     th = r.get("thermal")
     if th:
         print(f"thermal: {th['intervals']} still intervals over {th['span_c']:.1f} degC"
@@ -321,6 +322,11 @@ def cmd_watch(args) -> int:
     f = s.makefile("rb")
     count = 0
     for line in f:
+        if count == 0 and b'"class":"ERROR"' in line[:40]:     # refused: too many clients
+            import json as _json
+            from ..errors import DeviceUnavailable
+            msg = _json.loads(line.decode().lstrip("# ")).get("message", "")
+            raise DeviceUnavailable(f"{p}: the daemon refused this client: {msg}")
         sys.stdout.write(_with_attitude(line.decode(errors="replace")))
         if is_sample_line(line):    # -n counts samples: not the VERSION banner, a CSV
             count += 1              # header, a GAP/CAL event

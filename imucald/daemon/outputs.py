@@ -299,6 +299,18 @@ class _Client:
 MAX_STREAM_CLIENTS = 32
 
 
+#: the refusal's message (client.py and `imucald watch` show it as it is)
+REFUSED_MESSAGE = (f"too many stream clients ({MAX_STREAM_CLIENTS}): close idle readers "
+                   f"(`imucald status --json` counts clients) and try again")
+
+
+def refusal(fmt: str) -> bytes:
+    """The one line a client beyond MAX_STREAM_CLIENTS reads before the socket closes: an
+    ERROR object where the VERSION banner would be ('# ' before it in CSV, as the banner)."""
+    line = json.dumps({"class": "ERROR", "message": REFUSED_MESSAGE}, separators=(",", ":")) + "\n"
+    return (("# " + line) if fmt == "csv" else line).encode()
+
+
 class SocketSink(UnixServer):
     """A listening Unix stream socket; up to MAX_STREAM_CLIENTS clients, each with a bounded
     buffer."""
@@ -326,8 +338,7 @@ class SocketSink(UnixServer):
             if len(self.clients) >= MAX_STREAM_CLIENTS:
                 self.refused += 1
                 try:
-                    s.send(json.dumps({"class": "ERROR", "message": f"too many stream clients "
-                                       f"({MAX_STREAM_CLIENTS}); try again later"}).encode() + b"\n")
+                    s.send(refusal(self.fmt))
                 except OSError:
                     pass
                 s.close()

@@ -268,7 +268,12 @@ class Bridge:
             try:
                 s = self._stream = StreamClient(self.stream_path, timeout_s=5.0)
             except (UserError, OSError) as e:      # not there yet, or no banner within 5 s
-                log.debug("stream: %s", e)
+                refused = "refused this client" in str(e)
+                if refused and not getattr(self, "_refusal_said", False):
+                    log.warning("stream: %s", e)    # said once; retried as any absence
+                self._refusal_said = refused
+                if not refused:
+                    log.debug("stream: %s", e)
                 stop.wait(0.5)
                 continue
             if not first:

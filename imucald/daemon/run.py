@@ -444,7 +444,7 @@ class Daemon:
         except CannotCreate as e:
             raise OSError(errno.EIO, str(e)) from None
         log.warning("state.directory %s was made anew while running: its lock taken again", sd)
-        if held is not None:            # the removed directory's: one fd each time, else
+        if held is not None:            # the removed directory's lock: else one fd more each time
             self._lock_fds.remove(held)
             os.close(held)
         self._state_lock_fd = self._lock_fds[-1]

@@ -146,12 +146,13 @@ def test_reload_keeps_overrides_applies_reloadable_keys_and_survives_a_bad_file(
     assert "Traceback" not in "".join(lines) + rest
 
 
-@pytest.mark.parametrize("text", ["? [a]\n: 1\n", "sensor:\n  ? {x: 1}\n  : 2\n"])
+@pytest.mark.parametrize("text", ["? [a]\n: 1\n", "sensor:\n  ? {x: 1}\n  : 2\n", "~: 1\n", "sensor:\n  ~: 1\n"])
 def test_a_key_that_is_not_a_name_is_one_line(tmp_path, text):
-    # found by tests/test_input_fuzz.py: was TypeError: unhashable type: 'list'
+    # found by tests/test_input_fuzz.py: was TypeError: unhashable type: 'list'; "~:" (a null
+    # key) by a cold review: "c.yaml:?: unknown section 'None'", no line (seen to fail so)
     with pytest.raises(ConfigError) as e:
         load_config(cfg_file(tmp_path, text))
-    assert "\n" not in str(e.value) and "c.yaml:" in str(e.value) and "key" in str(e.value)
+    assert "\n" not in str(e.value) and re.search(r"c\.yaml:\d+:", str(e.value)) and "key" in str(e.value)
 
 
 @pytest.mark.parametrize("board,rate,batch,ok", [

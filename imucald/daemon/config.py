@@ -196,6 +196,12 @@ def _scan(text: str, path: str) -> Tuple[Dict[str, int], Dict[str, str]]:
                 raise ConfigError(f"{path}:{ln}: a key must be a name, not a "
                                   f"{'list' if isinstance(k, yaml.SequenceNode) else 'mapping'}; "
                                   f"write section: / key: value")
+            if k.tag.endswith((":null", ":bool")):
+                # "~:" or "yes:" is a null or a boolean to YAML: no key's name, and the line
+                # was lost on the way (a cold review: "c.yaml:?: unknown section 'None'")
+                raise ConfigError(f"{path}:{ln}: {k.value!r} is not a key's name (YAML reads it as "
+                                  f"{'null' if k.tag.endswith(':null') else 'true or false'}): "
+                                  f"write section: / key: value")
             key = f"{prefix}{k.value}"
             if k.value in seen:
                 raise ConfigError(f"{path}:{ln}: {key} is given twice (first at line {seen[k.value]}): "

@@ -55,7 +55,9 @@ def _read_sensor(state_dir: str) -> Optional[Dict[str, Any]]:
         d = load(read_own_file(p, 1 << 16, UserError), p, UserError)
         if isinstance(d, dict) and isinstance(d.get("id"), str):
             return d
-        why = "no id"
+        # say what is there (a cold review: "id: 5" read as "no id")
+        why = ("not a mapping of keys" if not isinstance(d, dict) else "no id" if "id" not in d
+               else f"id: {d['id']!r} is not text (the daemon writes 12 hex digits, e.g. id: 3f9a0c2be417)")
     except UserError as e:
         why = " ".join(str(e).split())[:160]
     from .state import set_aside

@@ -285,6 +285,18 @@ def test_a_line_longer_than_the_limit_is_refused_without_reading_it_whole(tmp_pa
     assert peak < 8 << 20, peak
 
 
+def test_a_long_line_between_short_ones_is_called_long(tmp_path, capsys):
+    """A 70 KB line among ordinary rows (inside one read block, so not caught by the block
+    bound above) was "expected 4 values, found 1", not the documented "line longer than 65536
+    bytes" (a cold review).  Seen to fail without the check in the row parser."""
+    rows = ["t,ax,ay,az"] + [f"{i / 100:.2f},0.0,0.0,1.0" for i in range(2000)]
+    rows[500] = "5.0," + "x" * 70000
+    p = tmp_path / "long.csv"
+    p.write_text("\n".join(rows) + "\n")
+    rc, out, err = run_main(capsys, "calibrate", p, "--columns", "t,ax,ay,az")
+    assert rc == 2 and f"{p}:501: line longer than 65536 bytes" in one_error_line(err), err
+
+
 def test_a_bom_is_accepted_in_every_text_input(tmp_path, sim, capsys):
     """A UTF-8 byte-order mark before a recording, a raw table, a pose file, a configuration
     and a calibration file.  Seen failing for the recording ('not an imucald recording')."""

@@ -537,6 +537,9 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
         ln = lineno + i
         parts = s.split(",") if spec.comma_only else s.replace(",", " ").split()
         if len(parts) != n:
+            if len(line) > MAX_LINE_BYTES:      # within a block (one longer than a block: _long_line)
+                spec.fail(ln, f"line longer than {MAX_LINE_BYTES} bytes: not a line of a text table; "
+                              f"the file is binary or damaged (cut the damaged part)")
             spec.fail(ln, _count_message(s, parts, spec, ln))
         row = []
         for j, p in enumerate(parts):

@@ -74,3 +74,14 @@ def test_pose_file_unknown_temperature_stays_allowed(tmp_path):
     p.write_text("# imucald poses v1\nt0,t1,n,ax,ay,az,temp\n0,1,10,0,0,1,nan\n")
     ps = read_poses(str(p))
     assert np.isnan(ps.temp[0]) and ps.n[0] == 10
+
+
+def test_a_pose_file_whose_pose_ends_before_it_starts_is_refused_naming_the_line(tmp_path):
+    """A cold review's saved poses with t0 > t1 were accepted.  Seen to fail without the check."""
+    from imucald.errors import UserError
+    from imucald.fitting.stillness.poses import read_poses
+    p = tmp_path / "poses.csv"
+    p.write_text("# imucald poses v1\nt0,t1,n,ax,ay,az,sax,say,saz\n"
+                 "0,1,100,0,0,1,0.001,0.001,0.001\n5,4,100,0,1,0,0.001,0.001,0.001\n")
+    with pytest.raises(UserError, match=r"poses\.csv:4: t0 5 s is after t1 4 s"):
+        read_poses(str(p))

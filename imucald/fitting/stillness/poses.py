@@ -447,6 +447,11 @@ def read_poses(path: str) -> PoseSet:
             raise UserError(f"{path}:{j + 1}: a value is not a number") from None
         for name, v in zip(cols, row):
             _check_pose_value(path, j + 1, name, v, PLAUSIBLE_LIMIT)
+        if "t0" in cols and "t1" in cols and row[cols.index("t0")] > row[cols.index("t1")]:
+            # a pose ends after it starts (a cold review's saved poses had t0 > t1, accepted)
+            raise UserError(f"{path}:{j + 1}: t0 {row[cols.index('t0')]:g} s is after t1 "
+                            f"{row[cols.index('t1')]:g} s: a pose's start comes before its end "
+                            f"(repair or delete this line)")
         rows.append(row)
     if not rows:
         raise NoPoses(f"{path}: no poses")

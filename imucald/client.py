@@ -19,6 +19,7 @@ version 2) is decoded into the same dicts.
 """
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import socket
@@ -28,7 +29,7 @@ from typing import Any, BinaryIO, Dict, Iterator, Optional, Sequence, Tuple
 from .errors import UserError
 
 __all__ = ["StreamClient", "connect", "iter_records", "iter_binary", "decode_record", "attitude_deg",
-           "DEFAULT_SOCKET"]
+           "refusal_message", "DEFAULT_SOCKET"]
 
 DEFAULT_SOCKET = "/run/imucald/imucald.sock"
 
@@ -44,6 +45,21 @@ def iter_records(fh: BinaryIO, source: str = "stream") -> Iterator[Dict[str, Any
         except ValueError:
             raise UserError(f"{source}:{i}: not a JSON line ({line[:60]!r}): is output.format "
                             f"ndjson?") from None
+
+
+def refusal_message(first: bytes) -> Optional[str]:
+    """The daemon's message when the stream's first line ``first`` refuses this client (an
+    ERROR object where the VERSION banner would be: too many clients; '# ' before it in CSV),
+    else None."""
+    text = first.decode("utf-8", "replace").strip()
+    if text.startswith("# "):
+        text = text[2:]
+    if not text.startswith('{"class":"ERROR"'):
+        return None
+    try:
+        return str(json.loads(text).get("message", ""))
+    except ValueError:
+        return None
 
 
 #: the binary record this client reads (daemon/outputs.py BINARY_FORMAT, record version 2)
@@ -117,11 +133,13 @@ class StreamClient:
             raise UserError(f"{path}: cannot connect ({e.strerror or e}): is imucald running, and "
                             f"may this user read its socket (group of output.socket_group)?") from None
         self._fh = self.sock.makefile("rb")
-        self._records = iter_records(self._fh, path)
-        self.version: Dict[str, Any] = next(self._records, {})
-        if self.version.get("class") == "ERROR":            # refused (too many clients)
+        first = self._fh.readline()
+        why = refusal_message(first)
+        if why is not None:                                  # refused (too many clients)
             self.close()
-            raise UserError(f"{path}: the daemon refused this client: {self.version.get('message', '')}")
+            raise UserError(f"{path}: the daemon refused this client: {why}")
+        self._records = iter_records(itertools.chain([first], self._fh), path)
+        self.version: Dict[str, Any] = next(self._records, {})
         if self.version.get("class") != "VERSION":
             self.close()
             raise UserError(f"{path}: no VERSION banner: not an imucald stream socket")

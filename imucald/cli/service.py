@@ -308,6 +308,7 @@ def cmd_recalibrate(args) -> int:
 
 def cmd_watch(args) -> int:
     import socket as _socket
+    from ..client import refusal_message
     cfg, _ = daemon_config(args)
     p = cfg["output"]["socket"]
     p = p if os.path.isabs(p) else os.path.join(cfg["runtime"]["directory"], p)
@@ -322,11 +323,10 @@ def cmd_watch(args) -> int:
     f = s.makefile("rb")
     count = 0
     for line in f:
-        if count == 0 and b'"class":"ERROR"' in line[:40]:     # refused: too many clients
-            import json as _json
+        why = refusal_message(line) if count == 0 else None
+        if why is not None:                                     # refused: too many clients
             from ..errors import DeviceUnavailable
-            msg = _json.loads(line.decode().lstrip("# ")).get("message", "")
-            raise DeviceUnavailable(f"{p}: the daemon refused this client: {msg}")
+            raise DeviceUnavailable(f"{p}: the daemon refused this client: {why}")
         sys.stdout.write(_with_attitude(line.decode(errors="replace")))
         if is_sample_line(line):    # -n counts samples: not the VERSION banner, a CSV
             count += 1              # header, a GAP/CAL event

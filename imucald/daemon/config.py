@@ -389,6 +389,12 @@ def check_consistency(cfg: Dict[str, Dict[str, Any]], path: str = "",
                           f"{floor:.2g}..0.5")
 
 
+def _value(cfg: Dict[str, Dict[str, Any]], key: str) -> Any:
+    """The value of a dotted key (``output.socket``) in a loaded configuration."""
+    sec, k = key.split(".")
+    return cfg[sec][k]
+
+
 def _check_files_and_groups(cfg: Dict[str, Dict[str, Any]], error) -> None:
     """noise.file exists, and the socket groups do: said here with the file and line (a cold
     review: at start-up they came without either, noise.file's key twice)."""
@@ -403,7 +409,7 @@ def _check_files_and_groups(cfg: Dict[str, Dict[str, Any]], error) -> None:
                                   f"STILL_RECORDING -o FILE`, or remove the key")
     import grp
     for key in ("output.socket_group", "control.socket_group"):
-        g = cfg[key.split(".")[0]][key.split(".")[1]]
+        g = _value(cfg, key)
         if g is None:
             continue
         try:
@@ -419,11 +425,11 @@ def _check_socket_paths(cfg: Dict[str, Dict[str, Any]], error) -> None:
     ones (the control socket given the data socket's name left one socket, and the stream
     out of reach)."""
     rd = cfg["runtime"]["directory"]
-    keys = [k for k in ("output.socket", "control.socket", "output.fifo")
-            if cfg[k.split(".")[0]][k.split(".")[1]]]
     seen: Dict[str, str] = {}
-    for key in keys:
-        name = cfg[key.split(".")[0]][key.split(".")[1]]
+    for key in ("output.socket", "control.socket", "output.fifo"):
+        name = _value(cfg, key)
+        if not name:
+            continue
         if "\0" in name:
             raise error(key, f"{key}: {name!r} holds a NUL byte: give a plain file name, e.g. "
                              f"{SCHEMA[key][0] or 'imucald.fifo'}")

@@ -142,11 +142,11 @@ class Pipeline:
     def process(self, b) -> bytes:
         out: List[bytes] = []
         n = len(b.t)
-        first = int(b.seq[0]) if n else None
-        inside = [(s0, k) for s0, k in b.gaps if first is not None and s0 > first]
-        for s0, k in b.gaps:
-            if (s0, k) not in inside:
-                out.append(event("GAP", self.fmt, seq=int(s0), missing=int(k)))
+        # a GAP before the batch's first sample leads it; one inside it (merged polls) goes
+        # where its samples are missing (_gaps_in_place)
+        inside = [g for g in b.gaps if n and g[0] > b.seq[0]] if b.gaps else []
+        out += [event("GAP", self.fmt, seq=int(s0), missing=int(k)) for s0, k in b.gaps
+                if (s0, k) not in inside]
         if n:
             still, intervals = self.det.update(b.t, b.acc, b.gyro, b.temp, b.mag, b.mag_fresh)
             if self.det.repeats is not None and self._repeats_said is not self.det:
@@ -193,9 +193,7 @@ class Pipeline:
         carry no GAP objects (their records hold seq)."""
         if self.fmt == "binary":
             return enc
-        lines = enc.split(b"\n")[:-1]
-        if len(lines) != len(seq):          # not one line a sample: as it was
-            return b"".join(event("GAP", self.fmt, seq=int(s0), missing=int(k)) for s0, k in gaps) + enc
+        lines = enc.split(b"\n")[:-1]      # one line a sample (ndjson, csv)
         out, at = [], 0
         for s0, k in gaps:
             i = int(np.searchsorted(seq, s0))

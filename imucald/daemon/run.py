@@ -61,10 +61,6 @@ def loss_warning(got: int, lost: int, resets: int, reinits: int, span_s: float,
             f"fewer are found")
 
 
-def _file_id(st: os.stat_result):
-    return st.st_dev, st.st_ino
-
-
 class Daemon:
     """Runs ``board`` (on ``bus``; ``desc`` says which, for the log) until stopped.
 
@@ -432,7 +428,7 @@ class Daemon:
         held = getattr(self, "_state_lock_fd", None)
         try:
             st = os.stat(os.path.join(sd, LOCK_FILE))
-            same = held is not None and (st.st_dev, st.st_ino) == _file_id(os.fstat(held))
+            same = held is not None and os.path.samestat(st, os.fstat(held))
         except OSError:
             same = False
         if same:

@@ -8,6 +8,7 @@ control module and stays light.
 """
 from __future__ import annotations
 
+import errno
 import grp
 import os
 import socket
@@ -80,7 +81,6 @@ def _stale(path: str) -> bool:
     listens) or the file gone.  Anything else is taken as in use: an answer, a full backlog
     (EAGAIN: a busy or hung listener), a timeout, a permission refused (another user's
     socket; a cold review found all three read as stale and the socket replaced)."""
-    import errno
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     s.settimeout(PROBE_TIMEOUT_S)
     try:

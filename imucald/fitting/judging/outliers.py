@@ -97,9 +97,7 @@ def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta:
     if pose_cov is None or N == 0:
         return none
     th = np.asarray(model.nominal if theta is None else theta, float).copy()
-    free = np.asarray(model.free_mask, bool)
-    k = int(free.sum())
-    P = _temperature_basis(temp_c, N, k)
+    P = _temperature_basis(temp_c, N, int(np.sum(model.free_mask)))
     c = np.zeros((0 if P is None else P.shape[1], 3))     # bias per temperature power, raw unit
     floor = (0.0 if floor_var is None else
              (raw / np.linalg.norm(raw, axis=1, keepdims=True)) ** 2 @ np.asarray(floor_var, float))
@@ -113,7 +111,7 @@ def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta:
         # poses that do not determine the model (all in one orientation: a board turned on a
         # table) send Gauss-Newton off to infinity; that ends the test with nothing flagged
         # (below), not with numpy's warnings on the user's terminal (an independent probe)
-        fitted = _robust_fit(model, raw, th, c, P, free, k, state, iters, tol)
+        fitted = _robust_fit(model, th, c, P, state, iters, tol)
         if fitted is None:
             return none
         x, sig = state(*fitted)
@@ -126,10 +124,14 @@ def outlier_poses(model, raw: np.ndarray, pose_cov: Optional[np.ndarray], theta:
     return np.abs(z) > OUTLIER_POSE_Z, z, r
 
 
-def _robust_fit(model, raw, th, c, P, free, k, state, iters, tol):
-    """Gauss-Newton least squares, then Tukey-reweighted steps (outlier_poses); (theta, c),
-    or None when a step leaves the finite numbers."""
-    N = len(raw)
+def _robust_fit(model, th: np.ndarray, c: np.ndarray, P: Optional[np.ndarray], state,
+                iters: int, tol: float) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    """Gauss-Newton least squares, then Tukey-reweighted steps (outlier_poses), from the
+    model's parameters ``th`` and the temperature terms ``c`` (basis ``P``; ``state(th, c)``:
+    the corrected poses and their noise sd); (theta, c), or None when a step leaves the finite
+    numbers."""
+    free = np.asarray(model.free_mask, bool)
+    k = int(free.sum())
     for robust in (False, True):
         for _ in range(iters):
             x, sig = state(th, c)
@@ -139,9 +141,9 @@ def _robust_fit(model, raw, th, c, P, free, k, state, iters, tol):
                 A, b = model.affine(th)
                 h = x @ A.T + b
                 g = (h / np.linalg.norm(h, axis=1, keepdims=True)) @ A
-                J = np.concatenate([J, (P[:, :, None] * g[:, None, :]).reshape(N, -1)], 1)
+                J = np.concatenate([J, (P[:, :, None] * g[:, None, :]).reshape(len(x), -1)], 1)
             u = r / sig
-            w = np.ones(N)
+            w = np.ones(len(x))
             if robust:
                 # the scale never below the noise model's: with as many terms as a warm-up
                 # needs, a scale read off the residuals alone collapsed onto a subset the model

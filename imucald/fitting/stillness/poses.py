@@ -433,6 +433,7 @@ def read_poses(path: str) -> PoseSet:
     if dup is not None:
         raise UserError(f"{path}:{i + 1}: column {dup} is given twice; keep one")
     _check_pose_columns(path, i + 1, cols)
+    i01 = (cols.index("t0"), cols.index("t1")) if "t0" in cols and "t1" in cols else None
     rows = []
     for j in range(i + 1, len(lines)):
         s = lines[j].strip()
@@ -447,11 +448,10 @@ def read_poses(path: str) -> PoseSet:
             raise UserError(f"{path}:{j + 1}: a value is not a number") from None
         for name, v in zip(cols, row):
             _check_pose_value(path, j + 1, name, v, PLAUSIBLE_LIMIT)
-        if "t0" in cols and "t1" in cols and row[cols.index("t0")] > row[cols.index("t1")]:
+        if i01 and row[i01[0]] > row[i01[1]]:
             # a pose ends after it starts (a cold review's saved poses had t0 > t1, accepted)
-            raise UserError(f"{path}:{j + 1}: t0 {row[cols.index('t0')]:g} s is after t1 "
-                            f"{row[cols.index('t1')]:g} s: a pose's start comes before its end "
-                            f"(repair or delete this line)")
+            raise UserError(f"{path}:{j + 1}: t0 {row[i01[0]]:g} s is after t1 {row[i01[1]]:g} s: "
+                            f"a pose's start comes before its end (repair or delete this line)")
         rows.append(row)
     if not rows:
         raise NoPoses(f"{path}: no poses")

@@ -59,7 +59,7 @@ from .gyrostill import split_at_time_gaps, trim_turns
 from .linear import gyro_diag
 from .magpath import diagnosable, mag_model, mag_points, mag_still_slices, quiet_noise
 from .norm import norm_diag
-from .posenoise import flag_disturbed, pose_mean_variance
+from .posenoise import flag_disturbed, flicker_between_poses, pose_mean_variance
 from ..fitting.noise.posefloor import (
     estimate_lsb, pose_quantisation_floor, radial_series, run_effective_counts, sway_rotation_variance,
     tilt_wander_test
@@ -507,6 +507,9 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     sway, pinfo["sway"] = sway_rotation_variance(rec.acc, rec.gyro, u.kept(gsl), rate)
     qf, pinfo["quantisation"] = pose_quantisation_floor(rec.gyro, u.kept(gsl))
     gvar = np.maximum(gvar, sway[:, None]) + qf[None, :]
+    # flicker (bias instability) slower than a hold scatters the pose means too (gap/posenoise.py)
+    fl, colour_g["flicker_between_poses"] = flicker_between_poses(rec.gyro, u.kept(gsl), rate)
+    gvar = gvar + fl
     colour_g["pose_mean_variance"] = pinfo
     ctx = u.ctx
     # specific force in g from the calibrated accelerometer (raw directions carry the

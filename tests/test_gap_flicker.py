@@ -90,3 +90,15 @@ def test_gyro_flicker_null_is_not_a_gap():
         verdicts.append(gy["verdict"])
     assert sum(v == "none" for v in verdicts) >= 7, (verdicts, ratios)
     assert abs(np.median(ratios) - 1) < 0.2, ratios
+
+
+def test_no_hold_of_32_samples_reads_no_flicker():
+    """Holds of 31 samples (10 Hz, 3.1 s) give no Hadamard rows: nothing is added and the
+    note says why.  Seen to fail (ValueError from reshaping no rows: the whole `gap` run
+    ended in a traceback, a cold review's 10-Hz recordings with 2-s holds) before
+    _hadamard_rows shaped its empty result by the columns."""
+    rng = np.random.default_rng(0)
+    sl = [slice(i * 40, i * 40 + 31) for i in range(20)]
+    add, info = flicker_between_poses(rng.normal(size=(800, 3)), sl, 10.0)
+    assert add.shape == (20, 3) and not add.any()
+    assert "fewer than 3 poses of 32 samples" in info["note"]

@@ -508,7 +508,10 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     qf, pinfo["quantisation"] = pose_quantisation_floor(rec.gyro, u.kept(gsl))
     gvar = np.maximum(gvar, sway[:, None]) + qf[None, :]
     # flicker (bias instability) slower than a hold scatters the pose means too (gap/posenoise.py)
-    fl, colour_g["flicker_between_poses"] = flicker_between_poses(rec.gyro, u.kept(gsl), rate)
+    # (not on the axes a hand's tremor fills, which the structure function read below white,
+    # nor under a hand's sway: its slow turning inside the holds reads as flicker there)
+    read = white_ax & (not pinfo["sway"].get("used", False))
+    fl, colour_g["flicker_between_poses"] = flicker_between_poses(rec.gyro, u.kept(gsl), rate, read)
     gvar = gvar + fl
     colour_g["pose_mean_variance"] = pinfo
     ctx = u.ctx

@@ -59,7 +59,8 @@ def _hadamard_rows(x: np.ndarray, slices, rate_hz: float):
             hv.append(np.mean(d * d, axis=0) / 6.0)
             dof.append(parts - 2)
             pose.append(i)
-    return np.array(taus), np.array(hv).reshape(len(taus), -1), np.array(dof, float), np.array(pose)
+    return (np.array(taus), np.array(hv).reshape(len(taus), x.shape[1]), np.array(dof, float),
+            np.array(pose, dtype=int))
 
 
 def _fit_h(taus: np.ndarray, hv: np.ndarray, dof: np.ndarray) -> float:
@@ -84,6 +85,7 @@ def flicker_level(x: np.ndarray, slices, rate_hz: float):
     share its samples, and a flicker's variance estimates scatter beyond their degrees of
     freedom: the formula's error read 1.7x too small on simulated 1/f).  None when fewer
     than 3 poses have 32 samples; an axis held at one value reads 0 +- 0."""
+    x = np.asarray(x, float).reshape(len(x), -1)
     taus, hv, dof, pose = _hadamard_rows(x, slices, rate_hz)
     ids = np.unique(pose)
     if len(ids) < 3:
@@ -91,7 +93,10 @@ def flicker_level(x: np.ndarray, slices, rate_hz: float):
     C = hv.shape[1]
     h, se = np.zeros(C), np.zeros(C)
     for c in range(C):
-        if not np.all(np.sum(dof * hv[:, c] * taus) > 0):
+        # an axis held at one value (or not finite) reads 0 +- 0: its variances are rounding
+        white = np.sum(dof * hv[:, c] * taus) / np.sum(dof)
+        scale = float(np.max(np.abs(x[:, c]))) if np.all(np.isfinite(x[:, c])) else 0.0
+        if not white > (1e-12 * scale) ** 2 * np.max(taus):
             continue
         h[c] = _fit_h(taus, hv[:, c], dof)
         jk = np.array([_fit_h(taus[pose != i], hv[pose != i, c], dof[pose != i]) for i in ids])
@@ -99,22 +104,28 @@ def flicker_level(x: np.ndarray, slices, rate_hz: float):
     return h, se
 
 
-def flicker_between_poses(x: np.ndarray, slices, rate_hz: float):
+def flicker_between_poses(x: np.ndarray, slices, rate_hz: float, axes=None):
     """(variance (N, C) to add to each pose mean's, info): the part of flicker noise slower
     than a pose, which no within-pose statistic sees, as it scatters the pose means about
     their common mean: h (ln(S / T_i) + c0) less the H h the pose's own colour already
     counts (poses of T_i s over a span of S s; :func:`flicker_level`'s h).  Zero unless the
     pooled level stands FLICKER_GATE_Z standard errors above zero (white noise: 2 % of
-    recordings add a little)."""
+    recordings add a little).  Only the ``axes`` (C,) bool given are read (default all):
+    where a hand's tremor or sway fills the holds, their variances follow the hand, not
+    a / tau + H h, and the fit reads flicker where there is none (a simulated swaying
+    hand-held session's gyro twin read 15x its held-out residual)."""
     N = len(slices)
     C = x.shape[1] if x.ndim > 1 else 1
     x = x.reshape(len(x), C)
-    lv = flicker_level(x, slices, rate_hz)
+    on = np.ones(C, bool) if axes is None else np.asarray(axes, bool)
+    lv = flicker_level(x[:, on], slices, rate_hz) if on.any() else None
     if lv is None:
-        return np.zeros((N, C)), {"note": "fewer than 3 poses of 32 samples: no flicker read"}
-    h, se = lv
-    z = float(np.sum(h) / max(np.sqrt(np.sum(se ** 2)), 1e-300))
-    info = {"h_per_axis": h.tolist(), "h_stderr": se.tolist(), "z": round(z, 2)}
+        why = "no axis free of a hand's tremor or sway" if not on.any() else "fewer than 3 poses of 32 samples"
+        return np.zeros((N, C)), {"note": f"{why}: no flicker read"}
+    h, se = np.zeros(C), np.zeros(C)
+    h[on], se[on] = lv
+    z = float(np.sum(h[on]) / max(np.sqrt(np.sum(se[on] ** 2)), 1e-300))
+    info = {"h_per_axis": h.tolist(), "h_stderr": se.tolist(), "axes_read": on.tolist(), "z": round(z, 2)}
     if not z > FLICKER_GATE_Z:
         return np.zeros((N, C)), dict(info, added=False)
     T = np.array([(s.stop - s.start) / rate_hz for s in slices])

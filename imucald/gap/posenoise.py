@@ -120,7 +120,8 @@ def flicker_between_poses(x: np.ndarray, slices, rate_hz: float, axes=None):
     on = np.ones(C, bool) if axes is None else np.asarray(axes, bool)
     lv = flicker_level(x[:, on], slices, rate_hz) if on.any() else None
     if lv is None:
-        why = "no axis free of a hand's tremor or sway" if not on.any() else "fewer than 3 poses of 32 samples"
+        why = ("no axis free of a hand's tremor or sway" if not on.any()
+               else "fewer than 3 poses of 32 samples")
         return np.zeros((N, C)), {"note": f"{why}: no flicker read"}
     h, se = np.zeros(C), np.zeros(C)
     h[on], se[on] = lv
@@ -128,7 +129,7 @@ def flicker_between_poses(x: np.ndarray, slices, rate_hz: float, axes=None):
     info = {"h_per_axis": h.tolist(), "h_stderr": se.tolist(), "axes_read": on.tolist(), "z": round(z, 2)}
     if not z > FLICKER_GATE_Z:
         return np.zeros((N, C)), dict(info, added=False)
-    T = np.array([(s.stop - s.start) / rate_hz for s in slices])
+    T = np.array([max(s.stop - s.start, 1) / rate_hz for s in slices])    # an empty slice: one sample
     S = (max(s.stop for s in slices) - min(s.start for s in slices)) / rate_hz
     k = np.maximum(np.log(S / T) + FLICKER_SPAN_C0 - FLICKER_HVAR_PER_H, 0.0)
     info.update(added=True, span_s=round(S, 1), factor_median=round(float(np.median(k)), 3))

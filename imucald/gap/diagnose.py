@@ -509,8 +509,12 @@ def _gyro_step(rec: Recording, u: PoseSetup, sims, rng) -> Dict[str, object]:
     gvar = np.maximum(gvar, sway[:, None]) + qf[None, :]
     # flicker (bias instability) slower than a hold scatters the pose means too (gap/posenoise.py)
     # (not on the axes a hand's tremor fills, which the structure function read below white,
-    # nor under a hand's sway: its slow turning inside the holds reads as flicker there)
-    read = white_ax & (not pinfo["sway"].get("used", False))
+    # nor under a hand's sway clear of its standard error by 3 (one-sided 0.1 %): its slow
+    # turning inside the holds reads as flicker there; the twin's own rule, 1 SE, is met by
+    # chance on a sixth of bench recordings)
+    sw = pinfo["sway"]
+    swaying = sw.get("net_rotation_variance_deg2", 0.0) > 3 * sw.get("stderr_deg2", np.inf)
+    read = white_ax & (not swaying)
     fl, colour_g["flicker_between_poses"] = flicker_between_poses(rec.gyro, u.kept(gsl), rate, read)
     gvar = gvar + fl
     colour_g["pose_mean_variance"] = pinfo

@@ -468,3 +468,35 @@ def test_a_state_write_in_progress_is_still_unsaved():
     finally:
         release.set()
         w.close()
+
+
+@pytest.mark.parametrize("name", ["poses.csv", "thermal.csv"])
+@pytest.mark.parametrize("case", ["other_board", "m_s2", "own", "no_header"])
+def test_saved_poses_of_another_board_or_unit_are_set_aside(tmp_path, caplog, name, case):
+    """Saved poses the running daemon did not make -- another board's header (a toaster's, a
+    daemon helper put one there) or another tool's poses in m/s^2 -- are set aside in one line
+    with the reason, not resumed; its own (header with its board) and files saved before the
+    header carried the board are resumed.  Broken once: with ``_foreign`` returning None the
+    two foreign cases were resumed (12 poses, this test failed)."""
+    from imucald.fitting.stillness.poses import PoseSet
+    from imucald.daemon.state import load_poses, save_poses
+    rng = np.random.default_rng(1)
+    acc = rng.normal(size=(12, 3))
+    acc /= np.linalg.norm(acc, axis=1, keepdims=True)
+    cov = np.broadcast_to(np.eye(3) * 1e-8, (12, 3, 3)).copy()
+    if case == "m_s2":
+        acc, cov = acc * 9.80665, cov * 9.80665 ** 2
+    ps = PoseSet(acc=acc, acc_cov=cov / 200, n=np.full(12, 200), t0=np.arange(12.0),
+                 t1=np.arange(12.0) + 2, acc_sample_cov=cov)
+    board = {"other_board": "toaster", "no_header": ""}.get(case, "mpu6050")
+    save_poses(str(tmp_path), ps, name, board=board)
+    with caplog.at_level("WARNING", logger="imucald"):
+        back = load_poses(str(tmp_path), name, board="mpu6050")
+    msgs = [r.getMessage() for r in caplog.records]
+    if case in ("own", "no_header"):
+        assert back is not None and len(back) == 12 and msgs == []
+        assert back.meta.get("board") == (board or None)
+        return
+    assert back is None and len(msgs) == 1 and "set aside as" in msgs[0], msgs
+    assert ("'toaster', this daemon runs 'mpu6050'" if case == "other_board" else "m/s^2?") in msgs[0]
+    assert not (tmp_path / name).exists() and any(f.startswith(name + ".corrupt-") for f in os.listdir(tmp_path))

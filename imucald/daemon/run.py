@@ -176,12 +176,12 @@ class Daemon:
         if cal is not None:
             self.pipe.applied = cal
             log.info("loaded calibration #%d (%s)", cal.id, cal.created)
-        ps = load_poses(sd)
+        ps = load_poses(sd, board=self.board.name)
         if ps is not None and len(ps):
             self.pipe.acc.load(ps)
             self.pipe.next_cal_added = 0
             log.info("resumed %d poses from %s", len(ps), os.path.join(sd, "poses.csv"))
-        tl = load_poses(sd, "thermal.csv")
+        tl = load_poses(sd, "thermal.csv", board=self.board.name)
         if tl is not None and len(tl):
             self.pipe.thermal_log.load(tl)
             log.info("resumed %d still intervals over %.1f degC for the thermal terms from %s",
@@ -410,9 +410,9 @@ class Daemon:
         sd = self.cfg["state"]["directory"]
         self._relock_state(sd)
         if kind == "poses":
-            save_poses(sd, obj)
+            save_poses(sd, obj, board=self.board.name)
         elif kind == "thermal":
-            save_poses(sd, obj, "thermal.csv")
+            save_poses(sd, obj, "thermal.csv", board=self.board.name)
         else:
             save_calibration(sd, obj, self.cfg["calibration"]["history"])
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from dataclasses import replace
 from typing import Dict, Optional
 
 import numpy as np
@@ -117,13 +118,39 @@ def load_calibration(state_dir: str, board: Optional[str] = None,
     return cal
 
 
-def save_poses(state_dir: str, ps: PoseSet, name: str = "poses.csv") -> None:
+#: the median |a| of saved poses must lie here, g: raw (uncalibrated) poses of the supported
+#: chips read 1 g within their scale and bias tolerances (+-10 % and 250 mg at worst, the
+#: ADXL345's: imucald/specs.py); m/s^2 reads 9.8, counts hundreds or more
+SAVED_POSE_MEDIAN_G = (0.5, 2.0)
+
+
+def save_poses(state_dir: str, ps: PoseSet, name: str = "poses.csv", board: str = "") -> None:
+    """Write the poses; ``board``, when given, goes in the header (load_poses checks it)."""
+    if board:
+        ps = replace(ps, meta={**ps.meta, "board": board, "units": "g"})
     write_poses(ps, os.path.join(state_dir, name))
 
 
-def load_poses(state_dir: str, name: str = "poses.csv") -> Optional[PoseSet]:
+def _foreign(ps: PoseSet, board: Optional[str]) -> Optional[str]:
+    """Why saved poses are not this daemon's to resume, or None: another board's header
+    (files written before the header carried the board have none, and are taken), or a
+    median |a| beyond :data:`SAVED_POSE_MEDIAN_G` (another tool's poses in m/s^2 or counts)."""
+    saved = ps.meta.get("board")
+    if board is not None and saved is not None and saved != board:
+        return f"poses of board {saved!r}, this daemon runs {board!r}"
+    if len(ps):
+        m = float(np.median(np.linalg.norm(ps.acc, axis=1)))
+        lo, hi = SAVED_POSE_MEDIAN_G
+        if not lo <= m <= hi:
+            return (f"median |a| of the poses is {m:.4g}, not about 1 g "
+                    f"({'m/s^2' if 5 <= m <= 15 else 'counts or another unit'}?): poses are saved in g")
+    return None
+
+
+def load_poses(state_dir: str, name: str = "poses.csv", board: Optional[str] = None) -> Optional[PoseSet]:
     """The saved poses (``name``: poses.csv, or thermal.csv: the thermal log), or None; an
-    unreadable file is set aside."""
+    unreadable file, or one that is not this daemon's (:func:`_foreign`; ``board``: the
+    running board's name, None to skip that check), is set aside."""
     path = os.path.join(state_dir, name)
     if not os.path.lexists(path):
         return None
@@ -137,6 +164,10 @@ def load_poses(state_dir: str, name: str = "poses.csv") -> Optional[PoseSet]:
             if v is not None and not np.all(np.isfinite(v)):
                 bad = int(np.flatnonzero(~np.isfinite(v.reshape(len(ps), -1)).all(1))[0])
                 raise UserError(f"pose {bad + 1}: {name} is not finite")
+        why = _foreign(ps, board)
+        if why:
+            set_aside(path, why)
+            return None
         return ps
     except NoPoses:     # saved before the first pose or after a reset: nothing to restore
         return None

@@ -23,14 +23,16 @@ COLUMNS = "t,qw,qx,qy,qz,lax,lay,laz,incl_std_deg,heading_std_deg"
 def orientation_table(rec, cal, batch_s: float = 0.02):
     """(rows (n, 10) with NaN where unknown, heading reference) for a corrected recording."""
     from ..orientation import OrientationFilter
-    from ..specs import ACCEL, recording_chips
+    from ..specs import ACCEL, GYRO, recording_chips
     if rec.acc is None or rec.gyro is None:
         raise UserError("--orientation needs accelerometer and gyro columns (ax..az, gx..gz)")
     rate = rec.rate_hz
-    spec = ACCEL.get(recording_chips(rec.meta).get("accel", ""))
+    chips = recording_chips(rec.meta)
+    spec, gspec = ACCEL.get(chips.get("accel", "")), GYRO.get(chips.get("gyro", ""))
     f = OrientationFilter(rate, rec.mag is not None,
                           None if spec is None else spec.noise_density_g_rthz * rate ** 0.5)
-    f.use_calibration(cal, None if spec is None else spec.bias_tol_g)
+    f.use_calibration(cal, None if spec is None else spec.bias_tol_g,
+                      None if gspec is None else gspec.bias_tol_dps)
     n = len(rec)
     out = np.full((n, 10), np.nan)
     out[:, 0] = rec.t

@@ -255,7 +255,7 @@ class Pipeline:
         "auto" (on when the extra is installed and the board has a gyro and an accelerometer;
         else off, and ``orientation_off`` says why), "no"."""
         from ..orientation import OrientationFilter, unavailable_reason
-        from ..specs import ACCEL
+        from ..specs import ACCEL, GYRO
         self.orient = None
         if mode == "no":
             self.orientation_off = "output.orientation: no"
@@ -275,6 +275,8 @@ class Pipeline:
         elif spec is not None:
             noise = spec.noise_density_g_rthz * self.rate_hz ** 0.5
         self._acc_tol = None if spec is None else spec.bias_tol_g
+        gspec = GYRO.get(self.chips.get("gyro", ""))
+        self._gyro_tol = None if gspec is None else gspec.bias_tol_dps
         self.orient = OrientationFilter(self.rate_hz, self.has_mag, noise)
         self._orient_cal = None
         self.orientation_off = None
@@ -296,7 +298,7 @@ class Pipeline:
         the stream only); returns its output for the kept rows, or None without a gyro."""
         f, ap = self.orient, self.applied
         if ap is not self._orient_cal:          # a new calibration: reset what depends on it
-            what = f.use_calibration(ap, self._acc_tol)
+            what = f.use_calibration(ap, self._acc_tol, self._gyro_tol)
             self._orient_cal = ap
             if what:
                 log.info("orientation: reset the %s (calibration #%d)", what, ap.id)

@@ -16,7 +16,9 @@ One truth about the sensors (what wins, and why):
   better) is removed before the filter; VQF's rest and motion bias estimation then tracks
   what is left (drift since the calibration, temperature).  Its estimate is *relative to the
   calibration*, so a new gyro calibration resets it to zero with the new calibration's bias
-  standard error as its uncertainty (:meth:`OrientationFilter.use_calibration`).
+  standard error as its uncertainty (:meth:`OrientationFilter.use_calibration`).  A still
+  interval's residual bias is taken off the gyro before VQF (VQF clips its own estimate at
+  2 deg/s, beyond which an uncalibrated chip's zero-rate offset lies).
 * **Stillness**: imucald's detector (moving variance against the measured noise) decides the
   stream's ``still`` flag and the calibration's poses; VQF's own rest detection (thresholds on
   its low-passed gyro and acc, 2 deg/s and 0.5 m/s^2, over 1.5 s) decides when VQF learns its
@@ -105,9 +107,19 @@ class OrientationFilter:
         p = self.f.params
         self.tau_acc_s, self.tau_mag_s = float(p["tauAcc"]), float(p["tauMag"])
         self._sigma0_rad_s = math.radians(float(p["biasSigmaInit"]))
+        self._clip_rad_s = math.radians(float(p["biasClip"]))
         self.acc_bias_se_g: Optional[np.ndarray] = None
         self._acc_var: Optional[float] = None      #: sum of acc_bias_se_g squared, g^2
         self.mag_rel_floor = 0.0
+        #: the gyro's datasheet bias prior, rad/s, without a gyro calibration (or None); the
+        #: quality figures take it until a still interval or VQF's rest detection (gyro under
+        #: 2 deg/s for 1.5 s) has measured the bias (``_bias_seen``)
+        self._gyro_prior_rad_s: Optional[float] = None
+        self._bias_seen = False
+        #: the last still interval's residual bias, rad/s, taken off the gyro before VQF: VQF
+        #: clips its own estimate to biasClip (2 deg/s), so a larger bias (an uncalibrated
+        #: ITG-3200's tens of deg/s) handed to it stayed 2 deg/s and the tilt 60 deg off
+        self._offset_rad_s = np.zeros(3)
         self._keys = (None, None, None)
         self.resets = 0
         self._clear_quality()
@@ -126,14 +138,22 @@ class OrientationFilter:
         self.rate_hz = float(rate_hz)
         self.f = vqf.VQF(1.0 / self.rate_hz, **self._params)
         self._keys = (None, None, None)
+        self._bias_seen = False
+        self._offset_rad_s = np.zeros(3)
         self._clear_quality()
 
     # -- the calibration in force ---------------------------------------------------------
-    def use_calibration(self, cal, acc_bias_tol_g=None) -> Optional[str]:
+    def use_calibration(self, cal, acc_bias_tol_g=None, gyro_bias_tol_dps=None) -> Optional[str]:
         """Take the calibration in force; returns what was reset (None: nothing).
 
         acc_bias_tol_g: the accelerometer's datasheet zero-g tolerance (g, per axis), used
-        (as N(0, tol/2), the simulator's prior) while there is no accelerometer calibration."""
+        (as N(0, tol/2), the simulator's prior) while there is no accelerometer calibration.
+        gyro_bias_tol_dps: the gyro's datasheet zero-rate tolerance (deg/s), likewise the
+        bias uncertainty the quality figures take while there is neither a gyro calibration
+        nor a still interval (:meth:`still_interval`): VQF starts from its own 0.5 deg/s and
+        learns at rest only a bias under its 2 deg/s rest threshold, so an ITG-3200's +-40 deg/s
+        (a 73 deg median tilt error before the first still interval) read as 45 deg
+        through the gravity-free acceleration alone (a daemon helper)."""
         a, g, m = (getattr(cal, k, None) for k in ("accel", "gyro", "mag"))
         keys = (_part_key(a), _part_key(g), _part_key(m))
         se = None
@@ -145,6 +165,10 @@ class OrientationFilter:
         self._acc_var = None if se is None else float(np.sum(se[np.isfinite(se)] ** 2))
         self.mag_rel_floor = float((m.quality or {}).get("heldout_rel_rms", 0.0) or 0.0) if m is not None else 0.0
         old, self._keys = self._keys, keys
+        if old[1] != keys[1]:
+            self._bias_seen = False             # what VQF learnt was relative to the old gyro part
+        self._gyro_prior_rad_s = (math.radians(float(gyro_bias_tol_dps) / 2.0)
+                                  if g is None and gyro_bias_tol_dps is not None else None)
         if old == keys:
             return None
         what = []
@@ -163,6 +187,7 @@ class OrientationFilter:
                 if np.all(np.isfinite(s)):
                     sg = math.radians(float(np.max(s)))
             self.f.setBiasEstimate(np.zeros(3), max(sg, 1e-6))
+            self._offset_rad_s = np.zeros(3)
             what.append("residual gyro bias (new gyro calibration)")
         if not what:
             return None
@@ -179,8 +204,10 @@ class OrientationFilter:
         b = np.asarray(gyro_mean_dps, float)
         if not np.all(np.isfinite(b)):
             return
+        self._bias_seen = True                  # the bias is measured now
         se = float(np.max(gyro_se_dps)) if gyro_se_dps is not None and np.all(np.isfinite(gyro_se_dps)) else 0.01
-        self.f.setBiasEstimate(np.radians(b), max(math.radians(se), 1e-6))
+        self._offset_rad_s = np.radians(b)      # taken off before VQF, whose own estimate restarts at 0
+        self.f.setBiasEstimate(np.zeros(3), max(math.radians(se), 1e-6))
 
     # -- the batch ------------------------------------------------------------------------
     def update(self, acc_g, gyro_dps, mag_gauss=None) -> Dict[str, Any]:
@@ -224,6 +251,8 @@ class OrientationFilter:
         if self.has_mag and dist is None:
             dist = np.zeros(n, bool)
         magnetic = self.has_mag and self._mag_seen
+        if self._gyro_prior_rad_s is not None and not self._bias_seen:
+            sig = max(sig, self._gyro_prior_rad_s)
         tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),
                                    self.acc_noise_g, self.tau_acc_s, self.rate_hz)
         if magnetic:
@@ -240,7 +269,7 @@ class OrientationFilter:
     def _run(self, acc, gyro, mag):
         """VQF over rows that are all finite: (q, lin_acc_g, mag_disturbed or None, bias sigma)."""
         a = np.ascontiguousarray(acc * G_MS2)        # VQF takes C-ordered m/s^2 and rad/s
-        w = np.ascontiguousarray(np.radians(gyro))
+        w = np.ascontiguousarray(np.radians(gyro) - self._offset_rad_s)
         if mag is not None:
             o = self.f.updateBatch(w, a, np.ascontiguousarray(mag))
             q, dist = o["quat9D"], o["magDistDetected"]
@@ -248,6 +277,9 @@ class OrientationFilter:
         else:
             o = self.f.updateBatch(w, a)
             q, dist = o["quat6D"] if not self._mag_seen else self._q9_from_6d(o["quat6D"]), None
+        if (not self._bias_seen and self._gyro_prior_rad_s is not None
+                and self._gyro_prior_rad_s <= self._clip_rad_s and o["restDetected"].any()):
+            self._bias_seen = True              # VQF saw rest and can learn a bias this size
         lin = gravity_free_g(q, acc)
         self._track(q, lin, mag, dist)
         return q, lin, dist, float(o["biasSigma"][-1])

@@ -28,11 +28,15 @@ import math
 from typing import Optional
 
 
-__all__ = ["tilt_var_rad2", "heading_var_rad2", "ros_covariance", "ARBITRARY_HEADING_VAR_RAD2"]
+__all__ = ["tilt_var_rad2", "heading_var_rad2", "ros_covariance", "ARBITRARY_HEADING_VAR_RAD2",
+           "ARBITRARY_TILT_VAR_RAD2"]
 
 #: heading variance of a 6D estimate: its heading is an arbitrary angle, uniform on the circle
 #: (variance of U(-pi, pi) = pi^2 / 3); ROS readers that fuse yaw get "no information"
 ARBITRARY_HEADING_VAR_RAD2 = math.pi ** 2 / 3
+#: tilt variance of no information: the vertical axis uniform on the sphere, so the tilt angle
+#: has density sin(t)/2 on [0, pi] and E[t^2] = (pi^2 - 4) / 2 (98 deg rms)
+ARBITRARY_TILT_VAR_RAD2 = (math.pi ** 2 - 4) / 2
 
 
 def tilt_var_rad2(acc_bias_var_g2: Optional[float], gyro_bias_sigma_rad_s: float,
@@ -51,7 +55,7 @@ def tilt_var_rad2(acc_bias_var_g2: Optional[float], gyro_bias_sigma_rad_s: float
         v += 2.0 / 3.0 * acc_bias_var_g2
     if acc_noise_g is not None:
         v += 2.0 * acc_noise_g ** 2 / (2.0 * tau_acc_s * rate_hz)
-    return v
+    return min(v, ARBITRARY_TILT_VAR_RAD2)
 
 
 def heading_var_rad2(gyro_bias_sigma_rad_s: float, mag_rel_err: float, dip_rad: float,

@@ -325,6 +325,32 @@ def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
                    f"from line 3, below the header lines if the file has them: each part is a recording)"), msg
 
 
+def test_a_column_header_repeated_mid_file_is_named_with_both_fixes(tmp_path):
+    """A logger that restarted and appended writes its header again mid-file: named as that,
+    with the delete (time carries on) and the split (time starts again), not as "'t' is not a
+    number".  A logger's own error line of names ("I2C,timeout,...") keeps the plain message.
+    Broken once: with _header_again returning False the first assertion failed."""
+    from imucald.fitting.inputs import read_table
+    from imucald.files.recording import RecordingError, read_recording
+    p = tmp_path / "log.csv"
+    rows = [f"{i * 0.01:.2f},0,0,16384" for i in range(6)]
+    p.write_text("t,ax,ay,az\n" + "\n".join(rows[:3] + ["t,ax,ay,az"] + rows[3:]) + "\n")
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg == (f"{p}:5: a column header again ('t,ax,ay,az'): a logger that restarted and appended? "
+                   f"If the time carries on below it, delete this line (sed -i '5d' {p}); if it starts "
+                   f"again, split the file there (head -n 4 {p} > part1.csv, and the rest from line 6: "
+                   f"each part is a recording)"), msg
+    p.write_text("t,ax,ay,az\n" + "\n".join(rows[:3] + ["I2C,timeout,retry,later"] + rows[3:]) + "\n")
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg == f"{p}:5: column t: 'I2C' is not a number", msg
+    q = tmp_path / "rec.csv"           # an imucald recording appended to itself
+    head = "# imucald recording v1\n# board: mpu6050\n# rate_hz: 100\nt,ax,ay,az\n"
+    q.write_text(head + "\n".join(r.replace(",16384", ",1") for r in rows[:3]) + "\nt,ax,ay,az\n"
+                 + "\n".join(r.replace(",16384", ",1") for r in rows[3:]) + "\n")
+    msg = _one_line_error(read_recording, str(q), cls=RecordingError)
+    assert f"{q}:8: a column header again" in msg, msg
+
+
 @pytest.mark.parametrize("sep", [";", "\t"])
 def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
     """A spreadsheet's or phyphox's export in a locale whose decimal mark is the comma

@@ -71,6 +71,39 @@ def _backwards(name: str, t: float, prev_t: float, lineno: int = 0, path: str = 
             f"time or cut the file there")
 
 
+_NAME = re.compile(r"[A-Za-z_][\w .:/()\[\]^*-]*")
+
+
+#: column names that mark a row of names as a header (beside the file's own --columns names)
+_HEADER_WORDS = {"t", "time", "timestamp", "t_s", "t_ms", "t_us", "ax", "ay", "az", "gx", "gy", "gz"}
+
+
+def _header_again(parts, names) -> bool:
+    """A row of column names where numbers were expected: no field a number, every field a name,
+    one of them a known column's (a logger that restarted and appended wrote its header again;
+    a logger's error line, "I2C,timeout", is not one)."""
+    known = _HEADER_WORDS | {n.lower() for n in names}
+    if not any(p.strip().lower() in known for p in parts):
+        return False
+    return all(_NAME.fullmatch(p.strip() or "-") is not None and not _is_number(p) for p in parts)
+
+
+def _is_number(p: str) -> bool:
+    try:
+        float(p)
+    except ValueError:
+        return False
+    return True
+
+
+def _header_message(line: str, path: str, lineno: int) -> str:
+    q = shlex.quote(path) if path else "FILE"
+    return (f"a column header again ({snippet(line)}): a logger that restarted and appended? "
+            f"If the time carries on below it, delete this line (sed -i '{lineno}d' {q}); if it "
+            f"starts again, split the file there (head -n {lineno - 1} {q} > part1.csv, and the "
+            f"rest from line {lineno + 1}: each part is a recording)")
+
+
 class TableSpec:
     """How the body of one file is laid out and checked."""
 
@@ -548,6 +581,8 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
             except ValueError:
                 if spec.names[j] == "-":        # a skipped column may hold text (a frame id)
                     v = float("nan")
+                elif _header_again(parts, spec.names):
+                    spec.fail(ln, _header_message(s, spec.path, ln))
                 else:
                     spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, p))} is not a number")
             row.append(v)

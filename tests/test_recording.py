@@ -325,6 +325,34 @@ def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
                    f"from line 3, below the header lines if the file has them: each part is a recording)"), msg
 
 
+def test_garbled_lines_after_the_first_are_listed_in_the_same_error(tmp_path):
+    """Several garbled lines (a logger's serial noise): the error names the first, in full, and
+    lists the others read with it, so one run shows what to repair; a file with one garbled
+    line keeps the plain message; a step back in time still stops at its line (what follows
+    depends on it).  Broken once: with _parse_slow raising at the first bad line (no list),
+    the first assertion failed."""
+    from imucald.fitting.inputs import read_table
+    p = tmp_path / "serial.csv"
+    rows = [f"{i * 0.01:.2f},0,0,16384" for i in range(20)]
+    for k, bad in ((3, "0.03,0,,16384"), (7, "0.07,0,x,16384"), (8, "garbage"), (15, "0.15,0,0,inf")):
+        rows[k] = bad
+    p.write_text("t,ax,ay,az\n" + "\n".join(rows) + "\n")
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg.startswith(f"{p}:5: column ay is empty (repair or delete this line)"), msg
+    assert msg.endswith("(also garbled: lines 9, 10, 17, up to line 21; later lines not checked)"), msg
+    rows = [f"{i * 0.01:.2f},0,0,16384" for i in range(20)]
+    rows[3] = "0.03,0,x,16384"
+    p.write_text("t,ax,ay,az\n" + "\n".join(rows) + "\n")
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg == f"{p}:5: column ay: 'x' is not a number", msg
+    rows[3] = "0.03,0,0,16384"
+    rows[12] = "0.01,0,0,16384"
+    rows[14] = "garbage"
+    p.write_text("t,ax,ay,az\n" + "\n".join(rows) + "\n")
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg.startswith(f"{p}:14: time goes backwards") and "also garbled" not in msg, msg
+
+
 def test_a_column_header_repeated_mid_file_is_named_with_both_fixes(tmp_path):
     """A logger that restarted and appended writes its header again mid-file: named as that,
     with the delete (time carries on) and the split (time starts again), not as "'t' is not a

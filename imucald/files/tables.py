@@ -559,49 +559,83 @@ def _count_message(s: str, parts: List[str], spec: TableSpec, lineno: int) -> st
             f"(repair or delete this line)")
 
 
+#: the problems _parse_slow stops at (a structure, not one garbled line: what follows depends on it)
+_STRUCTURAL = ("time goes backwards", "a column header again", "line longer than")
+#: garbled lines after the first that the error lists by number
+_MORE_LISTED = 5
+
+
 def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.ndarray:
-    """The reference parser: defines what is accepted; raises naming file:line and column."""
+    """The reference parser: defines what is accepted; raises naming file:line and column.
+    After a first garbled line (a wrong count, not a number, not finite, beyond a sensor) it
+    reads on to the end of the block and, when most lines there are good, the error lists the
+    other garbled lines, so one run shows what to repair (earlier notes: "only the first
+    garbled line reported"); when most are bad the layout is wrong, and the first line says how."""
     out: List[List[float]] = []
-    n = spec.ncol
+    first: Optional[Exception] = None
+    more: List[int] = []
+    last = lineno
     for i, line in enumerate(text.split("\n")):
         s = line.strip()
         if not s or s[0] in spec.skip:
             continue
-        ln = lineno + i
-        parts = s.split(",") if spec.comma_only else s.replace(",", " ").split()
-        if len(parts) != n:
-            if len(line) > MAX_LINE_BYTES:      # within a block (one longer than a block: _long_line)
-                spec.fail(ln, f"line longer than {MAX_LINE_BYTES} bytes: not a line of a text table; "
-                              f"the file is binary or damaged (cut the damaged part)")
-            spec.fail(ln, _count_message(s, parts, spec, ln))
-        row = []
-        for j, p in enumerate(parts):
-            try:
-                v = float(p)
-            except ValueError:
-                if spec.names[j] == "-":        # a skipped column may hold text (a frame id)
-                    v = float("nan")
-                elif _header_again(parts, spec.names):
-                    spec.fail(ln, _header_message(s, spec.path, ln))
-                else:
-                    spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, p))} is not a number")
-            row.append(v)
-        for j, v in enumerate(row):
-            if not spec.checked[j]:
+        ln = last = lineno + i
+        try:
+            row = _slow_row(s, line, spec, ln, prev_t if first is None else -np.inf)
+        except spec.error as e:
+            if first is not None:
+                more.append(ln)
                 continue
-            if v != v or v in (np.inf, -np.inf):
-                spec.fail(ln, f"column {spec.names[j]}: {v} is not a finite number (repair or "
-                              f"delete this line)")
-            if not abs(v - spec.centre[j]) <= spec.halfwidth[j]:
-                spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, parts[j]), quote=False)} is beyond what "
-                              f"a sensor reads{spec.limit_note} (repair or delete this line)")
+            if any(f"{ln}: {k}" in str(e) for k in _STRUCTURAL):
+                raise
+            first = e
+            continue
         if spec.tcol is not None:
-            t = row[spec.tcol]
-            if t < prev_t:
-                spec.fail(ln, _backwards(spec.names[spec.tcol], t, prev_t, ln, spec.path))
-            prev_t = t
+            prev_t = row[spec.tcol]
         out.append(row)
-    return np.array(out, dtype=np.float64).reshape(len(out), n)
+    if first is not None:
+        if not more or len(more) >= len(out):     # most lines: a wrong layout, which the first names
+            raise first
+        listed = ", ".join(map(str, more[:_MORE_LISTED]))
+        extra = f" and {len(more) - _MORE_LISTED} more" if len(more) > _MORE_LISTED else ""
+        raise spec.error(f"{first} (also garbled: line{'s' if len(more) > 1 else ''} {listed}{extra}, "
+                         f"up to line {last}; later lines not checked)") from None
+    return np.array(out, dtype=np.float64).reshape(len(out), spec.ncol)
+
+
+def _slow_row(s: str, line: str, spec: TableSpec, ln: int, prev_t: float) -> List[float]:
+    """One line's values, checked (spec.fail naming the line and column)."""
+    n = spec.ncol
+    parts = s.split(",") if spec.comma_only else s.replace(",", " ").split()
+    if len(parts) != n:
+        if len(line) > MAX_LINE_BYTES:      # within a block (one longer than a block: _long_line)
+            spec.fail(ln, f"line longer than {MAX_LINE_BYTES} bytes: not a line of a text table; "
+                          f"the file is binary or damaged (cut the damaged part)")
+        spec.fail(ln, _count_message(s, parts, spec, ln))
+    row = []
+    for j, p in enumerate(parts):
+        try:
+            v = float(p)
+        except ValueError:
+            if spec.names[j] == "-":        # a skipped column may hold text (a frame id)
+                v = float("nan")
+            elif _header_again(parts, spec.names):
+                spec.fail(ln, _header_message(s, spec.path, ln))
+            else:
+                spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, p))} is not a number")
+        row.append(v)
+    for j, v in enumerate(row):
+        if not spec.checked[j]:
+            continue
+        if v != v or v in (np.inf, -np.inf):
+            spec.fail(ln, f"column {spec.names[j]}: {v} is not a finite number (repair or "
+                          f"delete this line)")
+        if not abs(v - spec.centre[j]) <= spec.halfwidth[j]:
+            spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, parts[j]), quote=False)} is beyond what "
+                          f"a sensor reads{spec.limit_note} (repair or delete this line)")
+    if spec.tcol is not None and row[spec.tcol] < prev_t:
+        spec.fail(ln, _backwards(spec.names[spec.tcol], row[spec.tcol], prev_t, ln, spec.path))
+    return row
 
 
 def collect(blocks: Iterator[np.ndarray], groups: Sequence[Tuple[str, List[int]]], fh: BinaryIO,

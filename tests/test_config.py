@@ -211,10 +211,12 @@ def test_the_sockets_and_fifo_are_three_plain_paths(tmp_path, text, msg):
                                    r"\(the default is 100\.0\)"),
     ("sensor:\n  rate_hz: true\n", r"c\.yaml:2: sensor\.rate_hz: true is not a number"),
     ("poses:\n  max_poses: false\n", r"c\.yaml:2: poses\.max_poses: false is not an integer"),
+    ("sensor:\n  rate_hz: [null, true]\n", r"c\.yaml:2: sensor\.rate_hz: \[null, true\] is not a number"),
 ])
 def test_yaml_words_in_messages(tmp_path, text, msg):
     """The file says null, true, false; the messages said Python's None, True and False (a cold
-    review: "None is empty").  Seen to fail with repr() of the value."""
+    review: "None is empty"), also inside a list (a later review).  Seen to fail with repr() of
+    the value, and the list case with reprlib's plain Repr ("[None, True]")."""
     with pytest.raises(ConfigError, match=msg):
         load_config(cfg_file(tmp_path, text))
 

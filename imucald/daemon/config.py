@@ -232,7 +232,15 @@ def _quote(value: Any) -> str:
     if isinstance(value, str):
         return snippet(value)
     import reprlib
-    r = reprlib.Repr()               # bounded however the value nests (never the whole of it)
+
+    class _YamlRepr(reprlib.Repr):   # YAML's words inside lists and mappings too
+        def repr_NoneType(self, x, level):
+            return "null"
+
+        def repr_bool(self, x, level):
+            return "true" if x else "false"
+
+    r = _YamlRepr()                  # bounded however the value nests (never the whole of it)
     r.maxlevel, r.maxlist, r.maxdict, r.maxstring, r.maxother = 3, 6, 6, 40, 40
     return snippet(r.repr(value), 80, quote=False)
 

@@ -439,6 +439,35 @@ def test_record_on_a_disk_that_fills_says_what_the_file_holds(tmp_path, capsys, 
     assert n - 1 <= sum(1 for ln in text.splitlines() if ln and ln[0].isdigit()) <= n
 
 
+def test_a_write_the_disk_takes_in_part_counts_the_whole_lines_it_took(tmp_path, monkeypatch):
+    """A full disk can take part of a write: the kernel accepts some bytes, then ENOSPC.  The
+    count of samples the error reports is the whole lines on disk (earlier notes: it undercounted,
+    the partial write's lines left out).  Broken once: without the count in the except branch
+    of RecordingWriter.write, rows stayed at the first block's 50."""
+    import errno
+    from imucald.files import atomic
+    from imucald.files.recording import Recording, RecordingWriter
+    w = RecordingWriter(str(tmp_path / "r.csv"), {"board": "mpu6050", "rate_hz": "100"}, ["t", "ax", "ay", "az"])
+    rec = lambda k0, k: Recording(t=np.arange(k0, k0 + k) / 100.0, acc=np.tile([0.0, 0.0, 1.0], (k, 1)),
+                                  meta={"board": "mpu6050", "rate_hz": "100"})
+    w.write(rec(0, 50))
+    real, taken = os.write, []
+
+    def part(fd, data):                 # the first call takes 1000 bytes, the next fails
+        if taken:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        taken.append(1)
+        return real(fd, bytes(data[:1000]))
+    monkeypatch.setattr(atomic.os, "write", part)
+    with pytest.raises(OSError):
+        w.write(rec(50, 200))
+    monkeypatch.setattr(atomic.os, "write", real)
+    w.close()
+    lines = [ln for ln in (tmp_path / "r.csv").read_text().splitlines() if ln[:1].isdigit()]
+    whole = [ln for ln in lines if ln.count(",") == 3 and not ln.endswith(",")]
+    assert w.rows > 50 and w.rows in (len(lines), len(lines) - 1) and w.rows <= len(whole)
+
+
 def test_a_state_directory_made_anew_is_locked_again_before_it_is_written(tmp_path):
     """The state directory removed and made again while the daemon runs: the daemon wrote
     there without its lock, and a second daemon on it started (exit 0, not 75; a cold review).

@@ -147,8 +147,16 @@ class RecordingWriter:
         self._file = GrowingFile(path, _head(meta, self.columns).encode(), flag, fsync_s)
 
     def write(self, rec: Recording) -> None:
+        """Append the rows; ``rows`` counts those written whole, also when a write fails part
+        way (a full disk: the whole lines the kernel took before the error are counted)."""
         if len(rec):
-            self._file.write(_rows_text(rec).encode())
+            data = _rows_text(rec).encode()
+            self._file.partial = 0
+            try:
+                self._file.write(data)
+            except OSError:
+                self.rows += data.count(b"\n", 0, getattr(self._file, "partial", 0))
+                raise
             self.rows += len(rec)
 
     def close(self) -> None:

@@ -1,7 +1,8 @@
 """``imucald apply ... --orientation FILE``: the orientation of a corrected recording as a table.
 
 The filter (imucald/orientation, the ``orientation`` extra) runs over the corrected samples at the
-recording's rate, in the daemon's batch size, and the table gets one row per sample:
+recording's rate, in the daemon's batch size, and is handed each still interval's gyro mean as
+the interval ends, as the daemon does; the table gets one row per sample:
 ``t,qw,qx,qy,qz,lax,lay,laz,incl_std_deg,heading_std_deg`` (q body -> ENU, REP-103;
 lin_acc gravity-free, body frame, g; heading_std_deg empty when the heading is arbitrary), after
 ``# `` lines naming the recording, the calibration and the heading reference.
@@ -38,8 +39,12 @@ def orientation_table(rec, cal, batch_s: float = 0.02):
     out[:, 0] = rec.t
     step = max(1, int(round(batch_s * rate)))
     heading = "arbitrary"
+    ivs, k = _still_intervals(rec), 0
     for i in range(0, n, step):
         sl = slice(i, min(n, i + step))
+        while k < len(ivs) and ivs[k][0] <= rec.t[sl.stop - 1]:    # closed by this batch's end
+            f.still_interval(ivs[k][1], ivs[k][2])
+            k += 1
         o = f.update(rec.acc[sl], rec.gyro[sl], None if rec.mag is None else rec.mag[sl])
         out[sl, 1:5], out[sl, 5:8] = o["q"], o["lin_acc_g"]
         out[sl, 8] = o["incl_std_deg"]
@@ -47,6 +52,26 @@ def orientation_table(rec, cal, batch_s: float = 0.02):
             out[sl, 9] = o["heading_std_deg"]
         heading = o["heading"]
     return out, heading
+
+
+def _still_intervals(rec):
+    """[(end s, mean gyro deg/s, its standard error deg/s)] of the recording's still intervals
+    (the pieces imucald's detector cuts), in time order: what the daemon hands the filter as
+    each one closes (orientation/filter.py still_interval); [] without a gyro or a still one."""
+    if rec.gyro is None:
+        return []
+    import warnings
+    from ..fitting.stillness.poses import poses_and_pieces
+    try:
+        with warnings.catch_warnings():         # the reader has said what the file holds
+            warnings.simplefilter("ignore")
+            pieces = poses_and_pieces(rec)[1]
+    except UserError:
+        return []
+    if pieces.gyro is None or pieces.gyro_cov is None:
+        return []
+    se = np.sqrt(np.einsum("nii->ni", pieces.gyro_cov))
+    return sorted(zip(pieces.t1.tolist(), pieces.gyro, se), key=lambda r: r[0])
 
 
 def write_orientation(rec, cal, path: str, source: str) -> str:

@@ -85,9 +85,9 @@ def read_input(args, path: str):
 
 def input_recording(args, path: str, whole: bool = True):
     """The recording a command reads: an imucald recording (whatever ``--columns`` says: its
-    header names its board, which apply checks), or with ``--columns`` a raw table
-    (``--nominal-scale``, ``--nominal-offset``, ``--rate-hz``, ``--board``; ``--join``: a second
-    one joined).
+    header names its board, which apply checks, and ``--board`` must agree with), or with
+    ``--columns`` a raw table (``--nominal-scale``, ``--nominal-offset``, ``--rate-hz``,
+    ``--board``; ``--join``: a second one joined).
     ``whole``: the Recording; else a reader (a recording streamed block by block, a table read
     whole)."""
     if getattr(args, "columns", None):
@@ -97,8 +97,19 @@ def input_recording(args, path: str, whole: bool = True):
         if kind == "poses":
             raise UserError(f"{path}: a pose file (still-pose averages): this command needs the "
                             f"samples, a recording or a raw table")
-        if kind == "table" or getattr(args, "join", None) or getattr(args, "board", None):
-            _, rec = read_input(args, path)       # (load_input refuses --join/--board on a recording)
+        if kind == "table" or getattr(args, "join", None):
+            _, rec = read_input(args, path)       # (load_input refuses --join on a recording)
             return rec if whole else TableReader(rec)
-    from ..files.recording import open_recording, read_recording
-    return read_recording(path) if whole else open_recording(path)
+    from ..files.recording import open_recording
+    reader = open_recording(path)
+    if getattr(args, "board", None):              # it must agree with the header's board
+        from ..fitting.inputs import check_board
+        try:
+            check_board(path, "recording", args.board, reader.meta.get("board"))
+        except BaseException:
+            reader.close()
+            raise
+    if not whole:
+        return reader
+    with reader:
+        return reader.read()

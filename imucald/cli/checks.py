@@ -206,11 +206,8 @@ def output_dir(path: str, flag: str) -> None:
 
 
 def _check_raw_table(args) -> None:
-    """--join and --join-columns come together, beside --columns (a raw table's); so does
-    --board (a recording's header names its board)."""
-    if getattr(args, "board", None) and not args.columns:
-        raise UserError(f"--board {args.board}: names the board of a raw table: give its --columns too "
-                        f"(an imucald recording's header names its board)")
+    """--join and --join-columns come together, beside --columns (a raw table's).  (--board is
+    checked against the file: fitting.inputs.check_board.)"""
     if args.join and not args.join_columns:
         raise UserError(f"--join {args.join}: name its columns with --join-columns, e.g. t,gx,gy,gz")
     if args.join_columns and not args.join:

@@ -34,7 +34,7 @@ from ..files.tables import TIME_UNITS, TableSpec, collect, decode_line, iter_blo
 from .stillness.poses import POSES_MAGIC, read_poses
 from ..numerics.rates import effective_rate
 
-__all__ = ["input_kind", "load_input", "read_table", "join_tables", "stuck_columns", "stuck_message"]
+__all__ = ["input_kind", "check_board", "load_input", "read_table", "join_tables", "stuck_columns", "stuck_message"]
 
 _GROUP_COLUMNS = {"acc": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
 _NAMES = {"acc": "accel", "gyro": "gyro", "mag": "mag"}        # as --nominal-scale names them
@@ -497,6 +497,16 @@ def input_kind(path: str) -> str:
     return "table"
 
 
+def check_board(path: str, kind: str, board: Optional[str], saved: Optional[str]) -> None:
+    """``--board`` on an imucald file (whose header names its board) must agree with the header:
+    the same name is taken (a habit from raw tables, and scripts that pass it to every file), another
+    is refused naming both (the header decides: --board names a raw table's board)."""
+    if board is not None and board != saved:
+        said = f"board {saved!r}" if saved else "no board"
+        raise UserError(f"--board {board}: {path} is an imucald {kind} whose header names {said}: "
+                        f"drop --board (the header decides; --board names a raw table's board)")
+
+
 def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: PerSensor = 1.0,
                nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None,
                join: Optional[tuple] = None, board: Optional[str] = None):
@@ -507,14 +517,16 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
     kind = input_kind(path)
     if join is not None:
         _check_join(path, kind, columns, join)
-    if board is not None and (kind != "table" or columns is None):
-        raise UserError(f"--board {board}: names the board of a raw table (read with --columns); "
-                        f"{path} is " + (f"an imucald {kind}, whose header names its board"
-                                         if kind != "table" else "read without --columns"))
     if kind == "recording":
-        return "recording", read_recording(path)
+        rec = read_recording(path)
+        check_board(path, kind, board, rec.meta.get("board"))
+        return "recording", rec
     if kind == "poses":
-        return "poses", read_poses(path)
+        ps = read_poses(path)
+        check_board(path, kind, board, ps.meta.get("board"))
+        return "poses", ps
+    if board is not None and columns is None:
+        raise UserError(f"--board {board}: names the board of a raw table: give its --columns too")
     if columns is None:
         raise UserError(f"{path}: not an imucald recording or pose file; for a raw numeric "
                         f"table name its columns, e.g. --columns t,ax,ay,az")

@@ -24,10 +24,12 @@ COLUMNS = "t,qw,qx,qy,qz,lax,lay,laz,incl_std_deg,heading_std_deg"
 def orientation_table(rec, cal, batch_s: float = 0.02):
     """(rows (n, 10) with NaN where unknown, heading reference) for a corrected recording."""
     from ..orientation import OrientationFilter
+    from ..fitting.stillness.repeats import duplicated_rows
     from ..specs import ACCEL, GYRO, recording_chips
     if rec.acc is None or rec.gyro is None:
         raise UserError("--orientation needs accelerometer and gyro columns (ax..az, gx..gz)")
-    rate = rec.rate_hz
+    rep = duplicated_rows(rec.t, [rec.acc, rec.gyro, rec.mag])  # a logger that wrote rows twice
+    rate = rec.rate_hz if "rate_hz" in rec.meta or not rep.any() else (_distinct_rate_hz(rec.t[~rep]) or rec.rate_hz)
     chips = recording_chips(rec.meta)
     spec, gspec = ACCEL.get(chips.get("accel", "")), GYRO.get(chips.get("gyro", ""))
     f = OrientationFilter(rate, rec.mag is not None,
@@ -45,13 +47,20 @@ def orientation_table(rec, cal, batch_s: float = 0.02):
         while k < len(ivs) and ivs[k][0] <= rec.t[sl.stop - 1]:    # closed by this batch's end
             f.still_interval(ivs[k][1], ivs[k][2])
             k += 1
-        o = f.update(rec.acc[sl], rec.gyro[sl], None if rec.mag is None else rec.mag[sl])
+        o = f.update(rec.acc[sl], rec.gyro[sl], None if rec.mag is None else rec.mag[sl], rep[sl])
         out[sl, 1:5], out[sl, 5:8] = o["q"], o["lin_acc_g"]
         out[sl, 8] = o["incl_std_deg"]
         if o["heading_std_deg"] is not None:
             out[sl, 9] = o["heading_std_deg"]
         heading = o["heading"]
     return out, heading
+
+
+def _distinct_rate_hz(t_s) -> float:
+    """A headerless table's rate from its distinct rows' time steps."""
+    from ..numerics.npstats import median
+    dt = np.diff(t_s)
+    return float(1.0 / median(dt)) if len(dt) and median(dt) > 0 else 0.0
 
 
 def _still_intervals(rec):

@@ -115,7 +115,7 @@ def cmd_replay(args) -> int:
         for chunk in reader.chunks():
             n = len(chunk)
             if seq0 == 0:
-                pipe.orientation_rate_from(chunk.t)
+                pipe.orientation_rate_from(chunk.t, [chunk.acc, chunk.gyro, chunk.mag])
             gyro, temp = chunk.gyro, chunk.temp      # None (omitted from the stream) when absent
             fresh = None
             if has_mag:         # a new magnetometer reading differs from the one before it

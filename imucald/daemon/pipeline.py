@@ -278,15 +278,23 @@ class Pipeline:
         gspec = GYRO.get(self.chips.get("gyro", ""))
         self._gyro_tol = None if gspec is None else gspec.bias_tol_dps
         self.orient = OrientationFilter(self.rate_hz, self.has_mag, noise)
+        self._orient_prev = {}              #: the last row the filter saw (duplicated_rows)
         self._orient_cal = None
         self.orientation_off = None
 
-    def orientation_rate_from(self, t_s) -> None:
+    def orientation_rate_from(self, t_s, rows=None) -> None:
         """Replay: the filter integrates at the rate the recording's timestamps show (their
         median step) when it differs from its header's rate_hz by more than 1 %; called with
-        the first block's times, before any sample reached the filter."""
+        the first block's times, before any sample reached the filter.  ``rows``: the block's
+        sensor arrays (acc, gyro, mag or None), whose duplicated rows are left out."""
         if self.orient is None or len(t_s) < 3 or self.samples:
             return
+        t_s = np.asarray(t_s, float)
+        if rows is not None:                    # a logger's duplicated rows are not samples
+            from ..fitting.stillness.repeats import duplicated_rows
+            t_s = t_s[~duplicated_rows(t_s, rows)]
+            if len(t_s) < 3:
+                return
         dt = float(np.median(np.diff(t_s)))
         if dt > 0 and abs(1.0 / dt / self.rate_hz - 1.0) > 0.01:
             log.info("orientation: the timestamps step %.6g s (%.6g Hz), the header says %.6g Hz: "
@@ -309,10 +317,12 @@ class Pipeline:
                 ti = float(iv.temp) if np.isfinite(iv.temp) else None
                 g = ap.apply_gyro(iv.gyro[None], ti, ap.apply_accel(iv.acc[None], ti))[0]
                 f.still_interval(g, np.sqrt(np.diag(iv.gyro_cov)))
-        if isinstance(keep, slice):
-            return f.update(acc, gyro, mag)
+        from ..fitting.stillness.repeats import duplicated_rows
+        rep = duplicated_rows(b.t, [b.acc, b.gyro, b.mag], self._orient_prev)   # replay: a logger's
+        if isinstance(keep, slice):                                              # rows written twice
+            return f.update(acc, gyro, mag, rep)
         A = ap.apply_accel(b.acc, tb)
-        o = f.update(A, ap.apply_gyro(b.gyro, tb, A), None if b.mag is None else ap.apply_mag(b.mag, tb))
+        o = f.update(A, ap.apply_gyro(b.gyro, tb, A), None if b.mag is None else ap.apply_mag(b.mag, tb), rep)
         o["q"], o["lin_acc_g"] = o["q"][keep], o["lin_acc_g"][keep]
         if o["mag_disturbed"] is not None:
             o["mag_disturbed"] = o["mag_disturbed"][keep]

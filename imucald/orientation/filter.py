@@ -122,6 +122,8 @@ class OrientationFilter:
         self._offset_rad_s = np.zeros(3)
         self._keys = (None, None, None)
         self.resets = 0
+        #: the last output with rows: a batch of repeated rows only repeats its last row
+        self._last: Optional[Dict[str, Any]] = None
         self._clear_quality()
 
     def _clear_quality(self) -> None:
@@ -210,7 +212,43 @@ class OrientationFilter:
         self.f.setBiasEstimate(np.zeros(3), max(math.radians(se), 1e-6))
 
     # -- the batch ------------------------------------------------------------------------
-    def update(self, acc_g, gyro_dps, mag_gauss=None) -> Dict[str, Any]:
+    def update(self, acc_g, gyro_dps, mag_gauss=None, repeat=None) -> Dict[str, Any]:
+        """The batch's output (see the class).  ``repeat``: (n,) bool, rows that repeat the
+        previous row, timestamp and values (a logger that wrote each row twice): not new
+        samples, so not stepped (VQF steps 1/rate a row and would turn every rotation twice:
+        a replayed MPU-6050 tour with duplicated rows had its tilt 42 deg off at the 90th
+        percentile); each takes the output of the row it repeats."""
+        if repeat is not None and np.any(repeat):
+            return self._update_distinct(acc_g, gyro_dps, mag_gauss, np.asarray(repeat, bool))
+        o = self._update(acc_g, gyro_dps, mag_gauss)
+        if len(o["q"]):
+            self._last = o
+        return o
+
+    def _update_distinct(self, acc_g, gyro_dps, mag_gauss, repeat) -> Dict[str, Any]:
+        new = ~repeat
+        before = self._last                     # the output a batch's leading repeats repeat
+        if new.any():
+            o = self.update(np.asarray(acc_g)[new], np.asarray(gyro_dps)[new],
+                            None if mag_gauss is None else np.asarray(mag_gauss)[new])
+        elif before is not None:
+            o = before
+        else:                                   # nothing seen yet: nothing to repeat
+            nan = np.full((len(repeat), 3), np.nan)
+            return self._update(nan, nan)
+        pick = np.cumsum(new)                   # 0: the last batch's last row; i: the i-th new row
+        out = dict(o)
+        blank = {"q": np.full((1, 4), np.nan), "lin_acc_g": np.full((1, 3), np.nan),
+                 "mag_disturbed": np.zeros(1, bool)}
+        for k in blank:
+            if o[k] is None:
+                continue
+            had = before is not None and before[k] is not None and len(before[k])
+            first = before[k][-1:] if had else blank[k]
+            out[k] = np.concatenate([first, o[k] if new.any() else o[k][:0]])[pick]
+        return out
+
+    def _update(self, acc_g, gyro_dps, mag_gauss=None) -> Dict[str, Any]:
         acc = np.asarray(acc_g, float)
         gyro = np.asarray(gyro_dps, float)
         n = len(acc)

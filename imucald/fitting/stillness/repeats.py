@@ -43,7 +43,7 @@ import numpy as np
 from ...numerics.npstats import median, row_all, row_prod
 from ...numerics.rates import effective_rate
 
-__all__ = ["Repeats", "find_repeats", "chance_repeats", "repeat_flags",
+__all__ = ["Repeats", "find_repeats", "chance_repeats", "repeat_flags", "duplicated_rows",
            "HOLD_RATIO", "RATE_MISMATCH"]
 
 HOLD_RATIO = 2.0
@@ -109,6 +109,26 @@ def repeat_flags(t: np.ndarray, x: np.ndarray):
         t = np.asarray(t, float)
         tt[1:] = t[1:] == t[:-1]
     return full, tt, eq.reshape(n, -1)
+
+
+def duplicated_rows(t: np.ndarray, groups, prev=None) -> np.ndarray:
+    """(n,) bool: rows whose timestamp and every value of ``groups`` (arrays (n, k) or None)
+    equal the previous row's: a logger that wrote a row twice.  ``prev``: (t, values) of the
+    row before the first (the last batch's; updated in place when a dict with keys 't', 'x'),
+    or None; row 0 is then never a repeat.  A repeated timestamp with new values (a FIFO's
+    burst stamped with its read time) is not one."""
+    cols = [np.asarray(g, float) for g in groups if g is not None]
+    if not cols:
+        return np.zeros(len(t), bool)
+    x = np.column_stack(cols)
+    full, tt, _ = repeat_flags(t, x)
+    dup = full & tt
+    if isinstance(prev, dict):
+        if len(t) and prev.get("t") is not None:
+            dup[0] = bool(t[0] == prev["t"] and np.array_equal(x[0], prev["x"]))
+        if len(t):
+            prev["t"], prev["x"] = t[-1], x[-1].copy()
+    return dup
 
 
 def chance_repeats(full: np.ndarray, eq: np.ndarray, window: int = CHANCE_WINDOW) -> float:

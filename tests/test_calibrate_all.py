@@ -354,6 +354,25 @@ def test_board_names_a_raw_table_only(tmp_path):
     assert a.stdout == b.stdout and len(a.stdout) > 1000
 
 
+def test_apply_with_its_two_files_the_other_way_round_says_so(tmp_path):
+    """`imucald apply REC CAL` (the recording first) was refused with the YAML loader's words,
+    "expected a mapping, got str" or "more than the 1024 KiB an imucald YAML file may hold" (a
+    session-19 walk).  Now the one line says the two are the other way round and gives the
+    command; a file that is no calibration with no calibration beside it keeps the loader's
+    message.  Broken once: _swapped returning False (the old message: fails)."""
+    rec = tmp_path / "r.csv"
+    cli("simulate", "-o", rec, "--poses", "12", "--hold", "3", "--move", "1", "--seed", 6)
+    cal = tmp_path / "c.yaml"
+    cli("calibrate", rec, "-o", cal)
+    p = cli("apply", rec, cal, "-o", tmp_path / "o.csv", check=False)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1, p.stderr
+    assert f"{rec} is not a calibration and {cal} is one: the calibration comes first " \
+           f"(imucald apply {cal} {rec} -o ...)" in p.stderr
+    assert not (tmp_path / "o.csv").exists()
+    p = cli("apply", rec, rec, "-o", tmp_path / "o.csv", check=False)
+    assert p.returncode == 2 and "the calibration comes first" not in p.stderr
+
+
 def test_all_says_the_repeated_rows_once_as_each_part_does(nine_dof, tmp_path):
     """A logger that writes each sample three times at three times the rate (sample-and-hold):
     --sensor accel and --sensor gyro warn of it ("... rows repeat the previous sample ...

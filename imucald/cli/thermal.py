@@ -143,6 +143,20 @@ def thermal_part(sensor: str, fit, tf):
 
 # --- apply ---------------------------------------------------------------------------------
 
+def _swapped(cal_path: str, rec_path: str) -> bool:
+    """A calibration file given where the recording goes, and another file (a recording, a
+    table) where the calibration goes: the loader's own message ("expected a mapping", "more
+    than 1024 KiB") did not say that the two were the other way round."""
+    def first(path):
+        try:
+            with open(path, "rb") as fh:
+                return fh.readline(64)
+        except OSError:
+            return b""
+    return (not first(cal_path).startswith(b"# imucald calibration")
+            and first(rec_path).startswith(b"# imucald calibration"))
+
+
 def cmd_apply(args) -> int:
     """Correct a recording with a calibration file: every sensor the file has a part for,
     each sample at its own temperature (thermal terms)."""
@@ -152,7 +166,14 @@ def cmd_apply(args) -> int:
     if getattr(args, "orientation", None):          # the extra missing: say so before writing
         from ..orientation import load_vqf
         load_vqf()
-    cal = load(args.calibration)
+    try:
+        cal = load(args.calibration)
+    except UserError:
+        if _swapped(args.calibration, args.recording):
+            raise UserError(f"{args.calibration} is not a calibration and {args.recording} is one: "
+                            f"the calibration comes first (imucald apply {args.recording} "
+                            f"{args.calibration} -o ...)") from None
+        raise
     rec = input_recording(args, args.recording)
     board = rec.meta.get("board", "unknown")
     why = None if "unknown" in (board, cal.board) else cal.mismatch(board)

@@ -222,7 +222,7 @@ class OrientationFilter:
             return self._update_distinct(acc_g, gyro_dps, mag_gauss, np.asarray(repeat, bool))
         o = self._update(acc_g, gyro_dps, mag_gauss)
         if len(o["q"]):
-            self._last = o
+            self._last = dict(o)                # (a caller may put other arrays in its own)
         return o
 
     def _update_distinct(self, acc_g, gyro_dps, mag_gauss, repeat) -> Dict[str, Any]:

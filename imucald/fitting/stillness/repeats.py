@@ -113,10 +113,10 @@ def repeat_flags(t: np.ndarray, x: np.ndarray):
 
 def duplicated_rows(t: np.ndarray, groups, prev=None) -> np.ndarray:
     """(n,) bool: rows whose timestamp and every value of ``groups`` (arrays (n, k) or None)
-    equal the previous row's: a logger that wrote a row twice.  ``prev``: (t, values) of the
-    row before the first (the last batch's; updated in place when a dict with keys 't', 'x'),
-    or None; row 0 is then never a repeat.  A repeated timestamp with new values (a FIFO's
-    burst stamped with its read time) is not one."""
+    equal the previous row's: a logger that wrote a row twice.  ``prev``: a dict that carries
+    the last row from batch to batch (keys 't' and 'x', set here; start with {}), or None, when
+    row 0 is never a repeat.  A repeated timestamp with new values (a FIFO's burst stamped with
+    its read time) is not one."""
     cols = [np.asarray(g, float) for g in groups if g is not None]
     if not cols:
         return np.zeros(len(t), bool)

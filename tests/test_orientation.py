@@ -468,3 +468,38 @@ def test_replay_takes_a_loggers_duplicated_rows_once(tmp_path):
     assert len(ts) == len(r.t) and set(ts) == set(q["twice"])
     diff = _tilt_between_deg(np.array([q["once"][t] for t in ts]), np.array([q["twice"][t] for t in ts]))
     assert np.all(diff <= np.array([sd["once"][t] for t in ts]))
+
+
+def test_after_the_gyro_saturates_the_tilt_reconverges_in_the_next_hold():
+    """A hand flipping an MPU-6050 past its +-250 deg/s (moves of 0.3-0.5 s): the clipped gyro
+    reports too little rotation and the tilt is off by the rest.  With VQF's 3-s tauAcc the
+    error stayed in the next hold (median 6.5 deg over 4 seeds, 9 % of samples beyond 2 stated
+    sd); now, after a saturated sample, quiet batches run with a 0.4-s tauAcc for 1.2 s.  In the
+    holds after the first, the tilt error is within 2 stated sd in 95 % of samples (a Gaussian's
+    share) or more, and its median under the stated sd's.  Broken once: use_gyro_range not
+    called (None) in orientation_table: 0.91 of samples within 2 sd (fails)."""
+    from imucald.cli.orientation import orientation_table
+    from imucald.sim.sensor import simulate_session
+    err, sd = [], []
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        q = rng.normal(size=(8, 4))
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        R = np.stack([[[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                       [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                       [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]] for w, x, y, z in q])
+        s = simulate_session("mpu6050", R, rng, rate_hz=RATE_HZ, hold_s=(4, 8), move_s=(0.3, 0.5), tremor_dps=1.0)
+        r = s.recording
+        assert np.abs(r.gyro).max() >= 249.0          # the flips do saturate it
+        out, _ = orientation_table(r, Calibration("mpu6050", {}))
+        up = np.array([rotate_inv(qq, [0.0, 0.0, 1.0]) for qq in out[:, 1:5]])
+        f = s.specific_force_g / np.linalg.norm(s.specific_force_g, axis=1, keepdims=True)
+        e = np.degrees(np.arccos(np.clip(np.sum(up * f, 1), -1, 1)))
+        later = np.zeros(len(r.t), bool)
+        for h0, h1 in s.hold[1:]:
+            later |= (r.t > h0 + 1) & (r.t < h1)
+        err += list(e[later])
+        sd += list(out[later, 8])
+    err, sd = np.array(err), np.array(sd)
+    assert np.mean(err < 2 * sd) >= 0.95
+    assert np.median(err) < np.median(sd)

@@ -66,6 +66,8 @@ def cmd_record(args) -> int:
     _eprint(f"imucald: recording {args.seconds:g} s from {desc} at {board.rate_hz:g} Hz")
     meta = {"board": board.name, "rate_hz": f"{board.rate_hz:g}", "source": f"imucald record: {desc}",
             "chips": ",".join(f"{k}={v}" for k, v in board.chips().items())}
+    if getattr(board, "gyro_range_dps", None):  # the orientation's saturation limit on replay
+        meta["gyro_range_dps"] = f"{board.gyro_range_dps:g}"
     if not board.has_acc:       # gy273: the QMC5883L's temperature has no calibrated offset
         meta["temp"] = "relative (QMC5883L, offset not calibrated)"
     head, writer = [], None

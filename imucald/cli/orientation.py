@@ -34,6 +34,7 @@ def orientation_table(rec, cal, batch_s: float = 0.02):
     spec, gspec = ACCEL.get(chips.get("accel", "")), GYRO.get(chips.get("gyro", ""))
     f = OrientationFilter(rate, rec.mag is not None,
                           None if spec is None else spec.noise_density_g_rthz * rate ** 0.5)
+    f.use_gyro_range(gyro_range_dps(rec.meta, gspec), None if gspec is None else gspec.bias_tol_dps)
     f.use_calibration(cal, None if spec is None else spec.bias_tol_g,
                       None if gspec is None else gspec.bias_tol_dps)
     n = len(rec)
@@ -54,6 +55,15 @@ def orientation_table(rec, cal, batch_s: float = 0.02):
             out[sl, 9] = o["heading_std_deg"]
         heading = o["heading"]
     return out, heading
+
+
+def gyro_range_dps(meta, gspec):
+    """The gyro's full scale, deg/s: the recording's ``gyro_range_dps``, else its chip's
+    datasheet default (imucald/specs.py), else None."""
+    try:
+        return float(meta["gyro_range_dps"])
+    except (KeyError, ValueError):
+        return None if gspec is None else float(gspec.range_dps)
 
 
 def _distinct_rate_hz(t_s) -> float:

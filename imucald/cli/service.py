@@ -102,7 +102,9 @@ def cmd_replay(args) -> int:
         pipe = Pipeline(cfg, meta.get("board", "unknown"), rate_hz, has_mag, chips=chips,
                         has_acc=has_acc)
         pipe.use_noise_file(cfg["noise"]["file"])
-        pipe.use_orientation(cfg["output"]["orientation"], has_gyro="gx" in cols)
+        from .orientation import gyro_range_dps
+        pipe.use_orientation(cfg["output"]["orientation"], has_gyro="gx" in cols,
+                             gyro_range_dps=gyro_range_dps(meta, None))
         start = _replay_start(args.state_dir, pipe.board, chips) if args.state_dir else None
         if start is not None:   # as the daemon at start: from the calibration saved there
             pipe.applied = start

@@ -250,10 +250,13 @@ class Pipeline:
         return self._cov_text
 
     # -- orientation (issue 26): one hook, off unless use_orientation() turns it on ----------
-    def use_orientation(self, mode: str, has_gyro: bool = True) -> None:
+    def use_orientation(self, mode: str, has_gyro: bool = True,
+                        gyro_range_dps: Optional[float] = None) -> None:
         """output.orientation: "yes" (the extra missing is a configuration error, one line),
         "auto" (on when the extra is installed and the board has a gyro and an accelerometer;
-        else off, and ``orientation_off`` says why), "no"."""
+        else off, and ``orientation_off`` says why), "no".  ``gyro_range_dps``: the gyro's
+        full scale (the board's, or a recording's header; None: its chip's datasheet default),
+        beyond which the filter re-converges fast (OrientationFilter.use_gyro_range)."""
         from ..orientation import OrientationFilter, unavailable_reason
         from ..specs import ACCEL, GYRO
         self.orient = None
@@ -278,6 +281,8 @@ class Pipeline:
         gspec = GYRO.get(self.chips.get("gyro", ""))
         self._gyro_tol = None if gspec is None else gspec.bias_tol_dps
         self.orient = OrientationFilter(self.rate_hz, self.has_mag, noise)
+        self.orient.use_gyro_range(gyro_range_dps or (None if gspec is None else gspec.range_dps),
+                                   self._gyro_tol)
         self._orient_prev = {}              #: the last row the filter saw (duplicated_rows)
         self._orient_cal = None
         self.orientation_off = None

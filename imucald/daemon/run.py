@@ -163,7 +163,8 @@ class Daemon:
                              executor=self.worker, persist=self._persist, chips=chips,
                              has_acc=self.board.has_acc)
         self.pipe.use_noise_file(cfg["noise"]["file"])
-        self.pipe.use_orientation(cfg["output"]["orientation"], self.board.has_acc)   # issue 26
+        self.pipe.use_orientation(cfg["output"]["orientation"], self.board.has_acc,   # issue 26
+                                  getattr(self.board, "gyro_range_dps", None))
         from .sensors import adopt_sensor
         self.fingerprint = self.board.fingerprint()
         self.sensor = adopt_sensor(sd, self.fingerprint)     # a swapped board: its own files

@@ -213,6 +213,11 @@ class MPUBoard(Board):
         self.cfg = dict(accel_range_g=accel_range_g, gyro_range_dps=gyro_range_dps, rate_hz=rate_hz)
         self._mag_next = 0.0
 
+    @property
+    def gyro_range_dps(self) -> float:
+        """The gyro's full scale as set up, deg/s (GYRO_CONFIG FS_SEL)."""
+        return float(self.cfg["gyro_range_dps"])
+
     def chips(self):
         c = {"accel": self.name, "gyro": self.name}
         return {**c, "mag": "ak8963"} if self.has_mag else c
@@ -261,6 +266,10 @@ class NineDofBoard(Board):
     """ADXL345 + ITG3200 + a magnetometer (HMC5883L or QMC5883L, found by ID unless
     ``mag`` names one).  The ADXL345 FIFO sets the sample clock; the gyro (no FIFO)
     and the magnetometer are read once per poll and held."""
+
+    #: the ITG-3200's full scale, deg/s: DLPF_FS's FS_SEL must be 3, +-2000 deg/s (Linux
+    #: drivers/iio/gyro/itg3200_core.c ITG3200_DLPF_FS_SEL_2000; drivers/itg3200.py FS_SEL_2000)
+    gyro_range_dps = 2000.0
 
     name = "9dof"
     has_mag = True

@@ -10,6 +10,7 @@ lin_acc gravity-free, body frame, g; heading_std_deg empty when the heading is a
 from __future__ import annotations
 
 import io
+import math
 import os
 
 import numpy as np
@@ -58,12 +59,15 @@ def orientation_table(rec, cal, batch_s: float = 0.02):
 
 
 def gyro_range_dps(meta, gspec):
-    """The gyro's full scale, deg/s: the recording's ``gyro_range_dps``, else its chip's
-    datasheet default (imucald/specs.py), else None."""
+    """The gyro's full scale, deg/s: the recording's ``gyro_range_dps`` (a positive number),
+    else its chip's datasheet default (imucald/specs.py), else None."""
     try:
-        return float(meta["gyro_range_dps"])
+        v = float(meta["gyro_range_dps"])
+        if math.isfinite(v) and v > 0:
+            return v
     except (KeyError, ValueError):
-        return None if gspec is None else float(gspec.range_dps)
+        pass
+    return None if gspec is None else float(gspec.range_dps)
 
 
 def _distinct_rate_hz(t_s) -> float:

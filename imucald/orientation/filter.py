@@ -325,8 +325,8 @@ class OrientationFilter:
         """The gyro's full scale, deg/s (None: unknown, nothing done).  A calibrated reading
         beyond 95 % of it less the zero-rate tolerance counts as saturated (a clipped raw count,
         after a sensitivity error of a few % and the bias taken off)."""
-        self._sat_dps = (None if not range_dps else
-                         0.95 * float(range_dps) - float(bias_tol_dps or 0.0))
+        ok = range_dps is not None and math.isfinite(float(range_dps)) and float(range_dps) > 0
+        self._sat_dps = 0.95 * float(range_dps) - float(bias_tol_dps or 0.0) if ok else None
 
     def _after_saturation(self, acc, gyro) -> None:
         """A saturated gyro reports too small a rotation, so the tilt is off by what it did not

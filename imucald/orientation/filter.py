@@ -336,16 +336,16 @@ class OrientationFilter:
         down to e^-3); a batch that moves keeps the usual tauAcc (its |a| is not gravity)."""
         if self._sat_dps is None or not len(acc):
             return
-        with np.errstate(invalid="ignore"):
-            if np.nanmax(np.abs(gyro), initial=0.0) >= self._sat_dps:
-                self._fast_left_s = 3 * SATURATED_TAU_ACC_S
-                self._tau(self.tau_acc_s)
-                return
+        g = np.abs(gyro[np.isfinite(gyro)])
+        if len(g) and float(g.max()) >= self._sat_dps:
+            self._fast_left_s = 3 * SATURATED_TAU_ACC_S
+            self._tau(self.tau_acc_s)
+            return
         if self._fast_left_s <= 0:
             return
         an = np.linalg.norm(acc, axis=1)
-        with np.errstate(invalid="ignore"):
-            quiet = abs(float(np.nanmean(an)) - 1.0) < QUIET_MEAN_G and float(np.nanstd(an)) < QUIET_SD_G
+        an = an[np.isfinite(an)]
+        quiet = len(an) > 0 and abs(float(an.mean()) - 1.0) < QUIET_MEAN_G and float(an.std()) < QUIET_SD_G
         if quiet:
             self._tau(SATURATED_TAU_ACC_S)
             self._fast_left_s -= len(acc) / self.rate_hz

@@ -395,3 +395,17 @@ def test_all_says_the_repeated_rows_once_as_each_part_does(nine_dof, tmp_path):
         m = re.search(rf"imucald: warning: {re.escape(str(p))}: (\d+) rows repeat the previous sample "
                       rf"\(sample-and-hold, 3\.\d+ rows per distinct sample", err)
         assert m and 2 * n <= int(m.group(1)) < 2.1 * n, err
+
+
+def test_record_writes_the_gyros_full_scale(nine_dof, tmp_path):
+    """`record` writes the gyro's full scale in the header (`gyro_range_dps`), so replay and
+    apply --orientation know where the gyro saturates (the 9DOF board's ITG-3200 runs at
+    +-2000 deg/s; an MPU at sensor.gyro_range_dps, 250 by default).  Broken once: the line not
+    written (both fail)."""
+    from imucald.files.recording import open_recording
+    with open_recording(str(nine_dof)) as r:
+        assert r.meta.get("gyro_range_dps") == "2000"
+    rec = tmp_path / "mpu.csv"
+    cli("record", "--board", "mpu6050", "--emulate", "--seconds", 2, "--seed", 1, "-o", rec)
+    with open_recording(str(rec)) as r:
+        assert r.meta.get("gyro_range_dps") == "250"

@@ -317,6 +317,15 @@ def test_apply_writes_the_orientation_of_every_corrected_sample(tmp_path):
     assert tilt.max() < 0.5, tilt.max()
 
 
+def _random_rotations(rng, n):
+    """n rotation matrices (body -> world) from uniformly drawn unit quaternions."""
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return np.stack([[[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]] for w, x, y, z in q])
+
+
 def test_apply_hands_the_filter_the_still_intervals_so_an_uncalibrated_gyro_is_followed():
     """apply --orientation with an accelerometer-only calibration (calibrate's default) on a
     simulated 9DOF board moved by hand through 8 poses: the ITG-3200's zero-rate offset (up to
@@ -328,12 +337,7 @@ def test_apply_hands_the_filter_the_still_intervals_so_an_uncalibrated_gyro_is_f
     from imucald.cli.orientation import orientation_table
     from imucald.sim.sensor import simulate_session
     rng = np.random.default_rng(4)
-    q = rng.normal(size=(8, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    R = np.stack([[[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                   [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                   [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]] for w, x, y, z in q])
-    s = simulate_session("9dof", R, rng, rate_hz=RATE_HZ, hold_s=(4, 8), move_s=(2, 3), tremor_dps=1.0)
+    s = simulate_session("9dof", _random_rotations(rng, 8), rng, rate_hz=RATE_HZ, hold_s=(4, 8), move_s=(2, 3), tremor_dps=1.0)
     out, _ = orientation_table(s.recording, Calibration("9dof", {}))
     up = np.array([rotate_inv(qq, [0.0, 0.0, 1.0]) for qq in out[:, 1:5]])
     f = s.specific_force_g / np.linalg.norm(s.specific_force_g, axis=1, keepdims=True)
@@ -401,12 +405,7 @@ def _tour(board, seed, n_poses=6):
     """A simulated hand-held tour (holds 3-5 s, moves 2-3 s, tremor 1 deg/s) and its up vectors."""
     from imucald.sim.sensor import simulate_session
     rng = np.random.default_rng(seed)
-    q = rng.normal(size=(n_poses, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    R = np.stack([[[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                   [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                   [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]] for w, x, y, z in q])
-    return simulate_session(board, R, rng, rate_hz=RATE_HZ, hold_s=(3, 5), move_s=(2, 3), tremor_dps=1.0)
+    return simulate_session(board, _random_rotations(rng, n_poses), rng, rate_hz=RATE_HZ, hold_s=(3, 5), move_s=(2, 3), tremor_dps=1.0)
 
 
 def _tilt_between_deg(qa, qb):
@@ -483,12 +482,7 @@ def test_after_the_gyro_saturates_the_tilt_reconverges_in_the_next_hold():
     err, sd = [], []
     for seed in range(4):
         rng = np.random.default_rng(seed)
-        q = rng.normal(size=(8, 4))
-        q /= np.linalg.norm(q, axis=1, keepdims=True)
-        R = np.stack([[[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                       [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                       [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]] for w, x, y, z in q])
-        s = simulate_session("mpu6050", R, rng, rate_hz=RATE_HZ, hold_s=(4, 8), move_s=(0.3, 0.5), tremor_dps=1.0)
+        s = simulate_session("mpu6050", _random_rotations(rng, 8), rng, rate_hz=RATE_HZ, hold_s=(4, 8), move_s=(0.3, 0.5), tremor_dps=1.0)
         r = s.recording
         assert np.abs(r.gyro).max() >= 249.0          # the flips do saturate it
         out, _ = orientation_table(r, Calibration("mpu6050", {}))

@@ -178,7 +178,8 @@ class Pipeline:
             acc = ap.apply_accel(b.acc[keep], tb)
             gyro = None if b.gyro is None else ap.apply_gyro(b.gyro[keep], tb, acc)
             mag = None if b.mag is None else ap.apply_mag(b.mag[keep], tb)
-            ori = None if self.orient is None else self._orientation(b, keep, tb, acc, gyro, mag, intervals)
+            pieces = self.det.take_pieces()     # as cut: a long rest's bias does not wait for its end
+            ori = None if self.orient is None else self._orientation(b, keep, tb, acc, gyro, mag, pieces)
             enc = encode_samples(self.fmt, b.seq[keep], b.t[keep], acc,
                                  gyro, temp, mag, still[keep], ap.id, self._covariance(), ori)
             out.append(self._gaps_in_place(enc, b.seq[keep], inside) if inside else enc)

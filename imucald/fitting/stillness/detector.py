@@ -210,6 +210,11 @@ class _Core:
         self.max_n = max(self.min_n, int(round(max_pose_s * rate_hz)))
         self.trim_n = int(round(trim_s * rate_hz))
         self.dropped = 0
+        #: every piece a track has cut since the caller last took them (take_pieces), before
+        #: the tracks are reconciled: _resolve holds a floor pose back until the hand's run
+        #: ends, which on a long rest is when the board moves, but a piece's gyro mean is the
+        #: bias whichever track's pose is kept (the orientation's still intervals)
+        self.pieces: List[StaticInterval] = []
         self.floor_a: Optional[float] = None
         self.bias_g: Optional[np.ndarray] = None
         self._ring = np.zeros((BIAS_WINDOWS, 3))   # mean rates of the last windows that passed the bias gate
@@ -479,6 +484,7 @@ class _Core:
             if not tr.hand and len(self._tracks) > 1:
                 self._note_strict(still, ch["oi"])
             found.append(self._runs(tr, still, ch, brk))
+        self.pieces += [iv for f in found for iv in f if isinstance(iv, StaticInterval)]
         self._buf = {k: (None if v is None else v[nd:]) for k, v in b.items()}
         return found[0] if len(found) == 1 else self._resolve(*found)
 
@@ -885,6 +891,12 @@ class StillnessDetector:
     @property
     def undecided(self) -> bool:
         return self.repeats is None
+
+    def take_pieces(self) -> List[StaticInterval]:
+        """The pieces the tracks have cut since the last call, as they are cut (_Core.pieces):
+        still stretches whose gyro mean is the bias, before the poses are decided."""
+        out, self._core.pieces = self._core.pieces, []
+        return out
 
     def _start_core(self, rate: float, held: bool) -> None:
         self._held = bool(held)

@@ -528,3 +528,30 @@ def test_a_long_rest_hands_the_filter_its_bias_as_each_piece_is_cut(tmp_path):
     err = np.degrees(np.arccos(np.clip(up @ up_body, -1, 1)))
     sd = np.array([o["incl_std_deg"] for o in rows])
     assert np.all(sd < 10.0) and np.all(err < 2 * sd) and np.all(err < 1.0), (err.max(), sd.max())
+
+
+def test_a_still_mean_beyond_what_a_bias_can_be_is_not_taken_off():
+    """A board turning steadily about gravity at 10 deg/s reads as still (the detector cannot
+    tell the turn from a bias), and the still interval's mean was taken off in full: once the
+    board tipped onto its side, the false 10 deg/s yaw became a tilt rate (a cold review: 31.5
+    deg median tilt error over the next 20 s, 2.8 with the clipped hand-over).  With no chip
+    tolerance known, a mean beyond VQF's own 2-deg/s clip goes to VQF as before; with the
+    MPU-6050's 20 deg/s known, a 10 deg/s mean is a bias it can have and is taken off.
+    Broken once: _offset_limit_dps returning inf (the error is 31 deg: fails)."""
+    rng = np.random.default_rng(1)
+    f = OrientationFilter(RATE_HZ, False)
+    f.use_calibration(Calibration("unknown", {}))
+    n1, n2 = int(30 * RATE_HZ), int(20 * RATE_HZ)
+    acc1 = np.tile([0.0, 0.0, 1.0], (n1, 1)) + rng.normal(0, SIG_A, (n1, 3))
+    gyr1 = np.tile([0.0, 0.0, 10.0], (n1, 1)) + rng.normal(0, SIG_G, (n1, 3))
+    f.update(acc1, gyr1)
+    f.still_interval([0.0, 0.0, 10.0], [0.01, 0.01, 0.01])
+    acc2 = np.tile([1.0, 0.0, 0.0], (n2, 1)) + rng.normal(0, SIG_A, (n2, 3))    # on its side, at rest
+    o = f.update(acc2, rng.normal(0, SIG_G, (n2, 3)))
+    up = np.array([rotate_inv(q, [0.0, 0.0, 1.0]) for q in o["q"][int(2 * RATE_HZ):]])
+    err = np.degrees(np.arccos(np.clip(up @ np.array([1.0, 0.0, 0.0]), -1, 1)))
+    assert np.median(err) < 5.0, np.median(err)
+    g = OrientationFilter(RATE_HZ, False)
+    g.use_calibration(Calibration("mpu6050", {}), None, 20.0)
+    g.still_interval([0.0, 0.0, 10.0], [0.01, 0.01, 0.01])
+    assert np.allclose(np.degrees(g._offset_rad_s), [0.0, 0.0, 10.0])

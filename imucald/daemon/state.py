@@ -135,9 +135,12 @@ def _foreign(ps: PoseSet, board: Optional[str]) -> Optional[str]:
     """Why saved poses are not this daemon's to resume, or None: another board's header
     (files written before the header carried the board have none, and are taken), or a
     median |a| beyond :data:`SAVED_POSE_MEDIAN_G` (another tool's poses in m/s^2 or counts)."""
-    saved = ps.meta.get("board")
-    if board is not None and saved is not None and saved != board:
+    meta = {k.strip().lower(): str(v).strip() for k, v in ps.meta.items()}   # '# Board: X' too
+    saved = meta.get("board")
+    if board is not None and saved is not None and saved.lower() != board.lower():
         return f"poses of board {saved!r}, this daemon runs {board!r}"
+    if meta.get("units", "g").lower() != "g":
+        return f"poses in {meta['units']!r}: poses are saved in g"
     if len(ps):
         m = float(np.median(np.linalg.norm(ps.acc, axis=1)))
         lo, hi = SAVED_POSE_MEDIAN_G

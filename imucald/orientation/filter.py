@@ -125,6 +125,7 @@ class OrientationFilter:
         #: quality figures take it until a still interval or VQF's rest detection (gyro under
         #: 2 deg/s for 1.5 s) has measured the bias (``_bias_seen``)
         self._gyro_prior_rad_s: Optional[float] = None
+        self._gyro_tol_dps: Optional[float] = None   #: the chip's zero-rate tolerance, deg/s
         self._bias_seen = False
         #: the last still interval's residual bias, rad/s, taken off the gyro before VQF: VQF
         #: clips its own estimate to biasClip (2 deg/s), so a larger bias (an uncalibrated
@@ -187,6 +188,7 @@ class OrientationFilter:
             self._bias_seen = False             # what VQF learnt was relative to the old gyro part
         self._gyro_prior_rad_s = (math.radians(float(gyro_bias_tol_dps) / 2.0)
                                   if g is None and gyro_bias_tol_dps is not None else None)
+        self._gyro_tol_dps = None if gyro_bias_tol_dps is None else float(gyro_bias_tol_dps)
         if old == keys:
             return None
         what = []
@@ -222,10 +224,22 @@ class OrientationFilter:
         b = np.asarray(gyro_mean_dps, float)
         if not np.all(np.isfinite(b)):
             return
-        self._bias_seen = True                  # the bias is measured now
         se = float(np.max(gyro_se_dps)) if gyro_se_dps is not None and np.all(np.isfinite(gyro_se_dps)) else 0.01
+        if float(np.max(np.abs(b))) > self._offset_limit_dps():
+            # more than a bias can be: a steady turn about gravity reads as still (the detector
+            # cannot tell them apart); handed to VQF, which clips it, as before the offset
+            self.f.setBiasEstimate(np.radians(b), max(math.radians(se), 1e-6))
+            return
+        self._bias_seen = True                  # the bias is measured now
         self._offset_rad_s = np.radians(b)      # taken off before VQF, whose own estimate restarts at 0
         self.f.setBiasEstimate(np.zeros(3), max(math.radians(se), 1e-6))
+
+    def _offset_limit_dps(self) -> float:
+        """The largest still-interval mean taken as a bias, deg/s, per axis: the chip's datasheet
+        zero-rate tolerance when known (use_calibration's gyro_bias_tol_dps), else VQF's own
+        clip (a cold review: a 10 deg/s turn about gravity, read as still, tilted the board 31
+        deg once it tipped)."""
+        return self._gyro_tol_dps if self._gyro_tol_dps is not None else math.degrees(self._clip_rad_s)
 
     # -- the batch ------------------------------------------------------------------------
     def update(self, acc_g, gyro_dps, mag_gauss=None, repeat=None) -> Dict[str, Any]:
@@ -309,7 +323,7 @@ class OrientationFilter:
         if self._gyro_prior_rad_s is not None and not self._bias_seen:
             sig = max(sig, self._gyro_prior_rad_s)
         tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),
-                                   self.acc_noise_g, self.tau_acc_s, self.rate_hz)
+                                   self.acc_noise_g, self._tau_now_s, self.rate_hz)
         if magnetic:
             rel = max(math.sqrt(self._mvar), self.mag_rel_floor)
             hv = quality.heading_var_rad2(sig, rel, self._dip_rad, self.tau_mag_s, self._rejected_s)

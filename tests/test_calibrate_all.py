@@ -331,7 +331,8 @@ def test_board_names_a_raw_table_only(tmp_path):
     output still said the recording's board: a cold review); now every command refuses another
     board in one line, with or without --columns.  The header's own board is taken (session 19:
     `calibrate rec.csv --board mpu6050` on an MPU-6050 recording was refused, a habit from raw
-    tables), with the same output as without it.  Broken once: input_recording not checking
+    tables), with the same output as without it, and a header of board 'unknown' takes it.
+    Broken once: input_recording not checking
     --board without --columns (replay, gap and apply exit 0 on 9dof: fails); once: check_board
     refusing every --board (the matching calls exit 2: fails)."""
     rec = tmp_path / "r.csv"
@@ -352,6 +353,13 @@ def test_board_names_a_raw_table_only(tmp_path):
     assert strip(same) == strip(cal)
     a, b = cli("replay", rec), cli("replay", rec, "--board", "mpu6050")
     assert a.stdout == b.stdout and len(a.stdout) > 1000
+    # a header of board 'unknown' decides nothing: --board is taken (a cold review: refused;
+    # broken once with check_board refusing it again: exit 2, fails)
+    unk = tmp_path / "unknown.csv"
+    unk.write_text(rec.read_text().replace("# board: mpu6050", "# board: unknown", 1))
+    cli("calibrate", unk, "--board", "mpu6050", "-o", tmp_path / "unk.yaml")
+    from imucald.calibration import load
+    assert load(tmp_path / "unk.yaml").board == "mpu6050"
 
 
 def test_apply_with_its_two_files_the_other_way_round_says_so(tmp_path):

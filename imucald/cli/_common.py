@@ -105,7 +105,7 @@ def input_recording(args, path: str, whole: bool = True):
     if getattr(args, "board", None):              # it must agree with the header's board
         from ..fitting.inputs import check_board
         try:
-            check_board(path, "recording", args.board, reader.meta.get("board"))
+            check_board(path, "recording", args.board, reader.meta)
         except BaseException:
             reader.close()
             raise

@@ -497,14 +497,21 @@ def input_kind(path: str) -> str:
     return "table"
 
 
-def check_board(path: str, kind: str, board: Optional[str], saved: Optional[str]) -> None:
+def check_board(path: str, kind: str, board: Optional[str], meta: Dict[str, str]) -> None:
     """``--board`` on an imucald file (whose header names its board) must agree with the header:
     the same name is taken (a habit from raw tables, and scripts that pass it to every file), another
-    is refused naming both (the header decides: --board names a raw table's board)."""
-    if board is not None and board != saved:
-        said = f"board {saved!r}" if saved else "no board"
-        raise UserError(f"--board {board}: {path} is an imucald {kind} whose header names {said}: "
-                        f"drop --board (the header decides; --board names a raw table's board)")
+    is refused naming both (the header decides: --board names a raw table's board).  A header
+    that names none, or ``unknown``, decides nothing: ``--board`` is taken into ``meta`` then
+    (a cold review: it was refused, and the calibration said ``unknown``)."""
+    saved = meta.get("board")
+    if board is None or board == saved:
+        return
+    if saved in (None, "", "unknown"):
+        meta["board"] = board
+        return
+    what = "an imucald recording" if kind == "recording" else "an imucald pose file"
+    raise UserError(f"--board {board}: {path} is {what} whose header names board {saved!r}: "
+                    f"drop --board (the header decides; --board names a raw table's board)")
 
 
 def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: PerSensor = 1.0,
@@ -519,11 +526,11 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
         _check_join(path, kind, columns, join)
     if kind == "recording":
         rec = read_recording(path)
-        check_board(path, kind, board, rec.meta.get("board"))
+        check_board(path, kind, board, rec.meta)
         return "recording", rec
     if kind == "poses":
         ps = read_poses(path)
-        check_board(path, kind, board, ps.meta.get("board"))
+        check_board(path, kind, board, ps.meta)
         return "poses", ps
     if board is not None and columns is None:
         raise UserError(f"--board {board}: names the board of a raw table: give its --columns too")

@@ -96,12 +96,14 @@ def _is_number(p: str) -> bool:
     return True
 
 
-def _header_message(line: str, path: str, lineno: int) -> str:
+def _header_message(line: str, path: str, lineno: int, start: int) -> str:
+    """``start``: the first of the comment lines right above the header (a recording's own
+    header lines, which the second part needs: a cold review), else ``lineno``."""
     q = shlex.quote(path) if path else "FILE"
     return (f"a column header again ({snippet(line)}): a logger that restarted and appended? "
             f"If the time carries on below it, delete this line (sed -i '{lineno}d' {q}); if it "
-            f"starts again, split the file there (head -n {lineno - 1} {q} > part1.csv, and the "
-            f"rest from line {lineno + 1}: each part is a recording)")
+            f"starts again, split the file there (head -n {start - 1} {q} > part1.csv; "
+            f"tail -n +{start} {q} > part2.csv: each part is a recording)")
 
 
 class TableSpec:
@@ -575,13 +577,16 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
     first: Optional[Exception] = None
     more: List[int] = []
     last = lineno
+    run = 0                     # the first of the '#' lines right above this one (0: none)
     for i, line in enumerate(text.split("\n")):
         s = line.strip()
         if not s or s[0] in spec.skip:
+            run = run or (lineno + i if s.startswith("#") else 0)
             continue
         ln = last = lineno + i
+        start, run = run, 0
         try:
-            row = _slow_row(s, line, spec, ln, prev_t if first is None else -np.inf)
+            row = _slow_row(s, line, spec, ln, prev_t if first is None else -np.inf, start)
         except spec.error as e:
             if first is not None:
                 more.append(ln)
@@ -603,8 +608,9 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
     return np.array(out, dtype=np.float64).reshape(len(out), spec.ncol)
 
 
-def _slow_row(s: str, line: str, spec: TableSpec, ln: int, prev_t: float) -> List[float]:
-    """One line's values, checked (spec.fail naming the line and column)."""
+def _slow_row(s: str, line: str, spec: TableSpec, ln: int, prev_t: float, start: int = 0) -> List[float]:
+    """One line's values, checked (spec.fail naming the line and column); ``start``: the first
+    line of the comment lines right above it (its own number when none)."""
     n = spec.ncol
     parts = s.split(",") if spec.comma_only else s.replace(",", " ").split()
     if len(parts) != n:
@@ -620,7 +626,7 @@ def _slow_row(s: str, line: str, spec: TableSpec, ln: int, prev_t: float) -> Lis
             if spec.names[j] == "-":        # a skipped column may hold text (a frame id)
                 v = float("nan")
             elif _header_again(parts, spec.names):
-                spec.fail(ln, _header_message(s, spec.path, ln))
+                spec.fail(ln, _header_message(s, spec.path, ln, start or ln))
             else:
                 spec.fail(ln, f"column {spec.names[j]}: {snippet(spec.quoted(ln, j, p))} is not a number")
         row.append(v)

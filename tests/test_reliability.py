@@ -604,3 +604,22 @@ def test_the_history_keeps_the_newest_across_the_id_wrap(tmp_path):
             os.utime(hd / f, ns=(os.stat(hd / f).st_mtime_ns - 10 ** 9,) * 2)
     ids = sorted(int(f.split("-")[1]) for f in os.listdir(hd))
     assert ids == [1, 100000, 4294967295], ids
+
+
+def test_a_fifo_in_a_missing_directory_is_named_with_its_fix(tmp_path):
+    """output.fifo (--fifo) in a directory that does not exist: exit 74 with the bare
+    "error: No such file or directory" (a black-box helper).  Now exit 73 (cannot create) with
+    the path as resolved (relative: from the runtime directory) and the fix.  Broken once:
+    mkfifo's OSError uncaught again (exit 74: fails)."""
+    import subprocess
+    import sys
+    env = dict(os.environ, PYTHONPATH=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    p = subprocess.run([sys.executable, "-m", "imucald.cli", "run", "--emulate", "--duration", "1",
+                        "--state-dir", str(tmp_path / "st"), "--runtime-dir", str(tmp_path / "rt"),
+                        "--fifo", "nodir/x.fifo"], capture_output=True, text=True, env=env, timeout=60)
+    assert p.returncode == 73, p.stderr[-300:]
+    last = p.stderr.strip().splitlines()[-1]
+    assert last == (f"imucald: error: output.fifo: cannot create {tmp_path / 'rt' / 'nodir' / 'x.fifo'}: "
+                    f"No such file or directory (a relative path is taken from the runtime directory; "
+                    f"create its directory or choose another output.fifo)"), last
+    assert "Traceback" not in p.stderr

@@ -392,7 +392,13 @@ class FifoSink:
         self.chips: Optional[dict] = None     #: set by the daemon once the chips are identified
         self.orientation_off: Optional[str] = "not started"    #: as SocketSink's
         if not os.path.exists(path):
-            os.mkfifo(path)
+            try:
+                os.mkfifo(path)
+            except OSError as e:        # a missing directory, a read-only one (a helper: bare errno)
+                from ..errors import CannotCreate
+                raise CannotCreate(f"output.fifo: cannot create {path}: {e.strerror} (a relative "
+                                   f"path is taken from the runtime directory; create its directory "
+                                   f"or choose another output.fifo)") from None
             try:
                 set_mode_group(path, mode, group, "output.fifo")
             except Exception:

@@ -534,13 +534,15 @@ def test_a_still_mean_beyond_what_a_bias_can_be_is_not_taken_off():
     """A board turning steadily about gravity at 10 deg/s reads as still (the detector cannot
     tell the turn from a bias), and the still interval's mean was taken off in full: once the
     board tipped onto its side, the false 10 deg/s yaw became a tilt rate (a cold review: 31.5
-    deg median tilt error over the next 20 s, 2.8 with the clipped hand-over).  With no chip
-    tolerance known, a mean beyond VQF's own 2-deg/s clip goes to VQF as before; with the
-    MPU-6050's 20 deg/s known, a 10 deg/s mean is a bias it can have and is taken off.
-    Broken once: _offset_limit_dps returning inf (the error is 31 deg: fails)."""
+    deg median tilt error over the next 20 s, 2.8 with the clipped hand-over).  With a gyro
+    calibration in force, a mean beyond VQF's own 2-deg/s clip is drift no calibrated gyro
+    has and goes to VQF as before; uncalibrated, with the MPU-6050's 20 deg/s tolerance known,
+    a 10 deg/s mean is a bias it can have and is taken off.  Broken once: _offset_limit_dps
+    returning inf (the error is 31 deg: fails)."""
     rng = np.random.default_rng(1)
     f = OrientationFilter(RATE_HZ, False)
-    f.use_calibration(Calibration("unknown", {}))
+    g = SensorCal("gyro", "bias", {"bias_dps": np.zeros(3)}, {"bias_dps": np.full(3, 0.02)})
+    f.use_calibration(Calibration("mpu6050", {}, id=1, gyro=g), None, 20.0)
     n1, n2 = int(30 * RATE_HZ), int(20 * RATE_HZ)
     acc1 = np.tile([0.0, 0.0, 1.0], (n1, 1)) + rng.normal(0, SIG_A, (n1, 3))
     gyr1 = np.tile([0.0, 0.0, 10.0], (n1, 1)) + rng.normal(0, SIG_G, (n1, 3))

@@ -235,11 +235,19 @@ class OrientationFilter:
         self.f.setBiasEstimate(np.zeros(3), max(math.radians(se), 1e-6))
 
     def _offset_limit_dps(self) -> float:
-        """The largest still-interval mean taken as a bias, deg/s, per axis: the chip's datasheet
-        zero-rate tolerance when known (use_calibration's gyro_bias_tol_dps), else VQF's own
-        clip (a cold review: a 10 deg/s turn about gravity, read as still, tilted the board 31
-        deg once it tipped)."""
-        return self._gyro_tol_dps if self._gyro_tol_dps is not None else math.degrees(self._clip_rad_s)
+        """The largest still-interval mean taken as a bias, deg/s, per axis.  With a gyro
+        calibration in force, what is left is drift, and VQF's own 2-deg/s clip bounds it as
+        before (a cold review: a 10 deg/s turn about gravity, read as still, tilted the board
+        31 deg once it tipped).  Without one, the chip's datasheet zero-rate tolerance
+        (use_calibration's gyro_bias_tol_dps), or, the chip unknown, the widest of the
+        supported chips' (the ITG-3200's 40 deg/s: BROAD's trials with a drawn MPU-9250-class
+        bias of up to 5 deg/s lost session 18's gain, 2.54 -> 4.86 deg, at the clip)."""
+        if self._keys[1] is not None:
+            return math.degrees(self._clip_rad_s)
+        if self._gyro_tol_dps is not None:
+            return self._gyro_tol_dps
+        from ..specs import GYRO
+        return max(g.bias_tol_dps for g in GYRO.values())
 
     # -- the batch ------------------------------------------------------------------------
     def update(self, acc_g, gyro_dps, mag_gauss=None, repeat=None) -> Dict[str, Any]:

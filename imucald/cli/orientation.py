@@ -30,7 +30,11 @@ def orientation_table(rec, cal, batch_s: float = 0.02):
     if rec.acc is None or rec.gyro is None:
         raise UserError("--orientation needs accelerometer and gyro columns (ax..az, gx..gz)")
     rep = duplicated_rows(rec.t, [rec.acc, rec.gyro, rec.mag])  # a logger that wrote rows twice
-    rate = rec.rate_hz if "rate_hz" in rec.meta or not rep.any() else (_distinct_rate_hz(rec.t[~rep]) or rec.rate_hz)
+    if rep.any() and "rate_hz" not in rec.meta:     # a headerless table: its distinct rows' rate
+        from ..files.recording import Recording
+        rate = Recording(rec.t[~rep]).rate_hz or rec.rate_hz
+    else:
+        rate = rec.rate_hz
     chips = recording_chips(rec.meta)
     spec, gspec = ACCEL.get(chips.get("accel", "")), GYRO.get(chips.get("gyro", ""))
     f = OrientationFilter(rate, rec.mag is not None,
@@ -68,13 +72,6 @@ def gyro_range_dps(meta, gspec):
     except (KeyError, ValueError):
         pass
     return None if gspec is None else float(gspec.range_dps)
-
-
-def _distinct_rate_hz(t_s) -> float:
-    """A headerless table's rate from its distinct rows' time steps."""
-    from ..numerics.npstats import median
-    dt = np.diff(t_s)
-    return float(1.0 / median(dt)) if len(dt) and median(dt) > 0 else 0.0
 
 
 def _still_intervals(rec):

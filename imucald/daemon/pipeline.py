@@ -21,6 +21,7 @@ from ..fitting.judging.levels import IN_FORCE_CHALLENGE_LEVEL
 from ..fitting.judging.outliers import OUTLIER_CAUSE
 from ..fitting.judging.coverage import next_orientation
 from ..fitting.stillness.detector import StillnessDetector
+from ..fitting.stillness.repeats import duplicated_rows
 from ..calibration import Calibration, next_id
 from .accumulator import PoseAccumulator
 from .fitjob import JobResult, MagReservoir, calibration_job
@@ -297,7 +298,6 @@ class Pipeline:
             return
         t_s = np.asarray(t_s, float)
         if rows is not None:                    # a logger's duplicated rows are not samples
-            from ..fitting.stillness.repeats import duplicated_rows
             t_s = t_s[~duplicated_rows(t_s, rows)]
             if len(t_s) < 3:
                 return
@@ -323,7 +323,6 @@ class Pipeline:
                 ti = float(iv.temp) if np.isfinite(iv.temp) else None
                 g = ap.apply_gyro(iv.gyro[None], ti, ap.apply_accel(iv.acc[None], ti))[0]
                 f.still_interval(g, np.sqrt(np.diag(iv.gyro_cov)))
-        from ..fitting.stillness.repeats import duplicated_rows
         rep = duplicated_rows(b.t, [b.acc, b.gyro, b.mag], self._orient_prev)   # replay: a logger's
         if isinstance(keep, slice):                                              # rows written twice
             return f.update(acc, gyro, mag, rep)

@@ -41,7 +41,8 @@ def orientation_table(rec, cal, batch_s: float = 0.02):
                           None if spec is None else spec.noise_density_g_rthz * rate ** 0.5)
     f.use_gyro_range(gyro_range_dps(rec.meta, gspec), None if gspec is None else gspec.bias_tol_dps)
     f.use_calibration(cal, None if spec is None else spec.bias_tol_g,
-                      None if gspec is None else gspec.bias_tol_dps)
+                      None if gspec is None else gspec.bias_tol_dps,
+                      None if gspec is None else (gspec.scale_tol, gspec.cross_axis_tol))
     n = len(rec)
     out = np.full((n, 10), np.nan)
     out[:, 0] = rec.t

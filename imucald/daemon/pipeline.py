@@ -282,6 +282,7 @@ class Pipeline:
         self._acc_tol = None if spec is None else spec.bias_tol_g
         gspec = GYRO.get(self.chips.get("gyro", ""))
         self._gyro_tol = None if gspec is None else gspec.bias_tol_dps
+        self._gain_tol = None if gspec is None else (gspec.scale_tol, gspec.cross_axis_tol)
         self.orient = OrientationFilter(self.rate_hz, self.has_mag, noise)
         self.orient.use_gyro_range(gyro_range_dps or (None if gspec is None else gspec.range_dps),
                                    self._gyro_tol)
@@ -312,7 +313,7 @@ class Pipeline:
         the stream only); returns its output for the kept rows, or None without a gyro."""
         f, ap = self.orient, self.applied
         if ap is not self._orient_cal:          # a new calibration: reset what depends on it
-            what = f.use_calibration(ap, self._acc_tol, self._gyro_tol)
+            what = f.use_calibration(ap, self._acc_tol, self._gyro_tol, self._gain_tol)
             self._orient_cal = ap
             if what:
                 log.info("orientation: reset the %s (calibration #%d)", what, ap.id)

@@ -126,6 +126,11 @@ class OrientationFilter:
         #: 2 deg/s for 1.5 s) has measured the bias (``_bias_seen``)
         self._gyro_prior_rad_s: Optional[float] = None
         self._gyro_tol_dps: Optional[float] = None   #: the chip's zero-rate tolerance, deg/s
+        #: variances of the gyro's gain matrix M (reading = M w), its 9 entries row-major,
+        #: fraction^2: the datasheet's sensitivity (diagonal) and cross-axis (off) tolerances
+        #: as N(0, tol/2) without a gyro calibration that fitted M, else the fit's standard
+        #: errors squared; None when neither is known (not in the quality figures)
+        self._gain_var: Optional[list] = None
         self._bias_seen = False
         #: the last still interval's residual bias, rad/s, taken off the gyro before VQF: VQF
         #: clips its own estimate to biasClip (2 deg/s), so a larger bias (an uncalibrated
@@ -149,6 +154,10 @@ class OrientationFilter:
         self._rejected_s = 0.0
         self._mag_seen = False
         self._last_mag: Optional[np.ndarray] = None
+        #: sum over the rows so far of R_h[:, i] w_j dt, forgotten over tau_acc: W (2, 3, 3),
+        #: rad, flattened to 18 floats (_track_gain: scalar arithmetic, once a batch); a gain
+        #: error E_ij turns the tilt by sum_ij E_ij W[:, i, j]
+        self._gain_w = [0.0] * 18
 
     def set_rate(self, rate_hz: float) -> None:
         """A new sample rate (before the first sample: the state is started afresh)."""
@@ -162,7 +171,8 @@ class OrientationFilter:
         self._clear_quality()
 
     # -- the calibration in force ---------------------------------------------------------
-    def use_calibration(self, cal, acc_bias_tol_g=None, gyro_bias_tol_dps=None) -> Optional[str]:
+    def use_calibration(self, cal, acc_bias_tol_g=None, gyro_bias_tol_dps=None,
+                        gyro_gain_tol=None) -> Optional[str]:
         """Take the calibration in force; returns what was reset (None: nothing).
 
         acc_bias_tol_g: the accelerometer's datasheet zero-g tolerance (g, per axis), used
@@ -172,7 +182,11 @@ class OrientationFilter:
         nor a still interval (:meth:`still_interval`): VQF starts from its own 0.5 deg/s and
         learns at rest only a bias under its 2 deg/s rest threshold, so an ITG-3200's +-40 deg/s
         (a 73 deg median tilt error before the first still interval) read as 45 deg
-        through the gravity-free acceleration alone (a daemon helper)."""
+        through the gravity-free acceleration alone (a daemon helper).
+        gyro_gain_tol: the gyro's datasheet (sensitivity, cross-axis) tolerances, fractions,
+        likewise taken while no gyro calibration has fitted its gain matrix: a +-3 % gain
+        turns a 90-deg flip into a 2.7-deg tilt error, which the stated sd did not hold (a
+        black-box helper: 11-12 % of the motion samples beyond 3 sd on every board)."""
         a, g, m = (getattr(cal, k, None) for k in ("accel", "gyro", "mag"))
         keys = (_part_key(a), _part_key(g), _part_key(m))
         se = None
@@ -189,6 +203,7 @@ class OrientationFilter:
         self._gyro_prior_rad_s = (math.radians(float(gyro_bias_tol_dps) / 2.0)
                                   if g is None and gyro_bias_tol_dps is not None else None)
         self._gyro_tol_dps = None if gyro_bias_tol_dps is None else float(gyro_bias_tol_dps)
+        self._gain_var = _gain_var(g, gyro_gain_tol)
         if old == keys:
             return None
         what = []
@@ -331,7 +346,8 @@ class OrientationFilter:
         if self._gyro_prior_rad_s is not None and not self._bias_seen:
             sig = max(sig, self._gyro_prior_rad_s)
         tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),
-                                   self.acc_noise_g, self._tau_now_s, self.rate_hz)
+                                   self.acc_noise_g, self._tau_now_s, self.rate_hz,
+                                   self._gain_var_rad2())
         if magnetic:
             rel = max(math.sqrt(self._mvar), self.mag_rel_floor)
             hv = quality.heading_var_rad2(sig, rel, self._dip_rad, self.tau_mag_s, self._rejected_s)
@@ -395,7 +411,31 @@ class OrientationFilter:
             self._bias_seen = True              # VQF saw rest and can learn a bias this size
         lin = gravity_free_g(q, acc)
         self._track(q, lin, mag, dist)
+        if self._gain_var is not None:
+            self._track_gain(q, w)
         return q, lin, dist, float(o["biasSigma"][-1])
+
+    def _track_gain(self, q, w_rad_s) -> None:
+        """W (see _clear_quality) over this batch: the horizontal rows of R (body -> ENU) at the
+        batch's middle row times the batch's rotation (mean rate times its duration), the whole
+        forgotten by e^{-n dt/tau}: a gain error acts as a bias proportional to the rate, and
+        the filter pulls the tilt it leaves back to the accelerometer's over tau_acc (quality
+        module).  One attitude a batch, as _track: per row it cost twice the filter's own time
+        at 1 kHz, and a batch turns the board by a few degrees (a second-order error in an sd)."""
+        n, dt = len(q), 1.0 / self.rate_hz
+        w, x, y, z = q[n // 2].tolist()
+        rh = (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+              2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
+        turn = (w_rad_s.sum(0) * dt).tolist()
+        k = math.exp(-n * dt / self._tau_now_s)
+        self._gain_w = [k * a + r * b for a, (r, b) in zip(self._gain_w, ((r, b) for r in rh for b in turn))]
+
+    def _gain_var_rad2(self) -> float:
+        """The tilt variance the gyro's gain error leaves (quality.tilt_var_rad2's gain term)."""
+        if self._gain_var is None:
+            return 0.0
+        v = self._gain_var
+        return sum(v[i % 9] * a * a for i, a in enumerate(self._gain_w))
 
     def _q9_from_6d(self, q6):
         """Rows fed without a magnetometer reading after one was seen: the 6D attitude turned
@@ -427,6 +467,23 @@ class OrientationFilter:
         self._rejected_s = (self._rejected_s + n / self.rate_hz) if dist[-1] else 0.0
 
     _dip_rad = 0.0
+
+
+def _gain_var(g, tol) -> Optional[list]:
+    """Variances of the gyro's gain matrix, 9 entries row-major, fraction^2, or None: a gyro
+    part with a fitted ``matrix`` takes its standard errors (none stated: None); without one,
+    the datasheet (sensitivity, cross-axis) tolerances ``tol`` as N(0, tol/2); None when
+    unknown."""
+    if g is not None and "matrix" in g.params:
+        se = g.stderr.get("matrix")
+        if se is None:
+            return None
+        se = np.asarray(se, float).reshape(9)
+        return np.where(np.isfinite(se), se * se, 0.0).tolist()
+    if tol is None:
+        return None
+    d, c = (float(tol[0]) / 2.0) ** 2, (float(tol[1]) / 2.0) ** 2
+    return [d if i % 4 == 0 else c for i in range(9)]
 
 
 def _rotate1(q, v):

@@ -8,6 +8,9 @@ complementary filter of time constant tau settles, for each error source, at (La
 section 3; a first-order low-pass of the disturbance):
 
 * a gyro bias b not yet estimated: an angle error b * tau about each axis it acts on;
+* a gyro gain error E (sensitivity and cross-axis, reading = (I + E) w): a bias E w that
+  follows the rate, so the angle error is E times the rotation of the last few tau,
+  forgotten as e^{-age/tau} (a 90-deg flip with a 3 % sensitivity error: 2.7 deg);
 * an accelerometer bias (or scale error) of the calibration: its horizontal part divided by
   1 g, in rad (the filter cannot tell it from a tilt);
 * a linear (gravity-free) acceleration: its tau-mean horizontal part divided by 1 g, rad;
@@ -41,7 +44,7 @@ ARBITRARY_TILT_VAR_RAD2 = (math.pi ** 2 - 4) / 2
 
 def tilt_var_rad2(acc_bias_var_g2: Optional[float], gyro_bias_sigma_rad_s: float,
                   lin_acc_lp_g: float, acc_noise_g: Optional[float], tau_acc_s: float,
-                  rate_hz: float) -> float:
+                  rate_hz: float, gain_var_rad2: float = 0.0) -> float:
     """Variance of the total tilt error (both horizontal components), rad^2.
 
     acc_bias_var_g2: the sum over the axes of the accelerometer calibration's squared bias
@@ -49,8 +52,11 @@ def tilt_var_rad2(acc_bias_var_g2: Optional[float], gyro_bias_sigma_rad_s: float
     average over orientations.
     gyro_bias_sigma_rad_s: the filter's own bias uncertainty (worst direction).
     lin_acc_lp_g: magnitude of the tau-low-passed horizontal gravity-free acceleration (g).
-    acc_noise_g: one sample's accelerometer noise std (g), or None."""
-    v = 2.0 * (gyro_bias_sigma_rad_s * tau_acc_s) ** 2 + lin_acc_lp_g ** 2
+    acc_noise_g: one sample's accelerometer noise std (g), or None.
+    gain_var_rad2: the tilt variance a gyro gain (sensitivity, cross-axis) error leaves: its
+    variance times the rotation of the last few tau_acc, both horizontal components (the
+    filter's _track_gain)."""
+    v = 2.0 * (gyro_bias_sigma_rad_s * tau_acc_s) ** 2 + lin_acc_lp_g ** 2 + gain_var_rad2
     if acc_bias_var_g2 is not None:
         v += 2.0 / 3.0 * acc_bias_var_g2
     if acc_noise_g is not None:

@@ -92,6 +92,12 @@ def _part_key(p) -> Optional[str]:
 #: +-250 deg/s: median tilt error in the holds 6.5 -> 2.1 deg (1.0 s: 2.0 deg, with the stated
 #: sd wider)
 SATURATED_TAU_ACC_S = 0.4
+#: the rate a saturated gyro did not report, as a share of its full scale: taken as N(0,
+#: (SATURATED_EXCESS * range)^2) per axis, the same through a run of saturated rows (one flip
+#: overshoots one way), so the tilt sd grows with the time spent at the rail; a true peak of
+#: twice the range is 2 sd.  Measured on a helper's MPU-6050 / MPU-9250 tours with flips
+#: peaking at 400 deg/s on a 250-deg/s range (see the orientation guide)
+SATURATED_EXCESS = 0.5
 #: a quiet batch: |a| within this of 1 g in mean, g, and its sd under this, g (a hand's hold:
 #: a few mg; a move: tens to hundreds)
 QUIET_MEAN_G, QUIET_SD_G = 0.05, 0.02
@@ -143,6 +149,10 @@ class OrientationFilter:
         #: a calibrated gyro reading beyond this is saturated, deg/s (use_gyro_range), and the
         #: quiet time still to run with the short tauAcc after one, s (_after_saturation)
         self._sat_dps: Optional[float] = None
+        self._range_rad_s: Optional[float] = None
+        #: this batch's seconds at the rail per axis, signed by the reading (_after_saturation),
+        #: or None; folded into _sat_w with the batch's attitude (_track_excess)
+        self._sat_s: Optional[list] = None
         self._fast_left_s = 0.0
         self._tau_now_s = self.tau_acc_s
         self._clear_quality()
@@ -158,6 +168,10 @@ class OrientationFilter:
         #: rad, flattened to 18 floats (_track_gain: scalar arithmetic, once a batch); a gain
         #: error E_ij turns the tilt by sum_ij E_ij W[:, i, j]
         self._gain_w = [0.0] * 18
+        #: sum of R_h[:, i] times the signed seconds axis i spent at the rail, forgotten over
+        #: tau_acc: (2, 3) flattened, s (_track_excess); the unreported rate x_i turns the tilt
+        #: by sum_i x_i W[:, i]
+        self._sat_w = [0.0] * 6
 
     def set_rate(self, rate_hz: float) -> None:
         """A new sample rate (before the first sample: the state is started afresh)."""
@@ -347,7 +361,7 @@ class OrientationFilter:
             sig = max(sig, self._gyro_prior_rad_s)
         tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),
                                    self.acc_noise_g, self._tau_now_s, self.rate_hz,
-                                   self._gain_var_rad2())
+                                   self._gain_var_rad2() + self._excess_var_rad2())
         if magnetic:
             rel = max(math.sqrt(self._mvar), self.mag_rel_floor)
             hv = quality.heading_var_rad2(sig, rel, self._dip_rad, self.tau_mag_s, self._rejected_s)
@@ -365,6 +379,7 @@ class OrientationFilter:
         after a sensitivity error of a few % and the bias taken off)."""
         ok = range_dps is not None and math.isfinite(float(range_dps)) and float(range_dps) > 0
         self._sat_dps = 0.95 * float(range_dps) - float(bias_tol_dps or 0.0) if ok else None
+        self._range_rad_s = math.radians(float(range_dps)) if ok else None
 
     def _after_saturation(self, acc, gyro) -> None:
         """A saturated gyro reports too small a rotation, so the tilt is off by what it did not
@@ -376,6 +391,8 @@ class OrientationFilter:
             return
         g = np.abs(gyro[np.isfinite(gyro)])
         if len(g) and float(g.max()) >= self._sat_dps:
+            rail = np.abs(gyro) >= self._sat_dps            # NaN: False
+            self._sat_s = (np.where(rail, np.sign(gyro), 0.0).sum(0) / self.rate_hz).tolist()
             self._fast_left_s = 3 * SATURATED_TAU_ACC_S
             self._tau(self.tau_acc_s)
             return
@@ -413,6 +430,8 @@ class OrientationFilter:
         self._track(q, lin, mag, dist)
         if self._gain_var is not None:
             self._track_gain(q, w)
+        if self._sat_s is not None or any(self._sat_w):
+            self._track_excess(q)
         return q, lin, dist, float(o["biasSigma"][-1])
 
     def _track_gain(self, q, w_rad_s) -> None:
@@ -429,6 +448,26 @@ class OrientationFilter:
         turn = (w_rad_s.sum(0) * dt).tolist()
         k = math.exp(-n * dt / self._tau_now_s)
         self._gain_w = [k * a + r * b for a, (r, b) in zip(self._gain_w, ((r, b) for r in rh for b in turn))]
+
+    def _track_excess(self, q) -> None:
+        """_sat_w over this batch (see _clear_quality), as _track_gain: the batch's middle
+        attitude, its seconds at the rail, the whole forgotten by e^{-n dt/tau}."""
+        n = len(q)
+        w, x, y, z = q[n // 2].tolist()
+        rh = (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+              2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
+        k = math.exp(-n / self.rate_hz / self._tau_now_s)
+        s = self._sat_s or (0.0, 0.0, 0.0)
+        self._sat_s = None
+        self._sat_w = [k * a + r * s[i % 3] for i, (a, r) in enumerate(zip(self._sat_w, rh))]
+        if max(map(abs, self._sat_w)) < 1e-6:
+            self._sat_w = [0.0] * 6
+
+    def _excess_var_rad2(self) -> float:
+        """The tilt variance the rate a saturated gyro did not report leaves (SATURATED_EXCESS)."""
+        if self._range_rad_s is None or not any(self._sat_w):
+            return 0.0
+        return (SATURATED_EXCESS * self._range_rad_s) ** 2 * sum(a * a for a in self._sat_w)
 
     def _gain_var_rad2(self) -> float:
         """The tilt variance the gyro's gain error leaves (quality.tilt_var_rad2's gain term)."""

@@ -11,6 +11,8 @@ section 3; a first-order low-pass of the disturbance):
 * a gyro gain error E (sensitivity and cross-axis, reading = (I + E) w): a bias E w that
   follows the rate, so the angle error is E times the rotation of the last few tau,
   forgotten as e^{-age/tau} (a 90-deg flip with a 3 % sensitivity error: 2.7 deg);
+* a saturated gyro's unreported rate x: the angle error is x times the time at the rail,
+  forgotten likewise (x taken as N(0, (range/2)^2), filter.SATURATED_EXCESS);
 * an accelerometer bias (or scale error) of the calibration: its horizontal part divided by
   1 g, in rad (the filter cannot tell it from a tilt);
 * a linear (gravity-free) acceleration: its tau-mean horizontal part divided by 1 g, rad;
@@ -55,7 +57,7 @@ def tilt_var_rad2(acc_bias_var_g2: Optional[float], gyro_bias_sigma_rad_s: float
     acc_noise_g: one sample's accelerometer noise std (g), or None.
     gain_var_rad2: the tilt variance a gyro gain (sensitivity, cross-axis) error leaves: its
     variance times the rotation of the last few tau_acc, both horizontal components (the
-    filter's _track_gain)."""
+    filter's _track_gain), plus the saturated gyro's unreported rate's (_track_excess)."""
     v = 2.0 * (gyro_bias_sigma_rad_s * tau_acc_s) ** 2 + lin_acc_lp_g ** 2 + gain_var_rad2
     if acc_bias_var_g2 is not None:
         v += 2.0 / 3.0 * acc_bias_var_g2

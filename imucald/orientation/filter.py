@@ -172,6 +172,9 @@ class OrientationFilter:
         #: tau_acc: (2, 3) flattened, s (_track_excess); the unreported rate x_i turns the tilt
         #: by sum_i x_i W[:, i]
         self._sat_w = [0.0] * 6
+        #: the tilt variance a bias left when a still interval measured it, rad^2, fading as
+        #: e^{-2 t/tau_acc} (still_interval)
+        self._handover_var = 0.0
 
     def set_rate(self, rate_hz: float) -> None:
         """A new sample rate (before the first sample: the state is started afresh)."""
@@ -260,6 +263,10 @@ class OrientationFilter:
             self.f.setBiasEstimate(np.radians(b), max(math.radians(se), 1e-6))
             return
         self._bias_seen = True                  # the bias is measured now
+        # the tilt the bias left is pulled back over tau_acc, not at once: the sd keeps it
+        # (at most |b| tau, both horizontal components) and lets it fade as the error does
+        left = np.radians(b) - self._offset_rad_s
+        self._handover_var = max(self._handover_var, float(left @ left) * self._tau_now_s ** 2)
         self._offset_rad_s = np.radians(b)      # taken off before VQF, whose own estimate restarts at 0
         self.f.setBiasEstimate(np.zeros(3), max(math.radians(se), 1e-6))
 
@@ -359,9 +366,13 @@ class OrientationFilter:
         magnetic = self.has_mag and self._mag_seen
         if self._gyro_prior_rad_s is not None and not self._bias_seen:
             sig = max(sig, self._gyro_prior_rad_s)
+        if self._handover_var:
+            self._handover_var *= math.exp(-2.0 * n / self.rate_hz / self._tau_now_s)
+            if self._handover_var < 1e-12:
+                self._handover_var = 0.0
         tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),
                                    self.acc_noise_g, self._tau_now_s, self.rate_hz,
-                                   self._gain_var_rad2() + self._excess_var_rad2())
+                                   self._gain_var_rad2() + self._excess_var_rad2() + self._handover_var)
         if magnetic:
             rel = max(math.sqrt(self._mvar), self.mag_rel_floor)
             hv = quality.heading_var_rad2(sig, rel, self._dip_rad, self.tau_mag_s, self._rejected_s)

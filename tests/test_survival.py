@@ -472,7 +472,7 @@ def test_a_state_write_in_progress_is_still_unsaved():
 
 @pytest.mark.parametrize("name", ["poses.csv", "thermal.csv"])
 @pytest.mark.parametrize("case", ["other_board", "m_s2", "own", "no_header", "other_board_Key",
-                                  "own_upper", "units_mg"])
+                                  "own_upper", "units_mg", "one_m_s2"])
 def test_saved_poses_of_another_board_or_unit_are_set_aside(tmp_path, caplog, name, case):
     """Saved poses the running daemon did not make -- another board's header (a toaster's, a
     daemon helper put one there) or another tool's poses in m/s^2 -- are set aside in one line
@@ -481,7 +481,12 @@ def test_saved_poses_of_another_board_or_unit_are_set_aside(tmp_path, caplog, na
     two foreign cases were resumed (12 poses, this test failed).  Session 19 (a black-box
     helper): '# Board: 9dof' was read as no board line and resumed, '# board: MPU6050' set
     aside as another board's, and '# units:' not checked; broken once with the header's key and
-    value compared as written (other_board_Key resumed, own_upper set aside: both fail)."""
+    value compared as written (other_board_Key resumed, own_upper set aside: both fail).
+    Session 20 (the same helper): one pose in m/s^2 among 11 good ones passed the median check
+    and was resumed, then blocked the fit; now that row is left out with one warning naming it,
+    the others resumed, the file as it was kept beside; and thermal.csv's messages speak of
+    still intervals, not poses.  Broken once: _drop_foreign_rows returning ps (12 resumed:
+    fails)."""
     from imucald.fitting.stillness.poses import PoseSet
     from imucald.daemon.state import load_poses, save_poses
     rng = np.random.default_rng(1)
@@ -490,6 +495,8 @@ def test_saved_poses_of_another_board_or_unit_are_set_aside(tmp_path, caplog, na
     cov = np.broadcast_to(np.eye(3) * 1e-8, (12, 3, 3)).copy()
     if case == "m_s2":
         acc, cov = acc * 9.80665, cov * 9.80665 ** 2
+    if case == "one_m_s2":
+        acc[4] *= 9.80665
     ps = PoseSet(acc=acc, acc_cov=cov / 200, n=np.full(12, 200), t0=np.arange(12.0),
                  t1=np.arange(12.0) + 2, acc_sample_cov=cov)
     board = {"other_board": "toaster", "no_header": ""}.get(case, "mpu6050")
@@ -503,6 +510,13 @@ def test_saved_poses_of_another_board_or_unit_are_set_aside(tmp_path, caplog, na
     with caplog.at_level("WARNING", logger="imucald"):
         back = load_poses(str(tmp_path), name, board="mpu6050")
     msgs = [r.getMessage() for r in caplog.records]
+    what = "still intervals" if name == "thermal.csv" else "poses"
+    if case == "one_m_s2":
+        assert back is not None and len(back) == 11 and len(msgs) == 1, msgs
+        assert f"{what} 5 (|a| 9.807) not about 1 g (another unit?): left out" in msgs[0]
+        assert np.allclose(back.acc, np.delete(acc, 4, 0), atol=1e-6)
+        assert (tmp_path / name).exists() and any(f.startswith(name + ".corrupt-") for f in os.listdir(tmp_path))
+        return
     if case in ("own", "no_header", "own_upper"):
         assert back is not None and len(back) == 12 and msgs == []
         assert (back.meta.get("board") or "").lower() == board
@@ -510,5 +524,5 @@ def test_saved_poses_of_another_board_or_unit_are_set_aside(tmp_path, caplog, na
     assert back is None and len(msgs) == 1 and "set aside as" in msgs[0], msgs
     assert {"other_board": "'toaster', this daemon runs 'mpu6050'", "m_s2": "m/s^2?",
             "other_board_Key": "'9dof', this daemon runs 'mpu6050'",
-            "units_mg": "poses in 'mg'"}[case] in msgs[0]
+            "units_mg": f"{what} in 'mg'"}[case] in msgs[0]
     assert not (tmp_path / name).exists() and any(f.startswith(name + ".corrupt-") for f in os.listdir(tmp_path))

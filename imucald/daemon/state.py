@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
 import time
 from dataclasses import replace
 from typing import Dict, Optional
@@ -131,23 +132,43 @@ def save_poses(state_dir: str, ps: PoseSet, name: str = "poses.csv", board: str 
     write_poses(ps, os.path.join(state_dir, name))
 
 
-def _foreign(ps: PoseSet, board: Optional[str]) -> Optional[str]:
+def _foreign(ps: PoseSet, board: Optional[str], what: str = "poses") -> Optional[str]:
     """Why saved poses are not this daemon's to resume, or None: another board's header
     (files written before the header carried the board have none, and are taken), or a
-    median |a| beyond :data:`SAVED_POSE_MEDIAN_G` (another tool's poses in m/s^2 or counts)."""
+    median |a| beyond :data:`SAVED_POSE_MEDIAN_G` (another tool's poses in m/s^2 or counts).
+    ``what``: what the file holds, for the message (poses; the thermal log's still intervals)."""
     meta = {k.strip().lower(): str(v).strip() for k, v in ps.meta.items()}   # '# Board: X' too
     saved = meta.get("board")
     if board is not None and saved is not None and saved.lower() != board.lower():
-        return f"poses of board {saved!r}, this daemon runs {board!r}"
+        return f"{what} of board {saved!r}, this daemon runs {board!r}"
     if meta.get("units", "g").lower() != "g":
-        return f"poses in {meta['units']!r}: poses are saved in g"
+        return f"{what} in {meta['units']!r}: {what} are saved in g"
     if len(ps):
         m = float(np.median(np.linalg.norm(ps.acc, axis=1)))
         lo, hi = SAVED_POSE_MEDIAN_G
         if not lo <= m <= hi:
-            return (f"median |a| of the poses is {m:.4g}, not about 1 g "
-                    f"({'m/s^2' if 5 <= m <= 15 else 'counts or another unit'}?): poses are saved in g")
+            return (f"median |a| of the {what} is {m:.4g}, not about 1 g "
+                    f"({'m/s^2' if 5 <= m <= 15 else 'counts or another unit'}?): {what} are saved in g")
     return None
+
+
+def _drop_foreign_rows(path: str, ps: PoseSet, what: str) -> PoseSet:
+    """``ps`` without the rows whose |a| is outside :data:`SAVED_POSE_MEDIAN_G` (a pose in
+    m/s^2 or counts among good ones: the median check passes it, and it blocked the fit, then
+    was blamed on motion; a helper's black-box run).  The file as it was is kept beside it
+    (nothing lost); one warning names the rows."""
+    a = np.linalg.norm(ps.acc, axis=1)
+    lo, hi = SAVED_POSE_MEDIAN_G
+    bad = ~((a >= lo) & (a <= hi))
+    if not bad.any():
+        return ps
+    keep = f"{path}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}"
+    shutil.copy2(path, keep)
+    rows = ", ".join(f"{i + 1} (|a| {a[i]:.4g})" for i in np.flatnonzero(bad)[:5])
+    more = f" and {int(bad.sum()) - 5} more" if bad.sum() > 5 else ""
+    log.warning("%s: %s %s%s not about 1 g (another unit?): left out, the others resumed; the file as "
+                "it was is kept as %s", path, what, rows, more, keep)
+    return ps.subset(np.flatnonzero(~bad))
 
 
 def load_poses(state_dir: str, name: str = "poses.csv", board: Optional[str] = None) -> Optional[PoseSet]:
@@ -167,11 +188,12 @@ def load_poses(state_dir: str, name: str = "poses.csv", board: Optional[str] = N
             if v is not None and not np.all(np.isfinite(v)):
                 bad = int(np.flatnonzero(~np.isfinite(v.reshape(len(ps), -1)).all(1))[0])
                 raise UserError(f"pose {bad + 1}: {name} is not finite")
-        why = _foreign(ps, board)
+        what = "still intervals" if os.path.basename(path) == "thermal.csv" else "poses"
+        why = _foreign(ps, board, what)
         if why:
             set_aside(path, why)
             return None
-        return ps
+        return _drop_foreign_rows(path, ps, what)
     except NoPoses:     # saved before the first pose or after a reset: nothing to restore
         return None
     except (UserError, ValueError, IndexError) as e:

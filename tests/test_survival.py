@@ -516,6 +516,10 @@ def test_saved_poses_of_another_board_or_unit_are_set_aside(tmp_path, caplog, na
         assert f"{what} 5 (|a| 9.807) not about 1 g (another unit?): left out" in msgs[0]
         assert np.allclose(back.acc, np.delete(acc, 4, 0), atol=1e-6)
         assert (tmp_path / name).exists() and any(f.startswith(name + ".corrupt-") for f in os.listdir(tmp_path))
+        caplog.clear()                          # rewritten: the next start finds it clean
+        with caplog.at_level("WARNING", logger="imucald"):
+            again = load_poses(str(tmp_path), name, board="mpu6050")
+        assert len(again) == 11 and caplog.records == []
         return
     if case in ("own", "no_header", "own_upper"):
         assert back is not None and len(back) == 12 and msgs == []

@@ -168,7 +168,9 @@ def _drop_foreign_rows(path: str, ps: PoseSet, what: str) -> PoseSet:
     more = f" and {int(bad.sum()) - 5} more" if bad.sum() > 5 else ""
     log.warning("%s: %s %s%s not about 1 g (another unit?): left out, the others resumed; the file as "
                 "it was is kept as %s", path, what, rows, more, keep)
-    return ps.subset(np.flatnonzero(~bad))
+    ps = ps.subset(np.flatnonzero(~bad))
+    write_poses(ps, path)                   # atomic: a restart before the next save finds it clean
+    return ps
 
 
 def load_poses(state_dir: str, name: str = "poses.csv", board: Optional[str] = None) -> Optional[PoseSet]:

@@ -325,6 +325,29 @@ def test_table_time_backwards_in_its_unit_and_a_micros_wrap_named(tmp_path):
                    f"from line 3, below the header lines if the file has them: each part is a recording)"), msg
 
 
+def test_every_row_one_value_short_or_one_a_line_is_named_a_layout_not_a_line_to_repair(tmp_path):
+    """A logger writing 7 values under an 8-column header, or a file separated by ';' with
+    decimal points (one value a line): the fix is the column names or the separator, and the
+    message said "repair or delete this line" of the first row (a helper).  Now it names the
+    count, the columns and the fix; a few rows of another count among good ones still get the
+    line's own message.  Broken once: the layout branch removed (the old message: fails)."""
+    p = tmp_path / "seven.csv"
+    head = "# imucald recording v1\n# board: mpu6050\n# rate_hz: 100\nt,ax,ay,az,gx,gy,gz,temp\n"
+    body = [f"{i * 0.01:.2f},0,0,1,0.1,0.2,0.3" for i in range(40)]
+    p.write_text(head + "\n".join(body) + "\n")
+    msg = _one_line_error(read_recording, p)
+    assert msg == (f"{p}:5: 40 lines from here to line 44 hold 7 values each, the columns name 8 "
+                   f"(t,ax,ay,az,gx,gy,gz,temp): the file's layout is not these columns; name its "
+                   f"columns as the file writes them (its header line or --columns)"), msg
+    p.write_text(head + "\n".join(r.replace(",", ";") + ";22.0" for r in body) + "\n")
+    msg = _one_line_error(read_recording, p)
+    assert "hold 1 value each" in msg and "not separated by ',' or white space" in msg, msg
+    body[7] = "0.07,0,0,1,0.1,0.2"
+    p.write_text(head + "\n".join(r + ",22.0" if k != 7 else r for k, r in enumerate(body)) + "\n")
+    msg = _one_line_error(read_recording, p)
+    assert msg.startswith(f"{p}:12: expected 8 values") and "(repair or delete this line)" in msg, msg
+
+
 def test_garbled_lines_after_the_first_are_listed_in_the_same_error(tmp_path):
     """Several garbled lines (a logger's serial noise): the error names the first, in full, and
     lists the others read with it, so one run shows what to repair; a file with one garbled
@@ -436,9 +459,12 @@ def test_table_with_a_decimal_comma_is_read(tmp_path, capsys, sep):
     # numeric table" (a newcomer's walk: phyphox's "Absolute acceleration" column)
     p.write_text(f"time{sep}ax{sep}ay{sep}az{sep}abs\n" + "".join(
         sep.join(f"{v:g}".replace(".", ",") for v in (*r, 1.5)) + "\n" for r in rows))
+    # (session 20, a helper: every row holding 5 values is a layout, not a line to repair or
+    # delete; the message says so and names the columns)
     msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
-    assert msg.startswith(f"{p}:2: expected 4 values (t,ax,ay,az), found 5"), msg
-    assert msg.endswith("(repair or delete this line)"), msg
+    assert msg == (f"{p}:2: 300 lines from here to line 301 hold 5 values each, the columns name 4 "
+                   f"(t,ax,ay,az): the file's layout is not these columns; name its columns as the "
+                   f"file writes them (its header line or --columns)"), msg
     capsys.readouterr()
     # a first row of whole numbers (t = 0, counts) says nothing of the mark: the first row
     # with a ',' decides (a cold review: "expected 4 values, found 5" on the second row)

@@ -561,6 +561,18 @@ def _count_message(s: str, parts: List[str], spec: TableSpec, lineno: int) -> st
             f"(repair or delete this line)")
 
 
+def _layout_message(spec: TableSpec, lineno: int, found: int, lines: int, last: int) -> str:
+    """Every garbled line holds ``found`` values where the columns name ``spec.ncol``: the
+    layout differs from the columns (a logger's 7 values read as 8 columns, a ';'-separated
+    file), so the fix is the column names or the separator, not the line (a helper: "repair or
+    delete this line" was said of line 8 of a file whose every row had 7 values)."""
+    sep = " (one value a line: the values are not separated by ',' or white space)" if found == 1 else ""
+    return (f"{spec.path}:{lineno}: {lines} lines from here to line {last} hold {found} "
+            f"value{'s' if found != 1 else ''} "
+            f"each, the columns name {spec.ncol} ({','.join(spec.names)}){sep}: the file's layout is not "
+            f"these columns; name its columns as the file writes them (its header line or --columns)")
+
+
 #: the problems _parse_slow stops at (a structure, not one garbled line: what follows depends on it)
 _STRUCTURAL = ("time goes backwards", "a column header again", "line longer than")
 #: garbled lines after the first that the error lists by number
@@ -576,7 +588,8 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
     out: List[List[float]] = []
     first: Optional[Exception] = None
     more: List[int] = []
-    last = lineno
+    counts = set()              # the garbled lines' value counts
+    first_ln = last = lineno
     run = 0                     # the first of the '#' lines right above this one (0: none)
     for i, line in enumerate(text.split("\n")):
         s = line.strip()
@@ -588,18 +601,21 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
         try:
             row = _slow_row(s, line, spec, ln, prev_t if first is None else -np.inf, start)
         except spec.error as e:
+            counts.add(len(s.split(",") if spec.comma_only else s.replace(",", " ").split()))
             if first is not None:
                 more.append(ln)
                 continue
             if any(f"{ln}: {k}" in str(e) for k in _STRUCTURAL):
                 raise
-            first = e
+            first, first_ln = e, ln
             continue
         if spec.tcol is not None:
             prev_t = row[spec.tcol]
         out.append(row)
     if first is not None:
         if not more or len(more) >= len(out):     # most lines: a wrong layout, which the first names
+            if more and len(counts) == 1 and spec.ncol not in counts:
+                raise spec.error(_layout_message(spec, first_ln, counts.pop(), len(more) + 1, last)) from None
             raise first
         listed = ", ".join(map(str, more[:_MORE_LISTED]))
         extra = f" and {len(more) - _MORE_LISTED} more" if len(more) > _MORE_LISTED else ""

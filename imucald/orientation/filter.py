@@ -150,9 +150,6 @@ class OrientationFilter:
         #: quiet time still to run with the short tauAcc after one, s (_after_saturation)
         self._sat_dps: Optional[float] = None
         self._range_rad_s: Optional[float] = None
-        #: this batch's seconds at the rail per axis, signed by the reading (_after_saturation),
-        #: or None; folded into _sat_w with the batch's attitude (_track_excess)
-        self._sat_s: Optional[list] = None
         self._fast_left_s = 0.0
         self._tau_now_s = self.tau_acc_s
         self._clear_quality()
@@ -175,6 +172,9 @@ class OrientationFilter:
         #: the tilt variance a bias left when a still interval measured it, rad^2, fading as
         #: e^{-2 t/tau_acc} (still_interval)
         self._handover_var = 0.0
+        #: this batch's seconds at the rail per axis, signed by the reading (_after_saturation),
+        #: or None; folded into _sat_w with the batch's attitude (_track_excess)
+        self._sat_s: Optional[list] = None
 
     def set_rate(self, rate_hz: float) -> None:
         """A new sample rate (before the first sample: the state is started afresh)."""
@@ -521,19 +521,22 @@ class OrientationFilter:
 
 def _gain_var(g, tol) -> Optional[list]:
     """Variances of the gyro's gain matrix, 9 entries row-major, fraction^2, or None: a gyro
-    part with a fitted ``matrix`` takes its standard errors (none stated: None); without one,
-    the datasheet (sensitivity, cross-axis) tolerances ``tol`` as N(0, tol/2); None when
-    unknown."""
-    if g is not None and "matrix" in g.params:
-        se = g.stderr.get("matrix")
-        if se is None:
-            return None
-        se = np.asarray(se, float).reshape(9)
-        return np.where(np.isfinite(se), se * se, 0.0).tolist()
-    if tol is None:
-        return None
-    d, c = (float(tol[0]) / 2.0) ** 2, (float(tol[1]) / 2.0) ** 2
-    return [d if i % 4 == 0 else c for i in range(9)]
+    part with a fitted ``matrix`` takes its standard errors; the datasheet (sensitivity,
+    cross-axis) tolerances ``tol`` as N(0, tol/2) where there is no fitted matrix, or its
+    standard errors are not stated or not finite (unknown: a cold review found a matrix saved
+    without them dropped the term, 2.4 deg off against a stated 0.19); None when neither is
+    known."""
+    tv = None
+    if tol is not None:
+        d, c = (float(tol[0]) / 2.0) ** 2, (float(tol[1]) / 2.0) ** 2
+        tv = [d if i % 4 == 0 else c for i in range(9)]
+    if g is None or "matrix" not in g.params:
+        return tv
+    se = g.stderr.get("matrix")
+    se = np.full(9, np.nan) if se is None else np.asarray(se, float).reshape(9)
+    if tv is None and not np.isfinite(se).all():
+        return None if not np.isfinite(se).any() else np.where(np.isfinite(se), se * se, 0.0).tolist()
+    return [float(x * x) if math.isfinite(x) else tv[i] for i, x in enumerate(se.tolist())]
 
 
 def _rotate1(q, v):

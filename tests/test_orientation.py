@@ -620,3 +620,20 @@ def test_a_gyro_gain_error_is_in_the_stated_tilt_sd_and_fades_as_the_filter_pull
     assert errs[1] > 1.5                                  # the gain error really tilts it
     assert errs[1] <= 3 * sds[1], (errs, sds)
     assert sds[2] < sds[1] / 3 and errs[2] < 1.0          # at rest, pulled back, and said so
+
+
+def test_the_hand_over_share_fades_only_with_rows_the_filter_stepped():
+    """Rows with a NaN reading are not fed to VQF, so the tilt a bias left does not fade over
+    them, and neither does its share of the sd (a cold review: 3 s of NaN rows took it from
+    0.01 rad^2 to nothing).  Broken once: the decay over every row of the batch (fails)."""
+    f = OrientationFilter(RATE_HZ, False, acc_noise_g=SIG_A)
+    f.use_calibration(Calibration("mpu6050", {}), None, 20.0, (0.03, 0.02))
+    f.update(np.tile([0.0, 0.0, 1.0], (10, 1)), np.full((10, 3), 10.0))
+    f.still_interval([10.0, 10.0, 10.0], [0.01, 0.01, 0.01])
+    v0 = f._handover_var
+    assert v0 > 0
+    for _ in range(150):
+        f.update(np.full((2, 3), np.nan), np.full((2, 3), np.nan))
+    assert f._handover_var == v0
+    f.update(np.tile([0.0, 0.0, 1.0], (300, 1)), np.full((300, 3), 10.0))   # 3 s stepped: e^-2
+    assert f._handover_var == pytest.approx(v0 * math.exp(-2.0 * 3.0 / f.tau_acc_s), rel=1e-9)

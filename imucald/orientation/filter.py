@@ -367,7 +367,8 @@ class OrientationFilter:
         if self._gyro_prior_rad_s is not None and not self._bias_seen:
             sig = max(sig, self._gyro_prior_rad_s)
         if self._handover_var:
-            self._handover_var *= math.exp(-2.0 * n / self.rate_hz / self._tau_now_s)
+            ran = n if allok else int(ok.sum())     # rows VQF stepped: the tilt fades with them
+            self._handover_var *= math.exp(-2.0 * ran / self.rate_hz / self._tau_now_s)
             if self._handover_var < 1e-12:
                 self._handover_var = 0.0
         tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),

@@ -353,7 +353,8 @@ def test_garbled_lines_after_the_first_are_listed_in_the_same_error(tmp_path):
     lists the others read with it, so one run shows what to repair; a file with one garbled
     line keeps the plain message; a step back in time still stops at its line (what follows
     depends on it).  Broken once: with _parse_slow raising at the first bad line (no list),
-    the first assertion failed."""
+    the first assertion failed; with at_end always False, the file's end was "later lines
+    not checked" again (fails)."""
     from imucald.fitting.inputs import read_table
     p = tmp_path / "serial.csv"
     rows = [f"{i * 0.01:.2f},0,0,16384" for i in range(20)]
@@ -362,7 +363,14 @@ def test_garbled_lines_after_the_first_are_listed_in_the_same_error(tmp_path):
     p.write_text("t,ax,ay,az\n" + "\n".join(rows) + "\n")
     msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
     assert msg.startswith(f"{p}:5: column ay is empty (repair or delete this line)"), msg
-    assert msg.endswith("(also garbled: lines 9, 10, 17, up to line 21; later lines not checked)"), msg
+    assert msg.endswith("(also garbled: lines 9, 10, 17, up to the file's end)"), msg
+    # a file longer than the block the list was read in says where it stopped (session 20, a
+    # helper: "later lines not checked" was said of a file's last line too)
+    big = rows + [f"{(20 + i) * 0.01:.2f},0,0,16384" for i in range(100_000)]
+    p.write_text("t,ax,ay,az\n" + "\n".join(big) + "\n")
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg.endswith("; later lines not checked)") and "up to line " in msg, msg
+    assert int(msg.split("up to line ")[1].split(";")[0]) < len(big) + 1, msg
     rows = [f"{i * 0.01:.2f},0,0,16384" for i in range(20)]
     rows[3] = "0.03,0,x,16384"
     p.write_text("t,ax,ay,az\n" + "\n".join(rows) + "\n")

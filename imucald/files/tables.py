@@ -216,7 +216,7 @@ def iter_blocks(fh: BinaryIO, spec: TableSpec, lineno: int, offset: int, prev_t:
                 yield from _last_line(block[len(head):], spec, lineno, offset, prev_t)
                 return
         nl = block.count(b"\n")
-        for rows in _rows(block, spec, lineno, offset, prev_t, nl):
+        for rows in _rows(block, spec, lineno, offset, prev_t, nl, at_end=not rest and _at_eof(fh)):
             if spec.tcol is not None and len(rows):
                 prev_t = rows[-1, spec.tcol]
             yield rows
@@ -246,8 +246,16 @@ def _fixed_lines(buf: bytes, cut: int, spec: TableSpec, prev_t: float) -> Option
     return rows if rows is not None and _ok(rows, spec, prev_t) else None
 
 
+def _at_eof(fh: BinaryIO) -> bool:
+    """Whether ``fh`` has been read to its end (a regular file; False when unknown: a pipe)."""
+    try:
+        return fh.tell() >= os.fstat(fh.fileno()).st_size
+    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
+        return False
+
+
 def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float,
-          nl: Optional[int] = None):
+          nl: Optional[int] = None, at_end: bool = False):
     """The rows of one block of whole lines (a generator of at most one array); ``nl``: its
     count of newlines when the caller has it.
 
@@ -259,7 +267,7 @@ def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float
     if block.isascii():
         rows = _parse_fast(block, spec, prev_t, nl)
         if rows is None:
-            rows = _parse_slow(block.decode("ascii"), spec, lineno, prev_t)
+            rows = _parse_slow(block.decode("ascii"), spec, lineno, prev_t, at_end)
     else:
         try:
             text = block.decode("utf-8")
@@ -267,7 +275,7 @@ def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float
             raise spec.error(_not_utf8(spec.path, block, e, lineno, offset)) from None
         rows = _parse_fast(text, spec, prev_t, nl)
         if rows is None:
-            rows = _parse_slow(text, spec, lineno, prev_t)
+            rows = _parse_slow(text, spec, lineno, prev_t, at_end)
     if len(rows):
         yield rows
 
@@ -579,12 +587,13 @@ _STRUCTURAL = ("time goes backwards", "a column header again", "line longer than
 _MORE_LISTED = 5
 
 
-def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.ndarray:
+def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float, at_end: bool = False) -> np.ndarray:
     """The reference parser: defines what is accepted; raises naming file:line and column.
     After a first garbled line (a wrong count, not a number, not finite, beyond a sensor) it
     reads on to the end of the block and, when most lines there are good, the error lists the
     other garbled lines, so one run shows what to repair (earlier notes: "only the first
-    garbled line reported"); when most are bad the layout is wrong, and the first line says how."""
+    garbled line reported"); when most are bad the layout is wrong, and the first line says how.
+    ``at_end``: the block ends the file (the list then says so, not "later lines not checked")."""
     out: List[List[float]] = []
     first: Optional[Exception] = None
     more: List[int] = []
@@ -619,8 +628,9 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float) -> np.nd
             raise first
         listed = ", ".join(map(str, more[:_MORE_LISTED]))
         extra = f" and {len(more) - _MORE_LISTED} more" if len(more) > _MORE_LISTED else ""
+        rest = "the file's end" if at_end else f"line {last}; later lines not checked"
         raise spec.error(f"{first} (also garbled: line{'s' if len(more) > 1 else ''} {listed}{extra}, "
-                         f"up to line {last}; later lines not checked)") from None
+                         f"up to {rest})") from None
     return np.array(out, dtype=np.float64).reshape(len(out), spec.ncol)
 
 

@@ -113,6 +113,7 @@ class TableSpec:
                  skip: str = "#", centre=None, halfwidth=None, tcol: Optional[int] = None,
                  limit_note: str = "", checked=None):
         self.path, self.names, self.error = path, list(names), error
+        self.accepted = 0       #: rows read so far (the layout message needs none before it)
         self.ncol = len(self.names)
         self.comma_only, self.skip, self.tcol = comma_only, skip, tcol
         self.centre = np.zeros(self.ncol) if centre is None else np.asarray(centre, float)
@@ -192,6 +193,7 @@ def iter_blocks(fh: BinaryIO, spec: TableSpec, lineno: int, offset: int, prev_t:
                     _long_line(spec, lineno + len(rows), offset + cut)
                 if spec.tcol is not None:
                     prev_t = rows[-1, spec.tcol]
+                spec.accepted += len(rows)
                 yield rows
                 lineno += len(rows)
                 offset += cut
@@ -277,6 +279,7 @@ def _rows(block: bytes, spec: TableSpec, lineno: int, offset: int, prev_t: float
         if rows is None:
             rows = _parse_slow(text, spec, lineno, prev_t, at_end)
     if len(rows):
+        spec.accepted += len(rows)
         yield rows
 
 
@@ -569,7 +572,8 @@ def _count_message(s: str, parts: List[str], spec: TableSpec, lineno: int) -> st
             f"(repair or delete this line)")
 
 
-def _layout_message(spec: TableSpec, lineno: int, found: int, lines: int, last: int) -> str:
+def _layout_message(spec: TableSpec, lineno: int, found: int, lines: int, last: int,
+                    at_end: bool = True) -> str:
     """Every garbled line holds ``found`` values where the columns name ``spec.ncol``: the
     layout differs from the columns (a logger's 7 values read as 8 columns, a ';'-separated
     file), so the fix is the column names or the separator, not the line (a helper: "repair or
@@ -578,7 +582,8 @@ def _layout_message(spec: TableSpec, lineno: int, found: int, lines: int, last: 
     return (f"{spec.path}:{lineno}: {lines} lines from here to line {last} hold {found} "
             f"value{'s' if found != 1 else ''} "
             f"each, the columns name {spec.ncol} ({','.join(spec.names)}){sep}: the file's layout is not "
-            f"these columns; name its columns as the file writes them (its header line or --columns)")
+            f"these columns; name its columns as the file writes them (its header line or --columns)"
+            + ("" if at_end else "; later lines not checked"))
 
 
 #: the problems _parse_slow stops at (a structure, not one garbled line: what follows depends on it)
@@ -623,8 +628,11 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float, at_end: 
         out.append(row)
     if first is not None:
         if not more or len(more) >= len(out):     # most lines: a wrong layout, which the first names
-            if more and len(counts) == 1 and spec.ncol not in counts:
-                raise spec.error(_layout_message(spec, first_ln, counts.pop(), len(more) + 1, last)) from None
+            # every line of the block garbled the same way, and nothing read before it: the
+            # layout (a file whose first rows were read has a layout that changes, or a fault)
+            if more and not out and not spec.accepted and len(counts) == 1 and spec.ncol not in counts:
+                raise spec.error(_layout_message(spec, first_ln, counts.pop(), len(more) + 1, more[-1],
+                                                 at_end)) from None
             raise first
         listed = ", ".join(map(str, more[:_MORE_LISTED]))
         extra = f" and {len(more) - _MORE_LISTED} more" if len(more) > _MORE_LISTED else ""

@@ -29,7 +29,7 @@ log = logging.getLogger("imucald")
 
 
 def set_aside(path: str, why: str) -> str:
-    dst = f"{path}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}"
+    dst = _unused(f"{path}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}")
     os.replace(path, dst)
     log.warning("%s: %s; set aside as %s, continuing without it", path, why, dst)
     return dst
@@ -156,21 +156,37 @@ def _drop_foreign_rows(path: str, ps: PoseSet, what: str) -> PoseSet:
     """``ps`` without the rows whose |a| is outside :data:`SAVED_POSE_MEDIAN_G` (a pose in
     m/s^2 or counts among good ones: the median check passes it, and it blocked the fit, then
     was blamed on motion; a helper's black-box run).  The file as it was is kept beside it
-    (nothing lost); one warning names the rows."""
+    (nothing lost) and the kept rows written in its place; one warning names the rows (their
+    order among the file's data rows).  A full or failing disk leaves the file as it is and
+    the good rows resumed from memory (a cold review: the daemon exited 74 at start)."""
     a = np.linalg.norm(ps.acc, axis=1)
     lo, hi = SAVED_POSE_MEDIAN_G
     bad = ~((a >= lo) & (a <= hi))
     if not bad.any():
         return ps
-    keep = f"{path}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}"
-    shutil.copy2(path, keep)
     rows = ", ".join(f"{i + 1} (|a| {a[i]:.4g})" for i in np.flatnonzero(bad)[:5])
     more = f" and {int(bad.sum()) - 5} more" if bad.sum() > 5 else ""
-    log.warning("%s: %s %s%s not about 1 g (another unit?): left out, the others resumed; the file as "
-                "it was is kept as %s", path, what, rows, more, keep)
-    ps = ps.subset(np.flatnonzero(~bad))
-    write_poses(ps, path)                   # atomic: a restart before the next save finds it clean
-    return ps
+    left = "the others resumed" if not bad.all() else "none left to resume"
+    keep = _unused(f"{path}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}")
+    kept = ps.subset(np.flatnonzero(~bad))
+    try:
+        shutil.copy2(path, keep)
+        write_poses(kept, path)             # atomic: a restart before the next save finds it clean
+        done = f"the file as it was is kept as {keep}, {os.path.basename(path)} rewritten without them"
+    except OSError as e:
+        done = f"the file is left as it was ({e.strerror or e}: not copied or rewritten)"
+    log.warning("%s: %s (data rows) %s%s not about 1 g (another unit?): left out, %s; %s",
+                path, what, rows, more, left, done)
+    return kept
+
+
+def _unused(name: str) -> str:
+    """``name``, or ``name.2``, ``name.3``... when taken (two set-asides in one second)."""
+    k, out = 1, name
+    while os.path.lexists(out):
+        k += 1
+        out = f"{name}.{k}"
+    return out
 
 
 def load_poses(state_dir: str, name: str = "poses.csv", board: Optional[str] = None) -> Optional[PoseSet]:
@@ -199,5 +215,5 @@ def load_poses(state_dir: str, name: str = "poses.csv", board: Optional[str] = N
     except NoPoses:     # saved before the first pose or after a reset: nothing to restore
         return None
     except (UserError, ValueError, IndexError) as e:
-        set_aside(path, f"unreadable poses ({e})")
+        set_aside(path, f"unreadable {'still intervals' if os.path.basename(path) == 'thermal.csv' else 'poses'} ({e})")
         return None

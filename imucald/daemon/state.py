@@ -29,7 +29,7 @@ log = logging.getLogger("imucald")
 
 
 def set_aside(path: str, why: str) -> str:
-    dst = _unused(f"{path}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}")
+    dst = _corrupt_name(path)
     os.replace(path, dst)
     log.warning("%s: %s; set aside as %s, continuing without it", path, why, dst)
     return dst
@@ -167,7 +167,7 @@ def _drop_foreign_rows(path: str, ps: PoseSet, what: str) -> PoseSet:
     rows = ", ".join(f"{i + 1} (|a| {a[i]:.4g})" for i in np.flatnonzero(bad)[:5])
     more = f" and {int(bad.sum()) - 5} more" if bad.sum() > 5 else ""
     left = "the others resumed" if not bad.all() else "none left to resume"
-    keep = _unused(f"{path}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}")
+    keep = _corrupt_name(path)
     kept = ps.subset(np.flatnonzero(~bad))
     try:
         shutil.copy2(path, keep)
@@ -180,8 +180,10 @@ def _drop_foreign_rows(path: str, ps: PoseSet, what: str) -> PoseSet:
     return kept
 
 
-def _unused(name: str) -> str:
-    """``name``, or ``name.2``, ``name.3``... when taken (two set-asides in one second)."""
+def _corrupt_name(path: str) -> str:
+    """Where a file set aside goes: ``PATH.corrupt-DATE``, or ``.2``, ``.3``... after it when
+    taken (two set-asides in one second)."""
+    name = f"{path}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}"
     k, out = 1, name
     while os.path.lexists(out):
         k += 1
@@ -194,6 +196,7 @@ def load_poses(state_dir: str, name: str = "poses.csv", board: Optional[str] = N
     unreadable file, or one that is not this daemon's (:func:`_foreign`; ``board``: the
     running board's name, None to skip that check), is set aside."""
     path = os.path.join(state_dir, name)
+    what = "still intervals" if name == "thermal.csv" else "poses"
     if not os.path.lexists(path):
         return None
     try:
@@ -206,7 +209,6 @@ def load_poses(state_dir: str, name: str = "poses.csv", board: Optional[str] = N
             if v is not None and not np.all(np.isfinite(v)):
                 bad = int(np.flatnonzero(~np.isfinite(v.reshape(len(ps), -1)).all(1))[0])
                 raise UserError(f"pose {bad + 1}: {name} is not finite")
-        what = "still intervals" if os.path.basename(path) == "thermal.csv" else "poses"
         why = _foreign(ps, board, what)
         if why:
             set_aside(path, why)
@@ -215,5 +217,5 @@ def load_poses(state_dir: str, name: str = "poses.csv", board: Optional[str] = N
     except NoPoses:     # saved before the first pose or after a reset: nothing to restore
         return None
     except (UserError, ValueError, IndexError) as e:
-        set_aside(path, f"unreadable {'still intervals' if os.path.basename(path) == 'thermal.csv' else 'poses'} ({e})")
+        set_aside(path, f"unreadable {what} ({e})")
         return None

@@ -615,7 +615,7 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float, at_end: 
         try:
             row = _slow_row(s, line, spec, ln, prev_t if first is None else -np.inf, start)
         except spec.error as e:
-            counts.add(len(s.split(",") if spec.comma_only else s.replace(",", " ").split()))
+            counts.add(len(_fields(s, spec)))
             if first is not None:
                 more.append(ln)
                 continue
@@ -642,11 +642,16 @@ def _parse_slow(text: str, spec: TableSpec, lineno: int, prev_t: float, at_end: 
     return np.array(out, dtype=np.float64).reshape(len(out), spec.ncol)
 
 
+def _fields(s: str, spec: TableSpec) -> List[str]:
+    """A line's fields as the reference parser splits them (',' only, or ',' and white space)."""
+    return s.split(",") if spec.comma_only else s.replace(",", " ").split()
+
+
 def _slow_row(s: str, line: str, spec: TableSpec, ln: int, prev_t: float, start: int = 0) -> List[float]:
     """One line's values, checked (spec.fail naming the line and column); ``start``: the first
     line of the comment lines right above it (its own number when none)."""
     n = spec.ncol
-    parts = s.split(",") if spec.comma_only else s.replace(",", " ").split()
+    parts = _fields(s, spec)
     if len(parts) != n:
         if len(line) > MAX_LINE_BYTES:      # within a block (one longer than a block: _long_line)
             spec.fail(ln, f"line longer than {MAX_LINE_BYTES} bytes: not a line of a text table; "

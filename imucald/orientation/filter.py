@@ -454,9 +454,7 @@ class OrientationFilter:
         module).  One attitude a batch, as _track: per row it cost twice the filter's own time
         at 1 kHz, and a batch turns the board by a few degrees (a second-order error in an sd)."""
         n, dt = len(q), 1.0 / self.rate_hz
-        w, x, y, z = q[n // 2].tolist()
-        rh = (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-              2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
+        rh = _horizontal_rows(q[n // 2].tolist())
         turn = (w_rad_s.sum(0) * dt).tolist()
         k = math.exp(-n * dt / self._tau_now_s)
         self._gain_w = [k * a + r * b for a, (r, b) in zip(self._gain_w, ((r, b) for r in rh for b in turn))]
@@ -465,9 +463,7 @@ class OrientationFilter:
         """_sat_w over this batch (see _clear_quality), as _track_gain: the batch's middle
         attitude, its seconds at the rail, the whole forgotten by e^{-n dt/tau}."""
         n = len(q)
-        w, x, y, z = q[n // 2].tolist()
-        rh = (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-              2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
+        rh = _horizontal_rows(q[n // 2].tolist())
         k = math.exp(-n / self.rate_hz / self._tau_now_s)
         s = self._sat_s or (0.0, 0.0, 0.0)
         self._sat_s = None
@@ -538,6 +534,14 @@ def _gain_var(g, tol) -> Optional[list]:
     if tv is None and not np.isfinite(se).all():
         return None if not np.isfinite(se).any() else np.where(np.isfinite(se), se * se, 0.0).tolist()
     return [float(x * x) if math.isfinite(x) else tv[i] for i, x in enumerate(se.tolist())]
+
+
+def _horizontal_rows(q):
+    """Rows E and N of the rotation matrix of one quaternion q (list [w, x, y, z], body ->
+    ENU), six floats row-major: where each body axis points horizontally."""
+    w, x, y, z = q
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
 
 
 def _rotate1(q, v):

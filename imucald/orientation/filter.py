@@ -172,6 +172,9 @@ class OrientationFilter:
         #: the tilt variance a bias left when a still interval measured it, rad^2, fading as
         #: e^{-2 t/tau_acc} (still_interval)
         self._handover_var = 0.0
+        #: the heading variance the same bias left, rad^2 (at most |b| tau_mag, or no
+        #: information), fading as e^{-t/tau_mag} over the rows VQF stepped with a magnetometer
+        self._handover_hvar = 0.0
         #: this batch's seconds at the rail per axis, signed by the reading (_after_saturation),
         #: or None; folded into _sat_w with the batch's attitude (_track_excess)
         self._sat_s: Optional[list] = None
@@ -267,6 +270,8 @@ class OrientationFilter:
         # (at most |b| tau, both horizontal components) and lets it fade as the error does
         left = np.radians(b) - self._offset_rad_s
         self._handover_var = max(self._handover_var, float(left @ left) * self._tau_now_s ** 2)
+        self._handover_hvar = max(self._handover_hvar, min(float(left @ left) * self.tau_mag_s ** 2,
+                                                           quality.ARBITRARY_HEADING_VAR_RAD2))
         self._offset_rad_s = np.radians(b)      # taken off before VQF, whose own estimate restarts at 0
         self.f.setBiasEstimate(np.zeros(3), max(math.radians(se), 1e-6))
 
@@ -374,9 +379,19 @@ class OrientationFilter:
         tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),
                                    self.acc_noise_g, self._tau_now_s, self.rate_hz,
                                    self._gain_var_rad2() + self._excess_var_rad2() + self._handover_var)
+        if self._handover_hvar:
+            # pulled back by the magnetometer, over the rows VQF stepped with one, at half the
+            # rate tau_mag gives: VQF slows its heading correction (magRejectionFactor 2) while
+            # it doubts the field, which it does after a large heading change (measured: 157 deg
+            # fading with a time constant of 17-19 s on the 9DOF tours, not 9)
+            took = 0 if mag is None else (n if allok else int(ok.sum()))
+            self._handover_hvar *= math.exp(-took / self.rate_hz / self.tau_mag_s)
+            if self._handover_hvar < 1e-12:
+                self._handover_hvar = 0.0
         if magnetic:
             rel = max(math.sqrt(self._mvar), self.mag_rel_floor)
-            hv = quality.heading_var_rad2(sig, rel, self._dip_rad, self.tau_mag_s, self._rejected_s)
+            hv = quality.heading_var_rad2(sig, rel, self._dip_rad, self.tau_mag_s, self._rejected_s, tv,
+                                          self._handover_hvar)
         else:
             hv = quality.ARBITRARY_HEADING_VAR_RAD2
         return {"q": q, "lin_acc_g": lin, "mag_disturbed": dist,

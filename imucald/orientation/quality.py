@@ -20,7 +20,13 @@ section 3; a first-order low-pass of the disturbance):
 * a relative magnetometer error r (residual hard/soft iron, disturbance): up to r / cos(dip)
   rad of heading, dip being the field's inclination below the horizon;
 * while the magnetometer is rejected as disturbed, the heading runs on the gyro alone: its
-  bias uncertainty integrates to sigma_b * t over t seconds of rejection.
+  bias uncertainty integrates to sigma_b * t over t seconds of rejection;
+* a tilt error e about the field's horizontal direction: the field's vertical part leaks into
+  the estimated horizontal plane, e tan(dip) rad of heading (the steady state; holds shorter
+  than tau_mag reach about half of it);
+* a gyro bias taken off when a still interval measured it: the heading it turned, at most
+  |b| tau_mag, pulled back as e^{-t/(2 tau_mag)} (VQF slows its heading correction while it
+  doubts the field; the filter's _handover_hvar).
 
 The sources are independent and add in variance.  Inclination is the total tilt of the vertical
 axis (two horizontal components); heading the rotation about the vertical.  These are standard
@@ -67,15 +73,24 @@ def tilt_var_rad2(acc_bias_var_g2: Optional[float], gyro_bias_sigma_rad_s: float
 
 
 def heading_var_rad2(gyro_bias_sigma_rad_s: float, mag_rel_err: float, dip_rad: float,
-                     tau_mag_s: float, rejected_s: float) -> float:
+                     tau_mag_s: float, rejected_s: float, tilt_var: float = 0.0,
+                     handover_var: float = 0.0) -> float:
     """Variance of the heading error of a magnetometer-referenced estimate, rad^2.
 
     mag_rel_err: relative error of the magnetometer's vector (the calibration's held-out
     relative RMS or the measured spread of |m|, whichever is larger); dip_rad: the field's
-    inclination; rejected_s: seconds the magnetometer has been rejected as disturbed."""
+    inclination; rejected_s: seconds the magnetometer has been rejected as disturbed;
+    tilt_var: the tilt variance (tilt_var_rad2), rad^2.  The heading is the direction of the
+    field's horizontal part, found through the estimated vertical: a tilt error e about the
+    field's horizontal direction moves it by e tan(dip) (the vertical part, sin(dip), leaks
+    into the horizontal plane, cos(dip)), about the perpendicular axis not at all; one of the
+    two horizontal components, tilt_var / 2.  handover_var: the heading variance a gyro bias
+    left when a still interval measured it and it was taken off (the filter's, fading over
+    tau_mag), rad^2."""
     c = max(math.cos(dip_rad), 0.2)          # near the poles heading is undetermined anyway
     v = (mag_rel_err / c) ** 2 + (gyro_bias_sigma_rad_s * tau_mag_s) ** 2
     v += (gyro_bias_sigma_rad_s * rejected_s) ** 2
+    v += tilt_var / 2.0 * (1.0 - c * c) / (c * c) + handover_var
     return min(v, ARBITRARY_HEADING_VAR_RAD2)
 
 

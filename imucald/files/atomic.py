@@ -194,13 +194,13 @@ class GrowingFile:
         self._fd = fd
         self._fh = os.fdopen(fd, "ab", buffering=0)
         self._last = self._clock()
-        self.partial = 0
+        self.partial_bytes = 0
 
     def write(self, data: bytes) -> None:
         """Append ``data`` and hand it to the kernel now (a SIGKILL loses none of it);
-        fsync when ``fsync_s`` has passed since the last one.  ``partial``: the bytes of
+        fsync when ``fsync_s`` has passed since the last one.  ``partial_bytes``: the bytes of
         ``data`` the kernel took before an error (a full disk can take part of a write)."""
-        self.partial = 0
+        self.partial_bytes = 0
         if self._fd is None:
             self._fh.write(data)
             self._fh.flush()
@@ -208,7 +208,7 @@ class GrowingFile:
             view = memoryview(data)
             while view:
                 k = os.write(self._fd, view)
-                self.partial += k
+                self.partial_bytes += k
                 view = view[k:]
         now = self._clock()
         if now - self._last >= self.fsync_s:

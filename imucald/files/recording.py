@@ -151,11 +151,11 @@ class RecordingWriter:
         way (a full disk: the whole lines the kernel took before the error are counted)."""
         if len(rec):
             data = _rows_text(rec).encode()
-            self._file.partial = 0
+            self._file.partial_bytes = 0
             try:
                 self._file.write(data)
             except OSError:
-                self.rows += data.count(b"\n", 0, getattr(self._file, "partial", 0))
+                self.rows += data.count(b"\n", 0, getattr(self._file, "partial_bytes", 0))
                 raise
             self.rows += len(rec)
 

@@ -98,6 +98,12 @@ SATURATED_TAU_ACC_S = 0.4
 #: twice the range is 2 sd.  Measured on a helper's MPU-6050 / MPU-9250 tours with flips
 #: peaking at 400 deg/s on a 250-deg/s range (see the orientation guide)
 SATURATED_EXCESS = 0.5
+#: the heading errors the magnetometer pulls back (a gyro bias taken off at a still interval, a
+#: saturated gyro's unreported turn) fade over this many tau_mag, not one: VQF slows its heading
+#: correction while it doubts the field, as it does after a large heading change (measured on a
+#: helper's tours: a 157-deg error after a hand-over and 20-38-deg errors after saturated flips
+#: faded with time constants of 17-19 s at tau_mag 9 s)
+HEADING_PULL_TAUS = 2.0
 #: a quiet batch: |a| within this of 1 g in mean, g, and its sd under this, g (a hand's hold:
 #: a few mg; a move: tens to hundreds)
 QUIET_MEAN_G, QUIET_SD_G = 0.05, 0.02
@@ -169,11 +175,15 @@ class OrientationFilter:
         #: tau_acc: (2, 3) flattened, s (_track_excess); the unreported rate x_i turns the tilt
         #: by sum_i x_i W[:, i]
         self._sat_w = [0.0] * 6
+        #: the same with the vertical row of R, forgotten over HEADING_PULL_TAUS tau_mag: the
+        #: unreported rate turns the heading by sum_i x_i U[i], which the magnetometer pulls back
+        self._sat_wu = [0.0] * 3
         #: the tilt variance a bias left when a still interval measured it, rad^2, fading as
         #: e^{-2 t/tau_acc} (still_interval)
         self._handover_var = 0.0
         #: the heading variance the same bias left, rad^2 (at most |b| tau_mag, or no
-        #: information), fading as e^{-t/tau_mag} over the rows VQF stepped with a magnetometer
+        #: information), fading as e^{-2 t/(HEADING_PULL_TAUS tau_mag)} over the rows VQF
+        #: stepped with a magnetometer
         self._handover_hvar = 0.0
         #: this batch's seconds at the rail per axis, signed by the reading (_after_saturation),
         #: or None; folded into _sat_w with the batch's attitude (_track_excess)
@@ -380,18 +390,15 @@ class OrientationFilter:
                                    self.acc_noise_g, self._tau_now_s, self.rate_hz,
                                    self._gain_var_rad2() + self._excess_var_rad2() + self._handover_var)
         if self._handover_hvar:
-            # pulled back by the magnetometer, over the rows VQF stepped with one, at half the
-            # rate tau_mag gives: VQF slows its heading correction (magRejectionFactor 2) while
-            # it doubts the field, which it does after a large heading change (measured: 157 deg
-            # fading with a time constant of 17-19 s on the 9DOF tours, not 9)
+            # pulled back by the magnetometer, over the rows VQF stepped with one
             took = 0 if mag is None else (n if allok else int(ok.sum()))
-            self._handover_hvar *= math.exp(-took / self.rate_hz / self.tau_mag_s)
+            self._handover_hvar *= math.exp(-2.0 * took / self.rate_hz / (HEADING_PULL_TAUS * self.tau_mag_s))
             if self._handover_hvar < 1e-12:
                 self._handover_hvar = 0.0
         if magnetic:
             rel = max(math.sqrt(self._mvar), self.mag_rel_floor)
             hv = quality.heading_var_rad2(sig, rel, self._dip_rad, self.tau_mag_s, self._rejected_s, tv,
-                                          self._handover_hvar)
+                                          self._handover_hvar + self._excess_hvar_rad2())
         else:
             hv = quality.ARBITRARY_HEADING_VAR_RAD2
         return {"q": q, "lin_acc_g": lin, "mag_disturbed": dist,
@@ -457,7 +464,7 @@ class OrientationFilter:
         self._track(q, lin, mag, dist)
         if self._gain_var is not None:
             self._track_gain(q, w)
-        if self._sat_s is not None or any(self._sat_w):
+        if self._sat_s is not None or any(self._sat_w) or any(self._sat_wu):
             self._track_excess(q)
         return q, lin, dist, float(o["biasSigma"][-1])
 
@@ -485,12 +492,22 @@ class OrientationFilter:
         self._sat_w = [k * a + r * s[i % 3] for i, (a, r) in enumerate(zip(self._sat_w, rh))]
         if max(map(abs, self._sat_w)) < 1e-6:
             self._sat_w = [0.0] * 6
+        ku = math.exp(-n / self.rate_hz / (HEADING_PULL_TAUS * self.tau_mag_s))
+        self._sat_wu = [ku * a + u * si for a, u, si in zip(self._sat_wu, _vertical_row(q[n // 2].tolist()), s)]
+        if max(map(abs, self._sat_wu)) < 1e-6:
+            self._sat_wu = [0.0] * 3
 
     def _excess_var_rad2(self) -> float:
         """The tilt variance the rate a saturated gyro did not report leaves (SATURATED_EXCESS)."""
         if self._range_rad_s is None or not any(self._sat_w):
             return 0.0
         return (SATURATED_EXCESS * self._range_rad_s) ** 2 * sum(a * a for a in self._sat_w)
+
+    def _excess_hvar_rad2(self) -> float:
+        """The heading variance the rate a saturated gyro did not report leaves."""
+        if self._range_rad_s is None or not any(self._sat_wu):
+            return 0.0
+        return (SATURATED_EXCESS * self._range_rad_s) ** 2 * sum(a * a for a in self._sat_wu)
 
     def _gain_var_rad2(self) -> float:
         """The tilt variance the gyro's gain error leaves (quality.tilt_var_rad2's gain term)."""
@@ -557,6 +574,13 @@ def _horizontal_rows(q):
     w, x, y, z = q
     return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
             2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
+
+
+def _vertical_row(q):
+    """Row U of the rotation matrix of one quaternion q (list [w, x, y, z], body -> ENU), three
+    floats: each body axis's vertical component."""
+    w, x, y, z = q
+    return (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
 
 def _rotate1(q, v):

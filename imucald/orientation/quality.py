@@ -26,7 +26,9 @@ section 3; a first-order low-pass of the disturbance):
   than tau_mag reach about half of it);
 * a gyro bias taken off when a still interval measured it: the heading it turned, at most
   |b| tau_mag, pulled back as e^{-t/(2 tau_mag)} (VQF slows its heading correction while it
-  doubts the field; the filter's _handover_hvar).
+  doubts the field; the filter's _handover_hvar and HEADING_PULL_TAUS);
+* a saturated gyro's unreported rate about the vertical: as the tilt's, with the vertical row
+  of R, pulled back likewise (the filter's _excess_hvar_rad2).
 
 The sources are independent and add in variance.  Inclination is the total tilt of the vertical
 axis (two horizontal components); heading the rotation about the vertical.  These are standard
@@ -86,7 +88,7 @@ def heading_var_rad2(gyro_bias_sigma_rad_s: float, mag_rel_err: float, dip_rad: 
     into the horizontal plane, cos(dip)), about the perpendicular axis not at all; one of the
     two horizontal components, tilt_var / 2.  handover_var: the heading variance a gyro bias
     left when a still interval measured it and it was taken off (the filter's, fading over
-    tau_mag), rad^2."""
+    tau_mag), and a saturated gyro's unreported turn about the vertical, rad^2."""
     c = max(math.cos(dip_rad), 0.2)          # near the poles heading is undetermined anyway
     v = (mag_rel_err / c) ** 2 + (gyro_bias_sigma_rad_s * tau_mag_s) ** 2
     v += (gyro_bias_sigma_rad_s * rejected_s) ** 2

@@ -19,7 +19,7 @@ import numpy as np
 from ..models.base import NormModel
 
 __all__ = ["Uncertainty", "residual_variance", "fisher", "crlb", "map_covariance",
-           "determination", "UNDETERMINED_RATIO"]
+           "omitted_covariance", "determination", "UNDETERMINED_RATIO"]
 
 #: a parameter whose posterior std is above this fraction of its prior std is
 #: ``undetermined``: the poses cut the prior's variance by less than 75 %
@@ -138,6 +138,23 @@ def map_covariance(J: np.ndarray, var: np.ndarray, noise_var: float,
     H = J.T @ J / noise_var + P
     Hp = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
     return Hp @ ((J.T * np.asarray(var, float)) @ J / noise_var ** 2 + P) @ Hp
+
+
+def omitted_covariance(J_free: np.ndarray, J_fixed: np.ndarray, noise_var: float,
+                       prior_precision: np.ndarray, fixed_std: np.ndarray) -> np.ndarray:
+    """Covariance (kf, kf) the terms a model holds fixed add to its free estimates.
+
+    A fixed term (diag6's non-orthogonality, held at 0) is not 0 on a real part but within
+    its datasheet tolerance ``fixed_std``, and the free terms absorb what it does to the poses
+    (least squares' omitted-variable bias, linearised): the MAP estimate moves by -A d, with
+    A = H^+ J_free' J_fixed / noise_var and H as in :func:`map_covariance`, for the fixed
+    terms' offset d ~ N(0, diag(fixed_std^2)); its covariance is A diag(fixed_std^2) A'.  This
+    is the error of the estimate the model makes (not the full model's posterior, which is
+    centred elsewhere): where the pose set lets the free terms follow the fixed ones, it is
+    large, as that estimate's error is."""
+    H = J_free.T @ J_free / noise_var + np.diag(np.asarray(prior_precision, float))
+    A = np.linalg.pinv(H, rcond=1e-12, hermitian=True) @ (J_free.T @ J_fixed) / noise_var
+    return (A * np.asarray(fixed_std, float) ** 2) @ A.T
 
 
 def _describe_up(u: np.ndarray) -> str:

@@ -652,8 +652,9 @@ def test_a_tilt_error_moves_the_magnetic_heading_and_the_stated_heading_sd_holds
     datasheet +-60 mg), is tilted 2.9 deg about north in the filter's eyes, and the field's
     vertical part (68 deg dip) leaks into its horizontal plane: e tan(dip) = 7.3 deg of heading
     at steady state (7.3 measured).  The stated heading sd holds the tilt's share (tilt_var / 2
-    tan^2 dip): 5.2 deg.  Broken once: the term left out of heading_var_rad2, stated 1.8 deg
-    (fails)."""
+    tan^2 dip): 5.2 deg, within 2 sd (a tilt lined up with the field's direction: the worst
+    case of the average over headings the term is).  Broken once: the term left out of
+    heading_var_rad2, stated 1.8 deg (fails); with tilt_var / 8 (fails)."""
     rng = np.random.default_rng(8)
     n = int(60 * RATE_HZ)
     q_true = np.array([1.0, 0.0, 0.0, 0.0])
@@ -667,7 +668,7 @@ def test_a_tilt_error_moves_the_magnetic_heading_and_the_stated_heading_sd_holds
     err = abs(_heading_err_deg(o["q"][-1], q_true))
     dip = math.atan2(-M_ENU[2], M_ENU[1])
     assert err == pytest.approx(math.degrees(math.atan(0.05)) * math.tan(dip), rel=0.15)   # the physics
-    assert err <= 3 * o["heading_std_deg"], (err, o["heading_std_deg"])
+    assert err <= 2 * o["heading_std_deg"], (err, o["heading_std_deg"])
 
 
 def test_the_heading_a_gyro_bias_left_is_in_the_sd_after_the_hand_over_and_fades():
@@ -740,3 +741,11 @@ def test_a_saturated_yaw_turn_leaves_a_heading_error_the_stated_heading_sd_holds
     err = abs(_heading_err_deg(o["q"][-1], q_true[-1]))
     assert err > 25.0                                          # the clipped turn really is off
     assert err <= 3 * o["heading_std_deg"], (err, o["heading_std_deg"])
+    # rows without a magnetometer reading do not pull the heading back, nor its share of the
+    # sd (a cold review: 30 s of them took the sd from 44.5 to 9.5 deg, the error 41 deg;
+    # broken once, the share decayed over them: 39 deg off against 8.1, fails)
+    for i in range(0, int(30 * RATE_HZ), 4):
+        f.update(acc[-4:], gyro[-4:])
+    o = f.update(acc[-4:], gyro[-4:], m[-4:])
+    err = abs(_heading_err_deg(o["q"][-1], q_true[-1]))
+    assert err > 25.0 and err <= 3 * o["heading_std_deg"], (err, o["heading_std_deg"])

@@ -465,7 +465,7 @@ class OrientationFilter:
         if self._gain_var is not None:
             self._track_gain(q, w)
         if self._sat_s is not None or any(self._sat_w) or any(self._sat_wu):
-            self._track_excess(q)
+            self._track_excess(q, mag is not None)
         return q, lin, dist, float(o["biasSigma"][-1])
 
     def _track_gain(self, q, w_rad_s) -> None:
@@ -481,7 +481,7 @@ class OrientationFilter:
         k = math.exp(-n * dt / self._tau_now_s)
         self._gain_w = [k * a + r * b for a, (r, b) in zip(self._gain_w, ((r, b) for r in rh for b in turn))]
 
-    def _track_excess(self, q) -> None:
+    def _track_excess(self, q, with_mag: bool) -> None:
         """_sat_w over this batch (see _clear_quality), as _track_gain: the batch's middle
         attitude, its seconds at the rail, the whole forgotten by e^{-n dt/tau}."""
         n = len(q)
@@ -492,7 +492,8 @@ class OrientationFilter:
         self._sat_w = [k * a + r * s[i % 3] for i, (a, r) in enumerate(zip(self._sat_w, rh))]
         if max(map(abs, self._sat_w)) < 1e-6:
             self._sat_w = [0.0] * 6
-        ku = math.exp(-n / self.rate_hz / (HEADING_PULL_TAUS * self.tau_mag_s))
+        # the heading's share is pulled back only by the magnetometer: batches without one keep it
+        ku = math.exp(-n / self.rate_hz / (HEADING_PULL_TAUS * self.tau_mag_s)) if with_mag else 1.0
         self._sat_wu = [ku * a + u * si for a, u, si in zip(self._sat_wu, _vertical_row(q[n // 2].tolist()), s)]
         if max(map(abs, self._sat_wu)) < 1e-6:
             self._sat_wu = [0.0] * 3

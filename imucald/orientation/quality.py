@@ -86,9 +86,11 @@ def heading_var_rad2(gyro_bias_sigma_rad_s: float, mag_rel_err: float, dip_rad: 
     field's horizontal part, found through the estimated vertical: a tilt error e about the
     field's horizontal direction moves it by e tan(dip) (the vertical part, sin(dip), leaks
     into the horizontal plane, cos(dip)), about the perpendicular axis not at all; one of the
-    two horizontal components, tilt_var / 2.  handover_var: the heading variance a gyro bias
-    left when a still interval measured it and it was taken off (the filter's, fading over
-    tau_mag), and a saturated gyro's unreported turn about the vertical, rad^2."""
+    two horizontal components, tilt_var / 2 on average over headings (a tilt error lined up
+    with the field's direction moves the heading sqrt(2) times more than this sd says).
+    handover_var: the heading variance a gyro bias left when a still interval measured it and
+    it was taken off (the filter's, fading over HEADING_PULL_TAUS tau_mag of rows with a
+    magnetometer), and a saturated gyro's unreported turn about the vertical, rad^2."""
     c = max(math.cos(dip_rad), 0.2)          # near the poles heading is undetermined anyway
     v = (mag_rel_err / c) ** 2 + (gyro_bias_sigma_rad_s * tau_mag_s) ** 2
     v += (gyro_bias_sigma_rad_s * rejected_s) ** 2

@@ -141,20 +141,19 @@ def map_covariance(J: np.ndarray, var: np.ndarray, noise_var: float,
 
 
 def omitted_covariance(J_free: np.ndarray, J_fixed: np.ndarray, noise_var: float,
-                       prior_precision: np.ndarray, fixed_std: np.ndarray) -> np.ndarray:
+                       prior_precision: np.ndarray, fixed_second_moment: np.ndarray) -> np.ndarray:
     """Covariance (kf, kf) the terms a model holds fixed add to its free estimates.
 
-    A fixed term (diag6's non-orthogonality, held at 0) is not 0 on a real part but within
-    its datasheet tolerance ``fixed_std``, and the free terms absorb what it does to the poses
-    (least squares' omitted-variable bias, linearised): the MAP estimate moves by -A d, with
-    A = H^+ J_free' J_fixed / noise_var and H as in :func:`map_covariance`, for the fixed
-    terms' offset d ~ N(0, diag(fixed_std^2)); its covariance is A diag(fixed_std^2) A'.  This
-    is the error of the estimate the model makes (not the full model's posterior, which is
-    centred elsewhere): where the pose set lets the free terms follow the fixed ones, it is
-    large, as that estimate's error is."""
+    A fixed term (diag6's non-orthogonality, held at 0) is not 0 on a real part, and the free
+    terms absorb what it does to the poses (least squares' omitted-variable bias, linearised):
+    the MAP estimate moves by -A d, with A = H^+ J_free' J_fixed / noise_var and H as in
+    :func:`map_covariance`, for the fixed terms' offset d from where they are held, of second
+    moment ``fixed_second_moment`` = E[d d'] (kf_fixed, kf_fixed); its covariance A E[d d'] A'.
+    This is the error of the estimate the model makes (not the full model's posterior, which
+    is centred elsewhere)."""
     H = J_free.T @ J_free / noise_var + np.diag(np.asarray(prior_precision, float))
     A = np.linalg.pinv(H, rcond=1e-12, hermitian=True) @ (J_free.T @ J_fixed) / noise_var
-    return (A * np.asarray(fixed_std, float) ** 2) @ A.T
+    return A @ np.asarray(fixed_second_moment, float) @ A.T
 
 
 def _describe_up(u: np.ndarray) -> str:

@@ -383,22 +383,19 @@ class OrientationFilter:
             sig = max(sig, self._gyro_prior_rad_s)
         if self._handover_var:
             ran = n if allok else int(ok.sum())     # rows VQF stepped: the tilt fades with them
-            self._handover_var *= math.exp(-2.0 * ran / self.rate_hz / self._tau_now_s)
-            if self._handover_var < 1e-12:
-                self._handover_var = 0.0
+            self._handover_var = _faded(self._handover_var, ran / self.rate_hz, self._tau_now_s)
         tv = quality.tilt_var_rad2(self._acc_var, sig, math.hypot(self._lin_lp[0], self._lin_lp[1]),
                                    self.acc_noise_g, self._tau_now_s, self.rate_hz,
                                    self._gain_var_rad2() + self._excess_var_rad2() + self._handover_var)
         if self._handover_hvar:
             # pulled back by the magnetometer, over the rows VQF stepped with one
             took = 0 if mag is None else (n if allok else int(ok.sum()))
-            self._handover_hvar *= math.exp(-2.0 * took / self.rate_hz / (HEADING_PULL_TAUS * self.tau_mag_s))
-            if self._handover_hvar < 1e-12:
-                self._handover_hvar = 0.0
+            self._handover_hvar = _faded(self._handover_hvar, took / self.rate_hz,
+                                         HEADING_PULL_TAUS * self.tau_mag_s)
         if magnetic:
             rel = max(math.sqrt(self._mvar), self.mag_rel_floor)
             hv = quality.heading_var_rad2(sig, rel, self._dip_rad, self.tau_mag_s, self._rejected_s, tv,
-                                          self._handover_hvar + self._excess_hvar_rad2())
+                                          pullback_var=self._handover_hvar + self._excess_hvar_rad2())
         else:
             hv = quality.ARBITRARY_HEADING_VAR_RAD2
         return {"q": q, "lin_acc_g": lin, "mag_disturbed": dist,
@@ -485,7 +482,8 @@ class OrientationFilter:
         """_sat_w over this batch (see _clear_quality), as _track_gain: the batch's middle
         attitude, its seconds at the rail, the whole forgotten by e^{-n dt/tau}."""
         n = len(q)
-        rh = _horizontal_rows(q[n // 2].tolist())
+        qm = q[n // 2].tolist()
+        rh = _horizontal_rows(qm)
         k = math.exp(-n / self.rate_hz / self._tau_now_s)
         s = self._sat_s or (0.0, 0.0, 0.0)
         self._sat_s = None
@@ -494,21 +492,21 @@ class OrientationFilter:
             self._sat_w = [0.0] * 6
         # the heading's share is pulled back only by the magnetometer: batches without one keep it
         ku = math.exp(-n / self.rate_hz / (HEADING_PULL_TAUS * self.tau_mag_s)) if with_mag else 1.0
-        self._sat_wu = [ku * a + u * si for a, u, si in zip(self._sat_wu, _vertical_row(q[n // 2].tolist()), s)]
+        self._sat_wu = [ku * a + u * si for a, u, si in zip(self._sat_wu, _vertical_row(qm), s)]
         if max(map(abs, self._sat_wu)) < 1e-6:
             self._sat_wu = [0.0] * 3
 
-    def _excess_var_rad2(self) -> float:
-        """The tilt variance the rate a saturated gyro did not report leaves (SATURATED_EXCESS)."""
-        if self._range_rad_s is None or not any(self._sat_w):
+    def _excess_var_rad2(self, w=None) -> float:
+        """The tilt variance the rate a saturated gyro did not report leaves (SATURATED_EXCESS),
+        from its tracker ``w`` (_sat_w; the heading's: _sat_wu)."""
+        w = self._sat_w if w is None else w
+        if self._range_rad_s is None or not any(w):
             return 0.0
-        return (SATURATED_EXCESS * self._range_rad_s) ** 2 * sum(a * a for a in self._sat_w)
+        return (SATURATED_EXCESS * self._range_rad_s) ** 2 * sum(a * a for a in w)
 
     def _excess_hvar_rad2(self) -> float:
         """The heading variance the rate a saturated gyro did not report leaves."""
-        if self._range_rad_s is None or not any(self._sat_wu):
-            return 0.0
-        return (SATURATED_EXCESS * self._range_rad_s) ** 2 * sum(a * a for a in self._sat_wu)
+        return self._excess_var_rad2(self._sat_wu)
 
     def _gain_var_rad2(self) -> float:
         """The tilt variance the gyro's gain error leaves (quality.tilt_var_rad2's gain term)."""
@@ -567,6 +565,13 @@ def _gain_var(g, tol) -> Optional[list]:
     if tv is None and not np.isfinite(se).all():
         return None if not np.isfinite(se).any() else np.where(np.isfinite(se), se * se, 0.0).tolist()
     return [float(x * x) if math.isfinite(x) else tv[i] for i, x in enumerate(se.tolist())]
+
+
+def _faded(var: float, seconds: float, tau_s: float) -> float:
+    """A variance whose error a filter of time constant ``tau_s`` pulls back, ``seconds`` on:
+    var e^{-2 t/tau} (0 once under 1e-12 rad^2)."""
+    var *= math.exp(-2.0 * seconds / tau_s)
+    return var if var >= 1e-12 else 0.0
 
 
 def _horizontal_rows(q):

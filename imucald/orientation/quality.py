@@ -76,7 +76,7 @@ def tilt_var_rad2(acc_bias_var_g2: Optional[float], gyro_bias_sigma_rad_s: float
 
 def heading_var_rad2(gyro_bias_sigma_rad_s: float, mag_rel_err: float, dip_rad: float,
                      tau_mag_s: float, rejected_s: float, tilt_var: float = 0.0,
-                     handover_var: float = 0.0) -> float:
+                     pullback_var: float = 0.0) -> float:
     """Variance of the heading error of a magnetometer-referenced estimate, rad^2.
 
     mag_rel_err: relative error of the magnetometer's vector (the calibration's held-out
@@ -88,13 +88,14 @@ def heading_var_rad2(gyro_bias_sigma_rad_s: float, mag_rel_err: float, dip_rad: 
     into the horizontal plane, cos(dip)), about the perpendicular axis not at all; one of the
     two horizontal components, tilt_var / 2 on average over headings (a tilt error lined up
     with the field's direction moves the heading sqrt(2) times more than this sd says).
-    handover_var: the heading variance a gyro bias left when a still interval measured it and
-    it was taken off (the filter's, fading over HEADING_PULL_TAUS tau_mag of rows with a
-    magnetometer), and a saturated gyro's unreported turn about the vertical, rad^2."""
+    pullback_var: heading errors the magnetometer is pulling back, rad^2: what a gyro bias left
+    when a still interval measured it and it was taken off, and a saturated gyro's unreported
+    turn about the vertical (the filter's, fading over HEADING_PULL_TAUS tau_mag of rows with
+    a magnetometer)."""
     c = max(math.cos(dip_rad), 0.2)          # near the poles heading is undetermined anyway
     v = (mag_rel_err / c) ** 2 + (gyro_bias_sigma_rad_s * tau_mag_s) ** 2
     v += (gyro_bias_sigma_rad_s * rejected_s) ** 2
-    v += tilt_var / 2.0 * (1.0 - c * c) / (c * c) + handover_var
+    v += tilt_var / 2.0 * (1.0 - c * c) / (c * c) + pullback_var
     return min(v, ARBITRARY_HEADING_VAR_RAD2)
 
 

@@ -17,7 +17,7 @@ from ..fitting.solvers.lsq import Problem, lm, sphere_fit
 from ..fitting.judging.uncertainty import residual_variance
 from .candidates import Candidate
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
-from .signif import p_and_log10, proj_sig, score, wald_p
+from .signif import p_and_log10, proj_sig, score, visible_basis, wald_p
 from .search import single_floor, stepwise, walk_sensitivity
 from .verdict import confusable, no_gap, verdict
 from .wander import random_walk_fit
@@ -129,7 +129,8 @@ def score_candidates(b: NormBaseline, cands: Sequence[Candidate], ctx: Dict[str,
         Ct, Cw = proj_sig(b.J, C, b.w, b.lam)
         stat, q_vis, vis = score(rw, Ct, Cw)
         p, lp = p_and_log10(stat, q_vis) if q_vis else (1.0, 0.0)
-        tested.append({"cand": c, "Ct": Ct, "stat": stat, "q": q_vis, "p": p, "lp": lp, "vis": vis})
+        tested.append({"cand": c, "Ct": Ct, "stat": stat, "q": q_vis, "p": p, "lp": lp, "vis": vis,
+                       "V": visible_basis(Ct, Cw)})
     tested.sort(key=lambda d: d["lp"])
     return tested
 
@@ -318,8 +319,9 @@ def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str
     if len(chosen) > 1:
         # params / stderr: the fixed members' coefficients in the order of ``effects`` (flat,
         # as before the search; the walk's strength is in search.members)
+        rm = sr.get("report_model", m)       # the members in their full forms (search.VisiblePart)
         out["joint"] = {"effects": list(chosen), "ratio_after": float(ratio_after), "closed": closed,
-                        "params": m.z[b.p0:].tolist(), "stderr": m.sd[b.p0:].tolist()}
+                        "params": rm.z[b.p0:].tolist(), "stderr": rm.sd[b.p0:].tolist()}
     out.update(verdict(True, chosen, b.ratio, float(ratio_after), closed))
     out["ratio_after"] = float(ratio_after)
     conf = confusable(chosen, signatures)

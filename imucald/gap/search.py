@@ -42,13 +42,14 @@ Pure functions over arrays; the fits and tests are cached per model.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
 from ..fitting.judging.heldout import hat_diag, numjac
 from ..fitting.judging.levels import GAP_HELDOUT_LEVEL
+from .candidates import Candidate
 from .signif import scaled_wald_p
 from .wander import random_walk_fit, walk_kernel
 
@@ -88,6 +89,34 @@ MAX_STEPS = 8
 MAX_MEMBERS = 2
 WALK = "wandering_bias"        #: the class the random walk belongs to
 _NESTED = {frozenset({"bias_drift", "wandering_bias"})}   # the drift's line lies in the wandering span
+
+
+@dataclass
+class VisiblePart(Candidate):
+    """A candidate restricted to the directions of its coefficients that its score test sees
+    from the baseline fit (signif.visible_basis): eta = V xi.  A direction the baseline
+    absorbs (the degree-1 part of the radial cubic, which the bias holds; two of the 6-term
+    nonlinearity's three cross terms, whose radial parts are one xyz term) still takes one
+    residual degree of freedom in a least-squares fit however small its signature, soaking up
+    misfit and noise: fitted in full, a member used more room than the count of its visible
+    coefficients (dof_ok, _pair_entries) said, and its Wald test was diluted by the rank of
+    directions that carry nothing.  The search fits and tests the visible part; the report
+    gives the full form (_report_model)."""
+    full: Optional[Candidate] = None
+    V: Optional[np.ndarray] = None
+
+
+def visible_part(c, V):
+    """``c`` restricted to the columns of ``V`` (q, k), or ``c`` itself when all are visible."""
+    if V is None or V.shape[1] >= c.q or V.shape[1] == 0:
+        return c
+    return VisiblePart(c.name, V.shape[1], delta=lambda xi, x, th, ctx, c=c, V=V: c.delta(V @ np.asarray(xi, float), x, th, ctx),
+                       units=c.units, full=c, V=V)
+
+
+def form_q(c) -> int:
+    """The coefficient count of a candidate's form (its full form's for a visible part)."""
+    return c.full.q if isinstance(c, VisiblePart) else c.q
 
 
 @dataclass
@@ -221,7 +250,7 @@ class Search(MemberTests):
         # old blind generator (tests/test_gap_blindgen.py); a second member may go to
         # SEARCH_MIN_DOF, each of its members' tests still judged on held-out poses
         alone = len(cands) + (1 if walk else 0) <= 1
-        floor = (single_floor(sum(c.q for c in cands)) if alone and cands else
+        floor = (single_floor(sum(form_q(c) for c in cands)) if alone and cands else
                  MIN_DOF if alone else SEARCH_MIN_DOF)
         return used <= self.b.n - floor
 
@@ -350,8 +379,10 @@ def _entry_variants(tested: List[dict], walk_ok: bool, bonf: float):
         # enters only when its signature is in the data: its score test from the baseline fit
         # passes at the same level (as a single candidate's must)
         if d["q"] > 0 and not (walk_ok and d["cand"].name == WALK) and d["p"] < bonf:
-            variants.setdefault(d["cand"].name, []).append(d["cand"])
-            vis_q[id(d["cand"])] = d["q"]
+            # fitted and tested in the directions its score test sees (VisiblePart)
+            c = visible_part(d["cand"], d.get("V"))
+            variants.setdefault(c.name, []).append(c)
+            vis_q[id(c)] = d["q"]
     return variants, vis_q
 
 
@@ -389,8 +420,8 @@ def _add_moves(s, cur, variants, visited, bonf) -> list:
                 # leaves as well: a richer form of the second class soaked up a curved thermal
                 # form's leftovers once the first member was cut back to its simpler variant
                 what = f"add {cls}" + (" (random walk)" if walk and not cur.walk else
-                                       f" ({cands[-1].q} coefficients)")
-                moves.append((m, what + "".join(f"; {c.name} {c.q}" for c in cands[:len(cur.cands)]
+                                       f" ({form_q(cands[-1])} coefficients)")
+                moves.append((m, what + "".join(f"; {c.name} {form_q(c)}" for c in cands[:len(cur.cands)]
                                                 if c not in cur.cands), pc, pho))
     return moves
 
@@ -419,7 +450,7 @@ def _variant_moves(s, cur, variants, visited) -> list:
                 continue
             pho = s.heldout_p(cur, m)
             if pho < GAP_HELDOUT_LEVEL:
-                moves.append((m, f"{c.name}: {c.q} -> {v.q} coefficients", m.member_p[c.name], pho))
+                moves.append((m, f"{c.name}: {form_q(c)} -> {form_q(v)} coefficients", m.member_p[c.name], pho))
     return moves
 
 
@@ -492,24 +523,55 @@ def _path(s, cur, variants, walk_ok, bonf):
     return cur, steps
 
 
-def _members(s, b, cur) -> List[dict]:
-    """Each named member's coefficients, standard errors and both tests' p-values."""
+def _report_model(s, m):
+    """``m`` with its fixed members in their full forms, for the report (VisiblePart): refitted
+    in full from the visible fit mapped back (the standard errors then hold the directions
+    the data barely see, as a single candidate's report does); under the walk, the visible
+    fit mapped back (eta = V xi, its covariance V C V')."""
+    if not any(isinstance(c, VisiblePart) for c in m.cands):
+        return m
+    p0 = s.b.p0
+    Vs = [c.V if isinstance(c, VisiblePart) else np.eye(c.q) for c in m.cands]
+    T = np.zeros((len(m.z), p0 + sum(V.shape[0] for V in Vs)))
+    T[:p0, :p0] = np.eye(p0)
+    o, oo = p0, p0
+    for V in Vs:
+        T[o:o + V.shape[1], oo:oo + V.shape[0]] = V.T
+        o, oo = o + V.shape[1], oo + V.shape[0]
+    cands = tuple(form_full(c) for c in m.cands)
+    z = m.z @ T
+    if m.walk:
+        cov = T.T @ m.cov @ T
+    else:
+        f = s.refit_with(s.b, list(cands), s.ctx, s.sims, s.rng, z)
+        z, cov = f.z, f.cov
+    return replace(m, cands=cands, z=z, cov=cov, sd=np.sqrt(np.clip(np.diag(cov), 0, None)))
+
+
+def form_full(c):
+    return c.full if isinstance(c, VisiblePart) else c
+
+
+def _members(s, b, cur, rep=None) -> List[dict]:
+    """Each named member's coefficients, standard errors (of ``rep``, the model in its members'
+    full forms, _report_model) and both tests' p-values (of ``cur``)."""
     members = []
     if not cur.classes:
         return members
     t = s.tests(cur)
+    rep = cur if rep is None else rep
     o = b.p0
-    for c in cur.cands:
+    for c in rep.cands:
         key = c.name + (f"_{c.units}" if c.units else "")
         ent = {"name": c.name, "coefficients": c.q, "coefficient_p_value": t[c.name][0],
                "heldout_p_value": t[c.name][1],
-               "params": {key: cur.z[o:o + c.q].tolist()}, "stderr": {key: cur.sd[o:o + c.q].tolist()}}
+               "params": {key: rep.z[o:o + c.q].tolist()}, "stderr": {key: rep.sd[o:o + c.q].tolist()}}
         if c.parts:
             ent["params"], ent["stderr"] = {}, {}
             oo = o
             for u, k in c.parts:
-                ent["params"][f"{c.name}_{u}"] = cur.z[oo:oo + k].tolist()
-                ent["stderr"][f"{c.name}_{u}"] = cur.sd[oo:oo + k].tolist()
+                ent["params"][f"{c.name}_{u}"] = rep.z[oo:oo + k].tolist()
+                ent["stderr"][f"{c.name}_{u}"] = rep.sd[oo:oo + k].tolist()
                 oo += k
         members.append(ent)
         o += c.q
@@ -666,4 +728,6 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
             cur = cw
     if b.significant:
         cur, steps = _choose_end(s, base, variants, bonf, cur, steps, cw if walk_ok else None)
-    return {"model": cur, "members": _members(s, b, cur), "steps": steps, "models_fitted": len(s.cache)}
+    rep = _report_model(s, cur)
+    return {"model": cur, "report_model": rep, "members": _members(s, b, cur, rep), "steps": steps,
+            "models_fitted": len(s.cache)}

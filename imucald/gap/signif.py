@@ -10,7 +10,7 @@ import numpy as np
 
 from ..numerics.tails import chi2_logsf, f_sf, norm_sf2
 
-__all__ = ["proj_sig", "score", "canon", "p_and_log10", "corr_p", "wald_p", "wald_f_p", "scaled_wald_p"]
+__all__ = ["proj_sig", "score", "visible_basis", "canon", "p_and_log10", "corr_p", "wald_p", "wald_f_p", "scaled_wald_p"]
 
 
 def proj_sig(J, C, w, lam=None):
@@ -25,11 +25,28 @@ def proj_sig(J, C, w, lam=None):
     return Cw - Jw @ np.linalg.pinv(A, rcond=1e-12, hermitian=True) @ (Jw.T @ Cw), Cw
 
 
+#: a direction of a candidate's coefficients is visible when its projected signature's
+#: singular value is above this share of the largest whitened column's norm (score, visible_basis)
+VISIBLE_SHARE = 0.01
+
+
+def _kept(s, Cw):
+    full = np.linalg.norm(Cw, axis=0).max() if Cw.size else 0
+    return s > VISIBLE_SHARE * max(full, 1e-300)
+
+
+def visible_basis(Ct, Cw):
+    """The directions (q, k) in a candidate's coefficient space that its score test sees (the
+    right singular vectors of the projected signature ``Ct`` kept by ``score``): the rest is
+    absorbed by the baseline (e.g. the degree-1 part of a radial cubic, which the bias holds)."""
+    _, s, Vt = np.linalg.svd(Ct, full_matrices=False)
+    return Vt[_kept(s, Cw)].T
+
+
 def score(rw, Ct, Cw):
     """Lagrange-multiplier (score) statistic and its visible rank."""
     U, s, _ = np.linalg.svd(Ct, full_matrices=False)
-    full = np.linalg.norm(Cw, axis=0).max() if Cw.size else 0
-    keep = s > 0.01 * max(full, 1e-300)
+    keep = _kept(s, Cw)
     if not keep.any():
         return 0.0, 0, 0.0
     Uk = U[:, keep]

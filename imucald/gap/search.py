@@ -225,6 +225,12 @@ class Search(MemberTests):
         # random numbers): a test's p-value is a function of the two models alone, whatever
         # was asked before it
         self.Z = rng.normal(size=(max(sims, 50), b.n))
+        #: the seed of every model's own re-simulations (its twin in refit_with, the walk's
+        #: REML and twin): the same draws for every model (common random numbers), so a
+        #: model's ratio and q99 are functions of the model alone, not of the order in which
+        #: the search met it (with one shared stream, the same pair was 'named' or
+        #: 'partially explained' as other fits came before it)
+        self.model_seed = int(rng.integers(2 ** 63))
         if walk_ok:
             self.B = self.prefit.get("walk_B")
             if self.B is None:
@@ -232,6 +238,10 @@ class Search(MemberTests):
             self.K = walk_kernel(self.B, ctx["t"], ctx.get("hold_s"))
         else:
             self.B = self.K = None
+
+    def model_rng(self):
+        """A fresh generator on the models' common seed (self.model_seed)."""
+        return np.random.default_rng(self.model_seed)
 
     def dof_ok(self, cands, walk, refine=False) -> bool:
         """Room for the model, in visible coefficients (what the score tests see): N minus them
@@ -289,7 +299,7 @@ class Search(MemberTests):
         if cands:
             f = self.prefit.get(id(cands[0])) if len(cands) == 1 else None
             if f is None:
-                f = self.refit_with(b, list(cands), self.ctx, self.sims, self.rng, self._start(cands))
+                f = self.refit_with(b, list(cands), self.ctx, self.sims, self.model_rng(), self._start(cands))
             r, J, lam, z, cov, chi2 = f.r, f.J, f.lam, f.z, f.cov, f.chi2
             e, twin, q99 = f.e, f.twin, f.q99
         else:
@@ -310,7 +320,7 @@ class Search(MemberTests):
                      b.nrms(e), twin, q99)
         if walk:
             gp = self.prefit.get("walk") if not cands and "walk" in self.prefit else \
-                random_walk_fit(r, J, b.var, self.B, self.ctx["t"], self.sims, self.rng, lam,
+                random_walk_fit(r, J, b.var, self.B, self.ctx["t"], self.sims, self.model_rng(), lam,
                                 self.ctx.get("hold_s"))
             if gp is None or not gp["q"] > 0:
                 return None
@@ -543,7 +553,7 @@ def _report_model(s, m):
     if m.walk:
         cov = T.T @ m.cov @ T
     else:
-        f = s.refit_with(s.b, list(cands), s.ctx, s.sims, s.rng, z)
+        f = s.refit_with(s.b, list(cands), s.ctx, s.sims, s.model_rng(), z)
         z, cov = f.z, f.cov
     return replace(m, cands=cands, z=z, cov=cov, sd=np.sqrt(np.clip(np.diag(cov), 0, None)))
 
@@ -613,7 +623,9 @@ def _pair_entries(s, base, variants, bonf) -> list:
                     # one count of the room left: the residual degrees of freedom that scale
                     # the Wald covariance (N minus every coefficient, as in Search._fit), which
                     # are also the F reference's denominator below MIN_DOF
-                    if s.b.n - s.b.p0 - v1.q - v2.q < PAIR_ENTRY_MIN_DOF:
+                    # counted in the forms' coefficients, as the floor was measured (a visible
+                    # part's fit is smaller: VisiblePart), so the floor's protection is kept
+                    if s.b.n - s.b.p0 - form_q(v1) - form_q(v2) < PAIR_ENTRY_MIN_DOF:
                         continue
                     m = s.fit((v1, v2), False)
                     if m is None or not (m.nrms < base.nrms and m.excess < base.excess) \

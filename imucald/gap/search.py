@@ -48,7 +48,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from ..fitting.judging.heldout import hat_diag, numjac
-from ..fitting.judging.levels import GAP_HELDOUT_LEVEL
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL
 from .candidates import Candidate
 from .signif import scaled_wald_p
 from .wander import random_walk_fit, walk_kernel
@@ -376,6 +376,15 @@ class Search(MemberTests):
             return 0.0 if obs > float(np.mean(g)) else 1.0
         return 0.5 * math.erfc((obs - float(np.mean(g))) / (sd * math.sqrt(2)))
 
+
+
+def family_level(tested: List[dict], walk_ok: bool) -> float:
+    """The search's Bonferroni level: GAP_ATTRIBUTION_LEVEL over the hypotheses the search
+    can test, the variants that can be members (a visible signature; with the walk allowed,
+    the walk in place of the piecewise wandering forms, which stay among the single
+    candidates' report at the level over every candidate scored)."""
+    k = sum(1 for d in tested if d["q"] > 0 and not (walk_ok and d["cand"].name == WALK)) + (1 if walk_ok else 0)
+    return GAP_ATTRIBUTION_LEVEL / max(k, 1)
 
 
 def _entry_variants(tested: List[dict], walk_ok: bool, bonf: float):
@@ -713,6 +722,7 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
     norm.score_candidates) and the random walk; returns the final model and the steps.
     ``prefit``: fits already made (a single candidate's refit by id(candidate), the walk alone
     under "walk" and its sensitivities under "walk_B"), used as they are."""
+    bonf = family_level(tested, walk_ok)
     variants, vis_q = _entry_variants(tested, walk_ok, bonf)
     s = Search(b, ctx, sims, rng, bonf, vis_q, walk_ok, refit_with, prefit)
     base = s.fit((), False)

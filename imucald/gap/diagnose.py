@@ -298,7 +298,7 @@ def _pair_note(u: PoseSetup, verdict: str) -> None:
                    f"thermal bias cannot enter the search together below {PAIR_POSES} poses (they must "
                    f"leave {PAIR_ENTRY_MIN_DOF} residual degrees of freedom beside the baseline's "
                    f"{Triangular9().k}); their simpler forms can, one at a time, and a wandering bias named "
-                   f"beside one of them may stand for the other (such pairs were named in 18 of 30 blind "
+                   f"beside one of them may stand for the other (such pairs were named in 26 of 30 blind "
                    f"recordings of 22-27 poses, 30 of 30 of 28-35)")
 
 

@@ -300,6 +300,8 @@ class Search(MemberTests):
             f = self.prefit.get(id(cands[0])) if len(cands) == 1 else None
             if f is None:
                 f = self.refit_with(b, list(cands), self.ctx, self.sims, self.model_rng(), self._start(cands))
+                if len(cands) == 1:      # a visible part's single fit, kept for the walk's model
+                    self.prefit[id(cands[0])] = f
             r, J, lam, z, cov, chi2 = f.r, f.J, f.lam, f.z, f.cov, f.chi2
             e, twin, q99 = f.e, f.twin, f.q99
         else:

@@ -34,9 +34,10 @@ def _diag(x, ctx, rng, seed):
 
 def _disciplined(r):
     """Every named member passes both tests of the search (at the levels it states)."""
-    bonf = GAP_ATTRIBUTION_LEVEL / len([e for e in r["effects"] if "score_p_value" in e])
+    bonf, ho = r["search"]["coefficient_level"], r["search"]["heldout_level"]
+    assert ho == GAP_HELDOUT_LEVEL and GAP_ATTRIBUTION_LEVEL / 10 <= bonf <= GAP_ATTRIBUTION_LEVEL / 2, (bonf, ho)
     for m in r["search"]["members"]:
-        assert m["coefficient_p_value"] < bonf and m["heldout_p_value"] < GAP_HELDOUT_LEVEL, m
+        assert m["coefficient_p_value"] < bonf and m["heldout_p_value"] < ho, m
 
 
 @pytest.mark.parametrize("seed", [1, 2])
@@ -50,6 +51,22 @@ def test_a_pair_of_fixed_forms_names_both(seed):
     r = _diag(x, ctx, rng, seed)
     assert set(r["verdict"].split("+")) == {"nonlinearity", "thermal_bias"}, (r["verdict"], r["search"]["steps"])
     _disciplined(r)
+
+
+def test_the_search_level_counts_its_own_members():
+    """The search's Bonferroni count is the hypotheses it can test as members: here the 7
+    fixed variants (thermal_bias 3 and 6, thermal_scale 3, nonlinearity 3, 6 and 10,
+    bias_drift 3; all with a visible signature over 30 poses and 12 C) and the random walk,
+    which stands for the three piecewise wandering forms (those stay in the single
+    candidates' report, tested at the level over all 10).  Seen to fail with the level over
+    every candidate scored (GAP_ATTRIBUTION_LEVEL / 10: it kept blind pair seed 2's general
+    nonlinearity out, F p 0.00124)."""
+    rng, u, ctx, x = _poses(1)
+    x = x + np.array([3e-3, -2e-3, 2.5e-3]) * u ** 2 + np.outer(ctx["dT"], [4e-4, -3e-4, 5e-4])
+    r = _diag(x, ctx, rng, 1)
+    fixed = [c for c in ACCEL_CANDIDATES if c.name != "wandering_bias"]
+    assert len(fixed) == 7 and len(ACCEL_CANDIDATES) == 10
+    assert r["search"]["coefficient_level"] == pytest.approx(GAP_ATTRIBUTION_LEVEL / (len(fixed) + 1), rel=1e-12)
 
 
 @pytest.mark.parametrize("seed", [3, pytest.param(4, marks=pytest.mark.xfail(
@@ -93,6 +110,30 @@ def test_heldout_tests_are_functions_of_the_two_models():
     s.heldout_p(base, nl)
     s.ho_cache.clear()
     assert s.heldout_p(base, tb) == p1
+
+
+def test_a_models_twin_does_not_depend_on_what_was_fitted_before():
+    """Every model's twin (its ratio's denominator and its 99th percentile) is re-simulated on
+    the search's common draws (Search.model_rng): the same model fitted first, or after
+    others, has the same twin.  Seen to fail with one shared stream (model_rng returning the
+    search's generator: a vibration-rectification recording was named or 'partially
+    explained' depending only on which fits came before)."""
+    from imucald.gap import search as S
+    from imucald.gap.norm import norm_baseline, refit_with, score_candidates
+    rng, u, ctx, x = _poses(6)
+    x = x + np.outer(ctx["dT"], [4e-4, -3e-4, 5e-4]) + rng.normal(size=x.shape) * SD_G
+    b = norm_baseline(x, np.full(len(x), SD_G ** 2), Triangular9(), 100, rng, "g",
+                      prior=accel_prior(Triangular9(), "mpu6050"))
+    tested = score_candidates(b, ACCEL_CANDIDATES, ctx, {})
+    got = []
+    for first in ([], ["nonlinearity", "thermal_scale"]):
+        variants, vis_q = S._entry_variants(tested, False, 1.0)
+        s = S.Search(b, ctx, 100, np.random.default_rng(0), 1.0, vis_q, False, refit_with)
+        for name in first:
+            s.fit((variants[name][0],), False)
+        m = s.fit((variants["thermal_bias"][0],), False)
+        got.append((m.twin, m.q99))
+    assert got[0] == got[1], got
 
 
 def test_search_takes_the_single_fits_it_is_given(monkeypatch):

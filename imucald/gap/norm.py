@@ -16,7 +16,7 @@ from ..fitting.models.base import NormModel
 from ..fitting.solvers.lsq import Problem, lm, sphere_fit
 from ..fitting.judging.uncertainty import residual_variance
 from .candidates import Candidate
-from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_TEST_LEVEL
+from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL, GAP_TEST_LEVEL
 from .signif import p_and_log10, proj_sig, score, visible_basis, wald_p
 from .search import single_floor, stepwise, walk_sensitivity
 from .verdict import confusable, no_gap, verdict
@@ -292,7 +292,7 @@ def random_walk_variant(b: NormBaseline, cf: CandidateFits, ctx: Dict[str, np.nd
 
 
 def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str, object]],
-                  ctx: Dict[str, np.ndarray], sims: int, rng, bonf: float, walk_ok: bool,
+                  ctx: Dict[str, np.ndarray], sims: int, rng, walk_ok: bool,
                   signatures: Dict[str, np.ndarray], scale: float, unit: str,
                   prefit: Optional[dict] = None):
     """The verdict from the combination search (gap/search.py): with a gap, the model the
@@ -301,7 +301,7 @@ def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str
     if not b.significant:
         no_gap(out, b.ratio)
         return [], None
-    sr = stepwise(b, tested, ctx, sims, rng, bonf, walk_ok, refit_with, prefit)
+    sr = stepwise(b, tested, ctx, sims, rng, walk_ok, refit_with, prefit)
     m = sr["model"]
     chosen = m.classes
     for ent in sr["members"]:
@@ -314,8 +314,10 @@ def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str
     ratio_after = m.nrms / m.twin if chosen else b.ratio
     closed = bool(ratio_after <= m.q99) if chosen else None
     out["search"] = {"steps": sr["steps"], "members": sr["members"], "models_fitted": sr["models_fitted"],
+                     "coefficient_level": sr["coefficient_level"], "heldout_level": GAP_HELDOUT_LEVEL,
                      "rule": "forward and backward steps; every member's coefficients (Wald or "
-                             "likelihood ratio, Bonferroni) and held-out shrink (against its twin) significant"}
+                             "likelihood ratio, at the attribution level over the search's member "
+                             "variants) and held-out shrink (against its twin) significant"}
     if len(chosen) > 1:
         # params / stderr: the fixed members' coefficients in the order of ``effects`` (flat,
         # as before the search; the walk's strength is in search.members)
@@ -356,7 +358,7 @@ def norm_diag(x: np.ndarray, ctx: Dict[str, np.ndarray], pose_var: np.ndarray, m
     signatures = {d["cand"].name: d["Ct"] for d in tested
                   if d["q"] and cf.cand_of.get(d["cand"].name) is d["cand"]}
     walk_ok = "wandering_bias" not in names_skip and any(c.name == "wandering_bias" for c in cands)
-    chosen, e_after = decide_search(out, b, tested, ctx, sims, rng, bonf, walk_ok, signatures, scale, unit,
+    chosen, e_after = decide_search(out, b, tested, ctx, sims, rng, walk_ok, signatures, scale, unit,
                                     cf.prefit)
     out["where"], ud = norm_where(x, b.r * np.sqrt(b.w), model, b.th, ctx)
     out["_plot"] = {"r": b.r, "e": b.e, "t": ctx["t"], "temp": ctx.get("temp"), "u": ud, "var": b.var,

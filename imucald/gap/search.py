@@ -718,10 +718,11 @@ def _choose_end(s, base, variants, bonf, cur, steps, cw):
     return cur, steps
 
 
-def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_with,
+def stepwise(b, tested: List[dict], ctx, sims, rng, walk_ok: bool, refit_with,
              prefit: Optional[dict] = None) -> Dict[str, object]:
     """Forward and backward over the visible candidates of ``tested`` (score-test entries of
-    norm.score_candidates) and the random walk; returns the final model and the steps.
+    norm.score_candidates) and the random walk, every test at the search's own Bonferroni
+    level (family_level); returns the final model, the steps and that level.
     ``prefit``: fits already made (a single candidate's refit by id(candidate), the walk alone
     under "walk" and its sensitivities under "walk_B"), used as they are."""
     bonf = family_level(tested, walk_ok)
@@ -754,4 +755,4 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, bonf, walk_ok: bool, refit_w
         cur, steps = _choose_end(s, base, variants, bonf, cur, steps, cw if walk_ok else None)
     rep = _report_model(s, cur)
     return {"model": cur, "report_model": rep, "members": _members(s, b, cur, rep), "steps": steps,
-            "models_fitted": len(s.cache)}
+            "models_fitted": len(s.cache), "coefficient_level": s.level}

@@ -118,8 +118,11 @@ def main(argv: Optional[List[str]] = None) -> int:
         return _fail(args, _one_line(e), EX_UNAVAILABLE)
     finally:
         sys.stdout = stdout
-        from ..files import atomic
-        atomic.STDOUT = None
+        # only a command that loaded files.atomic can have pointed it at stdout (check_args
+        # for -o -); one that did not (calibrate --json) is not made to import it here
+        atomic = sys.modules.get(f"{__package__.rsplit('.', 1)[0]}.files.atomic")
+        if atomic is not None:
+            atomic.STDOUT = None
 
 
 def entry() -> None:

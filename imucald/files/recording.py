@@ -57,7 +57,7 @@ class RecordingError(UserError):
     """A recording file that cannot be read; the message names file and line."""
 
 
-@dataclass
+@dataclass(eq=False)
 class Recording:
     """Samples in physical units.  Arrays are (n,) or (n, 3); absent sensors are None."""
 

@@ -30,7 +30,7 @@ __all__ = ["FitResult", "fit_norm", "mag_bounds", "heldout_residuals", "fit_gyro
            "select_model", "accel_prior", "AUTO_MODELS"]
 
 
-@dataclass
+@dataclass(eq=False)
 class FitResult:
     """One norm fit (accelerometer or magnetometer) or gyro-bias fit: what the daemon and the
     command line report (:func:`fit_norm`, :func:`fit_gyro_bias`)."""
@@ -217,7 +217,7 @@ def select_model(raw: np.ndarray, pose_cov: Optional[np.ndarray] = None, target:
     return best, {**scores, "_se": se[low], "_held_at_prior": held}
 
 
-@dataclass
+@dataclass(eq=False)
 class FitSetup:
     """What the solver is given: the model chosen, its search box and prior, the noise level
     the prior is weighed against (``noise_var``) and each pose's own covariance (or None)."""
@@ -240,7 +240,7 @@ class FitSetup:
                        prior_mean=self.prior_mean, prior_std=self.prior_std, noise_var=noise_var)
 
 
-@dataclass
+@dataclass(eq=False)
 class NoiseFit:
     """The solution with its noise model: per-pose residual variance (scaled up by the
     excess scatter when the noise model is rejected) and the MAP estimate re-polished at
@@ -259,7 +259,7 @@ class NoiseFit:
     dof: float
 
 
-@dataclass
+@dataclass(eq=False)
 class Determination:
     """The covariance of the estimate (all parameters), its standard errors and the
     uncertainty with its determination flags."""
@@ -268,7 +268,7 @@ class Determination:
     uncertainty: Uncertainty
 
 
-@dataclass
+@dataclass(eq=False)
 class Heldout:
     """The held-out step's result: each pose's residual from the fit without it."""
     residuals: np.ndarray               #: per pose, held out of the fit

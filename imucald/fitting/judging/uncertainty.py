@@ -26,7 +26,7 @@ __all__ = ["Uncertainty", "residual_variance", "fisher", "crlb", "map_covariance
 UNDETERMINED_RATIO = 0.5
 
 
-@dataclass
+@dataclass(eq=False)
 class Uncertainty:
     """What a pose set can and cannot determine, for one model at one theta."""
 

@@ -19,7 +19,7 @@ __all__ = ["ga_paper", "ga", "hga", "ga_core"]
 
 # --- MATLAB-style GA (paper 000), vectorised over independent runs ----------------------
 
-@dataclass
+@dataclass(eq=False)
 class _GaShape:
     """Sizes and index helpers of a vectorised GA: ``runs`` independent runs, each of
     ``nsub`` subpopulations of ``Ps`` individuals over ``kf`` parameters."""

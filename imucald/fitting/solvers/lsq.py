@@ -30,7 +30,7 @@ __all__ = ["Problem", "OptimResult", "lm", "lm_converge", "lm_converge_rows", "l
 
 
 
-@dataclass
+@dataclass(eq=False)
 class Problem:
     """A norm-fit problem: model, pose means (N, 3), target norm, weights, bounds and an
     optional Gaussian prior on the free parameters (module doc)."""
@@ -139,7 +139,7 @@ class Problem:
         return np.clip(z, self.lo, self.hi)
 
 
-@dataclass
+@dataclass(eq=False)
 class OptimResult:
     """What every optimiser returns (free parameters expanded to the full vector).
 

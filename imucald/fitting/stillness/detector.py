@@ -132,7 +132,7 @@ TURN_SIGMAS = 5.0
 BIAS_SPAN_WINDOWS = 60
 
 
-@dataclass
+@dataclass(eq=False)
 class StaticInterval:
     """One still interval the detector found: its rows' averages and scatter, time and place."""
     acc: np.ndarray               #: mean specific force, g (3,)

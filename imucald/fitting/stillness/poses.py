@@ -34,7 +34,7 @@ POSES_MAGIC = "# imucald poses v1"
 DETECT_CHUNK = 1 << 14
 
 
-@dataclass
+@dataclass(eq=False)
 class PoseSet:
     """Averages of static intervals.  All arrays have N rows."""
 

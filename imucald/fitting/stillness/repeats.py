@@ -52,7 +52,7 @@ RATE_MISMATCH = 0.25
 CHANCE_WINDOW = 64
 
 
-@dataclass
+@dataclass(eq=False)
 class Repeats:
     """What :func:`find_repeats` found in n rows."""
 

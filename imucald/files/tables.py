@@ -20,7 +20,6 @@ from __future__ import annotations
 import io
 import os
 import re
-import shlex
 import warnings
 from typing import BinaryIO, Iterator, List, Optional, Sequence, Tuple
 
@@ -50,6 +49,14 @@ def warn(msg: str) -> None:
 TIME_UNITS = {"t": ("s", 1.0), "t_ms": ("ms", 1e-3), "t_us": ("us", 1e-6), "t_ns": ("ns", 1e-9)}
 
 
+def _quoted(path: str) -> str:
+    """``path`` quoted for a shell command in a message; shlex is imported only when a message
+    needs it (its import compiles a regular expression: ~0.3 ms of every command that reads
+    a table)."""
+    import shlex
+    return shlex.quote(path)
+
+
 def _backwards(name: str, t: float, prev_t: float, lineno: int = 0, path: str = "") -> str:
     """The message for a time column ``name`` (t in s; a raw table's t_ms, t_us, t_ns) that steps
     back from ``prev_t`` to ``t``, in its unit: an Arduino's 32-bit micros() wraps every
@@ -58,7 +65,7 @@ def _backwards(name: str, t: float, prev_t: float, lineno: int = 0, path: str = 
     two recordings, so the advice is to split the file at that line (the command that does it
     when the line is known); a small one is rows out of order."""
     unit, s_per_unit = TIME_UNITS.get(name, ("s", 1.0))
-    split = (f"split the file there (head -n {lineno - 1} {shlex.quote(path)} > part1.csv, and the rest from line "
+    split = (f"split the file there (head -n {lineno - 1} {_quoted(path)} > part1.csv, and the rest from line "
              f"{lineno}, below the header lines if the file has them: each part is a recording)"
              if lineno > 1 and path else "split the file there")
     if name == "t_us" and prev_t - t > 2 ** 31:
@@ -99,7 +106,7 @@ def _is_number(p: str) -> bool:
 def _header_message(line: str, path: str, lineno: int, start: int) -> str:
     """``start``: the first of the comment lines right above the header (a recording's own
     header lines, which the second part needs: a cold review), else ``lineno``."""
-    q = shlex.quote(path) if path else "FILE"
+    q = _quoted(path) if path else "FILE"
     return (f"a column header again ({snippet(line)}): a logger that restarted and appended? "
             f"If the time carries on below it, delete this line (sed -i '{lineno}d' {q}); if it "
             f"starts again, split the file there (head -n {start - 1} {q} > part1.csv; "
@@ -314,7 +321,7 @@ def _nul_tail(fh: BinaryIO, spec: TableSpec, head: bytes, lineno: int, offset: i
             # there threw it away; taking the NULs out keeps it, and names a line they broke
             spec.fail(lineno, f"{at - offset - nul} NUL byte(s) from byte offset {offset + nul}, then other "
                               f"data at offset {at}: the file is damaged; take the NUL bytes out "
-                              f"(tr -d '\\000' < {shlex.quote(spec.path)} > fixed.csv; a line they broke is "
+                              f"(tr -d '\\000' < {_quoted(spec.path)} > fixed.csv; a line they broke is "
                               f"then named, unless it still reads as numbers: check the line) or cut "
                               f"the file at offset {offset + nul}")
         tail = fh.read(chunk_bytes)

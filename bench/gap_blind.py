@@ -101,6 +101,13 @@ def _named(r, verdict):
             np.asarray(j["stderr"], float)), None
 
 
+def _bases(r, verdict):
+    """Each named member's visible basis (q, k) where the search fitted only the combinations
+    of its coefficients the data see (gap/search.py VisiblePart), else None."""
+    b = (r.get("joint") or {}).get("visible_bases") if "+" in verdict else None
+    return [None if v is None else np.asarray(v, float) for v in b] if b else None
+
+
 def _variants(cands, named, q_total):
     """The candidate objects of ``named`` [(name, q or None)]; None when the parameter count
     leaves the variants ambiguous (a pair reports only its total)."""
@@ -110,9 +117,10 @@ def _variants(cands, named, q_total):
     return combos[0] if len(combos) == 1 else None
 
 
-def project_accel(cs, lab, rec_t):
+def project_accel(cs, lab, rec_t, bases=None):
     """Coefficients of candidates ``cs`` (with the triangular9 baseline, MAP) fitted to the
-    noise-free accelerometer pose means (see above)."""
+    noise-free accelerometer pose means (see above); with ``bases`` (a (q, k) matrix or None
+    per candidate) each fitted in the combinations V xi the diagnosis fitted, and mapped back."""
     from scipy.optimize import least_squares
     from imucald.fitting.fit import accel_prior
     from imucald.fitting.models.accel import Triangular9
@@ -123,16 +131,18 @@ def project_accel(cs, lab, rec_t):
     model = Triangular9()
     pm, ps = accel_prior(model, None)      # the board is not a known chip: the generic prior
     sw = np.sqrt(n) / lab["noise_sd"]["acc"]
-    qs = [c.q for c in cs]
+    Vs = [np.eye(c.q) if V is None else V for c, V in zip(cs, bases or [None] * len(cs))]
+    qs = [V.shape[1] for V in Vs]
 
     def fun(z):
         th, xx, o = z[:9], x.copy(), 9
-        for c, q in zip(cs, qs):
-            xx = xx - c.delta(z[o:o + q], x, th, ctx)
+        for c, V, q in zip(cs, Vs, qs):
+            xx = xx - c.delta(V @ z[o:o + q], x, th, ctx)
             o += q
         return np.concatenate([(1.0 - model.norms(th, xx)) * sw, (th - pm) / ps])
     z0 = np.concatenate([lm(Problem(model, x)).theta] + [np.zeros(q) for q in qs])
-    return least_squares(fun, z0, method="lm", xtol=1e-14, ftol=1e-14).x[9:]
+    xi = least_squares(fun, z0, method="lm", xtol=1e-14, ftol=1e-14).x[9:]
+    return np.concatenate([V @ xi[o:o + q] for V, q, o in zip(Vs, qs, np.cumsum([0] + qs[:-1]))])
 
 
 def project_mag(cs, lab, rec_t, n_rot, centre_c=None):
@@ -225,7 +235,9 @@ def truth_check(res, lab, rec_t):
         cs = _variants(ACCEL_CANDIDATES if sensor == "accel" else MAG_CANDIDATES, names, len(coef))
         if cs is None:
             return {"skip": "variant ambiguous"}
-        proj = (project_accel(cs, lab, rec_t) if sensor == "accel" else
+        if sensor == "mag" and _bases(r, v):
+            return {"skip": "magnetometer pair fitted in visible parts (no projection written)"}
+        proj = (project_accel(cs, lab, rec_t, _bases(r, v)) if sensor == "accel" else
                 project_mag(cs, lab, rec_t, int(r.get("points", {}).get("rotation_points", 0)), _centre(r)))
     else:
         # one variant per gyro class; g-sensitivity is reported as the 9 elements of its

@@ -324,6 +324,9 @@ def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str
         rm = sr.get("report_model", m)       # the members in their full forms (search.VisiblePart)
         out["joint"] = {"effects": list(chosen), "ratio_after": float(ratio_after), "closed": closed,
                         "params": rm.z[b.p0:].tolist(), "stderr": rm.sd[b.p0:].tolist()}
+        bases = [e.get("visible_basis") for e in sr["members"] if "random_walk" not in e]
+        if any(v is not None for v in bases):   # each fixed member's tested combinations (or None: all)
+            out["joint"]["visible_bases"] = bases
     out.update(verdict(True, chosen, b.ratio, float(ratio_after), closed))
     out["ratio_after"] = float(ratio_after)
     conf = confusable(chosen, signatures)

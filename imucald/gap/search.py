@@ -13,8 +13,11 @@ Each member m of M is tested twice, and must pass both (attribution discipline):
 
 * **coefficient**: a fixed member's coefficients by a Wald test (covariance scaled by the
   remaining excess, or the generalised least-squares covariance under the walk), the walk
-  by its likelihood ratio on the boundary; at the Bonferroni level of the candidate tests
-  (GAP_ATTRIBUTION_LEVEL / count);
+  by its likelihood ratio on the boundary; at the search's Bonferroni level (family_level:
+  GAP_ATTRIBUTION_LEVEL / the variants it can take as members, the walk standing for the
+  piecewise wandering forms); each member fitted and tested in the combinations of its
+  coefficients the data see (VisiblePart), its F reference's denominator the residual
+  degrees of freedom of that fit (N minus the coefficients fitted);
 * **held-out shrink**: the fall in the held-out ratio (noise-normalised held-out RMS over
   the model's own twin's median, the verdict's ratio; floored at 1, since a model cannot
   explain more than all: a near-saturated fit's twin is inflated by its leverages and its
@@ -77,7 +80,7 @@ def single_floor(q_form: int) -> int:
     ``q_form`` coefficients must leave when it enters alone (SINGLE_MIN_DOF for simple forms,
     MIN_DOF for richer ones, however many of theirs a pose set sees)."""
     return SINGLE_MIN_DOF if q_form <= SIMPLE_FORM_Q else MIN_DOF
-#: residual degrees of freedom (N minus all its coefficients) a pair entering together may leave
+#: residual degrees of freedom (N minus all its forms' coefficients) a pair entering together may leave
 #: below MIN_DOF, its members' Wald tests then referred to F(rank, dof) as every model's below
 #: MIN_DOF are (Search._fit, _pair_entries): a 3-term nonlinearity and a 3-term thermal bias
 #: beside the 9 baseline parameters leave 7-9 on 22-24 poses (a 6-term nonlinearity with them 4-6)
@@ -91,7 +94,7 @@ WALK = "wandering_bias"        #: the class the random walk belongs to
 _NESTED = {frozenset({"bias_drift", "wandering_bias"})}   # the drift's line lies in the wandering span
 
 
-@dataclass
+@dataclass(eq=False)
 class VisiblePart(Candidate):
     """A candidate restricted to the directions of its coefficients that its score test sees
     from the baseline fit (signif.visible_basis): eta = V xi.  A direction the baseline
@@ -544,14 +547,18 @@ def _path(s, cur, variants, walk_ok, bonf):
     return cur, steps
 
 
-def _report_model(s, m):
-    """``m`` with its fixed members in their full forms, for the report (VisiblePart): refitted
-    in full from the visible fit mapped back (the standard errors then hold the directions
-    the data barely see, as a single candidate's report does); under the walk, the visible
-    fit mapped back (eta = V xi, its covariance V C V')."""
+def _report_model(m):
+    """``m`` with its fixed members in their full forms, for the report (VisiblePart): the
+    tested fit mapped back, eta = V xi with covariance V C V'.  The coefficients are one
+    point of a family: any combination of the directions the data do not see fits the poses
+    as well, so those are held at 0 and carry no standard error; ``visible_basis`` in the
+    report (V) says which combinations the figures are about.  (A full-form refit in their
+    place interpolated the poses: on 22-25 poses the general nonlinearity beside a thermal
+    bias left 0.8-2.5 residual degrees of freedom, its coefficients 5x the tested fit's and
+    their standard errors 20-140x: a cold review's find.)"""
     if not any(isinstance(c, VisiblePart) for c in m.cands):
         return m
-    p0 = s.b.p0
+    p0 = len(m.z) - sum(c.q for c in m.cands)
     Vs = [c.V if isinstance(c, VisiblePart) else np.eye(c.q) for c in m.cands]
     T = np.zeros((len(m.z), p0 + sum(V.shape[0] for V in Vs)))
     T[:p0, :p0] = np.eye(p0)
@@ -559,34 +566,34 @@ def _report_model(s, m):
     for V in Vs:
         T[o:o + V.shape[1], oo:oo + V.shape[0]] = V.T
         o, oo = o + V.shape[1], oo + V.shape[0]
-    cands = tuple(form_full(c) for c in m.cands)
-    z = m.z @ T
-    if m.walk:
-        cov = T.T @ m.cov @ T
-    else:
-        f = s.refit_with(s.b, list(cands), s.ctx, s.sims, s.model_rng(), z)
-        z, cov = f.z, f.cov
-    return replace(m, cands=cands, z=z, cov=cov, sd=np.sqrt(np.clip(np.diag(cov), 0, None)))
+    cov = T.T @ m.cov @ T
+    return replace(m, cands=tuple(m.cands), z=m.z @ T, cov=cov, sd=np.sqrt(np.clip(np.diag(cov), 0, None)))
 
 
 def form_full(c):
+    """A candidate's full form (the candidate itself unless it is a VisiblePart)."""
     return c.full if isinstance(c, VisiblePart) else c
 
 
 def _members(s, b, cur, rep=None) -> List[dict]:
     """Each named member's coefficients, standard errors (of ``rep``, the model in its members'
-    full forms, _report_model) and both tests' p-values (of ``cur``)."""
+    full forms, _report_model; a member fitted in its visible part also gives that part's
+    basis, ``visible_basis`` (q, k), and k) and both tests' p-values (of ``cur``)."""
     members = []
     if not cur.classes:
         return members
     t = s.tests(cur)
     rep = cur if rep is None else rep
     o = b.p0
-    for c in rep.cands:
+    for cv in rep.cands:
+        c = form_full(cv)
         key = c.name + (f"_{c.units}" if c.units else "")
         ent = {"name": c.name, "coefficients": c.q, "coefficient_p_value": t[c.name][0],
                "heldout_p_value": t[c.name][1],
                "params": {key: rep.z[o:o + c.q].tolist()}, "stderr": {key: rep.sd[o:o + c.q].tolist()}}
+        if isinstance(cv, VisiblePart):     # fitted and tested in these combinations only
+            ent["visible_coefficients"] = cv.q
+            ent["visible_basis"] = cv.V.tolist()
         if c.parts:
             ent["params"], ent["stderr"] = {}, {}
             oo = o
@@ -631,11 +638,11 @@ def _pair_entries(s, base, variants, bonf) -> list:
                 continue
             for v1 in variants[c1]:
                 for v2 in variants[c2]:
-                    # one count of the room left: the residual degrees of freedom that scale
-                    # the Wald covariance (N minus every coefficient, as in Search._fit), which
-                    # are also the F reference's denominator below MIN_DOF
-                    # counted in the forms' coefficients, as the floor was measured (a visible
-                    # part's fit is smaller: VisiblePart), so the floor's protection is kept
+                    # the room left, counted in the forms' coefficients, as the floor was
+                    # measured (round 7): a guard on the entry only.  The fit itself is of the
+                    # visible parts (VisiblePart), and its Wald covariance's scale and F
+                    # reference use that fit's own residual degrees of freedom (Search._fit),
+                    # so after the entry a variant change may leave fewer (dof_ok's refine)
                     if s.b.n - s.b.p0 - form_q(v1) - form_q(v2) < PAIR_ENTRY_MIN_DOF:
                         continue
                     m = s.fit((v1, v2), False)
@@ -753,6 +760,6 @@ def stepwise(b, tested: List[dict], ctx, sims, rng, walk_ok: bool, refit_with,
             cur = cw
     if b.significant:
         cur, steps = _choose_end(s, base, variants, bonf, cur, steps, cw if walk_ok else None)
-    rep = _report_model(s, cur)
+    rep = _report_model(cur)
     return {"model": cur, "report_model": rep, "members": _members(s, b, cur, rep), "steps": steps,
             "models_fitted": len(s.cache), "coefficient_level": s.level}

@@ -27,6 +27,8 @@ GAP_EFFECT_LEVEL = 0.01
 GAP_TEST_LEVEL = GAP_EFFECT_LEVEL
 #: - naming an effect: family-wise, split (Bonferroni) over the candidates tested; each
 #:   candidate's score, nested and Wald tests must pass at GAP_ATTRIBUTION_LEVEL / count
+#:   (a single candidate's report: every candidate scored; the combination search: the
+#:   variants it can take as members, gap/search.py family_level)
 GAP_ATTRIBUTION_LEVEL = GAP_EFFECT_LEVEL
 #: - with the first effect modelled, a second is sought only while the chi-square test of
 #:   that model still rejects at this level

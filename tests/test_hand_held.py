@@ -56,7 +56,8 @@ def _check_against_truth(d, truth9):
     flagged one within 3 of its prior's standard deviations of the prior mean (0 for the
     non-orthogonality angles) and within 3 posterior std of the truth.
 
-    The standard errors are bounded too (issue 20): a determined parameter's is at most
+    The standard errors are bounded too (issue 20): a determined parameter's own part (the
+    stated one less the terms left out, ``left_out_std``) is at most
     1.2x its data-only Cramer-Rao bound (the prior can only narrow it; 1.2: the bound is
     evaluated at the estimate, the error at the MAP re-polish) and a tenth of its prior's
     (the poses, not the datasheet, determine it); and the fit beats the nominal values:
@@ -76,8 +77,12 @@ def _check_against_truth(d, truth9):
             centre = 1.0 if n.startswith("scale") else 0.0
             assert abs(theta[i] - centre) < 3 * prior_sd, (n, theta[i], prior_sd)
         else:
-            crlb = d["crlb_std"][n]
-            assert se[i] <= 1.2 * crlb and se[i] <= prior_sd / 10, (n, se[i], crlb, prior_sd)
+            # the bound is on the fit's own part: the sessions warm up by 6 degC (the
+            # simulator's default), and the bias's temperature slope the constant leaves out
+            # is part of the stated std (left_out_std; docs/methods/models.md)
+            crlb, left = d["crlb_std"][n], d["determination"][n].get("left_out_std") or 0.0
+            own = np.sqrt(max(se[i] ** 2 - left ** 2, 0.0))
+            assert own <= 1.2 * crlb and se[i] <= prior_sd / 10, (n, se[i], left, crlb, prior_sd)
             err_fit.append((theta[i] - truth9[i]) / prior_sd)
             err_nom.append((nominal[i] - truth9[i]) / prior_sd)
     rms = lambda e: float(np.sqrt(np.mean(np.square(e))))
@@ -105,22 +110,22 @@ def _hand_session_fails(tmp_path, capsys, seed):
 
 #: the rule below: of the hand-held sessions with these seeds, at least HAND_MIN_PASS pass
 HAND_SEEDS = range(1, 25)
-HAND_MIN_PASS = 13
+HAND_MIN_PASS = 21
 
 
 def test_calibrate_finds_every_hand_held_pose_with_tremor(tmp_path, capsys):
     """A stated-rate rule, not one fixed seed (whose pass was the draw's: the one trajectory
     generator of issue 24 turned seed 2 from pass to fail).  Per session the checks of
-    _hand_session_fails pass at a measured rate of 141/200 (70.5 %, 95 % interval 64-77 %;
-    seeds 1-200, this generator).  The failures are the sessions', not a fault: in 51/200 the
-    hands' 1-degree jitter gives alpha_yz a posterior std under half its prior's, so
-    calibrate (fitting/judging/uncertainty.py UNDETERMINED_RATIO) calls it determined, while
-    its standard error stays above the tenth of the prior this file requires of a determined
-    parameter; 5/200 miss the 3-SE check on one parameter (9 parameters at 3 SE: ~2.4 %
-    expected); 3/200 find 8 or 9 of the 10 poses.
-    Rule: at least 13 of the 24 sessions (seeds 1-24) pass.  Binomial: P(the rule passes |
-    sessions pass at 70.5 %) = 0.972 (0.887 at the interval's lower end), P(passes | the rate
-    halves to 35 %) = 0.045.  With the seeds fixed the outcome is fixed (19/24 pass now); the
+    _hand_session_fails pass at a measured rate of 197/200 (98.5 %, 95 % interval 95.7-99.7 %;
+    seeds 1-200, this generator): 2/200 find 8 or 9 of the 10 poses, 1/200 misses the 3-SE
+    check on one parameter.  Before the bias's temperature slope joined the stated std
+    (fit._fixed_terms_cov; the simulator's sessions warm up by 6 degC) the rate was 141/200
+    (70.5 %): in 51/200 the hands' 1-degree jitter gave alpha_yz a posterior std under half its
+    prior's, so calibrate called it determined while its standard error stayed above the
+    tenth of the prior this file requires of a determined parameter.
+    Rule: at least 21 of the 24 sessions (seeds 1-24) pass.  Binomial: P(the rule passes |
+    sessions pass at 98.5 %) = 0.9996 (0.982 at the interval's lower end), P(passes | the old
+    70.5 %) = 0.047.  With the seeds fixed the outcome is fixed (24/24 pass now); the
     figures are the odds that a change of the simulator (new draws) leaves it passing.
     Seen to fail, 0 of 24 passing: the fit returning its starting point (fitting/fit.py _solve
     with theta = the prior mean: every session fails the 3-SE check)."""

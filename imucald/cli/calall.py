@@ -124,7 +124,7 @@ def _accel(args, rec, poses, pieces, progress):
     if allan_still_needed((poses.noise or {}).get("accel")):    # not counted twice (fitting/noise/posecov.py)
         infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
     cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed, chip=chip,
-                   noise_inflation=infl, **kw)
+                   noise_inflation=infl, temp_c=poses.temp, **kw)
     tf = None
     if args.method != "ga-paper":
         tf = fit_thermal("accel", pieces, cal, chip, pieces_colour_inflation(rec, poses, pieces),

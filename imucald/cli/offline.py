@@ -382,7 +382,7 @@ def _fit_accel(args, rec, poses, pieces, det, model, progress):
             infl, _ = pose_colour_inflation(rec.t, rec.acc, rec.rate_hz, poses.t0, poses.t1, poses.n)
         infl_pieces = pieces_colour_inflation(rec, poses, pieces)
     cal = fit_norm(poses.acc, model, args.method, pose_cov=poses.acc_cov, rng=args.seed,
-                   chip=chip, noise_inflation=infl, **kw)
+                   chip=chip, noise_inflation=infl, temp_c=poses.temp, **kw)
     return cal, chip, infl_pieces
 
 

@@ -78,6 +78,9 @@ class FitResult:
                 fin = lambda a, i: None if a is None or not np.isfinite(a[i]) else float(a[i])
                 d["determination"] = {n: {"std": fin(u.posterior_std, i), "prior_std": fin(u.prior_std, i),
                                           "data_only_std": fin(u.std, i)} for i, n in enumerate(names)}
+                if u.left_out_std is not None:      # the share of "std" from terms left out
+                    for i, n in enumerate(names):
+                        d["determination"][n]["left_out_std"] = fin(u.left_out_std, i)
                 d["flags"] = list(u.flags)
         for key in ("noise_model", "heldout_normalised_rms", "model_selection"):
             if key in self.info:
@@ -234,6 +237,7 @@ class FitSetup:
     noise_var: float
     chip: Optional[str]
     selection: Optional[Dict[str, object]]
+    temp_c: Optional[np.ndarray] = None  #: each pose's temperature (degC) when they differ, else None
 
     def problem(self, noise_var: float) -> Problem:
         return Problem(self.model, self.raw, self.target, lo=self.lo, hi=self.hi,
@@ -309,8 +313,8 @@ def _choose_model(model, raw, pose_cov, target, chip, noise_inflation, min_poses
     return model, selection, min_poses
 
 
-def _setup(raw, model, pose_cov, target, bounds, chip, noise_inflation, prior, min_poses
-           ) -> FitSetup:
+def _setup(raw, model, pose_cov, target, bounds, chip, noise_inflation, prior, min_poses,
+           temp_c=None) -> FitSetup:
     """Model, search box, datasheet prior and the noise level the prior is weighed against."""
     N = len(raw)
     model, selection, min_poses = _choose_model(model, raw, pose_cov, target, chip,
@@ -340,8 +344,11 @@ def _setup(raw, model, pose_cov, target, bounds, chip, noise_inflation, prior, m
     else:   # the prior's weight needs a noise level: from a prior-less fit's residuals
         r0 = lm(Problem(model, raw, target, lo=lo, hi=hi)).data_fitness if use_prior else 0.0
         nv = max(r0 / max(N - kf, 1), 1e-30)
+    T = None if temp_c is None else np.asarray(temp_c, float)
+    if T is not None and (T.shape != (N,) or not np.all(np.isfinite(T)) or np.ptp(T) == 0):
+        T = None
     return FitSetup(model, raw, target, lo, hi, pc, use_prior, pmean, pstd, pstd_full, nv,
-                    chip, selection)
+                    chip, selection, T)
 
 
 def _solve(st: FitSetup, method: str, rng, method_kw) -> NoiseFit:
@@ -395,8 +402,11 @@ def _determination(st: FitSetup, nf: NoiseFit) -> Determination:
     idx = np.flatnonzero(free)
     cov = np.zeros((model.k, model.k))
     cov[np.ix_(idx, idx)] = map_covariance(nf.jacobian, nf.var, nf.noise_var, nf.prior_precision)
-    if st.use_prior and not free.all() and nf.res.method != "ga-paper":
-        cov[np.ix_(idx, idx)] += _fixed_terms_cov(st, nf)
+    if st.use_prior and (not free.all() or st.temp_c is not None) and nf.res.method != "ga-paper":
+        left = np.zeros((model.k, model.k))
+        left[np.ix_(idx, idx)] = _fixed_terms_cov(st, nf)
+        cov += left
+        unc.left_out_std = np.sqrt(np.clip(np.diag(left), 0, None))
     stderr_flat = np.sqrt(np.clip(np.diag(cov), 0, None))
     stderr_flat[~np.isfinite(unc.std) & ~np.isfinite(st.prior_std_full)] = np.inf
     if st.use_prior:       # ga-paper too: its data-only std is compared with the tolerance
@@ -408,28 +418,56 @@ def _determination(st: FitSetup, nf: NoiseFit) -> Determination:
 
 
 def _fixed_terms_cov(st: FitSetup, nf: NoiseFit) -> np.ndarray:
-    """What the terms the model holds fixed (diag6's non-orthogonality) add to the free ones'
-    covariance (judging/uncertainty.py omitted_covariance): those terms are where the poses
-    and the datasheet prior (std = the tolerance, as the fit's) put them, as the full model
-    (every term free, one Gauss-Newton step from this fit) sees them: their second moment
-    about the 0 they are held at, a a' + C (a the step's values, C their MAP covariance).  A
-    black-box helper's 9-pose sessions, for which --model auto chose diag6 (its held-out error
-    lowest where the pose set hides what alpha does), stated bias standard errors of 0.1-1.5 mg
-    against errors of up to 23 mg from a +-1 % cross-axis (|z| up to 53); there the poses say
-    little and C is near the prior.  Where they pin the terms (25 poses on a part without
-    cross-axis, which auto also fits with diag6) the term is small: the prior alone in its
-    place stated 4.3 mg for errors of 0.02 (a cold review's find, in effect)."""
+    """What the terms the model leaves out add to the free ones' covariance
+    (judging/uncertainty.py omitted_covariance): diag6's non-orthogonality, held at 0, and,
+    when the poses' temperatures differ, the bias's temperature slope (the constant model's
+    bias is b(T) = b + k (T - t_ref) with k held at 0; t_ref the poses' weighted mean
+    temperature, where the thermal block's order-0 constant stands: thermal/terms.py
+    _constant_ref).  Those terms are where the poses and the datasheet prior (std = the
+    tolerance, as the fit's; the slope's std the datasheet's zero-g change per degC,
+    :func:`bias_tempco_prior`) put them, as the full model (every term free, one Gauss-Newton
+    step from this fit) sees them: their second moment about the 0 they are held at, a a' + C
+    (a the step's values, C their MAP covariance).  A black-box helper's 9-pose sessions, for
+    which --model auto chose diag6 (its held-out error lowest where the pose set hides what
+    alpha does), stated bias standard errors of 0.1-1.5 mg against errors of up to 23 mg from
+    a +-1 % cross-axis (|z| up to 53); there the poses say little and C is near the prior.
+    Where they pin the terms (25 poses on a part without cross-axis, which auto also fits with
+    diag6) the term is small: the prior alone in its place stated 4.3 mg for errors of 0.02 (a
+    cold review's find, in effect).  Its 8-degC warm-ups on 9-11 poses, below the thermal
+    terms' 10-degC span (a constant only), kept parameters 9-25 sd from the truth: the slope
+    moved each pose's bias by up to 4 mg, which the 9 parameters absorbed with 1-2 residual
+    degrees of freedom left to show it."""
     model, free = st.model, st.model.free_mask
     pm, sd = accel_prior(model, st.chip)
     J = model.jacobian(nf.theta, st.raw, st.target)[1]
     lam = 1.0 / sd ** 2
     lam[free] = nf.prior_precision
+    theta, fixed = nf.theta, ~free
+    if st.temp_c is not None:           # the slope's columns: d r / d b_j times (T - t_ref)
+        w = 1.0 / np.asarray(nf.var, float)
+        dT = st.temp_c - np.sum(w * st.temp_c) / np.sum(w)
+        bias = model.groups.get("bias_g", model.groups.get("offset_g"))
+        J = np.hstack([J, J[:, bias] * dT[:, None]])
+        lam = np.concatenate([lam, 1.0 / bias_tempco_prior(st.chip) ** 2])
+        pm, theta = np.concatenate([pm, np.zeros(3)]), np.concatenate([theta, np.zeros(3)])
+        fixed = np.concatenate([fixed, np.ones(3, bool)])
     H = J.T @ J / nf.noise_var + np.diag(lam)
-    g = J.T @ nf.residuals / nf.noise_var + lam * (nf.theta - pm)
-    a = -(np.linalg.pinv(H, rcond=1e-12, hermitian=True) @ g)[~free]
-    C = map_covariance(J, nf.var, nf.noise_var, lam)[np.ix_(~free, ~free)]
-    return omitted_covariance(J[:, free], J[:, ~free], nf.noise_var, nf.prior_precision,
+    g = J.T @ nf.residuals / nf.noise_var + lam * (theta - pm)
+    a = -(np.linalg.pinv(H, rcond=1e-12, hermitian=True) @ g)[fixed]
+    C = map_covariance(J, nf.var, nf.noise_var, lam)[np.ix_(fixed, fixed)]
+    return omitted_covariance(J[:, ~fixed], J[:, fixed], nf.noise_var, nf.prior_precision,
                               np.outer(a, a) + C)
+
+
+def bias_tempco_prior(chip: Optional[str]) -> np.ndarray:
+    """The std (g/degC, per axis) of an accelerometer bias's temperature slope: the datasheet's
+    zero-g change per degC (specs.AccelSpec.bias_tempco_g_per_c); unknown chips the largest
+    of the known ones on each axis (the MPU-9250's 1.5 mg/degC)."""
+    from ..specs import ACCEL
+    spec = ACCEL.get(chip or "")
+    if spec is not None:
+        return np.asarray(spec.bias_tempco_g_per_c, float)
+    return np.max([s.bias_tempco_g_per_c for s in ACCEL.values()], axis=0).astype(float)
 
 
 def _heldout(st: FitSetup, nf: NoiseFit, heldout: bool) -> Heldout:
@@ -500,7 +538,8 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
              pose_cov: Optional[np.ndarray] = None, target: float = 1.0, rng=None,
              bounds: Optional[Tuple[np.ndarray, np.ndarray]] = None, heldout: bool = True,
              chip: Optional[str] = None, noise_inflation=None, prior: bool = True,
-             _min_poses: Optional[int] = None, **method_kw) -> FitResult:
+             _min_poses: Optional[int] = None, temp_c: Optional[np.ndarray] = None,
+             **method_kw) -> FitResult:
     """Fit a norm model (accelerometer or magnetometer) to pose means raw (N, 3) and report it.
 
     pose_cov: covariance of each pose mean (N, 3, 3) from within-pose scatter; each
@@ -514,13 +553,16 @@ def fit_norm(raw: np.ndarray, model="triangular9", method: str = "ga",
     is the paper's protocol as written; magnetometer models have none).
     model: a name, a model, or 'auto' (:func:`select_model`, reported in
     ``info['model_selection']``).
+    temp_c: each pose's temperature (degC, (N,)); where they differ, the bias's temperature
+    slope, which this constant model leaves out, is part of the stated covariance
+    (:func:`_fixed_terms_cov`; accelerometer with the prior).
 
     The steps: setup (model, box, prior) -> solve (with the noise model) ->
     determination (covariance, flags) -> held-out -> report.
     """
     t_start = time.perf_counter()
     raw = np.asarray(raw, float)
-    st = _setup(raw, model, pose_cov, target, bounds, chip, noise_inflation, prior, _min_poses)
+    st = _setup(raw, model, pose_cov, target, bounds, chip, noise_inflation, prior, _min_poses, temp_c)
     nf = _solve(st, method, rng, method_kw)
     det = _determination(st, nf)
     ho = _heldout(st, nf, heldout)

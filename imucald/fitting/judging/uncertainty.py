@@ -41,6 +41,10 @@ class Uncertainty:
     prior_std: Optional[np.ndarray] = None
     #: (k,) std of the estimate with the prior and the per-pose noise (what to believe)
     posterior_std: Optional[np.ndarray] = None
+    #: (k,) the part of posterior_std from the terms the model leaves out (diag6's
+    #: non-orthogonality, the bias's temperature slope: fit._fixed_terms_cov), as a std
+    #: (posterior_std^2 = the fit's own variance + left_out_std^2); None when none is left out
+    left_out_std: Optional[np.ndarray] = None
     #: parameters the data did not determine or that ended on a search bound: one dict
     #: each (name, reason, ratio posterior/prior std, the orientation that would help)
     flags: List[Dict[str, object]] = field(default_factory=list)

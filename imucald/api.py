@@ -26,7 +26,7 @@ def fit(poses: PoseSet, model: str = "triangular9", method: str = "ga", seed: Op
     meta = poses.meta if board is None or board == poses.meta.get("board") else {"board": board}
     board = board or poses.meta.get("board", "unknown")
     chip = BOARDS.get(board, (None,))[0]
-    f = fit_norm(poses.acc, model, method, pose_cov=poses.acc_cov, rng=seed, chip=chip)
+    f = fit_norm(poses.acc, model, method, pose_cov=poses.acc_cov, rng=seed, chip=chip, temp_c=poses.temp)
     parts = {"accel": SensorCal.from_fit(f, {"fitness": float(f.fitness)})}
     if poses.gyro is not None:
         parts["gyro"] = SensorCal.from_fit(fit_gyro_bias(poses.gyro, poses.n, poses.gyro_cov))

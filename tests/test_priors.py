@@ -192,15 +192,17 @@ def test_where_the_poses_pin_the_left_out_terms_their_share_is_small():
 
 
 def test_a_warm_up_below_the_thermal_span_states_what_the_slope_does():
-    """10 poses, 20 s apart, through an 8-degC warm-up (below calibration.thermal_min_span_c,
-    10 degC: a constant only), an MPU-6050 whose bias slope is drawn from the datasheet's
+    """10 poses, 20 s apart, through a warm-up of 7.6 degC (towards 8; below
+    calibration.thermal_min_span_c, 10 degC: a constant only), an MPU-6050 whose bias slope is drawn from the datasheet's
     zero-g change per degC itself.  The 9 parameters absorb what the slope does to each pose
     (up to 4 mg) with 1 residual degree of freedom left to show it; the slope the constant
     leaves out is propagated into the stated covariance (fit._fixed_terms_cov, the poses'
     temperatures given).  Over 40 seeds, alpha, scale and bias: none beyond 3 stated sd (a
     Gaussian's 0.3 %; up to 1 % allowed), median |z| 0.4-1.0 (a Gaussian's 0.67).  Measured:
-    0 of 360, median 0.55.  Broken once each: without the temperatures, 19 % beyond 3 sd
-    (|z| up to 36; fails); the slope's prior at a third of the datasheet's, 5 % beyond (fails).
+    0 of 360, median 0.60.  Broken once each: without the temperatures, 19 % beyond 3 sd
+    (|z| up to 36; fails); the slope's prior at a third of the datasheet's, 8 % beyond (fails).
+    (On a part whose slope is near 0 the same sd is far wider than the error: a cold review
+    measured median |z| 0.11 there; docs/methods/models.md.)
     A black-box helper's 8-degC warm-ups on 9-11 poses kept parameters 9-25 sd off."""
     z = []
     for seed in range(40):
@@ -216,3 +218,22 @@ def test_a_warm_up_below_the_thermal_span_states_what_the_slope_does():
             z += list((np.array(cal.params[g]) - truth[sl]) / np.array(cal.stderr[g], float))
     assert np.mean(np.abs(z) > 3) <= 0.01, (np.mean(np.abs(z) > 3), np.max(np.abs(z)))
     assert 0.4 < np.median(np.abs(z)) < 1.0, np.median(np.abs(z))
+
+
+def test_the_flags_say_what_the_poses_did_not_pin_not_the_slope():
+    """The hand-placed 10-pose set of this file's first tests through a warm-up of 7.6 degC:
+    the slope's share widens the stated sd, but the undetermined flags are what the poses did
+    not pin, the same as without the temperatures (another pose would not narrow the slope's
+    share: the thermal fit needs 18).  Seen to fail with the flags judged on the widened
+    covariance (alpha_yz flagged where the poses pinned it)."""
+    t = np.arange(10) * 20.0
+    temp = 25.0 + 8.0 * (1 - np.exp(-t / 60.0))
+    flags = lambda c: sorted(f["name"] for f in c.uncertainty.flags)
+    widened = 0
+    for seed in range(20):
+        truth, raw, cov = _hand10(seed)
+        a = fit_norm(raw, "triangular9", "lm", pose_cov=cov, chip="mpu6050", temp_c=temp)
+        b = fit_norm(raw, "triangular9", "lm", pose_cov=cov, chip="mpu6050")
+        assert flags(a) == flags(b), (seed, flags(a), flags(b))
+        widened += a.stderr["alpha"][0] > 1.2 * b.stderr["alpha"][0]
+    assert widened >= 10, widened          # the slope's share is there (alpha_yz)

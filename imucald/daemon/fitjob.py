@@ -189,7 +189,8 @@ def _accel_gyro(job, cur: Calibration, parts: Dict[str, SensorCal], accept: Dict
                                  against="raw" if cur.accel is None else "current", rng=job.get("seed"),
                                  chip=cur.chips.get("accel"),      # the datasheet prior of this chip
                                  fitted=fitted if cur.accel is not None else None, nested=nested,
-                                 incumbent=None if cur.accel is None else (cur.accel.model, cur.accel.theta))
+                                 incumbent=None if cur.accel is None else (cur.accel.model, cur.accel.theta),
+                                 temp_c=None if ta else temp)    # the slope a constant leaves out
         # predicted cross-validated residual: each pose's noise plus the uncertainty of the
         # refit without it (fitting.fit.heldout_residuals)
         pred = rms(cal.info["heldout_predicted_std"])

@@ -7,7 +7,7 @@ condition of the problem, in-sample and held-out residuals.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Dict, Optional, Tuple
 
 import numpy as np
@@ -345,8 +345,8 @@ def _setup(raw, model, pose_cov, target, bounds, chip, noise_inflation, prior, m
         r0 = lm(Problem(model, raw, target, lo=lo, hi=hi)).data_fitness if use_prior else 0.0
         nv = max(r0 / max(N - kf, 1), 1e-30)
     T = None if temp_c is None else np.asarray(temp_c, float)
-    if T is not None and (T.shape != (N,) or not np.all(np.isfinite(T)) or np.ptp(T) == 0):
-        T = None
+    if T is not None and (T.shape != (N,) or np.sum(np.isfinite(T)) < 2 or np.ptp(T[np.isfinite(T)]) == 0):
+        T = None            # (a pose without a temperature: no slope share of its own, _fixed_terms_cov)
     return FitSetup(model, raw, target, lo, hi, pc, use_prior, pmean, pstd, pstd_full, nv,
                     chip, selection, T)
 
@@ -402,17 +402,25 @@ def _determination(st: FitSetup, nf: NoiseFit) -> Determination:
     idx = np.flatnonzero(free)
     cov = np.zeros((model.k, model.k))
     cov[np.ix_(idx, idx)] = map_covariance(nf.jacobian, nf.var, nf.noise_var, nf.prior_precision)
+    cov_poses = cov       # what the flags judge: how far the poses determined each parameter
     if st.use_prior and (not free.all() or st.temp_c is not None) and nf.res.method != "ga-paper":
         left = np.zeros((model.k, model.k))
         left[np.ix_(idx, idx)] = _fixed_terms_cov(st, nf)
-        cov += left
         unc.left_out_std = np.sqrt(np.clip(np.diag(left), 0, None))
+        cov_poses = cov + left
+        if st.temp_c is not None:
+            # the slope's share is not the poses' to remove (another pose does not narrow it
+            # below the thermal fit's 18): the flags see the terms the poses can pin (diag6's)
+            cov_poses = cov.copy()
+            if not free.all():
+                cov_poses[np.ix_(idx, idx)] += _fixed_terms_cov(replace(st, temp_c=None), nf)
+        cov = cov + left
     stderr_flat = np.sqrt(np.clip(np.diag(cov), 0, None))
     stderr_flat[~np.isfinite(unc.std) & ~np.isfinite(st.prior_std_full)] = np.inf
     if st.use_prior:       # ga-paper too: its data-only std is compared with the tolerance
         unc.prior_std = st.prior_std_full
     unc.posterior_std = stderr_flat
-    unc.flags = determination(model, theta, raw, cov, st.prior_std_full, at_bound,
+    unc.flags = determination(model, theta, raw, cov_poses, st.prior_std_full, at_bound,
                               float(median(nf.var)), st.target)
     return Determination(cov, stderr_flat, unc)
 
@@ -444,8 +452,9 @@ def _fixed_terms_cov(st: FitSetup, nf: NoiseFit) -> np.ndarray:
     lam[free] = nf.prior_precision
     theta, fixed = nf.theta, ~free
     if st.temp_c is not None:           # the slope's columns: d r / d b_j times (T - t_ref)
-        w = 1.0 / np.asarray(nf.var, float)
-        dT = st.temp_c - np.sum(w * st.temp_c) / np.sum(w)
+        ok = np.isfinite(st.temp_c)
+        w = 1.0 / np.asarray(nf.var, float)[ok]
+        dT = np.where(ok, st.temp_c - np.sum(w * st.temp_c[ok]) / np.sum(w), 0.0)
         bias = model.groups.get("bias_g", model.groups.get("offset_g"))
         J = np.hstack([J, J[:, bias] * dT[:, None]])
         lam = np.concatenate([lam, 1.0 / bias_tempco_prior(st.chip) ** 2])

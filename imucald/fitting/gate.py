@@ -399,17 +399,21 @@ def loo_weighted_mean_residuals(x: np.ndarray, w: np.ndarray) -> np.ndarray:
 def gate_accel(raw_g: np.ndarray, pose_cov: Optional[np.ndarray], incumbent_g: np.ndarray,
                method: str = "lm", alpha: float = GATE_FALSE_ACCEPT_RATE, against: str = "current",
                rng=None, chip: Optional[str] = None, model: str = "triangular9",
-               fitted: Optional[np.ndarray] = None, nested: bool = False, incumbent=None):
+               fitted: Optional[np.ndarray] = None, nested: bool = False, incumbent=None,
+               temp_c: Optional[np.ndarray] = None):
     """Fit the accelerometer on all poses and gate it against the incumbent.
 
     raw_g: pose means (N, 3); incumbent_g: the same pose means corrected by the
     calibration in force (the raw means themselves when there is none).  fitted (N,)
     bool and nested: which poses it was fitted on (:func:`fitted_poses`); incumbent:
-    its (model, theta) over raw_g, for rule 1's consistency test.
+    its (model, theta) over raw_g, for rule 1's consistency test.  temp_c (N,): the poses'
+    temperatures, for the stated covariance (fit_norm: the bias's temperature slope a constant
+    leaves out; None where thermal terms are in force).
     Returns (the all-pose fit, its cross-validated residuals (N,), Decision)."""
     from .fit import fit_norm
     raw_g = np.asarray(raw_g, float)
-    cal = fit_norm(raw_g, model, method, pose_cov=pose_cov, rng=rng, heldout=True, chip=chip)
+    cal = fit_norm(raw_g, model, method, pose_cov=pose_cov, rng=rng, heldout=True, chip=chip,
+                   temp_c=temp_c)
     r_cv = np.asarray(cal.info["heldout_residuals"], float)
     r_inc = 1.0 - np.linalg.norm(np.asarray(incumbent_g, float), axis=1)
     var = None

@@ -400,20 +400,17 @@ def _determination(st: FitSetup, nf: NoiseFit) -> Determination:
     at_bound[free] = nf.prob.at_bound(nf.prob.reduce(theta))
     unc = crlb(model, theta, raw, nf.var)
     idx = np.flatnonzero(free)
-    cov = np.zeros((model.k, model.k))
-    cov[np.ix_(idx, idx)] = map_covariance(nf.jacobian, nf.var, nf.noise_var, nf.prior_precision)
+    cov = _embedded(map_covariance(nf.jacobian, nf.var, nf.noise_var, nf.prior_precision), idx, model.k)
     cov_poses = cov       # what the flags judge: how far the poses determined each parameter
     if st.use_prior and (not free.all() or st.temp_c is not None) and nf.res.method != "ga-paper":
-        left = np.zeros((model.k, model.k))
-        left[np.ix_(idx, idx)] = _fixed_terms_cov(st, nf)
+        left = _embedded(_fixed_terms_cov(st, nf), idx, model.k)
         unc.left_out_std = np.sqrt(np.clip(np.diag(left), 0, None))
-        cov_poses = cov + left
-        if st.temp_c is not None:
-            # the slope's share is not the poses' to remove (another pose does not narrow it
-            # below the thermal fit's 18): the flags see the terms the poses can pin (diag6's)
-            cov_poses = cov.copy()
-            if not free.all():
-                cov_poses[np.ix_(idx, idx)] += _fixed_terms_cov(replace(st, temp_c=None), nf)
+        # the flags leave the temperature slope's share out: another pose does not narrow it
+        # below the thermal fit's 18; they keep the terms the poses can pin (diag6's)
+        if st.temp_c is None:
+            cov_poses = cov + left
+        elif not free.all():
+            cov_poses = cov + _embedded(_fixed_terms_cov(replace(st, temp_c=None), nf), idx, model.k)
         cov = cov + left
     stderr_flat = np.sqrt(np.clip(np.diag(cov), 0, None))
     stderr_flat[~np.isfinite(unc.std) & ~np.isfinite(st.prior_std_full)] = np.inf
@@ -466,6 +463,13 @@ def _fixed_terms_cov(st: FitSetup, nf: NoiseFit) -> np.ndarray:
     C = map_covariance(J, nf.var, nf.noise_var, lam)[np.ix_(fixed, fixed)]
     return omitted_covariance(J[:, ~fixed], J[:, fixed], nf.noise_var, nf.prior_precision,
                               np.outer(a, a) + C)
+
+
+def _embedded(c: np.ndarray, idx: np.ndarray, k: int) -> np.ndarray:
+    """The free parameters' (kf, kf) matrix ``c`` in the (k, k) matrix of all of them."""
+    out = np.zeros((k, k))
+    out[np.ix_(idx, idx)] = c
+    return out
 
 
 def bias_tempco_prior(chip: Optional[str]) -> np.ndarray:

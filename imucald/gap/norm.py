@@ -17,7 +17,7 @@ from ..fitting.solvers.lsq import Problem, lm, sphere_fit
 from ..fitting.judging.uncertainty import residual_variance
 from .candidates import Candidate
 from ..fitting.judging.levels import GAP_ATTRIBUTION_LEVEL, GAP_HELDOUT_LEVEL, GAP_TEST_LEVEL
-from .signif import p_and_log10, proj_sig, score, visible_basis, wald_p
+from .signif import p_and_log10, proj_sig, score, visible_svd, wald_p
 from .search import single_floor, stepwise, walk_sensitivity
 from .verdict import confusable, no_gap, verdict
 from .wander import random_walk_fit
@@ -127,10 +127,11 @@ def score_candidates(b: NormBaseline, cands: Sequence[Candidate], ctx: Dict[str,
         f = lambda eta, c=c: 1.0 - model.norms(th, x - c.delta(eta, x, th, ctx))
         _, C = numjac(f, np.zeros(c.q), eps=np.full(c.q, 1e-5))
         Ct, Cw = proj_sig(b.J, C, b.w, b.lam)
-        stat, q_vis, vis = score(rw, Ct, Cw)
+        sv = visible_svd(Ct, Cw)
+        stat, q_vis, vis = score(rw, Ct, Cw, sv)
         p, lp = p_and_log10(stat, q_vis) if q_vis else (1.0, 0.0)
         tested.append({"cand": c, "Ct": Ct, "stat": stat, "q": q_vis, "p": p, "lp": lp, "vis": vis,
-                       "V": visible_basis(Ct, Cw)})
+                       "V": sv[1]})
     tested.sort(key=lambda d: d["lp"])
     return tested
 
@@ -321,7 +322,7 @@ def decide_search(out: Dict[str, object], b: NormBaseline, tested: List[Dict[str
     if len(chosen) > 1:
         # params / stderr: the fixed members' coefficients in the order of ``effects`` (flat,
         # as before the search; the walk's strength is in search.members)
-        rm = sr.get("report_model", m)       # the members in their full forms (search.VisiblePart)
+        rm = sr["report_model"]              # the members in their full forms (search.VisiblePart)
         out["joint"] = {"effects": list(chosen), "ratio_after": float(ratio_after), "closed": closed,
                         "params": rm.z[b.p0:].tolist(), "stderr": rm.sd[b.p0:].tolist()}
         bases = [e.get("visible_basis") for e in sr["members"] if "random_walk" not in e]

@@ -97,7 +97,7 @@ _NESTED = {frozenset({"bias_drift", "wandering_bias"})}   # the drift's line lie
 @dataclass(eq=False)
 class VisiblePart(Candidate):
     """A candidate restricted to the directions of its coefficients that its score test sees
-    from the baseline fit (signif.visible_basis): eta = V xi.  A direction the baseline
+    from the baseline fit (signif.visible_svd): eta = V xi.  A direction the baseline
     absorbs (the degree-1 part of the radial cubic, which the bias holds; two of the 6-term
     nonlinearity's three cross terms, whose radial parts are one xyz term) still takes one
     residual degree of freedom in a least-squares fit however small its signature, soaking up
@@ -115,11 +115,6 @@ def visible_part(c, V):
         return c
     return VisiblePart(c.name, V.shape[1], delta=lambda xi, x, th, ctx, c=c, V=V: c.delta(V @ np.asarray(xi, float), x, th, ctx),
                        units=c.units, full=c, V=V)
-
-
-def form_q(c) -> int:
-    """The coefficient count of a candidate's form (its full form's for a visible part)."""
-    return c.full.q if isinstance(c, VisiblePart) else c.q
 
 
 @dataclass
@@ -263,7 +258,7 @@ class Search(MemberTests):
         # old blind generator (tests/test_gap_blindgen.py); a second member may go to
         # SEARCH_MIN_DOF, each of its members' tests still judged on held-out poses
         alone = len(cands) + (1 if walk else 0) <= 1
-        floor = (single_floor(sum(form_q(c) for c in cands)) if alone and cands else
+        floor = (single_floor(sum(form_full(c).q for c in cands)) if alone and cands else
                  MIN_DOF if alone else SEARCH_MIN_DOF)
         return used <= self.b.n - floor
 
@@ -444,8 +439,8 @@ def _add_moves(s, cur, variants, visited, bonf) -> list:
                 # leaves as well: a richer form of the second class soaked up a curved thermal
                 # form's leftovers once the first member was cut back to its simpler variant
                 what = f"add {cls}" + (" (random walk)" if walk and not cur.walk else
-                                       f" ({form_q(cands[-1])} coefficients)")
-                moves.append((m, what + "".join(f"; {c.name} {form_q(c)}" for c in cands[:len(cur.cands)]
+                                       f" ({form_full(cands[-1]).q} coefficients)")
+                moves.append((m, what + "".join(f"; {c.name} {form_full(c).q}" for c in cands[:len(cur.cands)]
                                                 if c not in cur.cands), pc, pho))
     return moves
 
@@ -474,7 +469,7 @@ def _variant_moves(s, cur, variants, visited) -> list:
                 continue
             pho = s.heldout_p(cur, m)
             if pho < GAP_HELDOUT_LEVEL:
-                moves.append((m, f"{c.name}: {form_q(c)} -> {form_q(v)} coefficients", m.member_p[c.name], pho))
+                moves.append((m, f"{c.name}: {form_full(c).q} -> {form_full(v).q} coefficients", m.member_p[c.name], pho))
     return moves
 
 
@@ -567,7 +562,7 @@ def _report_model(m):
         T[o:o + V.shape[1], oo:oo + V.shape[0]] = V.T
         o, oo = o + V.shape[1], oo + V.shape[0]
     cov = T.T @ m.cov @ T
-    return replace(m, cands=tuple(m.cands), z=m.z @ T, cov=cov, sd=np.sqrt(np.clip(np.diag(cov), 0, None)))
+    return replace(m, z=m.z @ T, cov=cov, sd=np.sqrt(np.clip(np.diag(cov), 0, None)))
 
 
 def form_full(c):
@@ -643,7 +638,7 @@ def _pair_entries(s, base, variants, bonf) -> list:
                     # visible parts (VisiblePart), and its Wald covariance's scale and F
                     # reference use that fit's own residual degrees of freedom (Search._fit),
                     # so after the entry a variant change may leave fewer (dof_ok's refine)
-                    if s.b.n - s.b.p0 - form_q(v1) - form_q(v2) < PAIR_ENTRY_MIN_DOF:
+                    if s.b.n - s.b.p0 - form_full(v1).q - form_full(v2).q < PAIR_ENTRY_MIN_DOF:
                         continue
                     m = s.fit((v1, v2), False)
                     if m is None or not (m.nrms < base.nrms and m.excess < base.excess) \

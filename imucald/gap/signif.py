@@ -10,7 +10,7 @@ import numpy as np
 
 from ..numerics.tails import chi2_logsf, f_sf, norm_sf2
 
-__all__ = ["proj_sig", "score", "visible_basis", "canon", "p_and_log10", "corr_p", "wald_p", "wald_f_p", "scaled_wald_p"]
+__all__ = ["proj_sig", "score", "visible_svd", "canon", "p_and_log10", "corr_p", "wald_p", "wald_f_p", "scaled_wald_p"]
 
 
 def proj_sig(J, C, w, lam=None):
@@ -26,7 +26,7 @@ def proj_sig(J, C, w, lam=None):
 
 
 #: a direction of a candidate's coefficients is visible when its projected signature's
-#: singular value is above this share of the largest whitened column's norm (score, visible_basis)
+#: singular value is above this share of the largest whitened column's norm (visible_svd)
 VISIBLE_SHARE = 0.01
 
 
@@ -35,24 +35,26 @@ def _kept(s, Cw):
     return s > VISIBLE_SHARE * max(full, 1e-300)
 
 
-def visible_basis(Ct, Cw):
-    """The directions (q, k) in a candidate's coefficient space that its score test sees (the
-    right singular vectors of the projected signature ``Ct`` kept by ``score``): the rest is
-    absorbed by the baseline (e.g. the degree-1 part of a radial cubic, which the bias holds)."""
-    _, s, Vt = np.linalg.svd(Ct, full_matrices=False)
-    return Vt[_kept(s, Cw)].T
-
-
-def score(rw, Ct, Cw):
-    """Lagrange-multiplier (score) statistic and its visible rank."""
-    U, s, _ = np.linalg.svd(Ct, full_matrices=False)
+def visible_svd(Ct, Cw):
+    """(U_k (N, k), V_k (q, k)): the singular vectors of a candidate's projected signature
+    ``Ct`` that its score test sees (singular value above VISIBLE_SHARE of the largest
+    whitened column's norm).  V_k spans the directions of the candidate's coefficients the
+    baseline leaves visible; the rest it absorbs (e.g. the degree-1 part of a radial cubic,
+    which the bias holds)."""
+    U, s, Vt = np.linalg.svd(Ct, full_matrices=False)
     keep = _kept(s, Cw)
-    if not keep.any():
+    return U[:, keep], Vt[keep].T
+
+
+def score(rw, Ct, Cw, svd=None):
+    """Lagrange-multiplier (score) statistic and its visible rank (``svd``: visible_svd's
+    result when the caller already has it)."""
+    Uk = (visible_svd(Ct, Cw) if svd is None else svd)[0]
+    if Uk.shape[1] == 0:
         return 0.0, 0, 0.0
-    Uk = U[:, keep]
     stat = float(np.sum((Uk.T @ rw) ** 2))
     vis = float(np.linalg.norm(Ct) / max(np.linalg.norm(Cw), 1e-300))
-    return stat, int(keep.sum()), vis
+    return stat, int(Uk.shape[1]), vis
 
 
 def canon(Ct1, Ct2):

@@ -782,6 +782,37 @@ def test_a_garbled_line_is_quoted_and_an_empty_field_named(tmp_path):
         assert msg == f"{p}:12: {said}", msg
 
 
+@pytest.mark.parametrize("fmt", ["iso_t", "iso_space", "time_of_day", "whitespace", "semicolon"])
+def test_a_date_time_column_says_how_to_read_it(tmp_path, fmt):
+    """Loggers write their time as a date and time (ISO 8601 with 'T' or a space, or a serial
+    terminal's time of day), which no reader takes as a number: the table was "not a
+    numeric table" after 1000 lines, naming neither the column nor the way in.  Now the
+    first such row names the line, the column and its text, and the --columns that skips it
+    (one '-' per field the readers split it into: a date and its time at white space are
+    two), with --rate-hz; that command reads the table as the one with numbers there,
+    including a ';'-separated one (its skipped column may hold text too).  Broken once (no
+    date-time check in the first-row search: "no row of 4 numbers"; the skipped columns not
+    exempted in the decimal-comma test: the ';' table "not a numeric table"): fails."""
+    from imucald.fitting.inputs import read_table
+    rows = [(i, 0.01 * (i % 7), -0.02, 1.0 - 0.001 * (i % 3)) for i in range(300)]
+    stamp = {"iso_t": "2026-01-01T12:00:{:06.3f}", "iso_space": "2026-01-01 12:00:{:06.3f}",
+             "time_of_day": "12:00:{:06.3f}", "whitespace": "2026-01-01 12:00:{:06.3f}",
+             "semicolon": "2026-01-01T12:00:{:06.3f}"}[fmt]
+    sep = {"whitespace": " ", "semicolon": ";"}.get(fmt, ",")
+    p, q = tmp_path / "dated.csv", tmp_path / "num.csv"
+    p.write_text("time,ax,ay,az\n" + "".join(sep.join([stamp.format(0.01 * i), f"{x}", f"{y}", f"{z}"]) + "\n"
+                                            for i, x, y, z in rows))
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 1.0, cls=UserError)
+    skip = "-,-" if fmt in ("iso_space", "whitespace") else "-"
+    assert msg == (f"{p}:2: column 1 (t) reads {stamp.format(0.0)!r}, a date and time, not a number: "
+                   f"skip it (--columns {skip},ax,ay,az) and give the sample rate (--rate-hz), or write "
+                   f"the time as a number (t: s, t_ms: ms, t_us: us, t_ns: ns)"), msg
+    q.write_text("".join(f"{x},{y},{z}\n" for _, x, y, z in rows))
+    a = read_table(str(p), skip.split(",") + ["ax", "ay", "az"], 1.0, rate_hz=100.0)
+    b = read_table(str(q), ["ax", "ay", "az"], 1.0, rate_hz=100.0)
+    assert np.array_equal(a.acc, b.acc) and np.array_equal(a.t, b.t) and len(a.t) == 300
+
+
 def test_a_skipped_column_may_hold_text(tmp_path):
     """A ROS `rostopic echo -p` export has a text column (field.header.frame_id, "imu_link")
     among its numbers: skipped with '-', the file was still "not a numeric table" (a cold

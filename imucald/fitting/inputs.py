@@ -246,19 +246,58 @@ def _file_line(path: str, lineno: int) -> Optional[str]:
 _COMMA_NUMBER = re.compile(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
 
 
-def _decimal_comma(s: str, ncols: int) -> bool:
+def _decimal_comma(s: str, ncols: int, cols: Optional[Sequence[str]] = None) -> bool:
     """Whether a row is a spreadsheet's or phyphox's export in a locale whose decimal mark is
     the comma: ';' or whitespace between values (``0,01;0;9,81``, ``0,01<TAB>9,81``,
     ``12;-40;16384``).  Its format decides, not the count (a wrong --columns then gets the
     count's own message, "expected 4 values, found 5"), except that a row which reads as
-    ``ncols`` comma-separated numbers stays a CSV (``0,5`` for two columns)."""
+    ``ncols`` comma-separated numbers stays a CSV (``0,5`` for two columns).  ``cols``: the
+    columns, whose skipped ones ('-') may hold text (a date and time skipped)."""
     if ";" not in s and not any(_COMMA_NUMBER.match(t) for t in s.split()):
         return False
     toks = s.replace(";", " ").split()
+    if cols is not None and len(toks) == len(cols):
+        toks = [t for t, c in zip(toks, cols) if c != "-"]
     if not toks or not all(_COMMA_NUMBER.match(t) or _numeric([t]) for t in toks):
         return False
     plain = s.replace(",", " ").split()
     return not (len(plain) == ncols and _numeric(plain))
+
+
+#: a date and time as loggers write them (ISO 8601, with 'T' or a space; a time of day alone,
+#: as a serial terminal's timestamps): a time column imucald cannot read as a number
+_DATETIME = re.compile(r"^(\d{4}-\d{2}-\d{2}([T ]\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)?)?"
+                       r"(Z|[+-]\d{2}:?\d{2})?|\d{1,2}:\d{2}:\d{2}([.,]\d+)?)$")
+
+
+def _datetime_column(s: str, cols: Sequence[str]) -> Optional[tuple]:
+    """(index, field) of the named column of row ``s`` that holds a date or a time of day
+    while the other named columns hold numbers, or None.  The fields are split at the row's
+    ',', ';' or tab, else at whitespace (a date and its time there are one field)."""
+    sep = next((c for c in ",;\t" if c in s), None)
+    fields = [f.strip() for f in (s.split(sep) if sep else s.split())]
+    if sep is None:          # "2026-01-01 12:00:00.0 0.01 ...": the date and time are one field
+        fields = [f"{a} {b}" if _DATETIME.match(f"{a} {b}") and not _numeric([a]) else a
+                  for a, b in zip(fields, fields[1:] + [""])]
+        fields = [f for i, f in enumerate(fields) if not (i and " " in fields[i - 1]
+                                                         and fields[i - 1].endswith(" " + f))]
+    if len(fields) != len(cols):
+        return None
+    named = [i for i, c in enumerate(cols) if c != "-"]
+    hits = [i for i in named if _DATETIME.match(fields[i])]
+    if len(hits) != 1 or not _numeric([fields[i] for i in named if i != hits[0]]):
+        return None
+    return hits[0], fields[hits[0]]
+
+
+def _datetime_message(path: str, lineno: int, cols: Sequence[str], i: int, field: str) -> str:
+    """The one-line error for a time column written as a date and time (:func:`_datetime_column`)."""
+    # the readers split a line at ',' and white space: a date and its time are two fields there
+    skip = ",".join(",".join(["-"] * len(field.replace(",", " ").split())) if j == i else c
+                    for j, c in enumerate(cols))
+    return (f"{path}:{lineno}: column {i + 1} ({cols[i]}) reads {field!r}, a date and time, not a "
+            f"number: skip it (--columns {skip}) and give the sample rate (--rate-hz), or write the "
+            f"time as a number (t: s, t_ms: ms, t_us: us, t_ns: ns)")
 
 
 def _first_row(fh, path: str, cols: Sequence[str]):
@@ -281,7 +320,7 @@ def _first_row(fh, path: str, cols: Sequence[str]):
                             f"{','.join(cols)})")
         s = decode_line(path, raw, lineno, offset).strip()
         if s and s[0] not in "#%":
-            comma = _decimal_comma(s, len(cols))
+            comma = _decimal_comma(s, len(cols), cols)
             toks = s.replace(",", " ").split()
             # a row of numbers; or of numbers where the columns are named and text where they are
             # skipped ('-': a ROS export's frame_id "imu_link" was "not a numeric table")
@@ -292,6 +331,9 @@ def _first_row(fh, path: str, cols: Sequence[str]):
                     comma = _decimal_comma_ahead(fh, path, lineno + 1, offset + len(raw), len(cols))
                 fh.seek(offset)
                 return lineno, offset, comma
+            dt = _datetime_column(s, cols)
+            if dt is not None:
+                raise UserError(_datetime_message(path, lineno, cols, *dt))
         lineno, offset = lineno + 1, offset + len(raw)
 
 

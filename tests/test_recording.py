@@ -813,6 +813,33 @@ def test_a_date_time_column_says_how_to_read_it(tmp_path, fmt):
     assert np.array_equal(a.acc, b.acc) and np.array_equal(a.t, b.t) and len(a.t) == 300
 
 
+@pytest.mark.parametrize("fmt", ["comma", "semicolon_decimal_comma", "comma_decimal_comma"])
+def test_quoted_values(tmp_path, fmt):
+    """Some exporters quote every value ("0.01","9.81"): such a table was "not a numeric table"
+    after 1000 lines.  Now the quotes are read as spaces, byte for byte (line numbers and
+    offsets stay the file's), also with ';' between values and ',' as the decimal mark; a
+    quoted decimal comma with ',' between the values cannot be split by bytes and is refused
+    in one line naming the line, a value and the export to make.  Broken once (the quotes
+    not recognised): the first two fail with "no row of 4 numbers"."""
+    from imucald.fitting.inputs import read_table
+    rows = [(0.01 * i, 0.01 * (i % 7), -0.02, 1.0 - 0.001 * (i % 3)) for i in range(300)]
+    sep, dec = {"comma": (",", "."), "semicolon_decimal_comma": (";", ","),
+                "comma_decimal_comma": (",", ",")}[fmt]
+    q = lambda v: '"' + f"{v:.3f}".replace(".", dec) + '"'
+    p, n = tmp_path / "quoted.csv", tmp_path / "num.csv"
+    p.write_text(sep.join(f'"{c}"' for c in ("t", "ax", "ay", "az")) + "\n"
+                 + "".join(sep.join(q(v) for v in r) + "\n" for r in rows))
+    cols = ["t", "ax", "ay", "az"]
+    if fmt == "comma_decimal_comma":
+        msg = _one_line_error(read_table, str(p), cols, 1.0, cls=UserError)
+        assert msg == (f'{p}:2: values in quotes with "," as their decimal mark ("0,000") and "," between '
+                       f'them: export the table with ";" between values or "." as the decimal mark'), msg
+        return
+    n.write_text("".join(",".join(f"{v:.3f}" for v in r) + "\n" for r in rows))
+    a, b = read_table(str(p), cols, 1.0), read_table(str(n), cols, 1.0)
+    assert np.array_equal(a.acc, b.acc) and np.array_equal(a.t, b.t) and len(a.t) == 300
+
+
 def test_a_skipped_column_may_hold_text(tmp_path):
     """A ROS `rostopic echo -p` export has a text column (field.header.frame_id, "imu_link")
     among its numbers: skipped with '-', the file was still "not a numeric table" (a cold

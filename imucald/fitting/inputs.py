@@ -141,11 +141,12 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
                      checked=[c != "-" for c in cols],
                      limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
     with open_binary(path, UserError) as fh:
-        lineno, offset, comma = _first_row(fh, path, cols)
+        lineno, offset, comma, quoted = _first_row(fh, path, cols)
         if comma:
             warn(f"{path}:{lineno}: read as a spreadsheet's export: ';' or whitespace between "
                  f"values, ',' (if any) as the decimal mark")
-            fh = _Translated(fh, _DECIMAL_COMMA)
+        if comma or quoted:
+            fh = _Translated(fh, _translation(comma, quoted))
             spec.source_line = lambda ln: _file_line(path, ln)
         idx = {name: i for i, name in enumerate(cols) if name != "-"}
         groups = [(k, [idx[k]]) for k in (t_name, "temp") if k in idx]
@@ -210,6 +211,41 @@ def _drop_failed_reads(path: str, c: Dict[str, np.ndarray], n: int) -> np.ndarra
 #: a decimal-comma table read as an ordinary one: ',' -> '.', ';' -> ' ' (byte for byte, so
 #: every line number and byte offset of an error stays the file's own)
 _DECIMAL_COMMA = bytes.maketrans(b",;", b". ")
+
+
+#: a table of quoted numbers ("0.01","9.81") read as an ordinary one: '"' -> ' '
+_QUOTES = (b'"', b" ")
+
+
+def _translation(comma: bool, quoted: bool) -> bytes:
+    """The byte table a decimal-comma and/or quoted table is read through."""
+    src, dst = (b",;", b". ") if comma else (b"", b"")
+    if quoted:
+        src, dst = src + _QUOTES[0], dst + _QUOTES[1]
+    return bytes.maketrans(src, dst)
+
+
+def _quoted_numbers(s: str) -> bool:
+    """Whether a row's values are written in double quotes, none with a ',' inside unless no
+    ',' stands between them (``"0,61";"0,30"``: a decimal comma, ';' between).  A quoted
+    "0,61" with ',' between the values is a decimal comma in a ','-separated file: read
+    without its quotes it would be two numbers (:func:`_quoted_comma_message`)."""
+    if '"' not in s or s.count('"') % 2:
+        return False
+    inside = re.findall(r'"([^"]*)"', s)
+    return bool(inside) and not (any("," in q for q in inside) and "," in re.sub(r'"[^"]*"', "", s))
+
+
+def _quoted_comma_message(s: str, path: str, lineno: int) -> Optional[str]:
+    """The error for a row of quoted decimal-comma values with ',' between them, or None."""
+    inside = re.findall(r'"([^"]*)"', s)
+    if not inside or s.count('"') % 2 or "," not in re.sub(r'"[^"]*"', "", s):
+        return None
+    q = next((q for q in inside if _COMMA_NUMBER.match(q.strip())), None)
+    if q is None:
+        return None
+    return (f'{path}:{lineno}: values in quotes with "," as their decimal mark ("{q}") and "," '
+            f'between them: export the table with ";" between values or "." as the decimal mark')
 
 
 class _Translated:
@@ -301,11 +337,12 @@ def _datetime_message(path: str, lineno: int, cols: Sequence[str], i: int, field
 
 
 def _first_row(fh, path: str, cols: Sequence[str]):
-    """(line number, byte offset, decimal comma) of a raw table's first row of numbers,
-    ``fh`` left there: blank, comment (#, %) and header lines before it skipped, and a UTF-8
-    byte-order mark.  Decimal comma: the row is written with ';' or whitespace between values
-    and ',' as the decimal mark (:func:`_decimal_comma`; a row of whole numbers leaves it to
-    the next row holding a ',' or ';')."""
+    """(line number, byte offset, decimal comma, quoted) of a raw table's first row of
+    numbers, ``fh`` left there: blank, comment (#, %) and header lines before it skipped, and
+    a UTF-8 byte-order mark.  Decimal comma: the row is written with ';' or whitespace between
+    values and ',' as the decimal mark (:func:`_decimal_comma`; a row of whole numbers leaves
+    it to the next row holding a ',' or ';').  Quoted: its values are in double quotes
+    (:func:`_quoted_numbers`), read as if the quotes were spaces."""
     lineno, offset = 1, 0
     if fh.read(len(BOM)) == BOM:
         offset = len(BOM)
@@ -319,6 +356,9 @@ def _first_row(fh, path: str, cols: Sequence[str]):
             raise UserError(f"{path}: no numeric rows (expected {len(cols)} numbers per line: "
                             f"{','.join(cols)})")
         s = decode_line(path, raw, lineno, offset).strip()
+        quoted = _quoted_numbers(s)
+        if quoted:
+            s = s.replace('"', " ").strip()
         if s and s[0] not in "#%":
             comma = _decimal_comma(s, len(cols), cols)
             toks = s.replace(",", " ").split()
@@ -330,10 +370,13 @@ def _first_row(fh, path: str, cols: Sequence[str]):
                     # a row of whole numbers (t = 0, counts) says nothing of the decimal mark
                     comma = _decimal_comma_ahead(fh, path, lineno + 1, offset + len(raw), len(cols))
                 fh.seek(offset)
-                return lineno, offset, comma
+                return lineno, offset, comma, quoted
             dt = _datetime_column(s, cols)
             if dt is not None:
                 raise UserError(_datetime_message(path, lineno, cols, *dt))
+            why = _quoted_comma_message(s, path, lineno)
+            if why:
+                raise UserError(why)
         lineno, offset = lineno + 1, offset + len(raw)
 
 

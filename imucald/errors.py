@@ -31,6 +31,15 @@ EX_CONFIG = 78
 NO_RESTART = (EX_USAGE, EX_CANTCREAT, EX_CONFIG)
 
 
+def install_hint(extra: str) -> str:
+    """The command that installs imucald's optional ``extra`` for the Python running imucald
+    (pip takes the extra from the installed imucald, however it was installed; a bare
+    ``pip`` may be another Python's, and Bookworm's system pip refuses)."""
+    import shlex
+    import sys
+    return f"{shlex.quote(sys.executable or 'python3')} -m pip install 'imucald[{extra}]'"
+
+
 class UserError(Exception):
     """An error in the user's input or setup; its message is the whole explanation."""
 

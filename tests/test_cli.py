@@ -199,7 +199,8 @@ def test_a_missing_plots_extra_is_said_before_any_work(argv, tmp_path, monkeypat
     argv = [str(rec) if a == "REC" else a.replace("DIR", str(tmp_path / "p")) for a in argv]
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "needs matplotlib: pip install 'imucald[plots]'" in err, err
+    assert err.count("\n") == 1 and f"needs matplotlib, the plots extra: {sys.executable} -m pip install " \
+        "'imucald[plots]'" in err, err
 
 
 def test_an_unknown_option_names_the_nearest_and_the_commands_help(capsys):

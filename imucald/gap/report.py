@@ -10,7 +10,7 @@ from typing import Dict
 
 import numpy as np
 
-from ..errors import UserError
+from ..errors import UserError, install_hint
 
 __all__ = ["write_report"]
 
@@ -23,7 +23,7 @@ def write_report(res: Dict[str, object], outdir: str) -> list:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        raise UserError("--report needs matplotlib: pip install 'imucald[plots]'") from None
+        raise UserError(f"--report needs matplotlib, the plots extra: {install_hint('plots')}") from None
     try:
         os.makedirs(outdir, exist_ok=True)
     except OSError as e:

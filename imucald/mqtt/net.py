@@ -8,7 +8,7 @@ import os
 import select
 
 from ..daemon.config import ConfigError
-from ..errors import DeviceUnavailable
+from ..errors import DeviceUnavailable, install_hint
 
 __all__ = ["read_password", "paho", "Waker", "loop_once"]
 
@@ -42,8 +42,7 @@ def paho():
     try:
         import paho.mqtt.client as mqtt
     except ImportError:
-        raise DeviceUnavailable("the MQTT bridge needs paho-mqtt: pip install 'imucald[mqtt]' "
-                                "(into imucald's venv)") from None
+        raise DeviceUnavailable(f"the MQTT bridge needs paho-mqtt, the mqtt extra: {install_hint('mqtt')}") from None
     return mqtt
 
 

@@ -40,7 +40,7 @@ from typing import Any, Dict, Optional
 
 import numpy as np
 
-from ..errors import EX_CONFIG, UserError
+from ..errors import EX_CONFIG, UserError, install_hint
 from . import quality
 from .quat import gravity_free_g, qmul
 
@@ -51,7 +51,7 @@ __all__ = ["OrientationFilter", "OrientationUnavailable", "load_vqf", "unavailab
 G_MS2 = 9.80665
 #: the one-line message when the extra is missing (the fix named)
 MISSING_EXTRA = ("orientation needs the 'orientation' extra (the vqf package), which is not "
-                 "installed: pip install 'imucald[orientation]' (on a Raspberry Pi first "
+                 f"installed: {install_hint('orientation')} (on a Raspberry Pi first "
                  "sudo apt install g++ python3-dev: vqf is built there from source)")
 
 

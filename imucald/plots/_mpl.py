@@ -1,12 +1,12 @@
 """matplotlib, imported on first use, headless (Agg), or a one-line error naming the extra."""
 from __future__ import annotations
 
-from ..errors import UserError
+from ..errors import UserError, install_hint
 
 
 def missing(flag: str) -> UserError:
     """The one-line error of a ``flag`` that needs the plots extra."""
-    return UserError(f"{flag} needs matplotlib: pip install 'imucald[plots]'")
+    return UserError(f"{flag} needs matplotlib, the plots extra: {install_hint('plots')}")
 
 
 def require(flag: str) -> None:

@@ -840,6 +840,25 @@ def test_quoted_values(tmp_path, fmt):
     assert np.array_equal(a.acc, b.acc) and np.array_equal(a.t, b.t) and len(a.t) == 300
 
 
+@pytest.mark.parametrize("sep", [",", ";", '";"'])
+def test_a_loggers_own_header_repeated_mid_file_is_named(tmp_path, sep):
+    """A logger's own column names ("time_ms,AcX,...,GyZ": an Arduino sketch's) written again
+    mid-file after a restart were "column t_ms: 'time_ms' is not a number": only names imucald
+    knows (t, ax, ...) were taken for a header.  Now the file's own header line again is named
+    as one, with the delete and the split, also in a ';' table read with a decimal comma and a
+    quoted one, quoting the line as the file writes it.  Broken once (the header lines not
+    kept): "is not a number"; fails."""
+    from imucald.fitting.inputs import read_table
+    q = '"' if sep == '";"' else ""
+    line = lambda vals: q + sep.join(vals) + q
+    head = line(["time_ms", "AcX", "AcY", "AcZ"])
+    rows = [line([str(10 * i), "0", "0", "16384"]) for i in range(6)]
+    p = tmp_path / "log.csv"
+    p.write_text("\n".join([head] + rows[:3] + [head] + rows[3:]) + "\n")
+    msg = _one_line_error(read_table, str(p), ["t_ms", "ax", "ay", "az"], 16384.0, cls=UserError)
+    assert msg.startswith(f"{p}:5: a column header again ({head!r}): a logger that restarted"), msg
+
+
 def test_a_skipped_column_may_hold_text(tmp_path):
     """A ROS `rostopic echo -p` export has a text column (field.header.frame_id, "imu_link")
     among its numbers: skipped with '-', the file was still "not a numeric table" (a cold

@@ -30,7 +30,7 @@ from ..errors import UserError
 from ..files.recording import (BOM, COLUMNS, MAGIC, PLAUSIBLE_LIMIT, Recording, open_binary,
                                 read_recording)
 from ..numerics.npstats import median
-from ..files.tables import TIME_UNITS, TableSpec, collect, decode_line, iter_blocks, warn
+from ..files.tables import TIME_UNITS, TableSpec, collect, decode_line, header_key, iter_blocks, warn
 from .stillness.poses import POSES_MAGIC, read_poses
 from ..numerics.rates import effective_rate
 
@@ -141,7 +141,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
                      checked=[c != "-" for c in cols],
                      limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
     with open_binary(path, UserError) as fh:
-        lineno, offset, comma, quoted = _first_row(fh, path, cols)
+        lineno, offset, comma, quoted, spec.header_lines = _first_row(fh, path, cols)
         if comma:
             warn(f"{path}:{lineno}: read as a spreadsheet's export: ';' or whitespace between "
                  f"values, ',' (if any) as the decimal mark")
@@ -342,11 +342,13 @@ def _first_row(fh, path: str, cols: Sequence[str]):
     a UTF-8 byte-order mark.  Decimal comma: the row is written with ';' or whitespace between
     values and ',' as the decimal mark (:func:`_decimal_comma`; a row of whole numbers leaves
     it to the next row holding a ',' or ';').  Quoted: its values are in double quotes
-    (:func:`_quoted_numbers`), read as if the quotes were spaces."""
+    (:func:`_quoted_numbers`), read as if the quotes were spaces.  Last, the set of the
+    non-comment lines skipped above it (its header, as :class:`TableSpec` keeps it)."""
     lineno, offset = 1, 0
     if fh.read(len(BOM)) == BOM:
         offset = len(BOM)
     fh.seek(offset)
+    skipped = set()
     while True:
         raw = fh.readline(1 << 16)
         if lineno > 1000 or (len(raw) >= 1 << 16 and not raw.endswith(b"\n")):
@@ -370,13 +372,15 @@ def _first_row(fh, path: str, cols: Sequence[str]):
                     # a row of whole numbers (t = 0, counts) says nothing of the decimal mark
                     comma = _decimal_comma_ahead(fh, path, lineno + 1, offset + len(raw), len(cols))
                 fh.seek(offset)
-                return lineno, offset, comma, quoted
+                return lineno, offset, comma, quoted, frozenset(skipped)
             dt = _datetime_column(s, cols)
             if dt is not None:
                 raise UserError(_datetime_message(path, lineno, cols, *dt))
             why = _quoted_comma_message(s, path, lineno)
             if why:
                 raise UserError(why)
+            if len(skipped) < 16:
+                skipped.add(header_key(decode_line(path, raw, lineno, offset)))
         lineno, offset = lineno + 1, offset + len(raw)
 
 

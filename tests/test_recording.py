@@ -221,6 +221,12 @@ def test_table_time_in_milliseconds_or_microseconds(tmp_path):
     ("ax,ay,az", 1.0, "0,0,16384", "g after --nominal-scale (none given): raw counts (or mg)? give --nominal-scale"),
     ("ax,ay,az", 1.0, "0,0,9.81", "g after --nominal-scale (none given): m/s^2? give --nominal-scale accel=9.80665"),
     ("ax,ay,az", 16384.0, "0,0,1.0", "g after --nominal-scale: already in g? then leave --nominal-scale out"),
+    # IMU-TK's SOURCE.md gives 415 counts per m/s^2: given as counts per g, the file reads
+    # ~9.8 g, and "give accel=9.80665" sent a newcomer round in a loop (helper-87)
+    ("ax,ay,az", 415.0, "0,0,4069.76", "g after --nominal-scale: is 415 counts per m/s^2? counts per g are "
+                                       "4069.76: give --nominal-scale accel=4069.76"),
+    ("ax,ay,az", 131.0, "0,0,16384", "(accel=N,gyro=N when the gyro's differ; - in --columns leaves a sensor "
+                                     "out); the scale that reads this median as 1 g is 1.638e+04"),
     ("mx,my,mz", 1.0, "20,-5,-40", "gauss after --nominal-scale (none given): microtesla (--nominal-scale mag=100)"),
     ("mx,my,mz", 1.0, "218,-55,-436", "gauss after --nominal-scale (none given): raw counts or milligauss?"),
     ("mx,my,mz", 1090.0, "0.2,-0.05,-0.4", "gauss after --nominal-scale: already in gauss? then leave its")])
@@ -233,7 +239,8 @@ def test_a_raw_table_in_other_units_is_warned_of(tmp_path, capsys, cols, scale, 
     A warning, not a refusal: a centrifuge, free fall or a sensor the command does not use
     is no error.  1 g and 0.5 gauss say nothing.  A magnetometer file already in gauss given
     the HMC5883L's 1090 failed as 'only 0 direction cells: rotate the sensor' (a new user's
-    walk-through).  Broken once: _unit_warnings returning none (6 of 6 fail)."""
+    walk-through).  A scale given in counts per m/s^2 (or the gyro's) is named with the one
+    that reads the median as 1 g.  Broken once: _unit_warnings returning none (8 of 8 fail)."""
     from imucald.fitting.inputs import read_table
     rng = np.random.default_rng(0)
     base = np.array([float(x) for x in rows.split(",")])

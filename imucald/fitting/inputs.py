@@ -474,11 +474,18 @@ def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
     acc, mag = c.get("acc"), c.get("mag")
     if acc is not None and len(acc):
         a = _median_norm(acc)
+        s = float(nominal_scale.get("accel", 1.0) if isinstance(nominal_scale, dict) else nominal_scale)
         say = f"{path}: the accelerometer reads a median |a| of {a:.4g} g after --nominal-scale{given}"
         if a >= ACC_MEDIAN_COUNTS_G:
+            # with a scale given (a gyro's, or per m/s^2 read as per g), the median's counts
+            at = f"; the scale that reads this median as 1 g is {s * a:.4g}" if s != 1.0 else ""
             out.append(f"{say}: raw counts (or mg)? give --nominal-scale, its counts per g, e.g. 16384 "
                        f"for an MPU-6050 at +-2 g, 256 for an ADXL345 at full resolution "
-                       f"(accel=N,gyro=N when the gyro's differ; - in --columns leaves a sensor out)")
+                       f"(accel=N,gyro=N when the gyro's differ; - in --columns leaves a sensor out){at}")
+        elif ACC_MEDIAN_SI_G[0] <= a <= ACC_MEDIAN_SI_G[1] and s != 1.0:
+            # counts per m/s^2 (a SOURCE's or datasheet's figure) given as counts per g
+            out.append(f"{say}: is {s:g} counts per m/s^2? counts per g are {s * 9.80665:.6g}: give "
+                       f"--nominal-scale accel={s * 9.80665:.6g}")
         elif ACC_MEDIAN_SI_G[0] <= a <= ACC_MEDIAN_SI_G[1]:
             out.append(f"{say}: m/s^2? give --nominal-scale accel=9.80665 (and gyro=0.0174533 for rad/s)")
         elif a < ACC_MEDIAN_TINY_G and not given:

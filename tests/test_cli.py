@@ -41,6 +41,24 @@ def test_calibrate_json_schema_and_values(sim9, capsys):
     assert np.all(np.abs(est - th) < 4 * se)
 
 
+def test_raw_table_options_on_a_recording_are_said_to_be_ignored(sim9, capsys):
+    """An imucald recording is read as it is (its header names its columns, in g): a user who
+    took it for counts and gave --nominal-scale (or --columns) got the same fit with no word
+    (a newcomer's walk).  Now one warning names the options ignored; the answer is the same.
+    Broken once (no warning): fails."""
+    rec, _ = sim9
+    assert main(["calibrate", str(rec), "--json"]) == 0
+    plain = capsys.readouterr()
+    assert "warning" not in plain.err
+    assert main(["calibrate", str(rec), "--json", "--nominal-scale", "16384", "--columns", "t,ax,ay,az"]) == 0
+    got = capsys.readouterr()
+    strip = lambda o: {k: v for k, v in json.loads(o).items() if k != "wall_s"}
+    assert strip(got.out) == strip(plain.out)
+    assert got.err.count("\n") == 1 and got.err == (
+        f"imucald: warning: {rec}: an imucald recording (its header names its columns, in g, deg/s and "
+        f"gauss): --columns, --nominal-scale apply to raw tables only and are ignored\n"), got.err
+
+
 def test_calibrate_mag_and_gyro(sim9, capsys):
     rec, truth = sim9
     assert main(["calibrate", str(rec), "--sensor", "mag", "--json"]) == 0

@@ -620,6 +620,8 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
     kind = input_kind(path)
     if join is not None:
         _check_join(path, kind, columns, join)
+    if kind in ("recording", "poses"):
+        warn_table_options(path, kind, columns, nominal_scale, nominal_offset, rate_hz)
     if kind == "recording":
         rec = read_recording(path)
         check_board(path, kind, board, rec.meta)
@@ -638,6 +640,20 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
         other = read_table(join[0], join[1], nominal_scale, nominal_offset, flag="--join-columns")
         rec = join_tables(rec, path, other, join[0])
     return "recording", rec
+
+
+def warn_table_options(path: str, kind: str, columns=None, nominal_scale: PerSensor = 1.0,
+                       nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None) -> None:
+    """One warning when a raw table's options were given for an imucald file, which is read as
+    it is (its header names its columns, in g, deg/s and gauss): a user who took the file for
+    counts learnt nothing from a fit that came out the same (a newcomer's walk)."""
+    given = [o for o, v, dflt in (("--columns", columns, None), ("--nominal-scale", nominal_scale, 1.0),
+                                  ("--nominal-offset", nominal_offset, 0.0), ("--rate-hz", rate_hz, None))
+             if v is not None and (isinstance(v, dict) or v != dflt)]
+    if given:
+        warn(f"{path}: an imucald {kind} (its header names its columns, in g, deg/s and gauss): "
+             f"{', '.join(given)} {'apply' if len(given) > 1 else 'applies'} to raw tables only and "
+             f"{'are' if len(given) > 1 else 'is'} ignored")
 
 
 def _check_join(path: str, kind: str, columns, join) -> None:

@@ -883,3 +883,22 @@ def test_a_skipped_column_may_hold_text(tmp_path):
     assert np.array_equal(a.t, b.t) and np.array_equal(a.acc, b.acc) and len(a.t) == 300
     msg = _one_line_error(read_table, str(p), ["t_ns", "ax", "ay", "az", "-"], 9.80665, cls=UserError)
     assert f"{p}: no numeric rows (expected 5 numbers per line: t_ns,ax,ay,az,-)" == msg, msg
+
+
+@pytest.mark.parametrize("emulate", [False, True])
+def test_record_without_a_bus_says_it_records_the_emulator(tmp_path, capsys, monkeypatch, emulate):
+    """`record` without --emulate on a machine with no I2C bus records the emulated board (the
+    daemon's `emulate: auto`); on a Pi whose I2C is off that wrote a simulated session, said
+    only in the description of the first line, which calibrate then fitted (a newcomer's
+    walk).  Now a warning says so and how to enable I2C; with --emulate, none.  Broken once
+    (the warning removed): fails."""
+    import imucald.drivers.bus as bus
+    from imucald.cli import main
+    monkeypatch.setattr(bus, "real_bus_numbers", lambda: [])
+    rec = tmp_path / "r.csv"
+    assert main(["record", "-o", str(rec), "--board", "mpu6050", "--seconds", "1"]
+                + (["--emulate"] if emulate else [])) == 0
+    err = capsys.readouterr().err
+    warned = "imucald: warning: no I2C bus on this machine (/dev/i2c-* absent): recording the EMULATED board" in err
+    assert warned != emulate, err
+    assert len(read_recording(str(rec))) == 100

@@ -412,6 +412,48 @@ def test_a_state_file_owned_by_another_user_is_set_aside_unread(tmp_path, caplog
     assert "is owned by uid 12345, not by imucald's user" in caplog.text
 
 
+@pytest.mark.skipif(os.geteuid() != 0, reason="reading as another user needs root")
+def test_a_state_file_of_roots_is_read_by_the_daemons_user():
+    """The service runs as a systemd DynamicUser; an administrator's `sudo cp
+    calibration.yaml /var/lib/imucald/` gives a file of root's, which was set aside as
+    "corrupt" (a newcomer's walk).  Root's files are read now (root can change the daemon
+    itself); another user's still are not (the test above).  A forked child as uid 12345
+    reads a file of root's and is refused one of uid 23456's.  Broken once (the owner check
+    back to the daemon's uid alone): the first read fails."""
+    import shutil
+    import tempfile
+    from imucald.files.atomic import read_own_file
+    base = tempfile.mkdtemp()               # under /tmp: a path another uid can walk
+    try:
+        os.chmod(base, 0o755)
+        mine, other = os.path.join(base, "calibration.yaml"), os.path.join(base, "poses.csv")
+        for path, text in ((mine, "by root\n"), (other, "by another\n")):
+            with open(path, "w") as f:
+                f.write(text)
+        os.chown(other, 23456, 23456)
+        r, w = os.pipe()
+        pid = os.fork()
+        if pid == 0:                        # the child: the daemon's user
+            try:
+                os.setgid(12345)
+                os.setuid(12345)
+                out = [read_own_file(mine, 100, ValueError).decode().strip()]
+                try:
+                    read_own_file(other, 100, ValueError)
+                except ValueError as e:
+                    out.append(str(e))
+                os.write(w, "\n".join(out).encode())
+            finally:
+                os._exit(0)
+        os.close(w)
+        got = os.read(r, 4096).decode().splitlines()
+        os.waitpid(pid, 0)
+    finally:
+        shutil.rmtree(base)
+    assert got == ["by root", f"{other}: is owned by uid 23456, not by imucald's user (uid 12345) or root; a "
+                              f"state file must be imucald's own or root's"], got
+
+
 def test_record_on_a_disk_that_fills_says_what_the_file_holds(tmp_path, capsys, monkeypatch):
     """``record`` replaces an old file once recording starts (docs/guide/recording.md); a disk
     that fills later leaves the recording up to there, and the error (exit 74) says so with its

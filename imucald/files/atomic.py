@@ -120,8 +120,11 @@ def atomic_write_text(path: str, text: str, mode: int = 0o644, flag: str = "") -
 
 def read_own_file(path: str, max_bytes: int, error=CannotCreate) -> bytes:
     """The bytes of a state file (at most ``max_bytes``): opened without following a
-    symbolic link, and only if it is a regular file owned by this process's user; else
-    ``error`` (a UserError class) saying which, without a byte of the file in it."""
+    symbolic link, and only if it is a regular file owned by this process's user or by root
+    (an administrator's ``sudo cp calibration.yaml /var/lib/imucald/``: the service runs as a
+    systemd DynamicUser, whose uid no one can give a file; root can change the daemon itself,
+    so a file of root's is no less trusted than the daemon's own); else ``error`` (a UserError
+    class) saying which, without a byte of the file in it."""
     import errno
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
@@ -135,9 +138,9 @@ def read_own_file(path: str, max_bytes: int, error=CannotCreate) -> bytes:
         if not stat.S_ISREG(st.st_mode):
             kind = next((k for f, k in _KIND if f(st.st_mode)), "not a regular file")
             raise error(f"{path}: is {kind}; a state file must be a regular file")
-        if st.st_uid != os.geteuid():
+        if st.st_uid not in (os.geteuid(), 0):
             raise error(f"{path}: is owned by uid {st.st_uid}, not by imucald's user (uid "
-                        f"{os.geteuid()}); a state file must be imucald's own")
+                        f"{os.geteuid()}) or root; a state file must be imucald's own or root's")
         if st.st_size > max_bytes:
             raise error(f"{path}: {st.st_size} bytes, more than the {max_bytes} a state file may hold")
         chunks, n = [], 0

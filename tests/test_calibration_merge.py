@@ -2,6 +2,7 @@
 loads; conflicting identities and a part given twice are refused in one line."""
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -79,6 +80,11 @@ def test_conflicts_and_duplicates_are_refused_in_one_line(parts, tmp_path, capsy
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "board 'mpu6050' conflicts with" in err and "accel.yaml" in err
     assert main(["calibration", "merge", str(d / "accel.yaml"), str(d / "accel.yaml"),
+                 "-o", str(tmp_path / "x.yaml")]) == 2
+    # the same name twice is said as that (it read "the accel part is also in accel.yaml")
+    assert capsys.readouterr().err.strip() == f"imucald: error: {d / 'accel.yaml'}: given twice: name each file once"
+    shutil.copy(d / "accel.yaml", tmp_path / "copy.yaml")
+    assert main(["calibration", "merge", str(d / "accel.yaml"), str(tmp_path / "copy.yaml"),
                  "-o", str(tmp_path / "x.yaml")]) == 2
     assert "the accel part is also in" in capsys.readouterr().err
     assert not os.path.exists(tmp_path / "x.yaml")

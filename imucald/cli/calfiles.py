@@ -29,6 +29,10 @@ def merge_calibrations(named: List[Tuple[str, object]], created: str = ""):
     from ..calibration import Calibration
     if not named:
         raise UserError("calibration merge: no input files")
+    names = [n for n, _ in named]
+    twice = next((n for i, n in enumerate(names) if n in names[:i]), None)
+    if twice is not None:
+        raise UserError(f"{twice}: given twice: name each file once")
     first_name, first = named[0]
     board, chips, sensor = first.board, dict(first.chips), first.sensor
     src_board = {k: first_name for k in chips}

@@ -68,6 +68,9 @@ def cmd_noise(args) -> int:
         figs[sensor] = characterise(x, rate, axes, args.confidence, args.tau_min_s, args.tau_max_s)
     if not figs:
         raise UserError(f"{args.recording}: no accel, gyro or mag columns to characterise")
+    moved = motion_in_stretch(rec, i0, i1, rate)
+    if moved:
+        eprint(f"imucald: warning: {args.recording}: {moved}")
     dur = float(rec.t[i1 - 1] - rec.t[i0]) if isinstance(keep, np.ndarray) else (i1 - i0) / rate
     span = f"samples {i0}..{i1 - 1} ({dur:.0f} s at {rate:.2f} Hz)"
     doc = figures_document(figs, rate, os.path.basename(args.recording), dur)
@@ -92,6 +95,42 @@ def cmd_noise(args) -> int:
     if args.output or args.kalibr:
         eprint("imucald: wrote " + " and ".join(p for p in (args.output, args.kalibr) if p))
     return 0
+
+
+#: motion shorter than this between two still stretches is the detector's own edge (its trim
+#: before a detected start of motion), not a move
+MOTION_MIN_S = 1.0
+
+
+def motion_in_stretch(rec, i0: int, i1: int, rate_hz: float) -> str:
+    """What moved in the stretch ``i0:i1`` that noise figures need still, or '': the still
+    detector (calibrate's, with its defaults) over the stretch, and the gaps of more than
+    MOTION_MIN_S between its still intervals (before the first and after the last too, beyond
+    the detector's own first decision); no still stretch at all is said only where the
+    accelerometer reads ~1 g (else its units are the question).  A board lifted now and then inflated the Allan
+    deviation near its period and the fit read a white density of 0 and a bias instability
+    of 5.6 mg, with no word (a newcomer's walk on the noise guide's own example)."""
+    import numpy as np
+    if rec.acc is None or i1 - i0 < 8 * rate_hz:
+        return ""
+    from ..fitting.stillness.poses import detect, merge_cut
+    t = np.asarray(rec.t[i0:i1], float)
+    ivs, _, det = detect(t, rec.acc[i0:i1], None if rec.gyro is None else rec.gyro[i0:i1], rate_hz)
+    spans = [(float(t[s.start]), float(t[s.stop - 1])) for s in merge_cut(ivs)]
+    g = float(np.median(np.linalg.norm(np.asarray(rec.acc[i0:i1], float), axis=1)))
+    if not spans and not 0.65 <= g <= 1.35:
+        return ""                   # not in g (its own warning says so), or in free fall
+        return (f"no still stretch in samples {i0}..{i1 - 1} by calibrate's detector: noise figures "
+                f"need the board left still (a moving board's figures are its motion's)")
+    gaps = [(a, b) for (_, a), (b, _) in zip(spans, spans[1:]) if b - a > MOTION_MIN_S]
+    if spans[-1][1] < t[-1] - MOTION_MIN_S - 1.0:
+        gaps.append((spans[-1][1], float(t[-1])))
+    if not gaps:
+        return ""
+    what = ", ".join(f"{a - t[0]:.1f}-{b - t[0]:.1f} s" for a, b in gaps[:4]) + (", ..." if len(gaps) > 4 else "")
+    return (f"the board moved in the stretch ({len(gaps)} time(s): {what} after its start, by calibrate's "
+            f"detector): the figures include that motion; record the board left still, or choose a still "
+            f"part with --start-s/--end-s")
 
 
 def summary(figs, span: str, conf: float) -> str:

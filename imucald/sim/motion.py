@@ -211,7 +211,7 @@ class PoseTour:
     """Hold each pose, then move to the next; evaluate at any times with :meth:`sample`.
 
     ``hold_s``/``move_s``: a number or a (lo, hi) range drawn uniformly per pose/move;
-    the first hold is ``lead_s`` longer.  Each move turns about a fixed body axis with a
+    the first hold is ``lead_s`` longer.  A looped tour of one pose holds it throughout.  Each move turns about a fixed body axis with a
     smoothstep angle profile and carries a linear-acceleration bump ``sin(2 pi tau)`` of up
     to ``move_accel_g`` (a uniform 0.3-1 fraction of it) in a random world direction.
 
@@ -258,7 +258,9 @@ class PoseTour:
             holds.append(t)
             t += draw(hold_s) + (lead_s if i == 0 else 0.0)
             moves.append(t)
-            if i + 1 < n or loop:
+            # a looped tour of one pose is a board left still (`record --poses 1`, the noise
+            # guide's recording): no move back to where it is, which lifted it every pass
+            if i + 1 < n or (loop and n > 1):
                 nxt = self.R[(i + 1) % n]
                 rv = log_so3(self.R[i].T @ nxt)
                 ang = np.linalg.norm(rv)

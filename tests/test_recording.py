@@ -902,3 +902,29 @@ def test_record_without_a_bus_says_it_records_the_emulator(tmp_path, capsys, mon
     warned = "imucald: warning: no I2C bus on this machine (/dev/i2c-* absent): recording the EMULATED board" in err
     assert warned != emulate, err
     assert len(read_recording(str(rec))) == 100
+
+
+@pytest.mark.parametrize("header,cols", [
+    ("t_s,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z,temp", "t,ax,ay,az,gx,gy,gz,temp"),      # sunsided's
+    ("time_ms,AcX,AcY,AcZ,Tmp,GyX,GyY,GyZ", "t_ms,ax,ay,az,temp,gx,gy,gz"),               # an Arduino sketch's
+    ('"Time (s)","Acceleration x (m/s^2)","Acceleration y (m/s^2)","Acceleration z (m/s^2)"', "t,ax,ay,az"),
+    ("%time,field.header.frame_id,field.linear_acceleration.x,field.linear_acceleration.y,"
+     "field.linear_acceleration.z", "t_ns,-,ax,ay,az"),                                  # ROS rostopic -p
+    ("idx,magX,magY,magZ", "-,mx,my,mz"),
+    ("foo,bar", None), ("0.1,0.2,0.3", None), ("t,ax,ax,az", None)])
+def test_a_headed_table_without_columns_is_told_the_columns_its_header_names(tmp_path, header, cols):
+    """A logger's CSV with a header of names and no --columns was "not an imucald recording
+    ...: e.g. --columns t,ax,ay,az" whatever its header said (a newcomer's walk).  Now the
+    header's names, read as imucald's columns (aliases of loggers, phone apps and ROS), are
+    offered as the --columns to give, with the units to check; a header that names no sensor,
+    a row of numbers or a name twice keep the plain example.  Broken once (no guess): fails."""
+    from imucald.fitting.inputs import load_input
+    p = tmp_path / "log.csv"
+    p.write_text(header + "\n0,0,0,1\n")
+    msg = _one_line_error(load_input, str(p), cls=UserError)
+    head = f"{p}: not an imucald recording or pose file; for a raw numeric table name its columns"
+    if cols is None:
+        assert msg == head + ", e.g. --columns t,ax,ay,az", msg
+    else:
+        rate = " and --rate-hz" if not cols.split(",")[0].startswith("t") else ""
+        assert msg == head + f": its header reads as --columns {cols} (check each unit: --nominal-scale{rate})", msg

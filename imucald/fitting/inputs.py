@@ -91,6 +91,39 @@ def _first_line(path: str) -> str:
         else raw.decode("utf-8", errors="replace").rstrip("\r\n")
 
 
+#: a logger's column names as imucald's (lower case, '_', ' ', '.', '-' and units in brackets
+#: left out): Arduino sketches' AcX/GyX/Tmp, phone apps' accX, ROS's linear_acceleration.x
+_ALIASES = {"t": "t", "time": "t", "timestamp": "t", "ts": "t", "seconds": "t", "times": "t",
+            "tms": "t_ms", "timems": "t_ms", "millis": "t_ms", "ms": "t_ms",
+            "tus": "t_us", "timeus": "t_us", "micros": "t_us", "us": "t_us",
+            "tns": "t_ns", "timens": "t_ns", "ns": "t_ns",
+            "temp": "temp", "tmp": "temp", "temperature": "temp", "tempc": "temp", "die": "temp"}
+for _ax in "xyz":
+    for _k, _stems in (("a", ("a", "ac", "acc", "accel", "accelerometer", "acceleration",
+                              "linearacceleration")),
+                       ("g", ("g", "gy", "gyr", "gyro", "gyroscope", "angularvelocity", "rot", "rate")),
+                       ("m", ("m", "mag", "magn", "magnet", "magnetometer", "magneticfield", "compass"))):
+        for _s in _stems:
+            _ALIASES[_s + _ax] = _k + _ax
+
+
+def _columns_from_header(line: str) -> str:
+    """--columns for a header line of names, every name read as one of imucald's columns by
+    :data:`_ALIASES` (a name it cannot place: '-', skipped), or '' when it is not a header of
+    names (a number in it) or places no sensor column."""
+    names = [n.strip().strip('"') for n in re.split(r"[,;\t]" if re.search(r"[,;\t]", line) else r"\s+", line.strip())]
+    if not names or any(_numeric([n]) for n in names if n):
+        return ""
+    keys = [re.sub(r"[\s_.\-]|\(.*?\)|\[.*?\]", "", n.lower()) for n in names]
+    # a ROS `rostopic echo -p` export: %time in ns, field.linear_acceleration.x, ...
+    keys = ["tns" if k == "%time" else k[5:] if k.startswith("field") else k for k in keys]
+    cols = [_ALIASES.get(k, "-") for k in keys]
+    real = [c for c in cols if c != "-"]
+    if not any(c[0] in "agm" and len(c) == 2 for c in real) or len(real) != len(set(real)):
+        return ""
+    return ",".join(cols)
+
+
 def _numeric(parts) -> bool:
     try:
         [float(p) for p in parts]
@@ -633,8 +666,11 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
     if board is not None and columns is None:
         raise UserError(f"--board {board}: names the board of a raw table: give its --columns too")
     if columns is None:
+        guess = _columns_from_header(_first_line(path))
+        rate = "" if any(c.startswith("t") and c != "temp" for c in guess.split(",")) else " and --rate-hz"
         raise UserError(f"{path}: not an imucald recording or pose file; for a raw numeric "
-                        f"table name its columns, e.g. --columns t,ax,ay,az")
+                        + (f"table name its columns: its header reads as --columns {guess} (check each "
+                           f"unit: --nominal-scale{rate})" if guess else "table name its columns, e.g. --columns t,ax,ay,az"))
     rec = read_table(path, columns, nominal_scale, nominal_offset, rate_hz, board=board)
     if join is not None:
         other = read_table(join[0], join[1], nominal_scale, nominal_offset, flag="--join-columns")

@@ -431,6 +431,43 @@ def test_sampling_losses_are_said_once_they_pass_one_percent():
     assert "3 re-initialisations after bus faults" in bus and "read too late" not in bus, bus
 
 
+def test_a_run_shorter_than_a_loss_stretch_says_its_losses_at_the_stop(tmp_path, monkeypatch):
+    """The loss line came once per LOSS_EVERY_S (60 wall s): a 30-s run (the quick start's)
+    that lost 19 % under load said nothing, only `status` showed it (a newcomer's walk).  The
+    stretch since the last line is now judged at the stop too: an in-process daemon whose every
+    stretch reads as lossy (loss_warning replaced by one that records its calls) logs the line
+    at the stop, for the whole run.  Broken once (no call at the stop): fails."""
+    import imucald.daemon.run as run
+    from imucald.cli import main
+    calls = []
+    monkeypatch.setattr(run, "LOSS_FINAL_S", 0.0)
+    monkeypatch.setattr(run, "loss_warning", lambda got, lost, r, i, span, speed=1.0:
+                        calls.append((got, span)) or f"sampling lost 5% of the samples of the last {span:.0f} s (test)")
+    with caplog_at_warning() as records:
+        assert main(["run", "--emulate", "--duration", "2", "--speed", "20", "--state-dir", str(tmp_path / "s"),
+                     "--runtime-dir", str(tmp_path / "r")]) == 0
+    assert len(calls) == 1 and calls[0][0] > 0, calls
+    assert any("sampling lost 5% of the samples of the last" in m for m in records), records
+
+
+class caplog_at_warning:
+    """The messages the 'imucald' logger emits at WARNING and above, inside the block (the
+    daemon configures its own handlers; a handler of our own sees its records whatever they are)."""
+
+    def __enter__(self):
+        import logging
+        self.records, lg = [], logging.getLogger("imucald")
+        self.h = logging.Handler(logging.WARNING)
+        self.h.emit = lambda rec: self.records.append(rec.getMessage())
+        lg.addHandler(self.h)
+        return self.records
+
+    def __exit__(self, *exc):
+        import logging
+        logging.getLogger("imucald").removeHandler(self.h)
+        return False
+
+
 def test_the_stream_takes_32_clients_and_refuses_more_with_one_line(tmp_path):
     """Each client's buffer is bounded (1 MiB), so the clients' number must be too: a cold
     review's 3000 clients that never read took the daemon to 1.4 GB and lost samples.  Seen to

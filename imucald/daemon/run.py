@@ -34,8 +34,10 @@ LOCK_FILE = "imucald.lock"
 STALL_S = 3.0
 
 #: sampling that loses more than LOSS_SHARE of a LOSS_EVERY_S stretch's samples (the chip's
-#: FIFO overflowed: the host read it too late) is said in the log, at most once a stretch
-LOSS_EVERY_S, LOSS_SHARE = 60.0, 0.01
+#: FIFO overflowed: the host read it too late) is said in the log, at most once a stretch, and
+#: at the stop for the stretch since (of LOSS_FINAL_S or more: a run shorter than a stretch,
+#: e.g. the quick start's 30 s, lost 19 % in silence under load, said only by status)
+LOSS_EVERY_S, LOSS_SHARE, LOSS_FINAL_S = 60.0, 0.01, 5.0
 
 log = logging.getLogger("imucald")
 
@@ -242,17 +244,26 @@ class Daemon:
                 notify(f"STATUS={self._status_line()}")
                 last_status = now
             if now - loss0[0] >= LOSS_EVERY_S:
-                msg = loss_warning(st.samples - loss0[1], st.missing - loss0[2], st.fifo_resets - loss0[3],
-                                   st.reinits - loss0[4], now - loss0[0], getattr(b.clock, "speed", 1.0))
-                if msg:
-                    log.warning("%s", msg)
-                loss0 = (now, st.samples, st.missing, st.fifo_resets, st.reinits)
+                loss0 = self._say_loss(loss0, now)
             if self.reload or self._reloading is not None:
                 self._reload()
             if self.duration_s is not None and b.clock.now() - t_start >= self.duration_s:
                 break
+        if time.monotonic() - loss0[0] >= LOSS_FINAL_S:
+            self._say_loss(loss0, time.monotonic())
         notify("STOPPING=1")
         return 0
+
+    def _say_loss(self, loss0: tuple, now: float) -> tuple:
+        """The loss warning (:func:`loss_warning`) for the stretch since ``loss0`` (its start,
+        monotonic s, and the board's counters then), logged when it lost more than LOSS_SHARE;
+        returns the next stretch's start."""
+        st = self.board.stats
+        msg = loss_warning(st.samples - loss0[1], st.missing - loss0[2], st.fifo_resets - loss0[3],
+                           st.reinits - loss0[4], now - loss0[0], getattr(self.board.clock, "speed", 1.0))
+        if msg:
+            log.warning("%s", msg)
+        return (now, st.samples, st.missing, st.fifo_resets, st.reinits)
 
     def _echo(self, data: bytes, now: float) -> None:
         """--echo (ndjson or csv; cmd_run refuses it for binary): every event line of the batch

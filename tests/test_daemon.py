@@ -535,3 +535,17 @@ def test_a_gap_inside_a_merged_batch_comes_where_its_samples_are_missing(fmt):
     want = ([("IMU", s) for s in range(10)] + [("GAP", 10)] + [("IMU", s) for s in range(12, 20)]
             + [("GAP", 20)] + [("IMU", s) for s in range(25, 30)])
     assert order == want, order
+
+
+def test_a_part_applied_alone_says_whose_provisional_figures_it_quotes():
+    """A gyro part applied alone keeps the provisional accelerometer part in force, and the
+    line quoted that part's pose count and missing orientations as if they were now's ('15
+    poses of the 25 ...' at pose 20: read as poses lost, a newcomer's walk).  It now says they
+    are the accel part's, from its fit.  Broken once (the flag ignored): the second fails."""
+    from imucald.daemon.pipeline import _provisional_text
+    prov = {"poses": 15, "poses_for_final": 25, "missing_orientations": ["-X up", "+Z up"]}
+    assert _provisional_text(prov) == (" as provisional (15 poses of the 25 for a final one; missing "
+                                       "orientations: -X up, +Z up)")
+    assert _provisional_text(prov, accel_new=False) == (" as provisional (its accel part fitted on 15 poses "
+                                                        "of the 25 for a final one; missing then: -X up, +Z up)")
+    assert _provisional_text(None) == ""

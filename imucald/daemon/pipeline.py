@@ -714,7 +714,8 @@ class Pipeline:
                          **{k: cand.part(k) for k in take})
         self.applied, self.applied_t_s = new, self.t_last
         self.persist("calibration", new)
-        msg = f"calibration #{new.id} applied{_provisional_text(prov)}{_partly(cand, take)}: " + "; ".join(parts)
+        msg = (f"calibration #{new.id} applied{_provisional_text(prov, 'accel' in take)}{_partly(cand, take)}: "
+               + "; ".join(parts))
         log.info(msg)
         self.events.append(msg)
         return event("CAL", self.fmt, id=new.id, applied=True, provisional=prov is not None,
@@ -781,12 +782,18 @@ def _partly(cand: Calibration, take) -> str:
     return f" ({', '.join(taken)} part{'s' if len(taken) > 1 else ''}; {', '.join(out)} not applied)"
 
 
-def _provisional_text(prov) -> str:
+def _provisional_text(prov, accel_new: bool = True) -> str:
+    """' as provisional (N poses of the M for a final one; missing orientations: ...)'; when
+    the accelerometer part is the one in force (a gyro or magnetometer part applied alone),
+    its figures are that part's, from when it was fitted, and the line says so (they read as
+    poses lost: '15 poses' at pose 20, a newcomer's walk)."""
     if prov is None:
         return ""
     miss = prov["missing_orientations"]
-    return (f" as provisional ({prov['poses']} poses of the {prov['poses_for_final']} for a final one" +
-            (f"; missing orientations: {', '.join(miss)})" if miss else ")"))
+    whose = "" if accel_new else "its accel part fitted on "
+    gone = "missing orientations" if accel_new else "missing then"
+    return (f" as provisional ({whose}{prov['poses']} poses of the {prov['poses_for_final']} for a final one" +
+            (f"; {gone}: {', '.join(miss)})" if miss else ")"))
 
 
 def _undetermined(part) -> Optional[Dict[str, str]]:

@@ -49,6 +49,16 @@ def _stop_on_signals():
     return got
 
 
+def _warn_emulated(asked: bool, desc: str) -> None:
+    """A warning when ``record`` fell back to the emulator unasked (no I2C bus): a Pi whose I2C
+    is off would otherwise record a simulated session in silence, which calibrate then fits
+    (a newcomer's walk)."""
+    if not asked and "no I2C bus found" in desc:
+        _eprint("imucald: warning: no I2C bus on this machine (/dev/i2c-* absent): recording the "
+                "EMULATED board, simulated data and not a sensor's; to record a board enable I2C "
+                "(raspi-config, or dtparam=i2c_arm=on) and reboot; --emulate says you mean the emulator")
+
+
 def cmd_record(args) -> int:
     """Samples are written as they come (recording.RecordingWriter): the header once the
     board runs, then every batch, fsynced each second, so an interrupted recording (Ctrl-C,
@@ -63,12 +73,7 @@ def cmd_record(args) -> int:
                                   mag=args.mag, tour=dict(tremor_dps=args.tremor_dps))
     stop = _stop_on_signals()
     board.start()
-    if not args.emulate and "no I2C bus found" in desc:
-        # a Pi whose I2C is off would otherwise record a simulated session in silence, which
-        # calibrate then fits (a newcomer's walk)
-        _eprint("imucald: warning: no I2C bus on this machine (/dev/i2c-* absent): recording the "
-                "EMULATED board, simulated data and not a sensor's; to record a board enable I2C "
-                "(raspi-config, or dtparam=i2c_arm=on) and reboot; --emulate says you mean the emulator")
+    _warn_emulated(args.emulate, desc)
     _eprint(f"imucald: recording {args.seconds:g} s from {desc} at {board.rate_hz:g} Hz")
     meta = {"board": board.name, "rate_hz": f"{board.rate_hz:g}", "source": f"imucald record: {desc}",
             "chips": ",".join(f"{k}={v}" for k, v in board.chips().items())}

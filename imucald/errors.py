@@ -9,6 +9,8 @@ code  name            meaning (a restart cannot fix the ones marked *)
 ====  ==============  ==========================================================
 2     usage/input *   bad option or argument, malformed input file, wrong chip,
                       an address owned by a kernel driver
+3     undetermined    ``calibrate --sensor mag``: the rotation does not determine
+                      the calibration (nothing written; not an error line)
 69    unavailable     the device: no I2C bus, no acknowledge from the chip, bus
                       errors at start (wiring, power: may come back)
 73    cannot create * an output file, socket or directory cannot be created
@@ -21,6 +23,7 @@ systemd/imucald.service's ``RestartPreventExitStatus=`` lists the starred ones.
 """
 
 EX_USAGE = 2
+EX_UNDETERMINED = 3
 EX_UNAVAILABLE = 69
 EX_CANTCREAT = 73
 EX_IOERR = 74

@@ -9,7 +9,7 @@ import math
 import os
 from typing import Optional
 
-from ..errors import UserError, write_failure
+from ..errors import EX_UNDETERMINED, UserError, write_failure
 from ._common import eprint as _eprint, print_json
 
 SENSORS = ("accel", "gyro", "mag")
@@ -529,10 +529,10 @@ def _calibrate_mag_rotation(args, rec, model, progress) -> int:
             from .thermal import thermal_json
             d["thermal"] = thermal_json("mag", tf, part)
         print_json(d)
-        return 0 if res["determined"] else 3
+        return 0 if res["determined"] else EX_UNDETERMINED
     if not res["determined"]:
         _eprint(f"imucald: {args.input}: {flat_message(res)}")
-        return 3
+        return EX_UNDETERMINED
     print_cal("mag", res["calibration"])
     print("\n".join(rotation_lines(res)))
     if tf is not None:

@@ -91,20 +91,23 @@ def _first_line(path: str) -> str:
         else raw.decode("utf-8", errors="replace").rstrip("\r\n")
 
 
-#: a logger's column names as imucald's (lower case, '_', ' ', '.', '-' and units in brackets
-#: left out): Arduino sketches' AcX/GyX/Tmp, phone apps' accX, ROS's linear_acceleration.x
-_ALIASES = {"t": "t", "time": "t", "timestamp": "t", "ts": "t", "seconds": "t", "times": "t",
-            "tms": "t_ms", "timems": "t_ms", "millis": "t_ms", "ms": "t_ms",
-            "tus": "t_us", "timeus": "t_us", "micros": "t_us", "us": "t_us",
-            "tns": "t_ns", "timens": "t_ns", "ns": "t_ns",
-            "temp": "temp", "tmp": "temp", "temperature": "temp", "tempc": "temp", "die": "temp"}
-for _ax in "xyz":
-    for _k, _stems in (("a", ("a", "ac", "acc", "accel", "accelerometer", "acceleration",
-                              "linearacceleration")),
-                       ("g", ("g", "gy", "gyr", "gyro", "gyroscope", "angularvelocity", "rot", "rate")),
-                       ("m", ("m", "mag", "magn", "magnet", "magnetometer", "magneticfield", "compass"))):
-        for _s in _stems:
-            _ALIASES[_s + _ax] = _k + _ax
+def _alias_table() -> Dict[str, str]:
+    """A logger's column names as imucald's (lower case, '_', ' ', '.', '-' and units in
+    brackets left out): Arduino sketches' AcX/GyX/Tmp, phone apps' accX, ROS's
+    linear_acceleration.x."""
+    out = {"t": "t", "time": "t", "timestamp": "t", "ts": "t", "seconds": "t", "times": "t",
+           "tms": "t_ms", "timems": "t_ms", "millis": "t_ms", "ms": "t_ms",
+           "tus": "t_us", "timeus": "t_us", "micros": "t_us", "us": "t_us",
+           "tns": "t_ns", "timens": "t_ns", "ns": "t_ns",
+           "temp": "temp", "tmp": "temp", "temperature": "temp", "tempc": "temp", "die": "temp"}
+    stems = {"a": ("a", "ac", "acc", "accel", "accelerometer", "acceleration", "linearacceleration"),
+             "g": ("g", "gy", "gyr", "gyro", "gyroscope", "angularvelocity", "rot", "rate"),
+             "m": ("m", "mag", "magn", "magnet", "magnetometer", "magneticfield", "compass")}
+    out.update({s + ax: k + ax for ax in "xyz" for k, ss in stems.items() for s in ss})
+    return out
+
+
+_ALIASES = _alias_table()
 
 
 def _columns_from_header(line: str) -> str:

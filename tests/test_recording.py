@@ -866,6 +866,24 @@ def test_a_loggers_own_header_repeated_mid_file_is_named(tmp_path, sep):
     assert msg.startswith(f"{p}:5: a column header again ({head!r}): a logger that restarted"), msg
 
 
+def test_a_temperature_beyond_any_die_is_warned_of(tmp_path, capsys):
+    """A temperature column whose median is plausible but whose span no die reaches (a ramp to
+    222 degC: a conversion off in its slope; a black-box helper's odd input) was read without
+    a word, and thermal terms fitted over it.  One warning now names the span and the rows
+    outside -60..150 degC; a warm-up of 22..40 degC says nothing.  Broken once (the span not
+    checked): fails."""
+    from imucald.fitting.inputs import read_table
+    p = tmp_path / "hot.csv"
+    for top, said in ((222.0, True), (40.0, False)):
+        temp = np.linspace(22.0, top, 300)
+        p.write_text("".join(f"{i / 100:.2f},0,0,1,{t:.3f}\n" for i, t in enumerate(temp)))
+        assert len(read_table(str(p), ["t", "ax", "ay", "az", "temp"], 1.0)) == 300
+        err = capsys.readouterr().err
+        k = int(np.count_nonzero(temp > 150.0))
+        want = f"imucald: warning: {p}: the temperature spans 22..{top:g} degC, {k} row(s) outside any die's -60..150"
+        assert (want in err) == said and err.count("\n") == int(said), err
+
+
 def test_a_skipped_column_may_hold_text(tmp_path):
     """A ROS `rostopic echo -p` export has a text column (field.header.frame_id, "imu_link")
     among its numbers: skipped with '-', the file was still "not a numeric table" (a cold

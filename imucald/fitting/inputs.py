@@ -540,10 +540,18 @@ def _unit_warnings(path: str, c: dict, nominal_scale) -> List[str]:
     temp = c.get("temp")          # finite: the reader refuses a NaN with its file:line
     if temp is not None and len(temp):
         m = float(median(temp))
-        if not TEMP_MEDIAN_RANGE_C[0] <= m <= TEMP_MEDIAN_RANGE_C[1]:
+        lo, hi = TEMP_MEDIAN_RANGE_C
+        if not lo <= m <= hi:
             out.append(f"{path}: the temperature reads a median of {m:.5g} degC, outside any die's: "
                        f"raw counts? give --nominal-scale temp=N and --nominal-offset temp=N (an "
                        f"MPU-6050: temp=340 and temp=-12420.2, from T = counts / 340 + 36.53)")
+        elif not lo <= float(temp.min()) <= float(temp.max()) <= hi:
+            # a plausible median but a span no die reaches (a conversion off in its slope, a
+            # logger's glitches): thermal terms fitted over it would be extrapolated far
+            k = int(np.count_nonzero((temp < lo) | (temp > hi)))
+            out.append(f"{path}: the temperature spans {float(temp.min()):.4g}..{float(temp.max()):.4g} "
+                       f"degC, {k} row(s) outside any die's {lo:g}..{hi:g}: check its conversion "
+                       f"(--nominal-scale temp=N, --nominal-offset temp=N) or the rows")
     return out
 
 

@@ -217,3 +217,21 @@ def test_a_board_that_moved_is_said_and_the_guides_still_board_is_still(tmp_path
     assert m, err
     a0, a1, b0, b1 = map(float, m.groups())      # each named within a second of the bump
     assert abs(a0 - 20) < 1 and abs(a1 - 22) < 1 and abs(b0 - 40) < 1 and abs(b1 - 42) < 1, err
+    # a cold review (helper-89): a board moving throughout crashed (IndexError), and a move in
+    # the first seconds (the hand leaving the board) went unsaid
+    rec = read_recording(str(still))
+    ang = np.radians(20.0) * np.sin(2 * np.pi * 0.3 * rec.t)
+    g = float(np.linalg.norm(rec.acc.mean(0)))
+    rec.acc = np.column_stack([np.sin(ang), np.zeros_like(ang), np.cos(ang)]) * g + (rec.acc - rec.acc.mean(0))
+    write_recording(rec, str(moved))
+    assert main(["noise", str(moved)]) == 0
+    err = capsys.readouterr().err
+    assert "no still stretch in samples 0..5999 by calibrate's detector" in err and "Traceback" not in err, err
+    rec = read_recording(str(still))
+    k = (rec.t >= 0.5) & (rec.t < 2.5)
+    rec.acc[k, 0] += 0.3 * np.sin(np.pi * (rec.t[k] - 0.5) / 2.0)
+    write_recording(rec, str(moved))
+    assert main(["noise", str(moved), "--rate-hz", "100"]) == 0
+    err = capsys.readouterr().err
+    assert "the board moved in the stretch (1 time(s): 0.0-" in err, err
+    assert "ignored" not in err, err              # noise applies --rate-hz to a recording too

@@ -929,6 +929,8 @@ def test_record_without_a_bus_says_it_records_the_emulator(tmp_path, capsys, mon
     ("%time,field.header.frame_id,field.linear_acceleration.x,field.linear_acceleration.y,"
      "field.linear_acceleration.z", "t_ns,-,ax,ay,az"),                                  # ROS rostopic -p
     ("idx,magX,magY,magZ", "-,mx,my,mz"),
+    ("Time (ms),AccX [g],AccY [g],AccZ [g]", "t_ms,ax,ay,az"),       # a unit in brackets (a review)
+    ("timestamp [us];ax;ay;az", "t_us,ax,ay,az"),
     ("foo,bar", None), ("0.1,0.2,0.3", None), ("t,ax,ax,az", None)])
 def test_a_headed_table_without_columns_is_told_the_columns_its_header_names(tmp_path, header, cols):
     """A logger's CSV with a header of names and no --columns was "not an imucald recording
@@ -946,3 +948,40 @@ def test_a_headed_table_without_columns_is_told_the_columns_its_header_names(tmp
     else:
         rate = " and --rate-hz" if not cols.split(",")[0].startswith("t") else ""
         assert msg == head + f": its header reads as --columns {cols} (check each unit: --nominal-scale{rate})", msg
+
+
+def test_what_a_review_found_in_the_new_table_paths_reads_as_before(tmp_path):
+    """A cold review (helper-89) of the date-time, quoted and header-again paths: each of these
+    read before them and must still read as the plain table does.  (1) A logger's metadata line
+    that looks like a date-stamped row above the table ("2026-01-01T12:00:00,100,2,250") was
+    refused as a date-time column; (2) an empty quoted text field in a skipped column (csv's
+    QUOTE_NONNUMERIC) lost its field when the quotes were read as spaces; (3) a ';' table with
+    a decimal comma and a terminal's time of day was not recognised, and its skip is one '-';
+    (4) a status line above the header, written again mid-file, is no "header again".
+    Broken once each (the date-time error raised at once; quotes taken with empty fields; the
+    fields split at ',' first; every skipped line kept as a header): fails."""
+    from imucald.fitting.inputs import read_table
+    rows = [(0.01 * i, 0.01 * (i % 7), -0.02, 1.0 - 0.001 * (i % 3)) for i in range(300)]
+    plain = tmp_path / "plain.csv"
+    plain.write_text("".join(f"{t:.2f},{x:.3f},{y:.3f},{z:.3f}\n" for t, x, y, z in rows))
+    ref = read_table(str(plain), ["t", "ax", "ay", "az"], 1.0)
+    p = tmp_path / "meta.csv"
+    p.write_text("2026-01-01T12:00:00,100,2,250\n" + plain.read_text())
+    a = read_table(str(p), ["t", "ax", "ay", "az"], 1.0)
+    assert np.array_equal(a.acc, ref.acc) and np.array_equal(a.t, ref.t)
+    p = tmp_path / "emptyq.csv"
+    p.write_text("".join(f'{t:.2f},"",{x:.3f},{y:.3f},{z:.3f}\n' for t, x, y, z in rows))
+    a = read_table(str(p), ["t", "-", "ax", "ay", "az"], 1.0)
+    assert np.array_equal(a.acc, ref.acc) and np.array_equal(a.t, ref.t)
+    p = tmp_path / "tod.csv"
+    p.write_text("t;ax;ay;az\n" + "".join(f"12:00:{t:06.3f};{x:.3f};{y:.3f};{z:.3f}\n".replace(".", ",")
+                                         for t, x, y, z in rows))
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 1.0, cls=UserError)
+    assert f"{p}:2: column 1 (t) reads '12:00:00,000', a date and time" in msg and "(--columns -,ax,ay,az)" in msg, msg
+    a = read_table(str(p), ["-", "ax", "ay", "az"], 1.0, rate_hz=100.0)
+    assert np.array_equal(a.acc, ref.acc)
+    p = tmp_path / "status.csv"
+    lines = plain.read_text().splitlines()
+    p.write_text("\n".join(["NACK,NACK,NACK,NACK", "t,ax,ay,az"] + lines[:5] + ["NACK,NACK,NACK,NACK"] + lines[5:]) + "\n")
+    msg = _one_line_error(read_table, str(p), ["t", "ax", "ay", "az"], 1.0, cls=UserError)
+    assert msg == f"{p}:8: column t: 'NACK' is not a number", msg

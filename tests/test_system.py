@@ -405,7 +405,7 @@ def test_kill_9_restarts_with_the_state_kept(sysc):
 
 
 def test_a_calibration_file_root_copies_in_is_loaded(sysc):
-    """one-file.md's step for the service: `sudo cp calibration.yaml /var/lib/imucald/` and a
+    """one-file.md's step for the service: `sudo install -m 0644 calibration.yaml /var/lib/imucald/` and a
     restart.  The file is root's, the service a DynamicUser: it was set aside as "corrupt"
     (owned by another uid; a newcomer's walk read the step and found no way to own it).  A
     file `calibrate -o` made in the container, copied in by root, is loaded after the
@@ -413,7 +413,7 @@ def test_a_calibration_file_root_copies_in_is_loaded(sysc):
     with sysc.explain("imucald.service"):
         sysc.sh("imucald simulate -o /root/s.csv --board mpu6050 --poses 12 --hold 3 --seed 3 && "
                 "imucald calibrate /root/s.csv -o /root/cal.yaml", timeout=120)
-        sysc.sh("cp /root/cal.yaml /var/lib/imucald/calibration.yaml")
+        sysc.sh("install -m 0644 /root/cal.yaml /var/lib/imucald/calibration.yaml")
         assert sysc.sh("stat -c %u /var/lib/imucald/calibration.yaml").stdout.strip() == "0"
         cur = sysc.cursor()
         sysc.sh("systemctl restart imucald", timeout=60)

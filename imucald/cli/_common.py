@@ -72,15 +72,16 @@ class TableReader:
             yield self.rec.slice(i, i + self.rows)
 
 
-def read_input(args, path: str):
+def read_input(args, path: str, applied=()):
     """(kind, obj) of the file a command reads (fitting.inputs.load_input), with the raw-table
     options it was given: --columns, --nominal-scale, --nominal-offset, --rate-hz, --join
-    with --join-columns, and --board."""
+    with --join-columns, and --board.  ``applied``: the options the command applies to an
+    imucald file too (not warned of as ignored there)."""
     from ..fitting.inputs import load_input
     columns = args.columns.split(",") if getattr(args, "columns", None) else None
     join = (args.join, args.join_columns.split(",")) if getattr(args, "join", None) else None
     return load_input(path, columns, args.nominal_scale, args.nominal_offset, args.rate_hz, join,
-                      getattr(args, "board", None))
+                      getattr(args, "board", None), applied)
 
 
 def input_recording(args, path: str, whole: bool = True):

@@ -29,8 +29,9 @@ def merge_calibrations(named: List[Tuple[str, object]], created: str = ""):
     from ..calibration import Calibration
     if not named:
         raise UserError("calibration merge: no input files")
-    names = [n for n, _ in named]
-    twice = next((n for i, n in enumerate(names) if n in names[:i]), None)
+    import os
+    names = [os.path.normpath(n) for n, _ in named]     # ./a.yaml is a.yaml
+    twice = next((named[i][0] for i, n in enumerate(names) if n in names[:i]), None)
     if twice is not None:
         raise UserError(f"{twice}: given twice: name each file once")
     first_name, first = named[0]

@@ -34,7 +34,7 @@ def cmd_noise(args) -> int:
     from ..fitting.noise.allan import characterise, figures_document, kalibr_text
     from ..fitting.inputs import stuck_columns, stuck_message
     from ._common import read_input
-    kind, rec = read_input(args, args.recording)
+    kind, rec = read_input(args, args.recording, applied=("--rate-hz",))     # a recording's rate too
     if kind != "recording":
         raise UserError(f"{args.recording}: noise needs samples (a recording), not pose averages")
     i0, i1, rate = still_stretch(rec.t, args.start_s, args.end_s, args.max_gap_s)
@@ -105,8 +105,8 @@ MOTION_MIN_S = 1.0
 def motion_in_stretch(rec, i0: int, i1: int, rate_hz: float) -> str:
     """What moved in the stretch ``i0:i1`` that noise figures need still, or '': the still
     detector (calibrate's, with its defaults) over the stretch, and the gaps of more than
-    MOTION_MIN_S between its still intervals (before the first and after the last too, beyond
-    the detector's own first decision); no still stretch at all is said only where the
+    MOTION_MIN_S between its still intervals, before the first and after the last (the
+    detector marks a still start from its first samples on); no still stretch at all is said only where the
     accelerometer reads ~1 g (else its units are the question).  A board lifted now and then inflated the Allan
     deviation near its period and the fit read a white density of 0 and a bias instability
     of 5.6 mg, with no word (a newcomer's walk on the noise guide's own example)."""
@@ -118,11 +118,14 @@ def motion_in_stretch(rec, i0: int, i1: int, rate_hz: float) -> str:
     ivs, _, det = detect(t, rec.acc[i0:i1], None if rec.gyro is None else rec.gyro[i0:i1], rate_hz)
     spans = [(float(t[s.start]), float(t[s.stop - 1])) for s in merge_cut(ivs)]
     g = float(np.median(np.linalg.norm(np.asarray(rec.acc[i0:i1], float), axis=1)))
-    if not spans and not 0.65 <= g <= 1.35:
-        return ""                   # not in g (its own warning says so), or in free fall
+    if not spans:
+        if not 0.65 <= g <= 1.35:
+            return ""               # not in g (its own warning says so), or in free fall
         return (f"no still stretch in samples {i0}..{i1 - 1} by calibrate's detector: noise figures "
                 f"need the board left still (a moving board's figures are its motion's)")
     gaps = [(a, b) for (_, a), (b, _) in zip(spans, spans[1:]) if b - a > MOTION_MIN_S]
+    if spans[0][0] > t[0] + MOTION_MIN_S:           # the hand leaving the board
+        gaps.insert(0, (float(t[0]), spans[0][0]))
     if spans[-1][1] < t[-1] - MOTION_MIN_S - 1.0:
         gaps.append((spans[-1][1], float(t[-1])))
     if not gaps:

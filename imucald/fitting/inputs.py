@@ -121,6 +121,12 @@ def _columns_from_header(line: str) -> str:
     # a ROS `rostopic echo -p` export: %time in ns, field.linear_acceleration.x, ...
     keys = ["tns" if k == "%time" else k[5:] if k.startswith("field") else k for k in keys]
     cols = [_ALIASES.get(k, "-") for k in keys]
+    # a time named with its unit in brackets: "Time (ms)", "timestamp [us]"
+    units = {"s": "t", "ms": "t_ms", "us": "t_us", "\u00b5s": "t_us", "ns": "t_ns"}
+    for j, n in enumerate(names):
+        u = re.search(r"[(\[]\s*([^)\]]*?)\s*[)\]]", n)
+        if cols[j].startswith("t") and cols[j] != "temp" and u and u.group(1).lower() in units:
+            cols[j] = units[u.group(1).lower()]
     real = [c for c in cols if c != "-"]
     if not any(c[0] in "agm" and len(c) == 2 for c in real) or len(real) != len(set(real)):
         return ""
@@ -269,7 +275,10 @@ def _quoted_numbers(s: str) -> bool:
     if '"' not in s or s.count('"') % 2:
         return False
     inside = re.findall(r'"([^"]*)"', s)
-    return bool(inside) and not (any("," in q for q in inside) and "," in re.sub(r'"[^"]*"', "", s))
+    # "" or "a b" (a skipped text column) would lose or split a field as spaces: read as before
+    if not inside or any(not q or re.search(r"\s", q) for q in inside):
+        return False
+    return not (any("," in q for q in inside) and "," in re.sub(r'"[^"]*"', "", s))
 
 
 def _quoted_comma_message(s: str, path: str, lineno: int) -> Optional[str]:
@@ -343,10 +352,12 @@ _DATETIME = re.compile(r"^(\d{4}-\d{2}-\d{2}([T ]\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)
 
 
 def _datetime_column(s: str, cols: Sequence[str]) -> Optional[tuple]:
-    """(index, field) of the named column of row ``s`` that holds a date or a time of day
+    """(index, field, fields it is read as) of the named column of row ``s`` that holds a date or a time of day
     while the other named columns hold numbers, or None.  The fields are split at the row's
-    ',', ';' or tab, else at whitespace (a date and its time there are one field)."""
-    sep = next((c for c in ",;\t" if c in s), None)
+    ';' (a decimal-comma table), else tab, else ',', else whitespace (a date and its time
+    there are one field).  Only a time column (t, t_ms, ...) or the first column is taken for
+    one: a date where a sensor is named means the columns are not the file's."""
+    sep = next((c for c in ";\t," if c in s), None)
     fields = [f.strip() for f in (s.split(sep) if sep else s.split())]
     if sep is None:          # "2026-01-01 12:00:00.0 0.01 ...": the date and time are one field
         fields = [f"{a} {b}" if _DATETIME.match(f"{a} {b}") and not _numeric([a]) else a
@@ -356,17 +367,20 @@ def _datetime_column(s: str, cols: Sequence[str]) -> Optional[tuple]:
     if len(fields) != len(cols):
         return None
     named = [i for i, c in enumerate(cols) if c != "-"]
-    hits = [i for i in named if _DATETIME.match(fields[i])]
-    if len(hits) != 1 or not _numeric([fields[i] for i in named if i != hits[0]]):
+    hits = [i for i in named if _DATETIME.match(fields[i]) and (i == 0 or cols[i] in TIME_COLUMNS_S_PER_UNIT)]
+    dec = (lambda f: f.replace(",", ".")) if sep == ";" else (lambda f: f)     # a decimal comma
+    if len(hits) != 1 or not _numeric([dec(fields[i]) for i in named if i != hits[0]]):
         return None
-    return hits[0], fields[hits[0]]
+    # the fields the readers will split it into: at ',' and white space, or (a decimal-comma
+    # table, its ',' read as '.') at white space
+    f = fields[hits[0]]
+    return hits[0], f, len((f if sep == ";" else f.replace(",", " ")).split())
 
 
-def _datetime_message(path: str, lineno: int, cols: Sequence[str], i: int, field: str) -> str:
-    """The one-line error for a time column written as a date and time (:func:`_datetime_column`)."""
-    # the readers split a line at ',' and white space: a date and its time are two fields there
-    skip = ",".join(",".join(["-"] * len(field.replace(",", " ").split())) if j == i else c
-                    for j, c in enumerate(cols))
+def _datetime_message(path: str, lineno: int, cols: Sequence[str], i: int, field: str, ntok: int) -> str:
+    """The one-line error for a time column written as a date and time (:func:`_datetime_column`:
+    ``ntok`` fields as the readers split it, one '-' each)."""
+    skip = ",".join(",".join(["-"] * ntok) if j == i else c for j, c in enumerate(cols))
     return (f"{path}:{lineno}: column {i + 1} ({cols[i]}) reads {field!r}, a date and time, not a "
             f"number: skip it (--columns {skip}) and give the sample rate (--rate-hz), or write the "
             f"time as a number (t: s, t_ms: ms, t_us: us, t_ns: ns)")
@@ -379,20 +393,23 @@ def _first_row(fh, path: str, cols: Sequence[str]):
     values and ',' as the decimal mark (:func:`_decimal_comma`; a row of whole numbers leaves
     it to the next row holding a ',' or ';').  Quoted: its values are in double quotes
     (:func:`_quoted_numbers`), read as if the quotes were spaces.  Last, the set of the
-    non-comment lines skipped above it (its header, as :class:`TableSpec` keeps it)."""
+    non-comment line skipped right above it, as a set (its header, as :class:`TableSpec`
+    keeps it).  A row whose time is a date and time, or of quoted decimal commas between
+    commas, is said (in place of "no row of numbers") only when no row of numbers follows: a
+    logger's metadata line above its table may look like one."""
     lineno, offset = 1, 0
     if fh.read(len(BOM)) == BOM:
         offset = len(BOM)
     fh.seek(offset)
-    skipped = set()
+    header, pending = frozenset(), None
     while True:
         raw = fh.readline(1 << 16)
         if lineno > 1000 or (len(raw) >= 1 << 16 and not raw.endswith(b"\n")):
-            raise UserError(f"{path}:{lineno}: no row of {len(cols)} numbers in the first "
-                            f"{lineno} lines: not a numeric table ({','.join(cols)})")
+            raise UserError(pending or f"{path}:{lineno}: no row of {len(cols)} numbers in the first "
+                                       f"{lineno} lines: not a numeric table ({','.join(cols)})")
         if not raw:
-            raise UserError(f"{path}: no numeric rows (expected {len(cols)} numbers per line: "
-                            f"{','.join(cols)})")
+            raise UserError(pending or f"{path}: no numeric rows (expected {len(cols)} numbers per line: "
+                                       f"{','.join(cols)})")
         s = decode_line(path, raw, lineno, offset).strip()
         quoted = _quoted_numbers(s)
         if quoted:
@@ -408,15 +425,11 @@ def _first_row(fh, path: str, cols: Sequence[str]):
                     # a row of whole numbers (t = 0, counts) says nothing of the decimal mark
                     comma = _decimal_comma_ahead(fh, path, lineno + 1, offset + len(raw), len(cols))
                 fh.seek(offset)
-                return lineno, offset, comma, quoted, frozenset(skipped)
-            dt = _datetime_column(s, cols)
-            if dt is not None:
-                raise UserError(_datetime_message(path, lineno, cols, *dt))
-            why = _quoted_comma_message(s, path, lineno)
-            if why:
-                raise UserError(why)
-            if len(skipped) < 16:
-                skipped.add(header_key(decode_line(path, raw, lineno, offset)))
+                return lineno, offset, comma, quoted, header
+            if pending is None:
+                dt = _datetime_column(s, cols)
+                pending = _datetime_message(path, lineno, cols, *dt) if dt else _quoted_comma_message(s, path, lineno)
+            header = frozenset([header_key(decode_line(path, raw, lineno, offset))])
         lineno, offset = lineno + 1, offset + len(raw)
 
 
@@ -656,16 +669,16 @@ def check_board(path: str, kind: str, board: Optional[str], meta: Dict[str, str]
 
 def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale: PerSensor = 1.0,
                nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None,
-               join: Optional[tuple] = None, board: Optional[str] = None):
+               join: Optional[tuple] = None, board: Optional[str] = None, applied: Sequence[str] = ()):
     """Return (kind, obj): ('recording', Recording) or ('poses', PoseSet).  An imucald file is
     read as what it is, whatever ``columns`` say.  ``join``: (path, columns) of a second raw
     table of the same session whose sensors are joined to the first's (:func:`join_tables`;
-    the same nominal scale and offset, per sensor).  ``board``: a raw table's board."""
+    the same nominal scale and offset, per sensor).  ``board``: a raw table's board.
+    ``applied``: options the command applies to any input (not warned of as ignored)."""
     kind = input_kind(path)
     if join is not None:
         _check_join(path, kind, columns, join)
-    if kind in ("recording", "poses"):
-        warn_table_options(path, kind, columns, nominal_scale, nominal_offset, rate_hz)
+    warn_table_options(path, kind, columns, nominal_scale, nominal_offset, rate_hz, applied)
     if kind == "recording":
         rec = read_recording(path)
         check_board(path, kind, board, rec.meta)
@@ -690,13 +703,17 @@ def load_input(path: str, columns: Optional[Sequence[str]] = None, nominal_scale
 
 
 def warn_table_options(path: str, kind: str, columns=None, nominal_scale: PerSensor = 1.0,
-                       nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None) -> None:
+                       nominal_offset: PerSensor = 0.0, rate_hz: Optional[float] = None,
+                       applied: Sequence[str] = ()) -> None:
     """One warning when a raw table's options were given for an imucald file, which is read as
     it is (its header names its columns, in g, deg/s and gauss): a user who took the file for
-    counts learnt nothing from a fit that came out the same (a newcomer's walk)."""
+    counts learnt nothing from a fit that came out the same (a newcomer's walk).  ``applied``:
+    the options the command applies to any input itself (noise's --rate-hz)."""
+    if kind not in ("recording", "poses"):
+        return
     given = [o for o, v, dflt in (("--columns", columns, None), ("--nominal-scale", nominal_scale, 1.0),
                                   ("--nominal-offset", nominal_offset, 0.0), ("--rate-hz", rate_hz, None))
-             if v is not None and (isinstance(v, dict) or v != dflt)]
+             if v is not None and (isinstance(v, dict) or v != dflt) and o not in applied]
     if given:
         warn(f"{path}: an imucald {kind} (its header names its columns, in g, deg/s and gauss): "
              f"{', '.join(given)} {'apply' if len(given) > 1 else 'applies'} to raw tables only and "

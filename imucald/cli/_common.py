@@ -102,11 +102,11 @@ def input_recording(args, path: str, whole: bool = True):
             _, rec = read_input(args, path)       # (load_input refuses --join on a recording)
             return rec if whole else TableReader(rec)
     from ..files.recording import open_recording
-    from ..fitting.inputs import input_kind, warn_table_options
+    from ..fitting.inputs import warn_table_options
+    reader = open_recording(path)         # (not a recording: its own error, no warning)
     columns = args.columns.split(",") if getattr(args, "columns", None) else None
-    warn_table_options(path, input_kind(path), columns, getattr(args, "nominal_scale", 1.0),
+    warn_table_options(path, "recording", columns, getattr(args, "nominal_scale", 1.0),
                        getattr(args, "nominal_offset", 0.0), getattr(args, "rate_hz", None))
-    reader = open_recording(path)
     if getattr(args, "board", None):              # it must agree with the header's board
         from ..fitting.inputs import check_board
         try:

@@ -117,8 +117,8 @@ def motion_in_stretch(rec, i0: int, i1: int, rate_hz: float) -> str:
     t = np.asarray(rec.t[i0:i1], float)
     ivs, _, det = detect(t, rec.acc[i0:i1], None if rec.gyro is None else rec.gyro[i0:i1], rate_hz)
     spans = [(float(t[s.start]), float(t[s.stop - 1])) for s in merge_cut(ivs)]
-    g = float(np.median(np.linalg.norm(np.asarray(rec.acc[i0:i1], float), axis=1)))
     if not spans:
+        g = float(np.median(np.linalg.norm(np.asarray(rec.acc[i0:i1], float), axis=1)))
         if not 0.65 <= g <= 1.35:
             return ""               # not in g (its own warning says so), or in free fall
         return (f"no still stretch in samples {i0}..{i1 - 1} by calibrate's detector: noise figures "

@@ -91,12 +91,12 @@ def header_key(line: str) -> str:
     return " ".join(re.split(r'[\s,;"]+', line)).strip()
 
 
-def _header_again(parts, names, line: str = "", headers=frozenset()) -> bool:
+def _header_again(parts, names, line: str = "", header: str = "") -> bool:
     """A row of column names where numbers were expected: the file's own header line again
-    (``headers``: the lines above its first row), or no field a number, every field a name,
-    one of them a known column's (a logger that restarted and appended wrote its header again;
+    (``header``: the line above its first row, :func:`header_key`), or no field a number,
+    every field a name, one of them a known column's (a logger that restarted and appended wrote its header again;
     a logger's error line, "I2C,timeout", is not one)."""
-    if headers and header_key(line) in headers:
+    if header and header_key(line) == header:
         return True
     known = _HEADER_WORDS | {n.lower() for n in names}
     if not any(p.strip().lower() in known for p in parts):
@@ -141,9 +141,9 @@ class TableSpec:
         #: translation (a decimal-comma export: ``1,5;2`` is parsed as ``1.5 2``): an error then
         #: quotes the file's own text, not the translated one
         self.source_line = None
-        #: the non-comment lines above the first row (a table's column names, as its logger
-        #: wrote them; :func:`header_key`): the same line again mid-file is that header again
-        self.header_lines: frozenset = frozenset()
+        #: the non-comment line right above the first row (a table's column names, as its
+        #: logger wrote them; :func:`header_key`): the same line again mid-file is that header
+        self.header_line = ""
 
     def quoted(self, lineno: int, j: int, text: str) -> str:
         """The value of column ``j`` on line ``lineno``, parsed as ``text``, as the file has it
@@ -683,7 +683,7 @@ def _slow_row(s: str, line: str, spec: TableSpec, ln: int, prev_t: float, start:
         except ValueError:
             if spec.names[j] == "-":        # a skipped column may hold text (a frame id)
                 v = float("nan")
-            elif _header_again(parts, spec.names, s, spec.header_lines):
+            elif _header_again(parts, spec.names, s, spec.header_line):
                 own = spec.source_line(ln) if spec.source_line is not None else None
                 spec.fail(ln, _header_message((own or s).strip(), spec.path, ln, start or ln))
             else:

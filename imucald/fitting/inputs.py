@@ -183,7 +183,7 @@ def read_table(path: str, columns: Sequence[str], nominal_scale: PerSensor = 1.0
                      checked=[c != "-" for c in cols],
                      limit_note=" (|value| > 1e6 g, deg/s, gauss or degC after --nominal-scale)")
     with open_binary(path, UserError) as fh:
-        lineno, offset, comma, quoted, spec.header_lines = _first_row(fh, path, cols)
+        lineno, offset, comma, quoted, spec.header_line = _first_row(fh, path, cols)
         if comma:
             warn(f"{path}:{lineno}: read as a spreadsheet's export: ';' or whitespace between "
                  f"values, ',' (if any) as the decimal mark")
@@ -267,26 +267,33 @@ def _translation(comma: bool, quoted: bool) -> bytes:
     return bytes.maketrans(src, dst)
 
 
+def _quoted(s: str):
+    """(the quoted fields, whether a ',' stands between them) of a row, or None when it has
+    no (balanced) double quotes."""
+    if '"' not in s or s.count('"') % 2:
+        return None
+    inside = re.findall(r'"([^"]*)"', s)
+    return (inside, "," in re.sub(r'"[^"]*"', "", s)) if inside else None
+
+
 def _quoted_numbers(s: str) -> bool:
     """Whether a row's values are written in double quotes, none with a ',' inside unless no
     ',' stands between them (``"0,61";"0,30"``: a decimal comma, ';' between).  A quoted
     "0,61" with ',' between the values is a decimal comma in a ','-separated file: read
     without its quotes it would be two numbers (:func:`_quoted_comma_message`)."""
-    if '"' not in s or s.count('"') % 2:
-        return False
-    inside = re.findall(r'"([^"]*)"', s)
+    q = _quoted(s)
     # "" or "a b" (a skipped text column) would lose or split a field as spaces: read as before
-    if not inside or any(not q or re.search(r"\s", q) for q in inside):
+    if q is None or any(not f or re.search(r"\s", f) for f in q[0]):
         return False
-    return not (any("," in q for q in inside) and "," in re.sub(r'"[^"]*"', "", s))
+    return not (any("," in f for f in q[0]) and q[1])
 
 
 def _quoted_comma_message(s: str, path: str, lineno: int) -> Optional[str]:
     """The error for a row of quoted decimal-comma values with ',' between them, or None."""
-    inside = re.findall(r'"([^"]*)"', s)
-    if not inside or s.count('"') % 2 or "," not in re.sub(r'"[^"]*"', "", s):
+    qs = _quoted(s)
+    if qs is None or not qs[1]:
         return None
-    q = next((q for q in inside if _COMMA_NUMBER.match(q.strip())), None)
+    q = next((q for q in qs[0] if _COMMA_NUMBER.match(q.strip())), None)
     if q is None:
         return None
     return (f'{path}:{lineno}: values in quotes with "," as their decimal mark ("{q}") and "," '
@@ -358,12 +365,11 @@ def _datetime_column(s: str, cols: Sequence[str]) -> Optional[tuple]:
     there are one field).  Only a time column (t, t_ms, ...) or the first column is taken for
     one: a date where a sensor is named means the columns are not the file's."""
     sep = next((c for c in ";\t," if c in s), None)
-    fields = [f.strip() for f in (s.split(sep) if sep else s.split())]
     if sep is None:          # "2026-01-01 12:00:00.0 0.01 ...": the date and time are one field
-        fields = [f"{a} {b}" if _DATETIME.match(f"{a} {b}") and not _numeric([a]) else a
-                  for a, b in zip(fields, fields[1:] + [""])]
-        fields = [f for i, f in enumerate(fields) if not (i and " " in fields[i - 1]
-                                                         and fields[i - 1].endswith(" " + f))]
+        joined = re.sub(r"(\d{4}-\d{2}-\d{2}) +(\d{1,2}:\d{2})", "\\1\x00\\2", s)
+        fields = [f.replace("\x00", " ") for f in joined.split()]
+    else:
+        fields = [f.strip() for f in s.split(sep)]
     if len(fields) != len(cols):
         return None
     named = [i for i, c in enumerate(cols) if c != "-"]
@@ -387,21 +393,20 @@ def _datetime_message(path: str, lineno: int, cols: Sequence[str], i: int, field
 
 
 def _first_row(fh, path: str, cols: Sequence[str]):
-    """(line number, byte offset, decimal comma, quoted) of a raw table's first row of
+    """(line number, byte offset, decimal comma, quoted, header) of a raw table's first row of
     numbers, ``fh`` left there: blank, comment (#, %) and header lines before it skipped, and
     a UTF-8 byte-order mark.  Decimal comma: the row is written with ';' or whitespace between
     values and ',' as the decimal mark (:func:`_decimal_comma`; a row of whole numbers leaves
     it to the next row holding a ',' or ';').  Quoted: its values are in double quotes
-    (:func:`_quoted_numbers`), read as if the quotes were spaces.  Last, the set of the
-    non-comment line skipped right above it, as a set (its header, as :class:`TableSpec`
-    keeps it).  A row whose time is a date and time, or of quoted decimal commas between
+    (:func:`_quoted_numbers`), read as if the quotes were spaces.  Last, the non-comment
+    line skipped right above it (its header, as :class:`TableSpec` keeps it; header_key).  A row whose time is a date and time, or of quoted decimal commas between
     commas, is said (in place of "no row of numbers") only when no row of numbers follows: a
     logger's metadata line above its table may look like one."""
     lineno, offset = 1, 0
     if fh.read(len(BOM)) == BOM:
         offset = len(BOM)
     fh.seek(offset)
-    header, pending = frozenset(), None
+    header, pending = "", None
     while True:
         raw = fh.readline(1 << 16)
         if lineno > 1000 or (len(raw) >= 1 << 16 and not raw.endswith(b"\n")):
@@ -429,7 +434,7 @@ def _first_row(fh, path: str, cols: Sequence[str]):
             if pending is None:
                 dt = _datetime_column(s, cols)
                 pending = _datetime_message(path, lineno, cols, *dt) if dt else _quoted_comma_message(s, path, lineno)
-            header = frozenset([header_key(decode_line(path, raw, lineno, offset))])
+            header = header_key(decode_line(path, raw, lineno, offset))
         lineno, offset = lineno + 1, offset + len(raw)
 
 

@@ -69,7 +69,8 @@ def test_merge_keeps_every_part_as_fitted_and_replay_applies_all_three(parts, ca
 
 def test_conflicts_and_duplicates_are_refused_in_one_line(parts, tmp_path, capsys):
     """Breakage it catches: a merge that silently takes one of two boards, or one of two
-    copies of a part (which one would be an accident)."""
+    copies of a part (which one would be an accident); one file named twice said as that
+    (broken once: the given-twice check removed, "the accel part is also in" instead: fails)."""
     d, rec = parts
     other = str(tmp_path / "o.csv")
     assert main(["simulate", "-o", other, "--board", "mpu6050", "--poses", "12", "--hold", "3", "--seed", "3"]) == 0

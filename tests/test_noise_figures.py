@@ -191,7 +191,9 @@ def test_a_board_that_moved_is_said_and_the_guides_still_board_is_still(tmp_path
     two 2-s bumps of 0.3 g is said to have moved, twice, naming when.  Measured beside it:
     no warning on 21 emulated still recordings (3 boards x 7 seeds) nor on the real ones
     left still (sunsided's four, the FreeIMU warm-up); the old tour's 8 lifts in 120 s all
-    named.  Broken once (the tour's move back put in again): fails (a warning, and figures)."""
+    named.  Broken once (the tour's move back put in again): fails (a warning, and figures);
+    and once each for a cold review's mends below (the no-still-stretch line dropped, the
+    leading move not looked for, --rate-hz passed to the ignored-options warning): fails."""
     from imucald.files.recording import read_recording
     still, moved = tmp_path / "still.csv", tmp_path / "moved.csv"
     assert main(["record", "-o", str(still), "--board", "mpu6050", "--emulate", "--poses", "1",

@@ -409,7 +409,8 @@ def test_a_calibration_file_root_copies_in_is_loaded(sysc):
     restart.  The file is root's, the service a DynamicUser: it was set aside as "corrupt"
     (owned by another uid; a newcomer's walk read the step and found no way to own it).  A
     file `calibrate -o` made in the container, copied in by root, is loaded after the
-    restart."""
+    restart.  Seen failing with b5a5a3c's tree installed (IMUCALD_SYSTEST_SOURCE): "is owned
+    by uid 0, not by imucald's user (uid 63313) ...; set aside", not loaded within 30 s."""
     with sysc.explain("imucald.service"):
         sysc.sh("imucald simulate -o /root/s.csv --board mpu6050 --poses 12 --hold 3 --seed 3 && "
                 "imucald calibrate /root/s.csv -o /root/cal.yaml", timeout=120)
